@@ -1,0 +1,73 @@
+"""The ``edofproj`` command.
+
+Subcommands live in :mod:`edofproj.commands`, one module each, discovered automatically:
+each module defines ``register(subparsers)`` that adds its parser and sets ``func``.
+
+Every user error ends with one line ``edofproj: error: ...`` on stderr and exit code 2
+(no traceback; set ``EDOFPROJ_DEBUG=1`` to see one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import pkgutil
+import sys
+import warnings
+
+from . import __version__
+from .errors import EdofprojError
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with one-line errors."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        self.exit(2, f"edofproj: error: {message} (see '{self.prog} --help')\n")
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    return f"edofproj: warning: {message}\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="edofproj", description="Extended-depth-of-field projectors with learned diffractive optics.")
+    parser.add_argument("--version", action="version", version=f"edofproj {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
+    sub.required = True
+    from . import commands
+
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        module.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    warnings.formatwarning = _one_line_warning
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    debug = bool(os.environ.get("EDOFPROJ_DEBUG"))
+    try:
+        result = args.func(args)
+        return int(result or 0)
+    except EdofprojError as exc:
+        if debug:
+            raise
+        print(f"edofproj: error: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+        if debug:
+            raise
+        print(f"edofproj: error: {exc.strerror or exc}: '{exc.filename}'", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("edofproj: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,51 @@
+"""Option helpers shared by the subcommands."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from ..config import Config, load_config
+from ..errors import EdofprojError
+
+
+def add_config_options(parser: argparse.ArgumentParser) -> None:
+    """``--config FILE|PRESET`` and repeatable ``--set section.key=value``."""
+    parser.add_argument("--config", default=None, help="YAML config file or preset name (cpu, paper)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config key, e.g. --set train.steps=100 (repeatable)")
+
+
+def config_from_args(args: argparse.Namespace, extra_overrides=()) -> Config:
+    return load_config(args.config, list(extra_overrides) + list(getattr(args, "overrides", []) or []))
+
+
+def parse_number_list(text: str, what: str) -> list[float]:
+    """``"300,350,400"`` or a range ``"300:800:50"`` (start:stop:step, stop included)."""
+    values: list[float] = []
+    for part in str(text).split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if ":" in part:
+                pieces = [float(p) for p in part.split(":")]
+                if len(pieces) != 3 or pieces[2] <= 0:
+                    raise ValueError
+                start, stop, step = pieces
+                n = int(np.floor((stop - start) / step + 1e-9)) + 1
+                values += list(start + step * np.arange(max(n, 0)))
+            else:
+                values.append(float(part))
+        except ValueError:
+            raise EdofprojError(f"{what} '{text}' must be numbers separated by commas, or start:stop:step") from None
+    if not values:
+        raise EdofprojError(f"{what} is empty")
+    if not all(np.isfinite(values)):
+        raise EdofprojError(f"{what} '{text}' must be finite numbers")
+    return values
+
+
+def parse_name_list(text: str) -> list[str]:
+    return [p.strip() for p in str(text).split(",") if p.strip()]

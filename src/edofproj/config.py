@@ -1,0 +1,456 @@
+"""Typed configuration: dataclasses loaded from YAML, validated with clear messages.
+
+A config file mirrors :class:`Config`: one mapping per section (``optics``, ``spectrum``,
+``doe``, ``psf``, ``imaging``, ``net``, ``loss``, ``data``, ``train``, ``evaluation``,
+``fabrication``). Keys that do not exist raise :class:`~edofproj.errors.ConfigError` with a
+"did you mean" suggestion; values are type-checked and range-checked by each section's
+``validate``. Command-line ``--set section.key=value`` overrides are applied on top.
+
+Units: user-facing lengths are in mm or nm and say so in their names; the code converts
+to SI (metres) at the boundary (see :mod:`edofproj.optics.geometry`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+from .errors import ConfigError
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass
+class OpticsConfig:
+    """Projector geometry (paper Sec. 3.1, 5.1).
+
+    ``throw_ratio`` = projection distance / image width (not given by the paper; 1.5 is
+    our documented default). Screen pixel pitch: ``q(z) = z / (throw_ratio * width_px)``.
+    """
+
+    aperture_mm: float = 7.0
+    focus_mm: float = 500.0
+    throw_ratio: float = 1.5
+    width_px: int = 800
+    height_px: int = 600
+
+    def validate(self) -> None:
+        _positive(self, "aperture_mm", "optics.aperture_mm")
+        _positive(self, "focus_mm", "optics.focus_mm")
+        _positive(self, "throw_ratio", "optics.throw_ratio")
+        _positive(self, "width_px", "optics.width_px")
+        _positive(self, "height_px", "optics.height_px")
+        if self.aperture_mm >= self.focus_mm:
+            raise ConfigError(
+                f"optics.aperture_mm={self.aperture_mm} must be much smaller than optics.focus_mm="
+                f"{self.focus_mm} (paraxial model)"
+            )
+
+
+@dataclass
+class SpectrumConfig:
+    """Wavelength sampling and the RGB primaries' spectral power distributions.
+
+    Default SPDs are an *assumption*: three LED-like Gaussian peaks (``peaks_nm`` with
+    full widths at half maximum ``fwhm_nm``). Measured SPDs can be given as a CSV with
+    columns ``wavelength_nm,r,g,b`` (``spd_csv``); they are interpolated onto the samples.
+    """
+
+    wavelength_min_nm: float = 400.0
+    wavelength_max_nm: float = 700.0
+    wavelength_step_nm: float = 30.0
+    peaks_nm: list = field(default_factory=lambda: [620.0, 530.0, 460.0])
+    fwhm_nm: list = field(default_factory=lambda: [20.0, 35.0, 25.0])
+    spd_csv: Optional[str] = None
+
+    def validate(self) -> None:
+        for name in ("wavelength_min_nm", "wavelength_max_nm"):
+            value = getattr(self, name)
+            if not (350.0 <= value <= 1000.0):
+                raise ConfigError(f"spectrum.{name}={value} is outside the allowed 350-1000 nm")
+        if self.wavelength_max_nm < self.wavelength_min_nm:
+            raise ConfigError("spectrum.wavelength_max_nm must be >= spectrum.wavelength_min_nm")
+        _positive(self, "wavelength_step_nm", "spectrum.wavelength_step_nm")
+        if len(self.peaks_nm) != 3 or len(self.fwhm_nm) != 3:
+            raise ConfigError("spectrum.peaks_nm and spectrum.fwhm_nm need three values (R, G, B)")
+        if any(not (350.0 <= p <= 1000.0) for p in self.peaks_nm):
+            raise ConfigError(f"spectrum.peaks_nm={self.peaks_nm}: each must be in 350-1000 nm")
+        if any(w <= 0 for w in self.fwhm_nm):
+            raise ConfigError(f"spectrum.fwhm_nm={self.fwhm_nm}: each must be > 0")
+
+
+DOE_KINDS = ("lens", "mlp", "free", "cubic", "axicon", "multifocal", "file")
+
+
+@dataclass
+class DOEConfig:
+    """The diffractive optical element placed right after the projector lens.
+
+    ``kind``: ``lens`` (no DOE), ``mlp`` (the paper's radial MLP over a positional encoding
+    of the radius), ``free`` (one height per ring), ``cubic`` (2-D cubic phase plate),
+    ``axicon``, ``multifocal`` (equal-area zones focused at ``multifocal_foci_mm``), or
+    ``file`` (a saved design, ``path``). Heights are wrapped to one 2pi wave at
+    ``design_wavelength_nm`` and quantized to ``levels`` levels (straight-through estimator
+    during training).
+    """
+
+    kind: str = "mlp"
+    path: Optional[str] = None
+    levels: int = 16
+    quantize: bool = True
+    design_wavelength_nm: float = 550.0
+    material: str = "fused_silica"
+    mlp_frequencies: int = 9
+    mlp_hidden: int = 64
+    mlp_layers: int = 3
+    cubic_waves: float = 20.0
+    axicon_focus_mm: float = 300.0
+    multifocal_foci_mm: list = field(default_factory=lambda: [350.0, 500.0, 700.0])
+    min_feature_um: float = 0.0
+
+    def validate(self) -> None:
+        if self.kind not in DOE_KINDS:
+            raise ConfigError(_unknown_choice("doe.kind", self.kind, DOE_KINDS))
+        if self.kind == "file" and not self.path:
+            raise ConfigError("doe.kind=file needs doe.path (a saved DOE .npz or a run directory)")
+        if self.levels < 2:
+            raise ConfigError(f"doe.levels={self.levels} must be >= 2")
+        if not (350.0 <= self.design_wavelength_nm <= 1000.0):
+            raise ConfigError(
+                f"doe.design_wavelength_nm={self.design_wavelength_nm} is outside 350-1000 nm"
+            )
+        if self.mlp_frequencies < 0 or self.mlp_hidden < 1 or self.mlp_layers < 1:
+            raise ConfigError("doe.mlp_frequencies must be >= 0, doe.mlp_hidden and doe.mlp_layers >= 1")
+        if self.axicon_focus_mm <= 0:
+            raise ConfigError("doe.axicon_focus_mm must be > 0")
+        if not self.multifocal_foci_mm or any(f <= 0 for f in self.multifocal_foci_mm):
+            raise ConfigError("doe.multifocal_foci_mm needs one or more positive distances")
+        if self.min_feature_um < 0:
+            raise ConfigError("doe.min_feature_um must be >= 0")
+
+
+@dataclass
+class PSFConfig:
+    """PSF simulation: engine, window, pupil sampling, depth range.
+
+    ``pupil_samples`` counts samples across the aperture diameter (the paper: 2048); the
+    radial engine uses ``pupil_samples // 2`` rings, the 2-D engine a square grid.
+    """
+
+    engine: str = "radial"
+    window: int = 33
+    pupil_samples: int = 1024
+    depth_min_mm: float = 300.0
+    depth_max_mm: float = 800.0
+    precision: str = "float64"
+
+    def validate(self) -> None:
+        if self.engine not in ("radial", "2d"):
+            raise ConfigError(_unknown_choice("psf.engine", self.engine, ("radial", "2d")))
+        if self.window < 3 or self.window % 2 == 0:
+            raise ConfigError(f"psf.window={self.window} must be odd and >= 3")
+        if self.pupil_samples < 16:
+            raise ConfigError(f"psf.pupil_samples={self.pupil_samples} must be >= 16")
+        _positive(self, "depth_min_mm", "psf.depth_min_mm")
+        if self.depth_max_mm < self.depth_min_mm:
+            raise ConfigError("psf.depth_max_mm must be >= psf.depth_min_mm")
+        if self.precision not in ("float32", "float64"):
+            raise ConfigError(_unknown_choice("psf.precision", self.precision, ("float32", "float64")))
+
+
+@dataclass
+class ImagingConfig:
+    """Image formation: depth layers for non-planar screens."""
+
+    depth_layers: int = 8
+
+    def validate(self) -> None:
+        if self.depth_layers < 1:
+            raise ConfigError("imaging.depth_layers must be >= 1")
+
+
+@dataclass
+class NetConfig:
+    """Compensation U-Net (paper Fig. 5). ``widths``: channels per scale (7 scales)."""
+
+    widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
+    leaky_slope: float = 0.2
+
+    def validate(self) -> None:
+        if len(self.widths) < 2 or any(int(w) < 1 for w in self.widths):
+            raise ConfigError("net.widths needs at least two positive channel counts")
+
+
+@dataclass
+class LossConfig:
+    """Loss ``alpha * MSE + beta * perceptual`` (paper Eq. 12)."""
+
+    alpha: float = 1.0
+    beta: float = 0.05
+    perceptual: str = "ms-ssim"
+    weights_dir: Optional[str] = None
+
+    def validate(self) -> None:
+        choices = ("dists", "ms-ssim", "ssim", "none")
+        if self.perceptual not in choices:
+            raise ConfigError(_unknown_choice("loss.perceptual", self.perceptual, choices))
+        if self.alpha < 0 or self.beta < 0:
+            raise ConfigError("loss.alpha and loss.beta must be >= 0")
+
+
+@dataclass
+class DataConfig:
+    """Training images: ``builtin`` photographs, ``dead-leaves``, or an image ``folder``."""
+
+    source: str = "builtin"
+    folder: Optional[str] = None
+    crop: int = 128
+    test_fraction: float = 0.3
+
+    def validate(self) -> None:
+        choices = ("builtin", "dead-leaves", "folder")
+        if self.source not in choices:
+            raise ConfigError(_unknown_choice("data.source", self.source, choices))
+        if self.source == "folder" and not self.folder:
+            raise ConfigError("data.source=folder needs data.folder")
+        if self.crop < 16:
+            raise ConfigError(f"data.crop={self.crop} must be >= 16")
+        if not (0.0 < self.test_fraction < 1.0):
+            raise ConfigError("data.test_fraction must be in (0, 1)")
+
+
+@dataclass
+class TrainConfig:
+    """Joint training of DOE and compensation network (paper Sec. 4.1)."""
+
+    steps: int = 400
+    batch_size: int = 4
+    lr_optics: float = 1e-3
+    lr_net: float = 1e-3
+    lr_final_fraction: float = 0.99 ** 150
+    grad_clip: float = 1.0
+    seed: int = 0
+    checkpoint_every: int = 50
+    train_doe: bool = True
+    train_net: bool = True
+    noise_sigma: float = 0.0
+    quantize_capture: bool = False
+    threads: int = 0
+
+    def validate(self) -> None:
+        if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1:
+            raise ConfigError("train.steps, train.batch_size and train.checkpoint_every must be >= 1")
+        if self.lr_optics < 0 or self.lr_net < 0:
+            raise ConfigError("train.lr_optics and train.lr_net must be >= 0")
+        if not (0.0 < self.lr_final_fraction <= 1.0):
+            raise ConfigError("train.lr_final_fraction must be in (0, 1]")
+        if self.noise_sigma < 0:
+            raise ConfigError("train.noise_sigma must be >= 0")
+
+
+@dataclass
+class EvaluationConfig:
+    """Depth sweep and methods for ``edofproj evaluate``."""
+
+    depths_mm: list = field(
+        default_factory=lambda: [250.0, 300.0, 350.0, 400.0, 450.0, 500.0, 550.0, 600.0,
+                                 650.0, 700.0, 750.0, 800.0, 900.0]
+    )
+    tilt_deg: float = 50.0
+
+    def validate(self) -> None:
+        if not self.depths_mm or any(d <= 0 for d in self.depths_mm):
+            raise ConfigError("evaluation.depths_mm needs one or more positive depths")
+
+
+@dataclass
+class FabricationConfig:
+    """Lithography: critical dimension of the process."""
+
+    critical_dimension_um: float = 1.0
+
+    def validate(self) -> None:
+        if self.critical_dimension_um <= 0:
+            raise ConfigError(
+                f"fabrication.critical_dimension_um={self.critical_dimension_um} must be > 0"
+            )
+
+
+@dataclass
+class Config:
+    """The whole configuration of a run."""
+
+    name: str = "run"
+    optics: OpticsConfig = field(default_factory=OpticsConfig)
+    spectrum: SpectrumConfig = field(default_factory=SpectrumConfig)
+    doe: DOEConfig = field(default_factory=DOEConfig)
+    psf: PSFConfig = field(default_factory=PSFConfig)
+    imaging: ImagingConfig = field(default_factory=ImagingConfig)
+    net: NetConfig = field(default_factory=NetConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    fabrication: FabricationConfig = field(default_factory=FabricationConfig)
+
+    def validate(self) -> "Config":
+        for f in dataclasses.fields(self):
+            section = getattr(self, f.name)
+            if hasattr(section, "validate"):
+                section.validate()
+        return self
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _positive(obj: Any, attr: str, label: str) -> None:
+    value = getattr(obj, attr)
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{label}={value} must be a positive number")
+
+
+def _unknown_choice(label: str, value: Any, choices: typing.Iterable[str]) -> str:
+    choices = list(choices)
+    hint = difflib.get_close_matches(str(value), choices, n=1)
+    did_you_mean = f" (did you mean '{hint[0]}'?)" if hint else ""
+    return f"{label}={value!r} is not one of {', '.join(choices)}{did_you_mean}"
+
+
+def _coerce(value: Any, annotation: Any, label: str) -> Any:
+    """Convert a YAML value to the annotated type, or raise a ConfigError."""
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(value, inner[0], label)
+    if dataclasses.is_dataclass(annotation):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{label} must be a mapping of keys, got {value!r}")
+        return from_dict(annotation, value, prefix=label + ".")
+    if annotation is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{label}={value!r} must be true or false")
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or float(value) != int(value):
+            raise ConfigError(f"{label}={value!r} must be an integer")
+        return int(value)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{label}={value!r} must be a number")
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{label}={value!r} must be finite")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{label}={value!r} must be a string")
+        return value
+    if annotation is list or origin is list:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value]
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{label}={value!r} must be a list")
+        return list(value)
+    return value
+
+
+def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
+    """Build dataclass ``cls`` from a mapping; unknown keys raise with a suggestion."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{prefix.rstrip('.') or 'config'} must be a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    kwargs = {}
+    for key, value in data.items():
+        if key not in names:
+            hint = difflib.get_close_matches(str(key), names, n=1)
+            did_you_mean = f"; did you mean '{prefix}{hint[0]}'?" if hint else ""
+            raise ConfigError(
+                f"unknown config key '{prefix}{key}'{did_you_mean} (known: {', '.join(names)})"
+            )
+        kwargs[key] = _coerce(value, hints[key], prefix + key)
+    return cls(**kwargs)
+
+
+def to_dict(cfg: Any) -> dict:
+    """A plain mapping of a config (for YAML)."""
+    return dataclasses.asdict(cfg)
+
+
+def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
+    """Apply ``section.key=value`` strings (values parsed as YAML) to a config."""
+    data = to_dict(cfg)
+    for item in overrides or ():
+        if "=" not in item:
+            raise ConfigError(f"override '{item}' must look like section.key=value")
+        dotted, raw = item.split("=", 1)
+        keys = dotted.strip().split(".")
+        node = data
+        for depth, key in enumerate(keys[:-1]):
+            if not isinstance(node, dict) or key not in node:
+                known = list(node) if isinstance(node, dict) else []
+                hint = difflib.get_close_matches(key, known, n=1)
+                did_you_mean = f"; did you mean '{hint[0]}'?" if hint else ""
+                raise ConfigError(f"unknown config key '{'.'.join(keys[:depth + 1])}'{did_you_mean}")
+            node = node[key]
+        if not isinstance(node, dict) or keys[-1] not in node:
+            known = list(node) if isinstance(node, dict) else []
+            hint = difflib.get_close_matches(keys[-1], known, n=1)
+            did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
+            raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
+        try:
+            node[keys[-1]] = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            node[keys[-1]] = raw
+    return from_dict(Config, data).validate()
+
+
+PRESET_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+def resolve_config_path(name_or_path: str) -> Path:
+    """A config file path, or the name of a preset in ``configs/`` (``cpu``, ``paper``)."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    preset = PRESET_DIR / f"{name_or_path}.yaml"
+    if preset.is_file():
+        return preset
+    presets = sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
+    raise ConfigError(
+        f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})"
+    )
+
+
+def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -> Config:
+    """Load a YAML config (or the defaults when ``path`` is None) and apply overrides."""
+    if path is None:
+        cfg = Config()
+    else:
+        file = resolve_config_path(path)
+        try:
+            data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot read config '{file}': {exc}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
+        cfg = from_dict(Config, data)
+    return apply_overrides(cfg, overrides)
+
+
+def dump_config(cfg: Config) -> str:
+    """The config as YAML text."""
+    return yaml.safe_dump(to_dict(cfg), sort_keys=False)

@@ -1,0 +1,78 @@
+"""The DOE interface used by the propagation engines.
+
+A DOE is a ``torch.nn.Module`` that gives its fabricated (wrapped, optionally quantized)
+height in metres:
+
+* radially symmetric designs implement :meth:`RadialDOE.raw_height_m` of the radius and
+  are simulated by the fast radial engine or the 2-D engine;
+* general designs implement :meth:`DOE.raw_height_map_m` of (x, y) and need the 2-D engine.
+
+The phase added at wavelength lambda is ``2 pi (n(lambda) - 1) h / lambda``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..optics.materials import height_2pi_m, refractive_index
+from .quantization import wrap_and_quantize
+
+
+class DOE(nn.Module):
+    """Base class: a thin phase element of a given material, wrapped at the design wavelength."""
+
+    radially_symmetric = False
+    name = "doe"
+
+    def __init__(self, aperture_radius_m: float, design_wavelength_m: float = 550e-9,
+                 levels: int | None = 16, material: str = "fused_silica"):
+        super().__init__()
+        self.aperture_radius_m = float(aperture_radius_m)
+        self.design_wavelength_m = float(design_wavelength_m)
+        self.levels = int(levels) if levels else None
+        self.material = material
+        self.h2pi_m = height_2pi_m(self.design_wavelength_m, material)
+        self.quantize = self.levels is not None
+
+    # -- what subclasses implement -------------------------------------------------
+    def raw_height_map_m(self, x_m: torch.Tensor, y_m: torch.Tensor) -> torch.Tensor:
+        """Unwrapped height (m) at pupil coordinates; override in 2-D designs."""
+        raise NotImplementedError
+
+    # -- what engines call -----------------------------------------------------------
+    def finish(self, raw_height_m: torch.Tensor) -> torch.Tensor:
+        """Wrap to one wave and quantize (straight-through) when ``self.quantize``."""
+        return wrap_and_quantize(raw_height_m, self.h2pi_m, self.levels if self.quantize else None)
+
+    def height_map_m(self, x_m: torch.Tensor, y_m: torch.Tensor) -> torch.Tensor:
+        """Fabricated height (m) at pupil coordinates (x, y)."""
+        return self.finish(self.raw_height_map_m(x_m, y_m))
+
+    def refractive_index(self, wavelength_m):
+        return refractive_index(wavelength_m, self.material)
+
+    def check_sampling(self, ring_width_m: float) -> None:
+        """Raise :class:`~edofproj.errors.SamplingError` if pupil samples of this width
+        cannot resolve the design. The default accepts any sampling."""
+
+    def describe(self) -> str:
+        levels = f"{self.levels} levels" if self.quantize else "continuous"
+        return f"{self.name} ({levels}, lambda_d = {self.design_wavelength_m * 1e9:.0f} nm)"
+
+
+class RadialDOE(DOE):
+    """A rotationally symmetric DOE: height depends on the radius only."""
+
+    radially_symmetric = True
+
+    def raw_height_m(self, r_m: torch.Tensor) -> torch.Tensor:
+        """Unwrapped height (m) at radius ``r_m``; override in subclasses."""
+        raise NotImplementedError
+
+    def height_m(self, r_m: torch.Tensor) -> torch.Tensor:
+        """Fabricated height (m) at radius ``r_m``."""
+        return self.finish(self.raw_height_m(r_m))
+
+    def raw_height_map_m(self, x_m: torch.Tensor, y_m: torch.Tensor) -> torch.Tensor:
+        return self.raw_height_m(torch.sqrt(x_m**2 + y_m**2))

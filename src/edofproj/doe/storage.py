@@ -1,0 +1,144 @@
+"""Saving and loading DOE designs as ``.npz`` files.
+
+A radial design is stored as its fabricated profile: ring edges ``ring_edges_m`` (n+1)
+and one quantized height per ring ``height_m`` (n) with its ``level`` index. A 2-D design is
+stored as ``height_map_m`` (N, N) sampled with pitch ``pitch_m`` centred on the axis.
+Both carry ``levels``, ``design_wavelength_m``, ``material``, ``aperture_radius_m``,
+``h2pi_m`` and a ``description``. A loaded file is a :class:`TabulatedRadialDOE` or a
+:class:`TabulatedDOE2D`: the same physics, frozen.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import EdofprojError
+from ..fileio import save_npz_atomic
+from .base import DOE, RadialDOE
+from .quantization import quantize_levels
+
+FORMAT = "edofproj-doe-v1"
+
+
+class TabulatedRadialDOE(RadialDOE):
+    """A radial profile given ring by ring (piecewise constant)."""
+
+    name = "file"
+
+    def __init__(self, ring_edges_m, height_m, aperture_radius_m, design_wavelength_m, levels,
+                 material="fused_silica", description="tabulated radial DOE"):
+        super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
+        self.register_buffer("ring_edges_m", torch.as_tensor(np.asarray(ring_edges_m), dtype=torch.float64))
+        self.register_buffer("table_height_m", torch.as_tensor(np.asarray(height_m), dtype=torch.float64))
+        self.description = description
+
+    def raw_height_m(self, r_m):
+        edges = self.ring_edges_m.to(r_m.device)
+        idx = torch.clamp(torch.bucketize(r_m.to(edges.dtype), edges[1:-1], right=True), 0, len(self.table_height_m) - 1)
+        return self.table_height_m.to(r_m.device)[idx].to(r_m.dtype)
+
+    def check_sampling(self, ring_width_m):
+        from ..errors import SamplingError
+
+        finest = float(torch.min(torch.diff(self.ring_edges_m)))
+        if ring_width_m > finest * 1.0001:
+            n = int(np.ceil(2 * self.aperture_radius_m / finest))
+            raise SamplingError(
+                f"the DOE file has rings {finest * 1e6:.2f} um wide but pupil samples are "
+                f"{ring_width_m * 1e6:.2f} um apart: use pupil_samples >= {n}"
+            )
+
+    def describe(self):
+        return f"{self.description} ({len(self.table_height_m)} rings)"
+
+
+class TabulatedDOE2D(DOE):
+    """A 2-D height map sampled on a square grid (nearest-neighbour lookup)."""
+
+    name = "file"
+
+    def __init__(self, height_map_m, pitch_m, aperture_radius_m, design_wavelength_m, levels,
+                 material="fused_silica", description="tabulated 2-D DOE"):
+        super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
+        self.register_buffer("table_height_m", torch.as_tensor(np.asarray(height_map_m), dtype=torch.float64))
+        self.pitch_m = float(pitch_m)
+        self.description = description
+
+    def raw_height_map_m(self, x_m, y_m):
+        n = self.table_height_m.shape[-1]
+        ix = torch.clamp(torch.floor(x_m / self.pitch_m + n / 2).long(), 0, n - 1)
+        iy = torch.clamp(torch.floor(y_m / self.pitch_m + n / 2).long(), 0, n - 1)
+        return self.table_height_m.to(x_m.device)[iy, ix].to(x_m.dtype)
+
+    def describe(self):
+        return f"{self.description} ({self.table_height_m.shape[0]}^2 samples)"
+
+
+def save_doe(doe: DOE, path: str | Path, samples: int = 1024) -> None:
+    """Write the fabricated (wrapped, quantized) design of ``doe`` to ``path`` atomically.
+
+    Radial designs are tabulated on ``samples // 2`` equal rings (sampled at ring centres,
+    exactly what the radial engine simulates with ``pupil_samples = samples``); 2-D designs
+    on a ``samples`` x ``samples`` grid across the aperture.
+    """
+    R = doe.aperture_radius_m
+    common = dict(
+        format=np.array(FORMAT),
+        levels=np.array(doe.levels if doe.quantize else 0),
+        design_wavelength_m=np.array(doe.design_wavelength_m),
+        material=np.array(doe.material),
+        aperture_radius_m=np.array(R),
+        h2pi_m=np.array(doe.h2pi_m),
+        description=np.array(doe.describe()),
+    )
+    with torch.no_grad():
+        if doe.radially_symmetric:
+            rings = max(samples // 2, 1)
+            edges = np.linspace(0.0, R, rings + 1)
+            centres = torch.as_tensor(0.5 * (edges[1:] + edges[:-1]), dtype=torch.float64)
+            height = doe.height_m(centres).double()
+            level = quantize_levels(height, doe.h2pi_m, doe.levels) if doe.quantize else torch.zeros_like(height).long()
+            save_npz_atomic(path, kind=np.array("radial"), ring_edges_m=edges, height_m=height.cpu().numpy(),
+                            level=level.cpu().numpy().astype(np.int32), **common)
+        else:
+            pitch = 2 * R / samples
+            c = (torch.arange(samples, dtype=torch.float64) - samples / 2 + 0.5) * pitch
+            y, x = torch.meshgrid(c, c, indexing="ij")
+            height = doe.height_map_m(x, y).double()
+            save_npz_atomic(path, kind=np.array("map"), height_map_m=height.cpu().numpy(),
+                            pitch_m=np.array(pitch), **common)
+
+
+def load_doe(path: str | Path) -> DOE:
+    """Load a design written by :func:`save_doe`."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+        kind = str(data["kind"])
+        fmt = str(data["format"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise EdofprojError(f"cannot read DOE file '{path}': {exc}") from None
+    if fmt != FORMAT:
+        raise EdofprojError(f"'{path}' is not an edofproj DOE file (format {fmt!r})")
+    levels = int(data["levels"]) or None
+    common = dict(
+        aperture_radius_m=float(data["aperture_radius_m"]),
+        design_wavelength_m=float(data["design_wavelength_m"]),
+        levels=levels,
+        material=str(data["material"]),
+        description=str(data["description"]),
+    )
+    if kind == "radial":
+        height = data["height_m"]
+        if not np.all(np.isfinite(height)):
+            raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
+        return TabulatedRadialDOE(data["ring_edges_m"], height, **common)
+    if kind == "map":
+        height = data["height_map_m"]
+        if not np.all(np.isfinite(height)):
+            raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
+        return TabulatedDOE2D(height, float(data["pitch_m"]), **common)
+    raise EdofprojError(f"DOE file '{path}' has an unknown kind {kind!r}")

@@ -1,0 +1,24 @@
+"""User-facing errors.
+
+Every problem a user can fix (bad input, unreadable file, a sampling that cannot resolve
+the optics) raises :class:`EdofprojError` with a one-line message that says what is wrong
+and what is allowed. The CLI prints that line and exits with code 2, without a traceback.
+"""
+
+
+class EdofprojError(Exception):
+    """An error caused by the user's input, reported as one line by the CLI."""
+
+
+class ConfigError(EdofprojError):
+    """A configuration key or value that does not exist or is out of range."""
+
+
+class SamplingError(EdofprojError):
+    """A simulation grid that cannot resolve the optics; the message names what to change."""
+
+
+def require(condition: bool, message: str, error: type = EdofprojError) -> None:
+    """Raise ``error(message)`` unless ``condition`` holds."""
+    if not condition:
+        raise error(message)

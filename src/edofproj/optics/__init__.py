@@ -1,0 +1,1 @@
+"""Optics: projector geometry, materials, spectra, propagation engines and the PSF bank."""

@@ -1,0 +1,72 @@
+"""Projector geometry: aperture, in-focus distance and the screen pixel pitch.
+
+A projector's image grows with distance, so PSFs are expressed in projector pixels.
+With throw ratio ``T`` (distance / image width) and image width ``W`` pixels, the pitch of
+one projector pixel on a screen at depth ``z`` is
+
+    q(z) = z / (T * W).
+
+In pixel units the Fresnel/Hankel kernel ``J0(2 pi r rho / (lambda z))`` becomes
+``J0(2 pi r rho_px / (lambda T W))``, independent of ``z``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import EdofprojError
+
+
+@dataclass(frozen=True)
+class ProjectorGeometry:
+    """Paraxial projector optics in SI units (metres)."""
+
+    aperture_diameter_m: float = 7e-3
+    focus_distance_m: float = 0.5
+    throw_ratio: float = 1.5
+    width_px: int = 800
+    height_px: int = 600
+
+    def __post_init__(self) -> None:
+        for name in ("aperture_diameter_m", "focus_distance_m", "throw_ratio"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise EdofprojError(f"{name}={value} must be a positive number")
+        if self.width_px < 1 or self.height_px < 1:
+            raise EdofprojError("width_px and height_px must be >= 1")
+
+    @classmethod
+    def from_config(cls, optics) -> "ProjectorGeometry":
+        """From an :class:`~edofproj.config.OpticsConfig` (mm -> m)."""
+        return cls(
+            aperture_diameter_m=optics.aperture_mm * 1e-3,
+            focus_distance_m=optics.focus_mm * 1e-3,
+            throw_ratio=optics.throw_ratio,
+            width_px=int(optics.width_px),
+            height_px=int(optics.height_px),
+        )
+
+    @property
+    def aperture_radius_m(self) -> float:
+        return self.aperture_diameter_m / 2
+
+    @property
+    def throw_width_m(self) -> float:
+        """``T * W``: the screen distance per metre of pixel pitch, q(z) = z / (T W)."""
+        return self.throw_ratio * self.width_px
+
+    def pixel_pitch_m(self, depth_m):
+        """Projector pixel pitch on a screen at ``depth_m``: q(z) = z / (T W)."""
+        return np.asarray(depth_m, dtype=float) / self.throw_width_m
+
+    def blur_diameter_px(self, depth_m):
+        """Geometric defocus blur disk ``D |1 - z/v|`` in projector pixels at ``depth_m``."""
+        z = np.asarray(depth_m, dtype=float)
+        return self.aperture_diameter_m * np.abs(1.0 - z / self.focus_distance_m) / self.pixel_pitch_m(z)
+
+    def airy_first_zero_px(self, wavelength_m: float) -> float:
+        """First dark ring of the in-focus Airy pattern, 1.22 lambda z / D, in pixels."""
+        return 1.22 * wavelength_m * self.throw_width_m / self.aperture_diameter_m

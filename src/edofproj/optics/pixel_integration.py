@@ -1,0 +1,111 @@
+"""Exact pixel-area integration of a radially symmetric intensity.
+
+A PSF pixel holds the energy that falls on its square, not the intensity at its centre:
+near focus the diffraction spot is far smaller than a pixel. For a radial intensity I(rho)
+tabulated on annuli [e_k, e_{k+1}) (constant on each annulus), the energy on pixel p is
+
+    E_p = sum_k I_k * ( A_p(e_{k+1}) - A_p(e_k) ),
+
+where A_p(rho) is the area of the disk of radius rho (centred on the optical axis)
+intersected with the pixel square. A_p has a closed form, built from the area of the disk
+inside the corner region [0, X] x [0, Y]:
+
+    g(X, Y) = Y * min(X, x*) + S(X) - S(min(X, x*)),   x* = sqrt(rho^2 - Y^2),
+    S(x) = (x sqrt(rho^2 - x^2) + rho^2 asin(x / rho)) / 2,
+
+with X, Y clipped to rho, extended to signed corners and combined by inclusion-exclusion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _corner_area(X: np.ndarray, Y: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Signed area of {x^2 + y^2 <= rho^2} within the rectangle between (0, 0) and (X, Y)."""
+    sign = np.sign(X) * np.sign(Y)
+    X = np.minimum(np.abs(X), rho)
+    Y = np.minimum(np.abs(Y), rho)
+    rho_safe = np.where(rho > 0, rho, 1.0)
+
+    def S(x):
+        return 0.5 * (x * np.sqrt(np.maximum(rho**2 - x**2, 0.0)) + rho**2 * np.arcsin(np.clip(x / rho_safe, -1, 1)))
+
+    x_star = np.sqrt(np.maximum(rho**2 - Y**2, 0.0))
+    xm = np.minimum(X, x_star)
+    area = Y * xm + S(X) - S(xm)
+    return sign * np.where(rho > 0, area, 0.0)
+
+
+def disk_rectangle_area(rho, x0, x1, y0, y1) -> np.ndarray:
+    """Area of the disk of radius ``rho`` (centred at the origin) inside [x0,x1] x [y0,y1].
+
+    Broadcasts over all arguments.
+    """
+    rho = np.asarray(rho, dtype=float)
+    return (
+        _corner_area(x1, y1, rho) - _corner_area(x0, y1, rho)
+        - _corner_area(x1, y0, rho) + _corner_area(x0, y0, rho)
+    )
+
+
+def octant_pixels(window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unique pixels of a radially symmetric K x K window and the map back to K x K.
+
+    Returns ``offsets`` (n_unique, 2) with a >= b >= 0 (pixel offsets from the centre) and
+    ``index`` (K, K) giving for each window pixel the row of its unique representative.
+    """
+    c = window // 2
+    offsets = np.array([(a, b) for a in range(c + 1) for b in range(a + 1)], dtype=int)
+    lookup = {(int(a), int(b)): i for i, (a, b) in enumerate(offsets)}
+    d = np.abs(np.arange(window) - c)
+    index = np.empty((window, window), dtype=np.int64)
+    for i in range(window):
+        for j in range(window):
+            index[i, j] = lookup[(max(d[i], d[j]), min(d[i], d[j]))]
+    return offsets, index
+
+
+def hat_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights ``W`` (n_unique_pixels, n_rho) with ``E_p = sum_k W[p, k] I(rho_k)`` for an
+    intensity ``I`` that is piecewise linear between the samples ``rho_px`` (increasing, from 0).
+
+    With hat functions h_k, ``W[p, k] = int h_k(rho) dA_p(rho)``; on an interval [a, b]
+    integration by parts gives ``Abar - A_p(a)`` to the left hat and ``A_p(b) - Abar`` to the
+    right one, where ``Abar`` is the mean of A_p on [a, b] (Simpson's rule; A_p is smooth).
+    Only intervals that cross the pixel's radial span are evaluated.
+    """
+    offsets, index = octant_pixels(window)
+    rho = np.asarray(rho_px, dtype=float)
+    a_edge, b_edge = rho[:-1], rho[1:]
+    weights = np.zeros((len(offsets), len(rho)))
+    for p, (ia, ib) in enumerate(offsets):
+        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
+        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
+        far = np.hypot(x1, y1)
+        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
+        if sel.size == 0:
+            continue
+        a, b = a_edge[sel], b_edge[sel]
+        area_a = disk_rectangle_area(a, x0, x1, y0, y1)
+        area_b = disk_rectangle_area(b, x0, x1, y0, y1)
+        area_m = disk_rectangle_area(0.5 * (a + b), x0, x1, y0, y1)
+        mean = (area_a + 4 * area_m + area_b) / 6
+        np.add.at(weights[p], sel, mean - area_a)
+        np.add.at(weights[p], sel + 1, area_b - mean)
+    return weights, index
+
+
+def annulus_pixel_weights(annulus_edges_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights ``W`` (n_unique_pixels, n_annuli) with ``E_p = sum_k W[p, k] I_k``.
+
+    ``annulus_edges_px``: (n_annuli + 1,) increasing radii in pixel units, starting at 0.
+    ``I_k`` is intensity per pixel area on annulus k. Returns ``(W, index)`` where ``index``
+    maps the K x K window to the unique pixels (see :func:`octant_pixels`).
+    """
+    offsets, index = octant_pixels(window)
+    a = offsets[:, 0:1].astype(float)
+    b = offsets[:, 1:2].astype(float)
+    rho = np.asarray(annulus_edges_px, dtype=float)[None, :]
+    area = disk_rectangle_area(rho, a - 0.5, a + 0.5, b - 0.5, b + 0.5)
+    return np.diff(area, axis=1), index

@@ -1,0 +1,249 @@
+"""The radial propagation engine: PSFs of rotationally symmetric pupils by a Hankel transform.
+
+Field just after lens + DOE (on-axis pixel, paraxial), Fresnel-propagated to a screen at z:
+
+    U_z(rho) = (2 pi / (lambda z)) * int_0^R g(r) J0(2 pi r rho / (lambda z)) r dr,
+    g(r)     = exp(i 2 pi (n - 1) h(r) / lambda) * exp(i pi r^2 (1/z - 1/v) / lambda).
+
+In projector pixels (rho = rho_px q(z), q(z) = z / (T W)) the kernel argument is
+2 pi r rho_px / (lambda T W): independent of z. The pupil is split into N rings of equal
+width on which g is taken constant (its value at the ring centre); each ring integral is
+exact,
+
+    int_{r_a}^{r_b} J0(2 pi f r) r dr = [r J1(2 pi f r) / (2 pi f)]_{r_a}^{r_b},   f = rho_px / (lambda T W),
+
+so the field is one matrix product per wavelength, ``G = K_lambda g``, with ``K_lambda``
+built once and cached. The defocus phase alpha r^2 (alpha = pi (1/z - 1/v) / lambda) varies
+inside a ring; it is expanded about the ring centre r_m to second order,
+
+    exp(i alpha r^2) ~ exp(i alpha r_m^2) (1 + i alpha s - alpha^2 s^2 / 2),   s = r^2 - r_m^2,
+
+with the ring moments int s^n J0(2 pi f r) r dr (n = 0, 1, 2) also in closed form:
+int x^3 J0 = x^3 J1 - 2 x^2 J2 and int x^5 J0 = x^5 J1 - 4 x^4 J2 + 8 x^3 J3. The kernels
+stay independent of z, and the residual error is O((alpha r dr)^3) per ring instead of the
+O((alpha r dr)^2) energy leak of a flat-phase ring. With the normalization folded into ``K``,
+
+    I(rho_px) = |G|^2 / ((lambda T W)^2 pi R^2)
+
+is the fraction of the pupil energy per square pixel (Parseval: int I dA = 1 over the
+whole plane). Pixel-area integration over annuli is exact (:mod:`.pixel_integration`).
+
+Sampling: the intensity of a pupil of diameter D oscillates with period >= lambda T W / D
+pixels; the radial output grid is several times finer than that (finer still near the
+axis, where the in-focus Airy core is a fraction of a pixel). The pupil rings must resolve
+the defocus phase: its step per ring, 2 pi R dr |1/z - 1/v| / lambda, must stay below
+``MAX_DEFOCUS_STEP_RAD``, else :class:`~edofproj.errors.SamplingError` names the
+``pupil_samples`` needed.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import torch
+from scipy.special import j0, j1
+
+from ..errors import EdofprojError, SamplingError
+from .geometry import ProjectorGeometry
+from .pixel_integration import hat_pixel_weights
+
+MAX_DEFOCUS_STEP_RAD = math.pi / 2
+
+
+def check_window(window: int) -> int:
+    """A PSF window must be odd (the axis at the centre pixel) and at least 3."""
+    if int(window) != window or window < 3 or window % 2 == 0:
+        raise EdofprojError(f"window={window} must be an odd integer >= 3 (the optical axis sits on the centre pixel)")
+    return int(window)
+
+
+def check_depths(depths_m) -> np.ndarray:
+    z = np.atleast_1d(np.asarray(depths_m, dtype=float))
+    if z.size == 0 or np.any(~np.isfinite(z)) or np.any(z <= 0):
+        raise EdofprojError(f"depths must be positive and finite, got {z.tolist()} m")
+    return z
+
+
+def check_defocus_sampling(geometry: ProjectorGeometry, wavelengths_m, depths_m, pupil_samples: int) -> None:
+    """Refuse when the pupil samples cannot resolve the defocus phase (names the fix)."""
+    dr = geometry.aperture_diameter_m / pupil_samples
+    worst = np.max(np.abs(1.0 / np.asarray(depths_m) - 1.0 / geometry.focus_distance_m))
+    step = 2 * math.pi * geometry.aperture_radius_m * dr * worst / float(np.min(wavelengths_m))
+    if step > MAX_DEFOCUS_STEP_RAD:
+        need = int(math.ceil(pupil_samples * step / MAX_DEFOCUS_STEP_RAD))
+        need += need % 2
+        raise SamplingError(
+            f"pupil_samples={pupil_samples} cannot resolve the defocus phase at "
+            f"{float(np.min(depths_m)) * 1e3:.0f}-{float(np.max(depths_m)) * 1e3:.0f} mm "
+            f"({step:.2f} rad per sample, max {MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need}"
+        )
+
+
+def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: int) -> None:
+    blur = geometry.blur_diameter_px(depths_m)
+    worst = int(np.argmax(blur))
+    if blur[worst] > window:
+        warnings.warn(
+            f"the geometric blur disk ({blur[worst]:.1f} px at {depths_m[worst] * 1e3:.0f} mm) is wider than "
+            f"the {window}-px window: the light outside is counted as haze; increase the window to keep it",
+            stacklevel=3,
+        )
+
+
+def bessel_j123(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """J1, J2, J3 of x >= 0: scipy's fast J0/J1, upward recurrence J_{n+1} = (2n/x) J_n - J_{n-1}
+    where it is stable (x > 2), and the power series below (12 terms, < 1e-16 there)."""
+    x = np.asarray(x, dtype=float)
+    b0, b1 = j0(x), j1(x)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b2 = 2.0 / x * b1 - b0
+        b3 = 4.0 / x * b2 - b1
+    small = x <= 2.0
+    if np.any(small):
+        xs = x[small]
+        for order, out in ((2, b2), (3, b3)):
+            term = (xs / 2) ** order / math.factorial(order)
+            total = term.copy()
+            for k in range(1, 12):
+                term = term * (-(xs / 2) ** 2) / (k * (k + order))
+                total += term
+            out[small] = total
+    return b1, b2, b3
+
+
+def normalized_radius_grid(nu_max: float, fine_until: float, fine_step: float = 1 / 64,
+                           coarse_step: float = 1 / 4) -> np.ndarray:
+    """Sample radii in diffraction units nu = rho_px D / (lambda T W) (the first Airy zero is
+    at nu = 1.22; the intensity oscillates with period >= 1 in nu): 1/64 up to ``fine_until``
+    (the centre pixel, where the in-focus core sits), 1/4 beyond; from 0 to at least ``nu_max``.
+
+    Measured against the closed-form Airy pattern integrated over the centre pixel
+    (D = 7 mm, 550 nm, T W = 1200): error 1.0e-4 of the pupil energy (1/32: 4.0e-4)."""
+    near = np.arange(0.0, min(fine_until, nu_max) + fine_step / 2, fine_step)
+    far = np.arange(near[-1] + coarse_step, nu_max + coarse_step, coarse_step) if nu_max > near[-1] else np.empty(0)
+    return np.concatenate([near, far])
+
+
+class RadialPSFEngine:
+    """Monochromatic, pixel-integrated PSFs of radial DOEs for many depths and wavelengths.
+
+    Radii are sampled in diffraction units nu = rho_px D / (lambda T W), in which the ring
+    kernel is the same for every wavelength (f = nu / D): one kernel (three ring moments)
+    is built once and shared. Each wavelength has its own pixel weights (its nu grid maps to
+    different pixel radii), with the intensity taken piecewise linear between samples and
+    integrated exactly over each pixel square (:func:`.pixel_integration.hat_pixel_weights`).
+    A call is two batched real matrix products for the field and one for the pixels,
+    differentiable with respect to the DOE heights.
+    """
+
+    def __init__(self, geometry: ProjectorGeometry, wavelengths_m, window: int, pupil_samples: int = 1024,
+                 dtype: torch.dtype = torch.float64, device: torch.device | str | None = None):
+        self.geometry = geometry
+        self.window = check_window(window)
+        if pupil_samples < 16 or pupil_samples % 2:
+            raise EdofprojError(f"pupil_samples={pupil_samples} must be an even number >= 16")
+        self.pupil_samples = int(pupil_samples)
+        self.wavelengths_m = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
+        self.dtype = dtype
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+
+        R = geometry.aperture_radius_m
+        D = geometry.aperture_diameter_m
+        n_rings = self.pupil_samples // 2
+        self.ring_edges_m = np.linspace(0.0, R, n_rings + 1)
+        self.ring_centres_m = 0.5 * (self.ring_edges_m[1:] + self.ring_edges_m[:-1])
+        self.ring_width_m = R / n_rings
+
+        # radial samples: the window's corner must be covered at the shortest wavelength
+        self.rho_max_px = (self.window // 2 + 0.5) * math.sqrt(2) + 0.05
+        px_per_nu = self.wavelengths_m * geometry.throw_width_m / D  # (L,) pixels per diffraction unit
+        self.nu = normalized_radius_grid(self.rho_max_px / px_per_nu.min(), fine_until=1.0 / px_per_nu.min())
+        weights = []
+        for scale in px_per_nu:
+            w, index = hat_pixel_weights(self.nu * scale, self.window)
+            weights.append(w.T)
+        self.pixel_weights = torch.as_tensor(np.stack(weights), dtype=dtype, device=self.device)  # (L, n_nu, n_px)
+        self.pixel_index = torch.as_tensor(index.reshape(-1), device=self.device)
+        # |G|^2 * norm^2 is the pupil-energy fraction per square pixel
+        self.intensity_norm = torch.as_tensor(
+            (2 * math.pi / (self.wavelengths_m * geometry.throw_width_m * math.sqrt(math.pi) * R)) ** 2,
+            dtype=dtype, device=self.device)[:, None, None]
+        self.kernel = torch.as_tensor(self._ring_moments(), dtype=dtype, device=self.device)  # (M, 3 n_nu)
+        self.ring_centres_t = torch.as_tensor(self.ring_centres_m, dtype=torch.float64, device=self.device)
+
+    @property
+    def rho_px(self) -> np.ndarray:
+        """Sample radii (pixels) at the first wavelength (see :meth:`rho_px_at`)."""
+        return self.rho_px_at(0)
+
+    def rho_px_at(self, wavelength_index: int) -> np.ndarray:
+        lam = self.wavelengths_m[wavelength_index]
+        return self.nu * lam * self.geometry.throw_width_m / self.geometry.aperture_diameter_m
+
+    def _ring_moments(self) -> np.ndarray:
+        """Kernel (M, 3 n_nu): ring moments int_ring s^n J0(2 pi f r) r dr, n = 0, 1, 2, s = r^2 - r_m^2."""
+        r = self.ring_edges_m[None, :]
+        c = (self.ring_centres_m ** 2)[:, None]
+        f = self.nu / self.geometry.aperture_diameter_m  # spatial frequency (1/m)
+        a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
+        x = a * r
+        j1_, j2, j3 = bessel_j123(x)
+        p0 = r * j1_ / a                                                       # int r J0 dr
+        p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2                             # int r^3 J0 dr
+        p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3      # int r^5 J0 dr
+        zero = f[:, None] <= 0
+        p0 = np.where(zero, r**2 / 2, p0)
+        p1 = np.where(zero, r**4 / 4, p1)
+        p2 = np.where(zero, r**6 / 6, p2)
+        d0, d1, d2 = (np.diff(p, axis=1).T for p in (p0, p1, p2))  # (M, n_nu)
+        return np.concatenate([d0, d1 - c * d0, d2 - 2 * c * d1 + c**2 * d0], axis=1)
+
+    # ------------------------------------------------------------------ physics
+    def pupil_phase(self, doe, depths_m) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pupil phase at the ring centres (rad), (n_lambda, n_depths, n_rings), and the
+        defocus coefficient alpha = pi (1/z - 1/v) / lambda (rad/m^2), (n_lambda, n_depths, 1)."""
+        z = torch.as_tensor(check_depths(depths_m), dtype=torch.float64, device=self.device)
+        lam = torch.as_tensor(self.wavelengths_m, dtype=torch.float64, device=self.device)
+        r = self.ring_centres_t
+        if doe is None:
+            height = torch.zeros_like(r)
+            n_minus_1 = torch.zeros_like(lam)
+        else:
+            if not doe.radially_symmetric:
+                raise EdofprojError(f"the radial engine needs a radially symmetric DOE; use --engine 2d for {doe.name}")
+            doe.check_sampling(self.ring_width_m)
+            height = doe.height_m(r).to(torch.float64)
+            if not torch.all(torch.isfinite(height)):
+                raise EdofprojError("the DOE produced NaN or infinite heights")
+            n_minus_1 = torch.as_tensor(doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64,
+                                        device=self.device)
+        doe_phase = 2 * math.pi * n_minus_1[:, None] * height[None, :] / lam[:, None]  # (L, M)
+        alpha = math.pi * (1.0 / z - 1.0 / self.geometry.focus_distance_m)[None, :, None] / lam[:, None, None]
+        return doe_phase[:, None, :] + alpha * r[None, None, :] ** 2, alpha
+
+    def radial_intensity(self, doe, depths_m) -> torch.Tensor:
+        """I at the radii ``rho_px_at(l)``: pupil-energy fraction per square pixel, (n_lambda, n_depths, n_nu)."""
+        depths_m = check_depths(depths_m)
+        check_defocus_sampling(self.geometry, self.wavelengths_m, depths_m, self.pupil_samples)
+        phase, alpha = self.pupil_phase(doe, depths_m)
+        n = len(self.nu)
+        cos_k = torch.matmul(torch.cos(phase).to(self.dtype), self.kernel)  # (L, Z, 3 n_nu)
+        sin_k = torch.matmul(torch.sin(phase).to(self.dtype), self.kernel)
+        a = alpha.to(self.dtype)
+        half_a2 = 0.5 * a * a
+        # G = K0 g + i alpha K1 g - alpha^2/2 K2 g with g = cos + i sin
+        re = cos_k[..., :n] - a * sin_k[..., n:2 * n] - half_a2 * cos_k[..., 2 * n:]
+        im = sin_k[..., :n] + a * cos_k[..., n:2 * n] - half_a2 * sin_k[..., 2 * n:]
+        return (re * re + im * im) * self.intensity_norm
+
+    def psf(self, doe, depths_m) -> torch.Tensor:
+        """Pixel-integrated PSFs, (n_depths, n_lambda, K, K); each value is a fraction of the pupil energy."""
+        depths_m = check_depths(depths_m)
+        warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
+        intensity = self.radial_intensity(doe, depths_m)  # (L, Z, n_rho)
+        unique = torch.matmul(intensity, self.pixel_weights)  # (L, Z, n_unique)
+        K = self.window
+        full = unique[..., self.pixel_index].reshape(len(self.wavelengths_m), len(depths_m), K, K)
+        return full.transpose(0, 1)
