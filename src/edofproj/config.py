@@ -112,7 +112,8 @@ class DOEConfig:
     mlp_hidden: int = 64
     mlp_layers: int = 3
     cubic_waves: float = 20.0
-    axicon_focus_mm: float = 300.0
+    axicon_near_mm: float = 300.0
+    axicon_far_mm: float = 800.0
     multifocal_foci_mm: list = field(default_factory=lambda: [350.0, 500.0, 700.0])
     min_feature_um: float = 0.0
 
@@ -129,8 +130,8 @@ class DOEConfig:
             )
         if self.mlp_frequencies < 0 or self.mlp_hidden < 1 or self.mlp_layers < 1:
             raise ConfigError("doe.mlp_frequencies must be >= 0, doe.mlp_hidden and doe.mlp_layers >= 1")
-        if self.axicon_focus_mm <= 0:
-            raise ConfigError("doe.axicon_focus_mm must be > 0")
+        if not (0 < self.axicon_near_mm < self.axicon_far_mm):
+            raise ConfigError("doe.axicon_near_mm and doe.axicon_far_mm must satisfy 0 < near < far")
         if not self.multifocal_foci_mm or any(f <= 0 for f in self.multifocal_foci_mm):
             raise ConfigError("doe.multifocal_foci_mm needs one or more positive distances")
         if self.min_feature_um < 0:
@@ -179,14 +180,42 @@ class ImagingConfig:
 
 @dataclass
 class NetConfig:
-    """Compensation U-Net (paper Fig. 5). ``widths``: channels per scale (7 scales)."""
+    """Compensation U-Net (paper Fig. 5). ``widths``: channels per scale (7 scales).
+
+    ``downsampling``: ``conv`` (stride-2 convolution) or ``maxpool``; ``upsampling``:
+    ``transpose`` (transposed convolution) or ``bilinear`` (+ 3×3 convolution);
+    ``padding_mode``: ``replicate`` or ``reflect`` (images are padded to a multiple of
+    ``2**(len(widths)-1)`` and cropped back). Named width presets:
+    ``edofproj.compensation.unet.UNET_WIDTH_PRESETS``. ``architecture``: ``unet`` (ours) or
+    ``onlineprodeb`` (the baseline re-implementation, its default preset; ``widths`` unused).
+    """
 
     widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
     leaky_slope: float = 0.2
+    architecture: str = "unet"
+    downsampling: str = "conv"
+    upsampling: str = "transpose"
+    padding_mode: str = "replicate"
 
     def validate(self) -> None:
-        if len(self.widths) < 2 or any(int(w) < 1 for w in self.widths):
-            raise ConfigError("net.widths needs at least two positive channel counts")
+        if (
+            len(self.widths) < 2
+            or any(isinstance(w, bool) or not isinstance(w, (int, float)) for w in self.widths)
+            or any(int(w) != w or w < 1 for w in self.widths)
+        ):
+            raise ConfigError(
+                f"net.widths={self.widths} needs at least two positive integer channel counts"
+            )
+        if not (0.0 <= self.leaky_slope < 1.0):
+            raise ConfigError(f"net.leaky_slope={self.leaky_slope} must be in [0, 1)")
+        for key, choices in (
+            ("architecture", ("unet", "onlineprodeb")),
+            ("downsampling", ("conv", "maxpool")),
+            ("upsampling", ("transpose", "bilinear")),
+            ("padding_mode", ("replicate", "reflect")),
+        ):
+            if getattr(self, key) not in choices:
+                raise ConfigError(_unknown_choice(f"net.{key}", getattr(self, key), choices))
 
 
 @dataclass
@@ -273,15 +302,39 @@ class EvaluationConfig:
 
 @dataclass
 class FabricationConfig:
-    """Lithography: critical dimension of the process."""
+    """Lithography: the process's limits and the error model of ``edofproj tolerance``.
+
+    ``critical_dimension_um``: narrowest ring or gap the process can print.
+    ``arc_tolerance_um``: largest sagitta of the GDSII polygons that approximate the circles
+    (also kept below 1 % of the narrowest feature). ``etch_error_pct``: standard deviation
+    of each mask's etch depth, in percent of its target. ``misalignment_um``: standard
+    deviation, per axis, of each mask's overlay error against the first mask.
+    ``decentre_um``: standard deviation, per axis, of the DOE's decentre against the lens.
+    ``tolerance_trials``: Monte Carlo trials.
+    """
 
     critical_dimension_um: float = 1.0
+    arc_tolerance_um: float = 0.01
+    etch_error_pct: float = 3.0
+    misalignment_um: float = 0.5
+    decentre_um: float = 0.0
+    tolerance_trials: int = 20
 
     def validate(self) -> None:
-        if self.critical_dimension_um <= 0:
+        if not (math.isfinite(self.critical_dimension_um) and self.critical_dimension_um > 0):
             raise ConfigError(
                 f"fabrication.critical_dimension_um={self.critical_dimension_um} must be > 0"
             )
+        if not (0.001 <= self.arc_tolerance_um <= 1.0):
+            raise ConfigError(
+                f"fabrication.arc_tolerance_um={self.arc_tolerance_um} must be in 0.001-1 um"
+            )
+        for name in ("etch_error_pct", "misalignment_um", "decentre_um"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"fabrication.{name}={value} must be >= 0")
+        if self.tolerance_trials < 1:
+            raise ConfigError(f"fabrication.tolerance_trials={self.tolerance_trials} must be >= 1")
 
 
 @dataclass

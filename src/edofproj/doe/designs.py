@@ -5,8 +5,10 @@ All are expressed as an unwrapped optical path difference (OPD) at the design wa
 
 * lens:       h = 0 (no DOE; the projector lens alone).
 * cubic:      phase = 2 pi alpha ((x/R)^3 + (y/R)^3), alpha in waves (Dowski & Cathey 1995).
-* axicon:     OPD = -a r with a = R (1/z_a - 1/v): the edge ray of lens + axicon crosses
-              the axis at ``z_a``; inner rays focus progressively further (a focal line).
+* axicon:     a focal line from z_near to z_far: OPD = -(P/2) r^2 + a r, so that a ray at
+              radius r crosses the axis at 1/z(r) = 1/v + P - a/r (paraxial). The rim (r = R)
+              focuses at z_near and r = R/4 at z_far (the inner 1/16 of the pupil area
+              focuses beyond): a = (R/3)(1/z_near - 1/z_far), P = 1/z_near + a/R - 1/v.
 * multifocal: N equal-area annular zones; zone i adds the lens power that moves the focus
               from v to z_i: OPD = -(r^2 / 2) (1/z_i - 1/v).
 """
@@ -72,27 +74,29 @@ class CubicPhasePlate(DOE):
 
 
 class Axicon(RadialDOE):
-    """Linear-phase (conical) element; with the lens it spreads focus along the axis."""
+    """Lens + axicon: a conical phase that spreads the focus along a line from z_near to z_far."""
 
     name = "axicon"
 
     def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", focus_distance_m: float = 0.5, edge_focus_m: float = 0.3):
+                 material="fused_silica", focus_distance_m: float = 0.5, near_m: float = 0.3, far_m: float = 0.8):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
-        self.slope = aperture_radius_m * (1.0 / edge_focus_m - 1.0 / focus_distance_m)
-        self.edge_focus_m = float(edge_focus_m)
-        n_d = float(self.refractive_index(design_wavelength_m))
-        self.height_per_m = -self.slope / (n_d - 1.0)
+        R = aperture_radius_m
+        self.near_m, self.far_m = float(near_m), float(far_m)
+        self.slope = (R / 3.0) * (1.0 / near_m - 1.0 / far_m)          # a (dimensionless OPD slope)
+        self.power = 1.0 / near_m + self.slope / R - 1.0 / focus_distance_m  # P (1/m)
+        self.n_d_minus_1 = float(self.refractive_index(design_wavelength_m)) - 1.0
 
     def raw_height_m(self, r_m):
-        return self.height_per_m * r_m
+        return (-0.5 * self.power * r_m**2 + self.slope * r_m) / self.n_d_minus_1
 
     def check_sampling(self, ring_width_m):
-        step = 2 * math.pi * abs(self.slope) * ring_width_m / self.design_wavelength_m
+        gradient = abs(self.slope) + abs(self.power) * self.aperture_radius_m  # max |d OPD / dr|
+        step = 2 * math.pi * gradient * ring_width_m / self.design_wavelength_m
         _check_phase_step(step, "axicon", ring_width_m)
 
     def describe(self):
-        return f"axicon, edge ray focused at {self.edge_focus_m * 1e3:.0f} mm; " + super().describe()
+        return (f"axicon, focal line {self.near_m * 1e3:.0f}-{self.far_m * 1e3:.0f} mm; " + super().describe())
 
 
 class Multifocal(RadialDOE):

@@ -61,7 +61,7 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
     if kind == "cubic":
         return CubicPhasePlate(**common, alpha_waves=doe_cfg.cubic_waves)
     if kind == "axicon":
-        return Axicon(**common, focus_distance_m=v, edge_focus_m=doe_cfg.axicon_focus_mm * 1e-3)
+        return Axicon(**common, focus_distance_m=v, near_m=doe_cfg.axicon_near_mm * 1e-3, far_m=doe_cfg.axicon_far_mm * 1e-3)
     if kind == "multifocal":
         return Multifocal(**common, focus_distance_m=v, foci_m=[f * 1e-3 for f in doe_cfg.multifocal_foci_mm])
     if kind == "file":

@@ -1,0 +1,102 @@
+"""``edofproj psf``: simulate the RGB (or monochromatic) PSFs of a design across depth.
+
+Writes the ``.npz`` contract of DESIGN.md (``psf``, ``depths_m``, ``pixel_pitch_m``,
+``energy_in_window``) and optionally a comparison figure against the bare lens.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ._common import add_config_options, config_from_args, parse_number_list
+
+
+def add_optics_options(parser) -> None:
+    """The optics overrides shared by PSF-producing commands."""
+    parser.add_argument("--aperture-mm", type=float, help="aperture (lens) diameter, mm")
+    parser.add_argument("--focus-mm", type=float, help="in-focus projection distance v, mm")
+    parser.add_argument("--throw-ratio", type=float, help="projection distance / image width")
+    parser.add_argument("--width-px", type=int, help="projector image width, pixels")
+
+
+def optics_overrides(args) -> list[str]:
+    pairs = (("aperture_mm", args.aperture_mm), ("focus_mm", args.focus_mm),
+             ("throw_ratio", args.throw_ratio), ("width_px", args.width_px))
+    return [f"optics.{key}={value}" for key, value in pairs if value is not None]
+
+
+def depths_from_args(depth_specs, cfg) -> np.ndarray:
+    """Depths in metres from repeatable ``--depth-mm`` values (lists or start:stop:step ranges)."""
+    if depth_specs:
+        values = [v for spec in depth_specs for v in parse_number_list(spec, "--depth-mm")]
+    else:
+        values = list(np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, 11))
+    depths_mm = np.asarray(values, dtype=float)
+    if np.any(depths_mm <= 0):
+        raise EdofprojError(f"--depth-mm values must be positive, got {depths_mm[depths_mm <= 0][0]:g}")
+    return depths_mm * 1e-3
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("psf", help="simulate PSFs across depth and write them as .npz",
+                              description=__doc__.split("\n")[0])
+    add_config_options(p)
+    p.add_argument("--doe", default=None,
+                   help="lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file, or a run directory (default: config)")
+    p.add_argument("--depth-mm", action="append", default=[],
+                   help="screen depth(s) in mm: repeatable, comma-separated, or start:stop:step")
+    p.add_argument("--wavelength-nm", type=float, default=None,
+                   help="one wavelength (nm) instead of the RGB primaries: writes one channel")
+    p.add_argument("--window", type=int, default=None, help="PSF window K in pixels (odd)")
+    p.add_argument("--engine", choices=("radial", "2d"), default=None, help="propagation engine")
+    p.add_argument("--pupil-samples", type=int, default=None, help="pupil samples across the diameter")
+    add_optics_options(p)
+    p.add_argument("--out", required=True, help="output .npz")
+    p.add_argument("--plot", default=None, help="also write a PNG comparing the design with the bare lens")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import torch
+
+    from ..doe import build_doe
+    from ..optics.psf_bank import simulator_from_config
+    from ..optics.spectra import check_wavelengths_nm
+
+    extra = optics_overrides(args)
+    if args.window is not None:
+        extra.append(f"psf.window={args.window}")
+    if args.pupil_samples is not None:
+        extra.append(f"psf.pupil_samples={args.pupil_samples}")
+    if args.engine is not None:
+        extra.append(f"psf.engine={args.engine}")
+    cfg = config_from_args(args, extra)
+    if args.wavelength_nm is not None:
+        check_wavelengths_nm([args.wavelength_nm])
+    depths_m = depths_from_args(args.depth_mm, cfg)
+    if not str(args.out).endswith(".npz"):
+        raise EdofprojError(f"--out '{args.out}' must end in .npz")
+    doe = build_doe(cfg, args.doe)
+    engine = cfg.psf.engine
+    if not doe.radially_symmetric and engine == "radial":
+        if args.engine == "radial":
+            raise EdofprojError(f"the {doe.name} DOE is not radially symmetric: use --engine 2d")
+        engine = "2d"
+    sim = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine)
+    bank = sim.bank(doe, depths_m)
+    bank.save(args.out)
+    energy = bank.energy_in_window.numpy()
+    print(f"wrote {args.out}: {len(depths_m)} depths x {bank.psf.shape[1]} channel(s), window {bank.window} px, "
+          f"{doe.describe()}")
+    for z, e in zip(depths_m, energy):
+        print(f"  {z * 1e3:7.1f} mm  energy in window " + " ".join(f"{v:.4f}" for v in e))
+    if args.plot:
+        from ..evaluation.psf_plots import plot_psf_comparison
+
+        lens = build_doe(cfg, "lens")
+        with torch.no_grad():
+            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine="radial").bank(lens, depths_m)
+        plot_psf_comparison([("lens", lens, lens_bank), (doe.name, doe, bank)], args.plot)
+        print(f"wrote {args.plot}")
+    return 0

@@ -1,0 +1,205 @@
+"""The compensation U-Net of the paper (Fig. 5, Sec. 3.4).
+
+Given the desired image ``I`` (the *target*) and what the camera would see without
+compensation ``I*`` (the *captured* image, ``I`` blurred by the projector's PSF), the network
+predicts the image to send to the projector:
+
+    projector_input = I + f([I, I*])
+
+``f`` is a U-Net with ``S = len(widths)`` scales (the paper: 7 scales, 6 down- and 6
+up-sampling steps). Every scale has a block of two 3×3 convolutions, each followed by a
+LeakyReLU; the decoder concatenates the encoder's features of the same scale (skip
+connections). A final 1×1 convolution maps to 3 channels; it starts at zero, so an untrained
+network is exactly the identity ``projector_input = I`` (residual learning from the long skip
+``I -> output``).
+
+Images of any size are padded on the bottom and right to a multiple of ``2**(S-1)``
+(replicate or reflect) and the output is cropped back. The output is *not* clamped: the
+caller clamps to the projector's ``[0, 1]`` range before projecting.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..errors import EdofprojError
+
+#: Named channel widths (one entry per scale, 7 scales as in the paper).
+#: ``paper``: widths in the range shown in the paper's Fig. 5; ``default``: the
+#: ``NetConfig`` default (a quarter of the paper's parameters); ``fast``: few channels,
+#: meant for real-time compensation on a CPU (see ``benchmarks/bench_unet.py``).
+UNET_WIDTH_PRESETS: dict[str, list[int]] = {
+    "paper": [32, 64, 128, 256, 256, 256, 256],
+    "default": [16, 32, 64, 128, 128, 128, 128],
+    "fast": [4, 8, 16, 32, 32, 32, 32],
+}
+
+DOWNSAMPLING_MODES = ("conv", "maxpool")
+UPSAMPLING_MODES = ("transpose", "bilinear")
+PADDING_MODES = ("replicate", "reflect")
+
+
+def width_preset(name: str) -> list[int]:
+    """The channel widths of preset ``name`` (a key of :data:`UNET_WIDTH_PRESETS`)."""
+    if name not in UNET_WIDTH_PRESETS:
+        raise EdofprojError(
+            f"unknown U-Net width preset '{name}' (allowed: {', '.join(UNET_WIDTH_PRESETS)})"
+        )
+    return list(UNET_WIDTH_PRESETS[name])
+
+
+class ConvBlock(nn.Sequential):
+    """Two 3×3 convolutions, each followed by ``LeakyReLU(leaky_slope)``; size preserved."""
+
+    def __init__(self, in_channels: int, out_channels: int, leaky_slope: float) -> None:
+        super().__init__(
+            nn.Conv2d(in_channels, out_channels, 3, padding=1),
+            nn.LeakyReLU(leaky_slope),
+            nn.Conv2d(out_channels, out_channels, 3, padding=1),
+            nn.LeakyReLU(leaky_slope),
+        )
+
+
+def _downsampling(channels: int, mode: str, leaky_slope: float) -> nn.Module:
+    """Halve height and width: a learned stride-2 3×3 convolution or a 2×2 max-pool."""
+    if mode == "conv":
+        return nn.Sequential(
+            nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.LeakyReLU(leaky_slope)
+        )
+    return nn.MaxPool2d(2)
+
+
+def _upsampling(in_channels: int, out_channels: int, mode: str) -> nn.Module:
+    """Double height and width and change the channel count to ``out_channels``.
+
+    ``transpose``: a 2×2 transposed convolution with stride 2; ``bilinear``: bilinear
+    interpolation followed by a 3×3 convolution.
+    """
+    if mode == "transpose":
+        return nn.ConvTranspose2d(in_channels, out_channels, 2, stride=2)
+    return nn.Sequential(
+        nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False),
+        nn.Conv2d(in_channels, out_channels, 3, padding=1),
+    )
+
+
+class CompensationUNet(nn.Module):
+    """U-Net compensation ``projector_input = target + f(concat(target, captured))``.
+
+    Args:
+        widths: channels of each scale, finest first; ``len(widths)`` scales, so
+            ``len(widths) - 1`` down- and up-sampling steps.
+        leaky_slope: negative slope of the LeakyReLU activations.
+        in_channels: channels of ``concat(target, captured)`` (6 for two RGB images).
+        out_channels: channels of the output (3, the same as ``target``).
+        downsampling: ``conv`` (stride-2 convolution) or ``maxpool``.
+        upsampling: ``transpose`` (transposed convolution) or ``bilinear`` (+ 3×3 conv).
+        padding_mode: how images are padded to a multiple of ``2**(len(widths)-1)``:
+            ``replicate`` or ``reflect``.
+    """
+
+    def __init__(
+        self,
+        widths: Sequence[int] = tuple(UNET_WIDTH_PRESETS["default"]),
+        leaky_slope: float = 0.2,
+        in_channels: int = 6,
+        out_channels: int = 3,
+        downsampling: str = "conv",
+        upsampling: str = "transpose",
+        padding_mode: str = "replicate",
+    ) -> None:
+        super().__init__()
+        widths = [int(w) for w in widths]
+        if len(widths) < 2 or min(widths) < 1:
+            raise EdofprojError(f"U-Net widths={widths} need at least two positive channel counts")
+        if downsampling not in DOWNSAMPLING_MODES:
+            raise EdofprojError(
+                f"U-Net downsampling='{downsampling}' is not one of {', '.join(DOWNSAMPLING_MODES)}"
+            )
+        if upsampling not in UPSAMPLING_MODES:
+            raise EdofprojError(
+                f"U-Net upsampling='{upsampling}' is not one of {', '.join(UPSAMPLING_MODES)}"
+            )
+        if padding_mode not in PADDING_MODES:
+            raise EdofprojError(
+                f"U-Net padding_mode='{padding_mode}' is not one of {', '.join(PADDING_MODES)}"
+            )
+        if in_channels < out_channels:
+            raise EdofprojError(
+                f"U-Net in_channels={in_channels} must hold the target's out_channels={out_channels}"
+            )
+        self.widths = widths
+        self.in_channels = in_channels
+        self.out_channels = out_channels
+        self.padding_mode = padding_mode
+        self.size_multiple = 2 ** (len(widths) - 1)
+
+        self.encoder = nn.ModuleList([ConvBlock(in_channels, widths[0], leaky_slope)])
+        self.down = nn.ModuleList()
+        for coarse, fine in zip(widths[1:], widths[:-1]):
+            self.down.append(_downsampling(fine, downsampling, leaky_slope))
+            self.encoder.append(ConvBlock(fine, coarse, leaky_slope))
+        # Decoder, coarsest first: upsample scale s+1 to scale s, concatenate the skip, block.
+        self.up = nn.ModuleList()
+        self.decoder = nn.ModuleList()
+        for scale in reversed(range(len(widths) - 1)):
+            self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
+            self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
+        self.head = nn.Conv2d(widths[0], out_channels, 1)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    @classmethod
+    def from_config(cls, net_cfg) -> "CompensationUNet":
+        """Build from a :class:`edofproj.config.NetConfig`."""
+        return cls(
+            widths=net_cfg.widths,
+            leaky_slope=net_cfg.leaky_slope,
+            downsampling=net_cfg.downsampling,
+            upsampling=net_cfg.upsampling,
+            padding_mode=net_cfg.padding_mode,
+        )
+
+    def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+        """``target + f(concat(target, captured))``, same size as ``target``, unclamped.
+
+        ``target`` and ``captured`` are ``(B, C, H, W)`` with ``2 * C == in_channels`` channels
+        in total; any ``H, W >= 1``.
+        """
+        if not torch.jit.is_tracing() and (target.dim() != 4 or captured.shape != target.shape):
+            raise EdofprojError(
+                f"CompensationUNet needs target and captured of the same shape (B, C, H, W), got "
+                f"{tuple(target.shape)} and {tuple(captured.shape)}"
+            )
+        height, width = target.shape[-2], target.shape[-1]
+        x = torch.cat([target, captured], dim=1)
+        x = self._pad_to_multiple(x, height, width)
+
+        skips = []
+        for scale, block in enumerate(self.encoder):
+            if scale > 0:
+                x = self.down[scale - 1](x)
+            x = block(x)
+            skips.append(x)
+        x = skips.pop()
+        for up, block in zip(self.up, self.decoder):
+            x = block(torch.cat([up(x), skips.pop()], dim=1))
+        residual = self.head(x)[..., :height, :width]
+        return target + residual
+
+    def _pad_to_multiple(self, x: torch.Tensor, height, width) -> torch.Tensor:
+        """Pad bottom/right so that height and width are multiples of ``2**(scales-1)``."""
+        m = self.size_multiple
+        pad_bottom = (m - height % m) % m
+        pad_right = (m - width % m) % m
+        if self.padding_mode == "reflect" and not torch.jit.is_tracing():
+            if pad_bottom >= height or pad_right >= width:
+                raise EdofprojError(
+                    f"U-Net padding_mode=reflect cannot pad a {height}x{width} image to a multiple "
+                    f"of {m}; use padding_mode=replicate"
+                )
+        return F.pad(x, (0, pad_right, 0, pad_bottom), mode=self.padding_mode)

@@ -1,0 +1,287 @@
+"""Non-blind Wiener deconvolution: the classical baseline with the PSF known (method ``lens+wiener``).
+
+For a projection ``I* = p ⊛ x + h · mean(x)`` (PSF ``p``, haze fraction ``h = 1 - Σp``, see
+:mod:`edofproj.imaging`), the Wiener estimate of the projector input that would give the
+target ``I`` is, per colour channel,
+
+    X̂(k) = conj(H(k)) · I(k) / (|H(k)|² + NSR),        x̂ = clamp(F⁻¹{X̂}, 0, 1)
+
+where ``H`` is the optical transfer function (the DFT of the PSF, centred on its optical
+axis) and ``NSR`` the noise-to-signal power ratio, the one free parameter.
+
+**Haze.** ``h · mean(x)`` is a constant image: it only adds to the zero-frequency bin, where
+it contributes ``h · X(0)``. The effective transfer function is therefore ``H`` with
+``H(0) = Σp + h = 1``: the haze keeps the mean brightness, it never blurs. ``haze=True``
+(the default) uses that ``H``; ``haze=False`` the PSF's own spectrum. The mean is taken
+over the padded frame, so with padding this is an approximation (exact without padding).
+
+**Borders.** The DFT treats the image as periodic, while the projection pads with zeros.
+The image is therefore extended by reflection (by at least ``K`` pixels on each side, more
+to reach a fast FFT length, :func:`scipy.fft.next_fast_len`) before filtering and cropped
+afterwards; ``pad=False`` filters the frame as it is (periodic model, exact inverse of a
+circular blur).
+
+Two implementations with the same result: :class:`WienerCompensator` (NumPy /
+:mod:`scipy.fft` with worker threads; the filter ``conj(H)/(|H|²+NSR)`` is cached per frame
+size, so a video costs one forward and one inverse real FFT per channel and frame) and
+:func:`wiener_deconvolve` / :class:`TorchWienerCompensator` (PyTorch, differentiable, runs
+on a GPU). :func:`tune_wiener_nsr` picks the NSR on *training* images.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.fft
+import torch
+import torch.nn.functional as F
+
+from ..errors import EdofprojError
+
+#: Default NSR candidates searched by :func:`tune_wiener_nsr` (log-spaced, 1e-5 … 1e-1).
+DEFAULT_NSR_CANDIDATES = np.logspace(-5, -1, 13)
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def _psf_3d(psf) -> np.ndarray:
+    """A PSF as a float64 array (C, K, K); accepts (C,K,K) or (1,C,K,K), numpy or torch."""
+    if isinstance(psf, torch.Tensor):
+        psf = psf.detach().cpu().numpy()
+    psf = np.asarray(psf, dtype=np.float64)
+    if psf.ndim == 4 and psf.shape[0] == 1:
+        psf = psf[0]
+    if psf.ndim != 3 or psf.shape[-1] != psf.shape[-2] or psf.shape[-1] % 2 == 0:
+        raise EdofprojError(f"the Wiener filter needs one PSF of shape (C, K, K) with K odd, got {tuple(psf.shape)}")
+    if not np.all(np.isfinite(psf)):
+        raise EdofprojError("the PSF contains NaN or infinite values")
+    return psf
+
+
+def padding_for(height: int, width: int, window: int, pad: bool = True) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) reflection padding for a frame and a K×K PSF.
+
+    At least ``K`` pixels on each side, then extended at the bottom/right to the next
+    fast FFT length. Raises if the frame is too small to reflect (``H, W`` must exceed the pad).
+    """
+    if not pad:
+        return (0, 0, 0, 0)
+    k = int(window)
+    total_h = scipy.fft.next_fast_len(height + 2 * k, real=True)
+    total_w = scipy.fft.next_fast_len(width + 2 * k, real=True)
+    top, left = k, k
+    bottom, right = total_h - height - k, total_w - width - k
+    if max(top, bottom) >= height or max(left, right) >= width:
+        raise EdofprojError(
+            f"a {height}x{width} image is too small for Wiener deconvolution with a {k}x{k} PSF "
+            f"(needs more than {max(top, bottom, left, right)} pixels per side; use a smaller psf window)"
+        )
+    return top, bottom, left, right
+
+
+def optical_transfer_function(psf, height: int, width: int, haze: bool = True) -> np.ndarray:
+    """``H = rfft2(psf)`` on a ``height × width`` grid, the optical axis moved to pixel (0, 0).
+
+    Returns complex128 ``(C, height, width // 2 + 1)``. With ``haze`` the zero-frequency
+    bin is set to 1 (the haze ``(1 - Σp)·mean`` restores the PSF's missing DC gain).
+    """
+    psf = _psf_3d(psf)
+    channels, k, _ = psf.shape
+    if k > height or k > width:
+        raise EdofprojError(f"a {k}x{k} PSF does not fit in a {height}x{width} frame")
+    kernel = np.zeros((channels, height, width))
+    kernel[:, :k, :k] = psf
+    kernel = np.roll(kernel, (-(k // 2), -(k // 2)), axis=(-2, -1))
+    otf = scipy.fft.rfft2(kernel, axes=(-2, -1))
+    if haze:
+        otf[:, 0, 0] = 1.0
+    return otf
+
+
+def wiener_filter(otf: np.ndarray, nsr: float) -> np.ndarray:
+    """The Wiener filter ``G = conj(H) / (|H|² + NSR)``."""
+    if not (np.isfinite(nsr) and nsr >= 0):
+        raise EdofprojError(f"Wiener NSR={nsr} must be a finite number >= 0")
+    return np.conj(otf) / (np.abs(otf) ** 2 + nsr)
+
+
+# --------------------------------------------------------------------------- NumPy / SciPy
+
+
+class WienerCompensator:
+    """Wiener deconvolution with NumPy/SciPy, the filter cached per frame size.
+
+    ``comp = WienerCompensator(psf, nsr)``; ``comp(image)`` with ``image`` ``(C,H,W)`` or
+    ``(B,C,H,W)`` (NumPy or torch, values in [0, 1]) returns a float32 NumPy array of the
+    same shape in [0, 1]. Computation runs in single precision (complex64 spectra) with
+    ``workers`` FFT threads (default: all CPUs).
+    """
+
+    def __init__(self, psf, nsr: float, haze: bool = True, pad: bool = True, workers: int | None = None):
+        self.psf = _psf_3d(psf)
+        self.nsr = float(nsr)
+        self.haze = bool(haze)
+        self.pad = bool(pad)
+        self.workers = int(workers) if workers else (os.cpu_count() or 1)
+        self._filters: dict[tuple[int, int], tuple[tuple[int, int, int, int], np.ndarray]] = {}
+        wiener_filter(np.ones(1), self.nsr)  # validates nsr
+
+    @property
+    def window(self) -> int:
+        return int(self.psf.shape[-1])
+
+    def filter_for(self, height: int, width: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """(padding, complex64 filter (C, Hp, Wp//2+1)) for a frame size, computed once."""
+        key = (int(height), int(width))
+        if key not in self._filters:
+            pads = padding_for(height, width, self.window, self.pad)
+            otf = optical_transfer_function(self.psf, height + pads[0] + pads[1], width + pads[2] + pads[3], self.haze)
+            self._filters[key] = (pads, wiener_filter(otf, self.nsr).astype(np.complex64))
+        return self._filters[key]
+
+    def __call__(self, image) -> np.ndarray:
+        if isinstance(image, torch.Tensor):
+            image = image.detach().cpu().numpy()
+        image = np.asarray(image, dtype=np.float32)
+        if image.ndim not in (3, 4) or image.shape[-3] != self.psf.shape[0]:
+            raise EdofprojError(
+                f"Wiener input must be (C,H,W) or (B,C,H,W) with C={self.psf.shape[0]}, got {image.shape}"
+            )
+        height, width = image.shape[-2:]
+        (top, bottom, left, right), filt = self.filter_for(height, width)
+        lead = [(0, 0)] * (image.ndim - 2)
+        padded = np.pad(image, lead + [(top, bottom), (left, right)], mode="reflect") if self.pad else image
+        spectrum = scipy.fft.rfft2(padded, axes=(-2, -1), workers=self.workers)
+        spectrum *= filt
+        restored = scipy.fft.irfft2(spectrum, s=padded.shape[-2:], axes=(-2, -1), workers=self.workers)
+        restored = restored[..., top:top + height, left:left + width]
+        return np.clip(restored, 0.0, 1.0).astype(np.float32, copy=False)
+
+
+# --------------------------------------------------------------------------- PyTorch
+
+
+def _otf_torch(psf: torch.Tensor, height: int, width: int, haze: bool) -> torch.Tensor:
+    """Torch twin of :func:`optical_transfer_function` for PSFs (N, C, K, K); differentiable."""
+    k = psf.shape[-1]
+    kernel = F.pad(psf, (0, width - k, 0, height - k))
+    kernel = torch.roll(kernel, shifts=(-(k // 2), -(k // 2)), dims=(-2, -1))
+    otf = torch.fft.rfft2(kernel)
+    if haze:
+        dc = torch.zeros_like(otf)
+        dc[..., 0, 0] = 1.0 - otf[..., 0, 0]
+        otf = otf + dc
+    return otf
+
+
+def _check_torch_inputs(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
+    if image.ndim != 4:
+        raise EdofprojError(f"image must be (B, C, H, W), got {tuple(image.shape)}")
+    if psf.ndim == 3:
+        psf = psf.unsqueeze(0)
+    if (psf.ndim != 4 or psf.shape[-1] != psf.shape[-2] or psf.shape[-1] % 2 == 0
+            or psf.shape[1] != image.shape[1] or psf.shape[0] not in (1, image.shape[0])):
+        raise EdofprojError(
+            f"PSF must be (C,K,K) or (1|B,C,K,K) with K odd matching image {tuple(image.shape)}, got {tuple(psf.shape)}"
+        )
+    return psf
+
+
+def wiener_deconvolve(image: torch.Tensor, psf: torch.Tensor, nsr: float, haze: bool = True,
+                      pad: bool = True) -> torch.Tensor:
+    """PyTorch Wiener deconvolution, ``clamp(F⁻¹{conj(H)·F{I}/(|H|²+NSR)}, 0, 1)``.
+
+    ``image`` (B, C, H, W); ``psf`` (C, K, K) or (1|B, C, K, K) (one PSF per sample).
+    Differentiable, on the device of ``image``; same padding and haze model as
+    :class:`WienerCompensator`.
+    """
+    psf = _check_torch_inputs(image, psf).to(image.device, image.dtype)
+    height, width = image.shape[-2:]
+    top, bottom, left, right = padding_for(height, width, psf.shape[-1], pad)
+    padded = F.pad(image, (left, right, top, bottom), mode="reflect") if pad else image
+    otf = _otf_torch(psf, padded.shape[-2], padded.shape[-1], haze)
+    filt = otf.conj() / (otf.abs() ** 2 + float(nsr))
+    restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
+    return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
+
+
+class TorchWienerCompensator:
+    """:func:`wiener_deconvolve` with the filter cached per (frame size, device, dtype).
+
+    For repeated frames on a GPU: ``comp = TorchWienerCompensator(psf, nsr)``;
+    ``comp(image)`` with ``image`` (B, C, H, W) on any device.
+    """
+
+    def __init__(self, psf, nsr: float, haze: bool = True, pad: bool = True):
+        self.psf = torch.as_tensor(_psf_3d(psf), dtype=torch.float32).unsqueeze(0)
+        self.nsr = float(nsr)
+        self.haze = bool(haze)
+        self.pad = bool(pad)
+        self._filters: dict = {}
+        wiener_filter(np.ones(1), self.nsr)  # validates nsr
+
+    def __call__(self, image: torch.Tensor) -> torch.Tensor:
+        _check_torch_inputs(image, self.psf)
+        height, width = image.shape[-2:]
+        key = (height, width, image.device, image.dtype)
+        if key not in self._filters:
+            pads = padding_for(height, width, self.psf.shape[-1], self.pad)
+            otf = _otf_torch(self.psf.to(image.device, image.dtype),
+                             height + pads[0] + pads[1], width + pads[2] + pads[3], self.haze)
+            self._filters[key] = (pads, otf.conj() / (otf.abs() ** 2 + self.nsr))
+        (top, bottom, left, right), filt = self._filters[key]
+        padded = F.pad(image, (left, right, top, bottom), mode="reflect") if self.pad else image
+        restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
+        return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
+
+
+# --------------------------------------------------------------------------- NSR selection
+
+
+def psnr(prediction: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Peak signal-to-noise ratio per image, ``10·log10(1 / MSE)`` for images in [0, 1]."""
+    mse = ((prediction - target) ** 2).flatten(1).mean(dim=1)
+    return 10.0 * torch.log10(1.0 / mse.clamp_min(1e-12))
+
+
+def tune_wiener_nsr(
+    train_images: torch.Tensor,
+    psf: torch.Tensor,
+    project_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    candidates: Sequence[float] = DEFAULT_NSR_CANDIDATES,
+    metric: str | Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = "psnr",
+    haze: bool = True,
+) -> tuple[float, dict[float, float]]:
+    """The NSR that maximizes the mean ``metric(project(Wiener(I)), I)`` over *training* images.
+
+    ``train_images`` (B, C, H, W) in [0, 1]; ``psf`` (C, K, K) or (N, C, K, K): with N > 1 the
+    score is averaged over all N PSFs (one NSR for a whole depth range). ``project_fn(x, psf)``
+    is the forward model (:func:`edofproj.imaging.project`); ``metric`` ``"psnr"`` or a callable
+    ``(pred, target) -> per-image scores`` (higher is better). Returns ``(best_nsr, {nsr: score})``.
+    Never pass test images here: the NSR is a trained parameter of the baseline.
+    """
+    if isinstance(metric, str):
+        if metric != "psnr":
+            raise EdofprojError(f"unknown Wiener tuning metric '{metric}' (known: psnr, or a callable)")
+        metric_fn = psnr
+    else:
+        metric_fn = metric
+    candidates = [float(c) for c in candidates]
+    if not candidates:
+        raise EdofprojError("tune_wiener_nsr needs at least one NSR candidate")
+    psf = torch.as_tensor(psf, dtype=train_images.dtype)
+    psfs = psf.unsqueeze(0) if psf.ndim == 3 else psf
+    scores: dict[float, float] = {}
+    with torch.no_grad():
+        for nsr in candidates:
+            total = 0.0
+            for one in psfs:
+                one = one.unsqueeze(0)
+                restored = wiener_deconvolve(train_images, one, nsr, haze=haze)
+                total += float(metric_fn(project_fn(restored, one), train_images).mean())
+            scores[nsr] = total / len(psfs)
+    best = max(scores, key=scores.get)
+    return best, scores

@@ -1,0 +1,142 @@
+"""The general 2-D propagation engine: PSFs of any height map by a zero-padded FFT.
+
+The pupil function g(x, y) = A(x, y) exp(i 2 pi (n - 1) h(x, y) / lambda) exp(i pi (x^2 + y^2)(1/z - 1/v) / lambda)
+is point-sampled on an M x M grid of pitch dx = D / M (``pupil_samples = M``) and Fresnel-propagated
+to the screen in one Fourier transform,
+
+    U_z(x') ~ F{g}(x' / (lambda z)),
+
+which in projector pixels (x' = x_px q(z), q = z / (T W)) is sampled at frequency x_px / (lambda T W).
+An N-point FFT (N >= 2M, zero padded) gives samples spaced
+
+    delta_px = lambda T W / (N dx)       over a field of view   FOV_px = lambda T W / dx.
+
+By Parseval the samples' energies sum to the pupil energy; each sample's energy is spread
+uniformly over its delta x delta cell and binned exactly onto the K x K projector pixels
+(separable overlap matrices), so each PSF value is that pixel's share of the pupil energy.
+
+Sampling checks (:class:`~edofproj.errors.SamplingError`, naming the parameter to change):
+* the defocus phase step between pupil samples at the rim, 2 pi R dx |1/z - 1/v| / lambda,
+  stays below pi/2;
+* the FFT's periodic field of view holds the window plus the geometric blur (otherwise light
+  wraps around into the window): FOV_px >= K + D |1 - z/v| / q(z).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from scipy import fft as sfft
+
+from ..errors import EdofprojError, SamplingError
+from .geometry import ProjectorGeometry
+from .radial_engine import MAX_DEFOCUS_STEP_RAD, check_depths, check_window, warn_if_blur_exceeds_window
+
+
+def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.ndarray:
+    """B[i, k]: fraction of cell k ([c_k - d/2, c_k + d/2]) inside pixel i ([a_i - 1/2, a_i + 1/2])."""
+    a = (np.arange(window) - window // 2)[:, None].astype(float)
+    lo = np.maximum(a - 0.5, centres_px[None, :] - cell_px / 2)
+    hi = np.minimum(a + 0.5, centres_px[None, :] + cell_px / 2)
+    return np.clip(hi - lo, 0.0, None) / cell_px
+
+
+class FourierPSFEngine:
+    """Monochromatic pixel-integrated PSFs of any DOE on a 2-D grid (same call as the radial engine)."""
+
+    def __init__(self, geometry: ProjectorGeometry, wavelengths_m, window: int, pupil_samples: int = 1024,
+                 dtype: torch.dtype = torch.float64, device=None, depth_chunk: int = 2):
+        self.geometry = geometry
+        self.window = check_window(window)
+        if pupil_samples < 16 or pupil_samples % 2:
+            raise EdofprojError(f"pupil_samples={pupil_samples} must be an even number >= 16")
+        self.M = int(pupil_samples)
+        self.wavelengths_m = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
+        self.dtype = dtype
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        self.depth_chunk = depth_chunk
+
+        self.dx_m = geometry.aperture_diameter_m / self.M
+        coords = (np.arange(self.M) - self.M / 2 + 0.5) * self.dx_m
+        self.x_t = torch.as_tensor(coords, dtype=torch.float64, device=self.device)
+        yy, xx = torch.meshgrid(self.x_t, self.x_t, indexing="ij")
+        self.xx, self.yy = xx, yy
+        self.r2 = xx**2 + yy**2
+        self.aperture = (self.r2 <= geometry.aperture_radius_m**2)
+
+        self.fft_size = []
+        self.binning = []
+        for lam in self.wavelengths_m:
+            fov_px = lam * geometry.throw_width_m / self.dx_m
+            if fov_px < self.window + 2:
+                raise SamplingError(
+                    f"the 2-D engine's field of view ({fov_px:.1f} px at {lam * 1e9:.0f} nm) is smaller than the "
+                    f"{self.window}-px window: increase pupil_samples above {int(self.M * (self.window + 2) / fov_px) + 2}"
+                )
+            N = sfft.next_fast_len(2 * self.M)
+            cell = fov_px / N
+            centres = (np.arange(N) - N // 2) * cell  # after fftshift, index N//2 is the axis
+            keep = np.nonzero(np.abs(centres) <= self.window / 2 + cell)[0]
+            B = _overlap_matrix(self.window, centres[keep], cell)
+            self.fft_size.append(N)
+            self.binning.append((keep, torch.as_tensor(B, dtype=dtype, device=self.device)))
+
+    def _check_sampling(self, doe, depths_m) -> None:
+        g = self.geometry
+        lam_min = float(self.wavelengths_m.min())
+        worst = float(np.max(np.abs(1.0 / depths_m - 1.0 / g.focus_distance_m)))
+        step = 2 * math.pi * g.aperture_radius_m * self.dx_m * worst / lam_min
+        if step > MAX_DEFOCUS_STEP_RAD:
+            need = int(math.ceil(self.M * step / MAX_DEFOCUS_STEP_RAD))
+            raise SamplingError(
+                f"pupil_samples={self.M} cannot resolve the defocus phase ({step:.2f} rad per sample, max "
+                f"{MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
+            )
+        blur = g.blur_diameter_px(depths_m)
+        for lam in self.wavelengths_m:
+            fov_px = lam * g.throw_width_m / self.dx_m
+            if fov_px < self.window + float(blur.max()):
+                need = int(math.ceil(self.M * (self.window + float(blur.max())) / fov_px))
+                raise SamplingError(
+                    f"the 2-D engine's field of view ({fov_px:.0f} px at {lam * 1e9:.0f} nm) cannot hold the window "
+                    f"plus the {blur.max():.0f}-px blur (light would wrap around): use pupil_samples >= {need + need % 2}"
+                )
+        if doe is not None:
+            doe.check_sampling(self.dx_m)
+
+    def psf(self, doe, depths_m) -> torch.Tensor:
+        """Pixel-integrated PSFs, (n_depths, n_lambda, K, K), fractions of the pupil energy."""
+        depths_m = check_depths(depths_m)
+        warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
+        self._check_sampling(doe, depths_m)
+        if doe is None:
+            height = torch.zeros_like(self.r2)
+        else:
+            height = doe.height_map_m(self.xx, self.yy).to(torch.float64)
+            if not torch.all(torch.isfinite(height)):
+                raise EdofprojError("the DOE produced NaN or infinite heights")
+        z = torch.as_tensor(depths_m, dtype=torch.float64, device=self.device)
+        complex_dtype = torch.complex128 if self.dtype == torch.float64 else torch.complex64
+        aperture = self.aperture.to(self.dtype)
+        pupil_energy = aperture.sum()
+        out = []
+        for li, lam in enumerate(self.wavelengths_m):
+            n_minus_1 = 0.0 if doe is None else float(doe.refractive_index(lam)) - 1.0
+            doe_phase = 2 * math.pi * n_minus_1 * height / lam
+            N = self.fft_size[li]
+            keep, B = self.binning[li]
+            keep_t = torch.as_tensor(keep, device=self.device)
+            per_depth = []
+            for start in range(0, len(depths_m), self.depth_chunk):
+                zc = z[start:start + self.depth_chunk]
+                defocus = math.pi * self.r2[None] * (1.0 / zc - 1.0 / self.geometry.focus_distance_m)[:, None, None] / lam
+                phase = (doe_phase[None] + defocus).to(self.dtype)
+                field = torch.polar(aperture.expand_as(phase), phase).to(complex_dtype)
+                spectrum = torch.fft.fftshift(torch.fft.fft2(field, s=(N, N)), dim=(-2, -1))
+                spectrum = spectrum.index_select(-2, keep_t).index_select(-1, keep_t)
+                cells = (spectrum.real**2 + spectrum.imag**2) / (N * N * pupil_energy)
+                per_depth.append(torch.einsum("ik,zkl,jl->zij", B, cells, B))
+            out.append(torch.cat(per_depth, dim=0))
+        return torch.stack(out, dim=1)

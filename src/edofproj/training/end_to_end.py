@@ -1,0 +1,69 @@
+"""The differentiable projector of the joint training (paper Fig. 2, Eq. 9).
+
+For a target image ``I`` and a screen depth ``z`` per sample:
+
+    P     = PSF_DOE(z)                                  RGB PSF of the (quantized) DOE at depth z
+    I*    = camera( project(I, P) )                     uncompensated projection, as observed
+    Î     = net(I, I*)                                  compensated projector input (unclamped)
+    Î*    = project(clamp(Î, 0, 1), P)                  what the screen shows
+
+where ``project(x, P) = clamp(x, 0, 1) ⊛ P + (1 - ΣP) mean(x)`` (:func:`edofproj.imaging.projection.project`):
+the projector emits only light in [0, 1], and light outside the PSF window is a uniform haze.
+The loss ``L(Î*, I)`` (Eq. 12) is taken by the caller. Everything is differentiable with
+respect to the network and, through ``P`` (the PSF simulator with the straight-through
+quantizer), the DOE's parameters.
+
+PSFs come from a *PSF source*, a module ``source(depths_m) -> (B, C, K, K)``:
+:class:`SimulatedPSF` (the DOE simulated every step, one call for the whole batch) or a
+:class:`~edofproj.training.psf_table.DepthPSFTable` (a fixed DOE, precomputed).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from ..imaging.projection import project
+from .camera import camera_capture
+
+
+class SimulatedPSF(nn.Module):
+    """PSFs of ``doe`` simulated at each call: ``simulator(doe, depths_m)`` as float32 ``(B, C, K, K)``."""
+
+    def __init__(self, doe: nn.Module, simulator) -> None:
+        super().__init__()
+        self.doe = doe
+        self.simulator = simulator
+
+    def forward(self, depths_m) -> torch.Tensor:
+        return self.simulator(self.doe, depths_m).float()
+
+
+class Projections(NamedTuple):
+    """The images of one forward pass, each ``(B, 3, H, W)``."""
+
+    captured: torch.Tensor      # I*: the uncompensated projection as the camera records it
+    compensated: torch.Tensor   # Î: the network's projector input (unclamped)
+    projected: torch.Tensor     # Î*: the projection of clamp(Î)
+
+
+class EndToEndProjector(nn.Module):
+    """PSF source + compensation network + image formation, as one module (one DDP wrapper)."""
+
+    def __init__(self, psf_source: nn.Module, net: nn.Module, noise_sigma: float = 0.0,
+                 quantize_capture: bool = False) -> None:
+        super().__init__()
+        self.psf_source = psf_source
+        self.net = net
+        self.noise_sigma = float(noise_sigma)
+        self.quantize_capture = bool(quantize_capture)
+
+    def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> Projections:
+        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``."""
+        psf = self.psf_source(depths_m).to(target.device)
+        captured = camera_capture(project(target, psf), noise, self.noise_sigma, self.quantize_capture)
+        compensated = self.net(target, captured)
+        projected = project(compensated.clamp(0.0, 1.0), psf)
+        return Projections(captured, compensated, projected)
