@@ -237,12 +237,22 @@ class LossConfig:
 
 @dataclass
 class DataConfig:
-    """Training images: ``builtin`` photographs, ``dead-leaves``, or an image ``folder``."""
+    """Training images: ``builtin`` photographs, ``dead-leaves``, or an image ``folder``.
+
+    Held-out test images: a deterministic ``test_fraction`` of the built-in photographs or of
+    ``folder`` (see :mod:`edofproj.training.data`), or all of ``test_folder`` when given
+    (then ``folder`` is used for training in full). ``max_test_images``: 0 keeps all.
+    Dead leaves: disk radii with density ~ r^-3 between the two radii (pixels).
+    """
 
     source: str = "builtin"
     folder: Optional[str] = None
+    test_folder: Optional[str] = None
     crop: int = 128
     test_fraction: float = 0.3
+    max_test_images: int = 0
+    dead_leaves_min_radius_px: float = 1.0
+    dead_leaves_max_radius_px: float = 128.0
 
     def validate(self) -> None:
         choices = ("builtin", "dead-leaves", "folder")
@@ -250,15 +260,45 @@ class DataConfig:
             raise ConfigError(_unknown_choice("data.source", self.source, choices))
         if self.source == "folder" and not self.folder:
             raise ConfigError("data.source=folder needs data.folder")
+        if self.test_folder and self.source != "folder":
+            raise ConfigError("data.test_folder goes with data.source=folder")
         if self.crop < 16:
             raise ConfigError(f"data.crop={self.crop} must be >= 16")
         if not (0.0 < self.test_fraction < 1.0):
             raise ConfigError("data.test_fraction must be in (0, 1)")
+        if self.max_test_images < 0:
+            raise ConfigError(f"data.max_test_images={self.max_test_images} must be >= 0 (0: all)")
+        _positive(self, "dead_leaves_min_radius_px", "data.dead_leaves_min_radius_px")
+        if not (self.dead_leaves_min_radius_px >= 0.5):
+            raise ConfigError(
+                f"data.dead_leaves_min_radius_px={self.dead_leaves_min_radius_px} must be >= 0.5 (smaller disks cover no pixel)"
+            )
+        if not (math.isfinite(self.dead_leaves_max_radius_px)
+                and self.dead_leaves_max_radius_px >= self.dead_leaves_min_radius_px):
+            raise ConfigError(
+                f"data.dead_leaves_max_radius_px={self.dead_leaves_max_radius_px} must be >= "
+                f"data.dead_leaves_min_radius_px={self.dead_leaves_min_radius_px}"
+            )
 
 
 @dataclass
 class TrainConfig:
-    """Joint training of DOE and compensation network (paper Sec. 4.1)."""
+    """Joint training of DOE and compensation network (paper Sec. 4.1, Fig. 2).
+
+    Each step draws ``batch_size`` crops and one screen depth per crop in
+    ``[psf.depth_min_mm, psf.depth_max_mm]`` (``depth_sampling``: ``uniform`` or
+    ``stratified`` over the batch), and updates the DOE (Adam, ``lr_optics``) and the network
+    (Adam, ``lr_net``). Both learning rates decay exponentially to ``lr_final_fraction`` of
+    their start over ``steps`` (the paper: x0.99 per iteration for 150 iterations);
+    gradients of the DOE and of the network are each clipped to the norm ``grad_clip``
+    (0: no clipping). ``train_doe``/``train_net`` freeze either part; a fixed DOE's PSFs are
+    precomputed at ``psf_table_depths`` depths (uniform in 1/z) and interpolated.
+    The camera that observes ``I*`` adds Gaussian noise ``noise_sigma`` and, with
+    ``quantize_capture``, rounds to 8 bits. ``threads``: torch CPU threads (0: torch's
+    default). ``device``: ``auto`` (a CUDA GPU when available), ``cpu`` or ``cuda``.
+    Checkpoints every ``checkpoint_every`` steps; the newest ``keep_checkpoints`` step files
+    are kept (0: all).
+    """
 
     steps: int = 400
     batch_size: int = 4
@@ -268,21 +308,37 @@ class TrainConfig:
     grad_clip: float = 1.0
     seed: int = 0
     checkpoint_every: int = 50
+    keep_checkpoints: int = 3
     train_doe: bool = True
     train_net: bool = True
+    depth_sampling: str = "uniform"
+    psf_table_depths: int = 128
     noise_sigma: float = 0.0
     quantize_capture: bool = False
     threads: int = 0
+    device: str = "auto"
 
     def validate(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1:
             raise ConfigError("train.steps, train.batch_size and train.checkpoint_every must be >= 1")
+        if self.keep_checkpoints < 0:
+            raise ConfigError("train.keep_checkpoints must be >= 0 (0 keeps all)")
         if self.lr_optics < 0 or self.lr_net < 0:
             raise ConfigError("train.lr_optics and train.lr_net must be >= 0")
         if not (0.0 < self.lr_final_fraction <= 1.0):
             raise ConfigError("train.lr_final_fraction must be in (0, 1]")
+        if self.grad_clip < 0:
+            raise ConfigError("train.grad_clip must be >= 0 (0 disables clipping)")
         if self.noise_sigma < 0:
             raise ConfigError("train.noise_sigma must be >= 0")
+        if self.depth_sampling not in ("uniform", "stratified"):
+            raise ConfigError(_unknown_choice("train.depth_sampling", self.depth_sampling, ("uniform", "stratified")))
+        if self.psf_table_depths < 2:
+            raise ConfigError("train.psf_table_depths must be >= 2")
+        if self.threads < 0:
+            raise ConfigError("train.threads must be >= 0 (0: torch's default)")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ConfigError(_unknown_choice("train.device", self.device, ("auto", "cpu", "cuda")))
 
 
 @dataclass

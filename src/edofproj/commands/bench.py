@@ -1,0 +1,160 @@
+"""``edofproj bench``: milliseconds per compensated 3-channel frame (the paper's Table 1).
+
+Methods: ``wiener`` (non-blind Wiener with a cached filter: SciPy FFT and PyTorch), ``unet``
+(the compensation network: PyTorch with channels_last in inference mode, and ONNX Runtime),
+``onlineprodeb`` (the baseline re-implementation, PyTorch and ONNX Runtime) and ``cls``
+(box-constrained least squares, 100 iterations, PyTorch). The network is the one of
+``--run`` (trained weights) or an untrained one of ``--widths``: the cost does not depend on
+the weights. Each case runs on the CPU, and on CUDA when available. The median over
+``--repeats`` timed frames after ``--warmup`` frames is reported.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import EdofprojError
+from ..fileio import write_text_atomic
+from ._common import parse_name_list
+
+METHODS = ("wiener", "unet", "onlineprodeb", "cls")
+DEFAULT_SIZES = "256x256,600x800,768x1024"
+
+
+def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray:
+    """A defocus-like PSF (C, K, K): a uniform disk filling the window, summing to ``energy``."""
+    if window < 1 or window % 2 == 0:
+        raise EdofprojError(f"--window={window} must be odd and >= 1")
+    radius = window // 2
+    y, x = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    disk = (x ** 2 + y ** 2 <= radius ** 2 + 0.5).astype(np.float64)
+    return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
+
+
+def network_from_widths(spec: str) -> torch.nn.Module:
+    """A :class:`CompensationUNet` of a named width preset or comma-separated channel counts."""
+    from ..compensation.unet import CompensationUNet, width_preset
+
+    if spec.replace(",", "").replace(" ", "").isdigit():
+        widths = [int(w) for w in spec.split(",")]
+    else:
+        widths = width_preset(spec)
+    return CompensationUNet(widths)
+
+
+def devices(requested: str) -> list[str]:
+    if requested == "auto":
+        return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    if requested == "cuda" and not torch.cuda.is_available():
+        raise EdofprojError("--device cuda: no CUDA device is available to PyTorch")
+    return [requested]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("bench", help="time the compensation methods per frame (paper Table 1)",
+                              description=__doc__.split("\n")[0])
+    p.add_argument("--sizes", default=DEFAULT_SIZES, help=f"frame sizes HxW, comma-separated (default {DEFAULT_SIZES})")
+    p.add_argument("--repeats", type=int, default=10, help="timed frames per case and size (median reported)")
+    p.add_argument("--warmup", type=int, default=2, help="untimed frames before timing")
+    p.add_argument("--run", default=None, help="time the trained network of this run directory")
+    p.add_argument("--widths", default=None,
+                   help="U-Net width preset (default, fast, paper) or channel counts, e.g. 8,16,32 (without --run)")
+    p.add_argument("--methods", default="wiener,unet",
+                   help=f"comma-separated subset of {', '.join(METHODS)} (default: wiener,unet)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="auto: the CPU, and CUDA when available")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for PyTorch, SciPy and ONNX Runtime")
+    p.add_argument("--window", type=int, default=None, help="PSF window K for Wiener/CLS (default: config psf.window)")
+    p.add_argument("--nsr", type=float, default=1e-3, help="Wiener noise-to-signal ratio (does not change the time)")
+    p.add_argument("--cls-iterations", type=int, default=100, help="iterations of the constrained solver")
+    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime cases")
+    p.add_argument("--csv", default=None, help="also write the timings as CSV")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..config import Config
+    from ..evaluation import timing
+
+    sizes = timing.parse_sizes(args.sizes)
+    methods = parse_name_list(args.methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise EdofprojError(f"--methods: unknown method '{unknown[0] if unknown else ''}' (known: {', '.join(METHODS)})")
+    if args.repeats < 1 or args.warmup < 0:
+        raise EdofprojError("--repeats must be >= 1 and --warmup >= 0")
+    if args.threads is not None:
+        if args.threads < 1:
+            raise EdofprojError("--threads must be >= 1")
+        torch.set_num_threads(args.threads)
+    if args.run and args.widths:
+        raise EdofprojError("--widths and --run exclude each other (a run has its own network)")
+
+    cfg = Config()
+    net = None
+    net_label = "unet"
+    if "unet" in methods:
+        if args.run:
+            from ..training.runs import last_checkpoint_path, load_run
+
+            if not last_checkpoint_path(args.run).is_file():
+                raise EdofprojError(f"run '{args.run}' has no checkpoint ({last_checkpoint_path(args.run)}): train it first")
+            trained = load_run(args.run)
+            cfg, net, net_label = trained.cfg, trained.net, trained.cfg.net.architecture
+        else:
+            net = network_from_widths(args.widths or "default")
+    psf = disk_psf(args.window if args.window is not None else cfg.psf.window)
+
+    networks = []
+    if net is not None:
+        networks.append((net_label, net))
+    if "onlineprodeb" in methods:
+        from ..compensation.onlineprodeb import OnlineProDebNet
+
+        networks.append(("onlineprodeb", OnlineProDebNet.from_preset("default")))
+
+    with tempfile.TemporaryDirectory(prefix="edofproj-bench-") as tmp:
+        onnx_files: dict[int, Path] = {}
+        cases = []
+        for device in devices(args.device):
+            if "wiener" in methods:
+                if device == "cpu":
+                    cases.append(timing.wiener_scipy_case(psf, args.nsr, workers=args.threads))
+                cases.append(timing.wiener_torch_case(psf, args.nsr, device))
+            for index, (label, network) in enumerate(networks):
+                cases.append(timing.network_torch_case(network, label, device))
+                if args.no_onnx:
+                    continue
+                if not timing.onnx_available(device):
+                    print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",
+                          file=sys.stderr)
+                    continue
+                if index not in onnx_files:
+                    from .export import export_network
+
+                    onnx_files[index] = Path(tmp) / f"net{index}.onnx"
+                    export_network(network, onnx_files[index], "onnx", *sizes[0])
+                cases.append(timing.network_onnx_case(str(onnx_files[index]), label, device, args.threads))
+            if "cls" in methods:
+                cases.append(timing.cls_torch_case(psf, args.cls_iterations, device))
+
+        def progress(t: timing.Timing) -> None:
+            print(f"  {t.method}/{t.backend}/{t.device} {t.height}x{t.width}: {t.median_ms:.1f} ms",
+                  file=sys.stderr, flush=True)
+
+        results = timing.time_cases(cases, sizes, args.repeats, args.warmup, progress)
+
+    threads = args.threads or torch.get_num_threads()
+    print(f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}, "
+          f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame)")
+    print(timing.format_table(results))
+    if args.csv:
+        write_text_atomic(args.csv, timing.timings_csv(results))
+        print(f"wrote {args.csv}")
+    return 0

@@ -1,0 +1,154 @@
+"""``edofproj export``: export the compensation network of a trained run (ONNX or TorchScript).
+
+The exported model takes ``target`` and ``captured`` (1, 3, H, W) float32 images and returns
+``projector_input`` (unclamped, as the PyTorch network). ONNX uses the TorchScript-based
+exporter (``dynamo=False``, opset 17) with dynamic batch, height and width; TorchScript is a
+trace. Before the file is moved into place, the export is run on two frame sizes (the
+requested one and a smaller odd one) and compared with PyTorch: a maximum absolute
+difference above 1e-4 is an error and nothing is written.
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import EdofprojError
+from ..fileio import atomic_path
+
+EXPORT_FORMATS = ("onnx", "torchscript")
+ONNX_OPSET = 17
+TOLERANCE = 1e-4
+INPUT_NAMES = ("target", "captured")
+OUTPUT_NAME = "projector_input"
+DEFAULT_FILE_NAMES = {"onnx": "net.onnx", "torchscript": "net.torchscript.pt"}
+
+
+def _require_onnx() -> None:
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        raise EdofprojError("ONNX export needs the onnx and onnxruntime packages: pip install onnx onnxruntime") from None
+
+
+def verification_sizes(height: int, width: int) -> list[tuple[int, int]]:
+    """The export size and a second, smaller odd size (checks that H and W are really dynamic)."""
+    return [(height, width), ((height // 2 + 3) | 1, (width // 2 + 5) | 1)]
+
+
+def _example_inputs(height: int, width: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    target = torch.rand(1, 3, height, width, generator=generator)
+    return target, (0.8 * target + 0.1).clamp(0, 1)
+
+
+def _write_onnx(net: torch.nn.Module, path: Path, height: int, width: int) -> None:
+    dynamic = {0: "batch", 2: "height", 3: "width"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # tracer warnings about Python-int shape arithmetic
+        torch.onnx.export(
+            net, _example_inputs(height, width, 0), str(path), dynamo=False, opset_version=ONNX_OPSET,
+            input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
+            dynamic_axes={name: dynamic for name in (*INPUT_NAMES, OUTPUT_NAME)},
+        )
+
+
+def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traced = torch.jit.trace(net, _example_inputs(height, width, 0), check_trace=False)
+    torch.jit.save(traced, str(path))
+
+
+def _run_onnx(path: Path):
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return lambda target, captured: session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
+
+
+def _run_torchscript(path: Path):
+    module = torch.jit.load(str(path), map_location="cpu")
+
+    def run(target, captured):
+        with torch.inference_mode():
+            return module(target, captured).numpy()
+
+    return run
+
+
+def export_network(net: torch.nn.Module, path: str | Path, format: str = "onnx", height: int = 256,
+                   width: int = 256, verify: bool = True) -> float:
+    """Export ``net(target, captured)`` to ``path`` (atomically); return the max |export − PyTorch|.
+
+    ``format``: ``onnx`` or ``torchscript``; ``height``/``width``: the example frame used for
+    tracing (ONNX keeps batch, height and width dynamic). With ``verify`` the exported file
+    is run on :func:`verification_sizes` and must match PyTorch within 1e-4, else an
+    :class:`EdofprojError` is raised and no file is written. Returns NaN when not verified.
+    """
+    if format not in EXPORT_FORMATS:
+        raise EdofprojError(f"unknown export format '{format}' (known: {', '.join(EXPORT_FORMATS)})")
+    if height < 1 or width < 1:
+        raise EdofprojError(f"export size {height}x{width} must be positive")
+    if format == "onnx":
+        _require_onnx()
+    net = copy.deepcopy(net).cpu().float().eval()
+    worst = float("nan")
+    with atomic_path(path) as tmp:
+        writer, runner = (_write_onnx, _run_onnx) if format == "onnx" else (_write_torchscript, _run_torchscript)
+        writer(net, tmp, height, width)
+        if verify:
+            run_exported = runner(tmp)
+            worst = 0.0
+            for seed, (h, w) in enumerate(verification_sizes(height, width), start=1):
+                target, captured = _example_inputs(h, w, seed)
+                with torch.inference_mode():
+                    reference = net(target, captured).numpy()
+                difference = float(np.max(np.abs(run_exported(target, captured) - reference)))
+                worst = max(worst, difference)
+                if not difference <= TOLERANCE:
+                    raise EdofprojError(
+                        f"the {format} export differs from PyTorch by {difference:.3g} (> {TOLERANCE:g}) "
+                        f"at {h}x{w}; nothing written"
+                    )
+    return worst
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("export", help="export a run's compensation network to ONNX or TorchScript",
+                              description=__doc__.split("\n")[0])
+    p.add_argument("run", metavar="RUN", help="a training run directory (runs/<name>)")
+    p.add_argument("--format", choices=EXPORT_FORMATS, default="onnx", help="output format (default: onnx)")
+    p.add_argument("--out", default=None,
+                   help="output file (default: RUN/net.onnx or RUN/net.torchscript.pt)")
+    p.add_argument("--height", type=int, default=256, help="example frame height for tracing (default 256)")
+    p.add_argument("--width", type=int, default=256, help="example frame width for tracing (default 256)")
+    p.add_argument("--no-verify", action="store_true", help="skip the comparison with PyTorch")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..training.runs import last_checkpoint_path, load_run
+
+    run_dir = Path(args.run)
+    if not run_dir.is_dir():
+        raise EdofprojError(f"run directory '{run_dir}' does not exist")
+    if not last_checkpoint_path(run_dir).is_file():
+        raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(run_dir)}): train it first")
+    if args.format == "onnx":
+        _require_onnx()
+    out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
+    trained = load_run(run_dir)
+    worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)
+    checked = "" if args.no_verify else (
+        f"; max |{args.format} - PyTorch| = {worst:.2g} at "
+        + " and ".join(f"{h}x{w}" for h, w in verification_sizes(args.height, args.width))
+    )
+    dynamic = f"opset {ONNX_OPSET}, dynamic batch/height/width" if args.format == "onnx" else "traced"
+    print(f"wrote {out} ({args.format}, {dynamic}, step {trained.step}{checked})")
+    return 0

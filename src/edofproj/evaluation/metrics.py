@@ -1,0 +1,218 @@
+"""Image-quality metrics for batches of RGB images ``(B, 3, H, W)`` in ``[0, 1]``.
+
+All functions return one value per image, a tensor of shape ``(B,)``; the data range is 1.
+They are differentiable (the training losses reuse them).
+
+* :func:`psnr` - ``10 log10(1 / MSE)``, the MSE over all channels and pixels
+  (= ``skimage.metrics.peak_signal_noise_ratio(..., data_range=1)``).
+* :func:`ssim` - SSIM (Wang et al. 2004) with an 11×11 Gaussian window (sigma 1.5),
+  population (co)variances, ``K1 = 0.01, K2 = 0.03``, averaged over the positions where the
+  window lies inside the image and over the channels; this is exactly
+  ``skimage.metrics.structural_similarity(..., channel_axis, data_range=1,
+  gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
+* :func:`ms_ssim` - multi-scale SSIM (Wang, Simoncelli, Bovik 2003), see its docstring.
+* :func:`dists`, :func:`lpips` - perceptual metric objects with pretrained networks; they raise
+  :class:`~edofproj.perceptual.PerceptualWeightsMissing` when the weights are not on this
+  machine (report such a metric as unavailable, never as 0).
+  :func:`available_perceptual_metrics` tells which ones can be built.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Optional
+
+import torch
+from torch.nn import functional as F
+
+from ..errors import EdofprojError
+from ..perceptual import DISTS, LPIPS, PerceptualWeightsMissing
+from ..perceptual.lpips import LPIPS_BACKBONES
+from ..perceptual.weights import backbone_weights_path, metric_weights_path
+
+__all__ = [
+    "MS_SSIM_WEIGHTS",
+    "PERCEPTUAL_METRICS",
+    "PerceptualWeightsMissing",
+    "available_perceptual_metrics",
+    "dists",
+    "lpips",
+    "ms_ssim",
+    "ms_ssim_scales",
+    "perceptual_metric",
+    "psnr",
+    "ssim",
+]
+
+SSIM_SIGMA = 1.5
+SSIM_TRUNCATE = 3.5  # scipy/skimage: window radius = int(3.5 * sigma + 0.5) = 5, i.e. 11 taps
+SSIM_K1 = 0.01
+SSIM_K2 = 0.03
+#: Exponents of the five MS-SSIM scales, finest first (Wang et al. 2003).
+MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
+#: Names accepted by :func:`perceptual_metric`.
+PERCEPTUAL_METRICS = ("dists", "lpips-alex", "lpips-vgg")
+
+PathLike = str | os.PathLike
+
+
+def _check_pair(pred: torch.Tensor, target: torch.Tensor, name: str) -> None:
+    if pred.dim() != 4 or pred.shape != target.shape:
+        raise EdofprojError(
+            f"{name} needs two (B, C, H, W) batches of the same shape, got "
+            f"{tuple(pred.shape)} and {tuple(target.shape)}"
+        )
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Peak signal-to-noise ratio in dB per image: ``10 log10(1 / mean((pred - target)^2))``.
+
+    Identical images give ``inf``.
+    """
+    _check_pair(pred, target, "psnr")
+    mse = (pred - target).pow(2).flatten(1).mean(1)
+    return 10 * torch.log10(1.0 / mse)
+
+
+def gaussian_window(sigma: float = SSIM_SIGMA, truncate: float = SSIM_TRUNCATE,
+                    dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+    """1-D Gaussian ``exp(-x^2 / (2 sigma^2))`` for ``|x| <= int(truncate sigma + 0.5)``, sum 1
+    (the window of ``scipy.ndimage.gaussian_filter``)."""
+    radius = int(truncate * sigma + 0.5)
+    x = torch.arange(-radius, radius + 1, dtype=dtype, device=device)
+    window = torch.exp(-0.5 * (x / sigma) ** 2)
+    return window / window.sum()
+
+
+def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+    """Separable Gaussian filter of every channel, only where the window fits ("valid")."""
+    channels = images.shape[1]
+    size = window.numel()
+    rows = window.view(1, 1, 1, size).expand(channels, 1, 1, size)
+    cols = window.view(1, 1, size, 1).expand(channels, 1, size, 1)
+    return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels)
+
+
+def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean SSIM and mean contrast-structure term per image, both ``(B,)``.
+
+    With local Gaussian-weighted means ``mu``, variances ``sigma^2`` and covariance
+    ``sigma_xy``, ``C1 = (K1 L)^2``, ``C2 = (K2 L)^2``, ``L = 1``:
+
+        cs   = (2 sigma_xy + C2) / (sigma_x^2 + sigma_y^2 + C2)
+        SSIM = (2 mu_x mu_y + C1) / (mu_x^2 + mu_y^2 + C1) * cs
+    """
+    window = gaussian_window(dtype=pred.dtype, device=pred.device)
+    if min(pred.shape[-2:]) < window.numel():
+        raise EdofprojError(
+            f"SSIM needs images of at least {window.numel()}x{window.numel()} pixels, got "
+            f"{pred.shape[-2]}x{pred.shape[-1]}"
+        )
+    channels = pred.shape[1]
+    stacked = torch.cat([pred, target, pred * pred, target * target, pred * target], dim=1)
+    mu_x, mu_y, xx, yy, xy = torch.split(_filter_valid(stacked, window), channels, dim=1)
+    var_x = xx - mu_x * mu_x
+    var_y = yy - mu_y * mu_y
+    cov_xy = xy - mu_x * mu_y
+    c1, c2 = SSIM_K1**2, SSIM_K2**2
+    contrast_structure = (2 * cov_xy + c2) / (var_x + var_y + c2)
+    luminance = (2 * mu_x * mu_y + c1) / (mu_x * mu_x + mu_y * mu_y + c1)
+    return (luminance * contrast_structure).flatten(1).mean(1), contrast_structure.flatten(1).mean(1)
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Structural similarity per image (see the module docstring); images >= 11×11 pixels."""
+    _check_pair(pred, target, "ssim")
+    return _ssim_and_contrast_structure(pred, target)[0]
+
+
+def ms_ssim_scales(height: int, width: int, max_scales: int = len(MS_SSIM_WEIGHTS)) -> int:
+    """Number of MS-SSIM scales for an image: at most ``max_scales``, and the coarsest scale
+    (``floor(size / 2^(scales-1))``) must still hold the 11-pixel Gaussian window."""
+    window = gaussian_window().numel()
+    scales = 0
+    while scales < max_scales and min(height, width) // 2**scales >= window:
+        scales += 1
+    return scales
+
+
+def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Multi-scale SSIM per image (Wang, Simoncelli, Bovik 2003):
+
+        MS-SSIM = SSIM_M^{w_M} * prod_{j<M} cs_j^{w_j}
+
+    where scale ``j + 1`` is scale ``j`` average-pooled 2×2, ``cs_j`` / ``SSIM_M`` are the mean
+    contrast-structure term / the mean SSIM (as in :func:`ssim`) and ``w`` =
+    :data:`MS_SSIM_WEIGHTS`. Negative ``cs``/``SSIM`` values are set to 0 before the powers
+    (as in torchmetrics' ``normalize="relu"``).
+
+    Small images: the number of scales ``M`` is reduced (:func:`ms_ssim_scales`) so the
+    coarsest scale still holds the 11×11 window, and the first ``M`` weights are rescaled to
+    sum to 1 (e.g. 128×128 crops use 4 scales, 128 → 16 pixels). Images below 11×11 raise.
+    """
+    _check_pair(pred, target, "ms_ssim")
+    scales = ms_ssim_scales(pred.shape[-2], pred.shape[-1])
+    if scales == 0:
+        raise EdofprojError(
+            f"MS-SSIM needs images of at least 11x11 pixels, got {pred.shape[-2]}x{pred.shape[-1]}"
+        )
+    weights = torch.tensor(MS_SSIM_WEIGHTS[:scales], dtype=pred.dtype, device=pred.device)
+    weights = weights / weights.sum()
+    result = pred.new_ones(pred.shape[0])
+    for scale in range(scales):
+        if scale > 0:
+            pred, target = F.avg_pool2d(pred, 2), F.avg_pool2d(target, 2)
+        full, contrast_structure = _ssim_and_contrast_structure(pred, target)
+        term = full if scale == scales - 1 else contrast_structure
+        result = result * F.relu(term) ** weights[scale]
+    return result
+
+
+# --------------------------------------------------------------------------- perceptual
+
+
+def dists(weights_dir: Optional[PathLike] = None) -> DISTS:
+    """The DISTS metric object: ``metric(pred, target) -> (B,)``, lower is better.
+
+    Raises :class:`PerceptualWeightsMissing` when its weight files are absent.
+    """
+    return DISTS.load(weights_dir)
+
+
+def lpips(net: str = "alex", weights_dir: Optional[PathLike] = None) -> LPIPS:
+    """The LPIPS metric object (``net``: ``alex`` or ``vgg``): ``metric(pred, target) -> (B,)``.
+
+    Raises :class:`PerceptualWeightsMissing` when its weight files are absent.
+    """
+    return LPIPS.load(net, weights_dir)
+
+
+def perceptual_metric(name: str, weights_dir: Optional[PathLike] = None) -> DISTS | LPIPS:
+    """Metric object by name: one of :data:`PERCEPTUAL_METRICS`."""
+    if name == "dists":
+        return dists(weights_dir)
+    if name.startswith("lpips-") and name[len("lpips-"):] in LPIPS_BACKBONES:
+        return lpips(name[len("lpips-"):], weights_dir)
+    raise EdofprojError(
+        f"unknown perceptual metric '{name}' (allowed: {', '.join(PERCEPTUAL_METRICS)})"
+    )
+
+
+def available_perceptual_metrics(weights_dir: Optional[PathLike] = None) -> dict[str, bool]:
+    """For each name in :data:`PERCEPTUAL_METRICS`: are all its weight files present?
+
+    Only checks that the files exist (cheap); loading can still fail on a corrupt file.
+    """
+    needs = {"dists": ("dists", "vgg16")}
+    needs.update({f"lpips-{net}": (f"lpips-{net}", backbone) for net, (backbone, _) in LPIPS_BACKBONES.items()})
+    available = {}
+    for name in PERCEPTUAL_METRICS:
+        metric_file, backbone = needs[name]
+        try:
+            metric_weights_path(metric_file, weights_dir)
+            backbone_weights_path(backbone, weights_dir)
+        except PerceptualWeightsMissing:
+            available[name] = False
+        else:
+            available[name] = True
+    return available

@@ -1,0 +1,244 @@
+"""Wall-clock time per compensated frame (the paper's Table 1).
+
+A *case* is one way of compensating a 3-channel frame: a method (``wiener``, ``unet``,
+``onlineprodeb``, ``cls``) run by one backend (``scipy``, ``torch``, ``onnxruntime``) on one
+device (``cpu``, ``cuda``). :func:`time_cases` builds each case's frame function for each
+frame size, calls it ``warmup`` times (caches such as the Wiener filter for that size are
+filled then, as they would be for a video), then ``repeats`` times, and reports the median
+in milliseconds. CUDA work is synchronized before the clock is read.
+
+Inputs are random images: the cost of these methods does not depend on the content.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import statistics
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+import torch
+
+from ..compensation.constrained import box_constrained_deconvolution
+from ..compensation.wiener import TorchWienerCompensator, WienerCompensator
+from ..errors import EdofprojError
+
+FrameFunction = Callable[[], object]
+
+
+@dataclass(frozen=True)
+class Case:
+    """One compensator to time: ``build(height, width)`` returns a zero-argument frame function."""
+
+    method: str
+    backend: str
+    device: str
+    build: Callable[[int, int], FrameFunction]
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Median time of one case at one frame size."""
+
+    method: str
+    backend: str
+    device: str
+    height: int
+    width: int
+    median_ms: float
+    repeats: int
+
+
+def measure_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2,
+               synchronize: Callable[[], None] | None = None) -> list[float]:
+    """Milliseconds of each of ``repeats`` calls of ``frame`` after ``warmup`` untimed calls."""
+    if repeats < 1 or warmup < 0:
+        raise EdofprojError(f"repeats={repeats} must be >= 1 and warmup={warmup} >= 0")
+    sync = synchronize or (lambda: None)
+    for _ in range(warmup):
+        frame()
+    sync()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        frame()
+        sync()
+        times.append((time.perf_counter() - start) * 1e3)
+    return times
+
+
+def _synchronizer(device: str) -> Callable[[], None] | None:
+    return torch.cuda.synchronize if device.startswith("cuda") else None
+
+
+def time_cases(cases: Iterable[Case], sizes: Sequence[tuple[int, int]], repeats: int = 10,
+               warmup: int = 2, progress: Callable[[Timing], None] | None = None) -> list[Timing]:
+    """Median milliseconds per frame of every case at every ``(height, width)``."""
+    results = []
+    for case in cases:
+        for height, width in sizes:
+            frame = case.build(height, width)
+            times = measure_ms(frame, repeats, warmup, _synchronizer(case.device))
+            timing = Timing(case.method, case.backend, case.device, height, width,
+                            statistics.median(times), repeats)
+            results.append(timing)
+            if progress is not None:
+                progress(timing)
+            del frame
+    return results
+
+
+# --------------------------------------------------------------------------- cases
+
+
+def _random_frame(height: int, width: int, device: str, seed: int = 0) -> torch.Tensor:
+    generator = torch.Generator().manual_seed(seed)
+    return torch.rand(1, 3, height, width, generator=generator).to(device)
+
+
+def wiener_scipy_case(psf, nsr: float = 1e-3, workers: int | None = None) -> Case:
+    """:class:`WienerCompensator` (SciPy FFT, cached filter) on the CPU."""
+    compensator = WienerCompensator(psf, nsr, workers=workers)
+
+    def build(height: int, width: int) -> FrameFunction:
+        image = _random_frame(height, width, "cpu")[0].numpy()
+        return lambda: compensator(image)
+
+    return Case("wiener", "scipy", "cpu", build)
+
+
+def wiener_torch_case(psf, nsr: float = 1e-3, device: str = "cpu") -> Case:
+    """:class:`TorchWienerCompensator` (cached filter) on ``device``."""
+    compensator = TorchWienerCompensator(psf, nsr)
+
+    def build(height: int, width: int) -> FrameFunction:
+        image = _random_frame(height, width, device)
+
+        def frame():
+            with torch.inference_mode():
+                return compensator(image)
+
+        return frame
+
+    return Case("wiener", "torch", device, build)
+
+
+def cls_torch_case(psf, iterations: int = 100, device: str = "cpu") -> Case:
+    """Box-constrained least squares (:mod:`edofproj.compensation.constrained`) on ``device``."""
+    psf = torch.as_tensor(np.asarray(psf), dtype=torch.float32)
+
+    def build(height: int, width: int) -> FrameFunction:
+        image = _random_frame(height, width, device)
+        return lambda: box_constrained_deconvolution(image, psf.to(device), iterations=iterations)
+
+    return Case("cls", "torch", device, build)
+
+
+def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu",
+                       channels_last: bool = True) -> Case:
+    """``net(target, captured)`` in ``torch.inference_mode`` (``channels_last`` memory format)."""
+    net = net.eval().to(device)
+    memory_format = torch.channels_last if channels_last else torch.contiguous_format
+    net = net.to(memory_format=memory_format)
+
+    def build(height: int, width: int) -> FrameFunction:
+        target = _random_frame(height, width, device, 0).contiguous(memory_format=memory_format)
+        captured = _random_frame(height, width, device, 1).contiguous(memory_format=memory_format)
+
+        def frame():
+            with torch.inference_mode():
+                return net(target, captured)
+
+        return frame
+
+    return Case(method, "torch", device, build)
+
+
+def onnx_available(device: str) -> bool:
+    """Whether ONNX Runtime is installed and can run on ``device`` (``cpu`` or ``cuda``)."""
+    try:
+        import onnxruntime
+    except ImportError:
+        return False
+    return device == "cpu" or "CUDAExecutionProvider" in onnxruntime.get_available_providers()
+
+
+def onnx_providers(device: str) -> list[str]:
+    """ONNX Runtime execution providers for ``device`` (raises if CUDA is not available)."""
+    import onnxruntime
+
+    if device == "cpu":
+        return ["CPUExecutionProvider"]
+    if "CUDAExecutionProvider" not in onnxruntime.get_available_providers():
+        raise EdofprojError("ONNX Runtime has no CUDAExecutionProvider (install onnxruntime-gpu)")
+    return ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+
+def network_onnx_case(onnx_path: str, method: str, device: str = "cpu",
+                      threads: int | None = None) -> Case:
+    """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime."""
+    import onnxruntime
+
+    options = onnxruntime.SessionOptions()
+    if threads:
+        options.intra_op_num_threads = int(threads)
+    session = onnxruntime.InferenceSession(str(onnx_path), options, providers=onnx_providers(device))
+
+    def build(height: int, width: int) -> FrameFunction:
+        feed = {
+            "target": _random_frame(height, width, "cpu", 0).numpy(),
+            "captured": _random_frame(height, width, "cpu", 1).numpy(),
+        }
+        return lambda: session.run(None, feed)
+
+    return Case(method, "onnxruntime", device, build)
+
+
+# --------------------------------------------------------------------------- reporting
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """``"256x256,600x800"`` → ``[(256, 256), (600, 800)]`` (height × width)."""
+    sizes = []
+    for part in str(text).split(","):
+        part = part.strip().lower()
+        if not part:
+            continue
+        try:
+            height, width = (int(v) for v in part.split("x"))
+        except ValueError:
+            raise EdofprojError(f"frame size '{part}' must look like HEIGHTxWIDTH, e.g. 600x800") from None
+        if height < 1 or width < 1:
+            raise EdofprojError(f"frame size '{part}' must be positive")
+        sizes.append((height, width))
+    if not sizes:
+        raise EdofprojError("no frame sizes given (e.g. --sizes 256x256,600x800)")
+    return sizes
+
+
+def format_table(timings: Sequence[Timing]) -> str:
+    """A Markdown table: one row per (method, backend, device), one column per frame size (ms)."""
+    sizes = list(dict.fromkeys((t.height, t.width) for t in timings))
+    rows = list(dict.fromkeys((t.method, t.backend, t.device) for t in timings))
+    value = {(t.method, t.backend, t.device, t.height, t.width): t.median_ms for t in timings}
+    header = ["method", "backend", "device"] + [f"{h}x{w} (ms)" for h, w in sizes]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        cells = [f"{value[row + size]:.1f}" if row + size in value else "n/a" for size in sizes]
+        lines.append("| " + " | ".join(list(row) + cells) + " |")
+    return "\n".join(lines)
+
+
+def timings_csv(timings: Sequence[Timing]) -> str:
+    """CSV text with one line per timing (columns of :class:`Timing`)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(Timing.__dataclass_fields__), lineterminator="\n")
+    writer.writeheader()
+    for timing in timings:
+        row = asdict(timing)
+        row["median_ms"] = f"{timing.median_ms:.3f}"
+        writer.writerow(row)
+    return buffer.getvalue()

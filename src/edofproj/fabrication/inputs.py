@@ -1,0 +1,34 @@
+"""The input of the fabrication commands: a run directory (with ``doe.npz``) or a DOE design file.
+
+For a run directory the run's own ``config.yaml`` (if present) is the base configuration; an
+explicit ``--config`` replaces it; ``--set`` overrides apply last.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..config import Config, load_config
+from ..doe.factory import resolve_doe_file
+
+RUN_CONFIG = "config.yaml"
+
+
+@dataclass(frozen=True)
+class DesignInput:
+    """The design file and, when the input was a run, its run directory."""
+
+    doe_file: Path
+    run_dir: Path | None
+
+    @classmethod
+    def resolve(cls, spec: str) -> "DesignInput":
+        doe_file = resolve_doe_file(spec)
+        run_dir = Path(spec) if Path(spec).is_dir() else None
+        return cls(doe_file, run_dir)
+
+    def config(self, config_arg: str | None = None, overrides=()) -> Config:
+        if config_arg is None and self.run_dir is not None and (self.run_dir / RUN_CONFIG).is_file():
+            config_arg = str(self.run_dir / RUN_CONFIG)
+        return load_config(config_arg, list(overrides))

@@ -1,0 +1,118 @@
+"""Reading and writing images as float tensors ``(3, H, W)`` in ``[0, 1]`` (RGB), with OpenCV.
+
+* :func:`read_image`: PNG, JPEG, TIFF, BMP, ... with 8 or 16 bits per channel; grey images are
+  repeated into three channels, an alpha channel is dropped (not composited), the EXIF
+  orientation of photographs is applied. ``value / (2^bits - 1)``.
+* :func:`write_image`: ``round(clamp(x, 0, 1) * (2^bits - 1))`` as 8 or 16 bits, written
+  atomically (:mod:`edofproj.fileio`); the format follows the file extension.
+
+OpenCV stores colour as BGR; the conversion to and from RGB happens here and nowhere else.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ..errors import EdofprojError
+from ..fileio import write_bytes_atomic
+
+WRITE_BITS = {".png": (8, 16), ".tif": (8, 16), ".tiff": (8, 16), ".jpg": (8,), ".jpeg": (8,), ".bmp": (8,)}
+"""Output extensions and the bit depths each supports."""
+
+JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
+
+
+def _jpeg_is_truncated(data: bytes) -> bool:
+    """True for a JPEG that stops before its end-of-image marker (OpenCV decodes those silently).
+
+    A missing marker at the very end is confirmed with Pillow's full decode, because some
+    writers append bytes after the marker.
+    """
+    if not data.startswith(JPEG_START) or data.rstrip(b"\x00").endswith(JPEG_END):
+        return False
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as picture:
+            picture.load()
+    except (OSError, SyntaxError, ValueError):
+        return True
+    return False
+
+
+def decode_image(data: bytes, name: str = "image") -> np.ndarray:
+    """Decode encoded image bytes to an RGB ``uint8`` or ``uint16`` array ``(H, W, 3)``."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    pixels = cv2.imdecode(raw, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH) if raw.size else None
+    if pixels is None or pixels.size == 0 or _jpeg_is_truncated(data):
+        raise EdofprojError(f"cannot read image '{name}': not a readable PNG/JPEG/TIFF/BMP file or truncated")
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise EdofprojError(f"image '{name}' has {pixels.dtype} pixels; only 8- and 16-bit images are supported")
+    return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+
+
+def to_unit_float(pixels: np.ndarray) -> np.ndarray:
+    """Integer pixels to float32 in ``[0, 1]``: ``value / max(dtype)``."""
+    return pixels.astype(np.float32) / np.float32(np.iinfo(pixels.dtype).max)
+
+
+def read_image_array(path: str | os.PathLike) -> np.ndarray:
+    """An image file as an RGB integer array ``(H, W, 3)`` (``uint8`` or ``uint16``)."""
+    path = Path(path)
+    if path.is_dir():
+        raise EdofprojError(f"cannot read image '{path}': it is a directory")
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise EdofprojError(f"image '{path}' does not exist") from None
+    except OSError as exc:
+        raise EdofprojError(f"cannot read image '{path}': {exc.strerror or exc}") from None
+    return decode_image(data, str(path))
+
+
+def read_image(path: str | os.PathLike) -> torch.Tensor:
+    """An image file as a float32 tensor ``(3, H, W)`` in ``[0, 1]``, RGB (module docstring)."""
+    pixels = to_unit_float(read_image_array(path))
+    return torch.from_numpy(np.ascontiguousarray(pixels.transpose(2, 0, 1)))
+
+
+def check_output_path(path: str | os.PathLike, bits: int = 8) -> None:
+    """Raise unless ``path``'s extension can hold ``bits``-bit images (call before long computations)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in WRITE_BITS:
+        raise EdofprojError(f"output '{path}' must end in one of {', '.join(WRITE_BITS)}")
+    if bits not in WRITE_BITS[suffix]:
+        allowed = " or ".join(str(b) for b in WRITE_BITS[suffix])
+        raise EdofprojError(f"{suffix} files hold {allowed}-bit images, not {bits}-bit (use .png for 16 bits)")
+
+
+def encode_image(image, bits: int = 8, suffix: str = ".png") -> bytes:
+    """Encode a ``(3, H, W)`` or ``(1, H, W)`` float image in ``[0, 1]`` (clamped) to file bytes."""
+    check_output_path(f"image{suffix}", bits)
+    array = image.detach().cpu().numpy() if torch.is_tensor(image) else np.asarray(image)
+    if array.ndim == 4 and array.shape[0] == 1:
+        array = array[0]
+    if array.ndim != 3 or array.shape[0] not in (1, 3):
+        raise EdofprojError(f"an image to write must be (3, H, W) or (1, H, W), got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise EdofprojError("refusing to write an image with NaN or infinite values")
+    top = (1 << bits) - 1
+    pixels = np.rint(np.clip(array.astype(np.float64), 0.0, 1.0) * top).astype(np.uint8 if bits == 8 else np.uint16)
+    pixels = pixels.transpose(1, 2, 0)
+    pixels = pixels[..., 0] if pixels.shape[-1] == 1 else cv2.cvtColor(np.ascontiguousarray(pixels), cv2.COLOR_RGB2BGR)
+    ok, encoded = cv2.imencode(suffix, np.ascontiguousarray(pixels))
+    if not ok:
+        raise EdofprojError(f"OpenCV could not encode a {bits}-bit {suffix} image")
+    return encoded.tobytes()
+
+
+def write_image(path: str | os.PathLike, image, bits: int = 8) -> None:
+    """Write a ``(3, H, W)`` float image in ``[0, 1]`` (clamped) as an 8- or 16-bit file, atomically."""
+    check_output_path(path, bits)
+    write_bytes_atomic(path, encode_image(image, bits, Path(path).suffix.lower()))

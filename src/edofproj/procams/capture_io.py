@@ -1,0 +1,105 @@
+"""Files of a projector-camera session: RGB images, capture folders, and folders written atomically.
+
+Images are ``(H, W, 3)`` float32 RGB arrays in ``[0, 1]`` here (NumPy, the layout OpenCV works
+in), read and written with :mod:`edofproj.imaging.image_io`: 8- and 16-bit files are read,
+8-bit PNGs written. A capture folder holds one
+capture per pattern under the pattern's file name (see :mod:`.patterns`); every capture of
+one session has the camera's size.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ..imaging.image_io import read_image_array, to_unit_float, write_image
+
+SATURATION_LEVEL = 1.0 - 0.5 / 255.0
+"""A value counts as saturated within half an 8-bit step of the sensor's top."""
+
+
+def read_rgb(path: str | Path, what: str = "image") -> np.ndarray:
+    """An 8- or 16-bit image file as ``(H, W, 3)`` float32 RGB in ``[0, 1]``
+    (:func:`edofproj.imaging.image_io.read_image_array`, kept in OpenCV's ``H, W, C`` layout)."""
+    path = Path(path)
+    if not path.is_file():
+        raise EdofprojError(f"{what} '{path}' does not exist")
+    return to_unit_float(read_image_array(path))
+
+
+def write_rgb_png(path: str | Path, image: np.ndarray) -> None:
+    """Write an ``(H, W, 3)`` image in ``[0, 1]`` as an 8-bit RGB PNG, atomically."""
+    write_image(path, np.ascontiguousarray(np.asarray(image, dtype=np.float32).transpose(2, 0, 1)), bits=8)
+
+
+def read_captures(folder: str | Path, files: Iterable[str], expected_hw: tuple[int, int] | None = None
+                  ) -> dict[str, np.ndarray]:
+    """The captures ``{file: (H, W, 3)}`` of ``files`` from ``folder``.
+
+    Raises one line naming the missing captures, or the first capture whose size differs from
+    ``expected_hw`` (or, without it, from the first capture).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise EdofprojError(f"capture folder '{folder}' does not exist")
+    files = list(files)
+    missing = [f for f in files if not (folder / f).is_file()]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise EdofprojError(f"capture folder '{folder}' lacks {len(missing)} of {len(files)} captures: {shown}")
+    captures = {}
+    for name in files:
+        image = read_rgb(folder / name, what="capture")
+        if expected_hw is None:
+            expected_hw = image.shape[:2]
+        if image.shape[:2] != tuple(expected_hw):
+            raise EdofprojError(
+                f"capture '{name}' is {image.shape[1]}x{image.shape[0]} pixels, expected "
+                f"{expected_hw[1]}x{expected_hw[0]} (the camera's size)"
+            )
+        captures[name] = image
+    return captures
+
+
+def saturated_fraction(image: np.ndarray) -> float:
+    """Fraction of pixels with at least one channel at the sensor's top value."""
+    return float(np.mean(np.any(np.asarray(image) >= SATURATION_LEVEL, axis=-1)))
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a fresh temporary folder beside ``path``; on success it becomes ``path``.
+
+    An existing non-empty ``path`` is refused (before any work) unless ``overwrite``; then it
+    is replaced only after the new folder is complete. On failure nothing at ``path`` changes.
+    """
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise EdofprojError(f"'{target}' exists and is not a folder")
+    if target.is_dir() and any(target.iterdir()) and not overwrite:
+        raise EdofprojError(f"folder '{target}' exists and is not empty (use --overwrite to replace it)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+    try:
+        yield tmp
+        if target.is_dir():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
+            os.replace(target, old / "previous")
+            os.replace(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+__all__ = ["read_rgb", "write_rgb_png", "read_captures", "saturated_fraction", "atomic_folder",
+           "SATURATION_LEVEL"]

@@ -1,0 +1,278 @@
+"""Calibration patterns for a projector-camera system (paper Sec. 5.1-5.2) and their manifest.
+
+One pattern set holds, all at the projector's resolution ``W x H`` (8-bit RGB PNG):
+
+* ``bernoulli_XX.png`` -- Bernoulli colour noise for PSF estimation (paper Eq. 13): every
+  pixel and channel independently 0 or 1 with probability 1/2. Single pixels, not blocks:
+  white noise has a flat expected power spectrum ``E|F{B}|^2 = N/4`` at every non-zero
+  frequency, so the deconvolution of Eq. 13 is equally well conditioned everywhere; blocks
+  of ``b`` pixels multiply the spectrum by ``sinc^2(b f)``, whose zeros at ``f = k/b``
+  cycles/pixel would leave those PSF frequencies unmeasured. Binary values also make the
+  estimate insensitive to the projector's non-linear response: only its values at 0 and 1
+  are used.
+* ``dots.png`` -- a grid of ``rows x cols`` white discs on black (paper: 16 x 32) for
+  geometric calibration; each disc is symmetric about an integer pixel, its centre.
+* ``red.png``, ``green.png``, ``blue.png`` (role ``primary``), ``white.png``, ``black.png`` --
+  full fields for the colour-mixing matrix (paper Sec. 5.2).
+* ``color_XXX.png`` -- the colour samples: ``L^3`` *uniform* full fields, one per RGB value
+  of an ``L x L x L`` grid of levels (8-bit values ``round(255 k / (L - 1))``). Uniform fields
+  rather than tiles of many colours in one image, because a tile's measured colour would be
+  biased by its neighbours' blur and by the haze (light a DOE throws far, DESIGN.md
+  "Energy"), which is ``(1 - sum p) * mean(image)`` everywhere.
+
+Coordinates: ``(x, y)`` in projector pixels, ``x`` the column, the centre of pixel
+``(row 0, col 0)`` at ``(0, 0)`` (the OpenCV convention).
+
+``manifest.json``::
+
+    {"format": "edofproj-procams-patterns", "version": 1, "width": W, "height": H,
+     "files": [{"file": "bernoulli_00.png", "role": "bernoulli", "index": 0},
+               {"file": "dots.png", "role": "dots", "grid": [rows, cols], "radius_px": r,
+                "dots": [[x, y], ...]},          # row-major: row 0 first, columns left to right
+               {"file": "red.png", "role": "primary", "color": [1, 0, 0]}, ...
+               {"file": "white.png", "role": "white", "color": [1, 1, 1]},
+               {"file": "black.png", "role": "black", "color": [0, 0, 0]},
+               {"file": "color_000.png", "role": "color_sample", "index": 0, "color": [r, g, b]}, ...]}
+
+Colours are projector *input* values in ``[0, 1]`` (exactly the stored 8-bit value / 255).
+Captures are read from a folder holding one capture per pattern under the same file name.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import EdofprojError
+
+MANIFEST_NAME = "manifest.json"
+MANIFEST_FORMAT = "edofproj-procams-patterns"
+ROLES = ("bernoulli", "dots", "primary", "white", "black", "color_sample")
+PRIMARY_COLORS = {"red": (1.0, 0.0, 0.0), "green": (0.0, 1.0, 0.0), "blue": (0.0, 0.0, 1.0)}
+
+
+@dataclass
+class PatternSpec:
+    """How to build a pattern set. ``dot_grid`` is ``(rows, cols)``; ``dot_radius_px=None`` picks
+    one eighth of the smaller dot spacing (at least 1 px)."""
+
+    width: int
+    height: int
+    bernoulli_count: int = 5
+    seed: int = 0
+    dot_grid: tuple[int, int] = (16, 32)
+    dot_radius_px: int | None = None
+    color_levels: int = 6
+
+    def validate(self) -> None:
+        if self.width < 16 or self.height < 16:
+            raise EdofprojError(f"pattern size {self.width}x{self.height} is too small (at least 16x16 pixels)")
+        if self.bernoulli_count < 1:
+            raise EdofprojError(f"--bernoulli {self.bernoulli_count} must be >= 1")
+        rows, cols = self.dot_grid
+        if rows < 2 or cols < 2:
+            raise EdofprojError(f"the dot grid {rows}x{cols} needs at least 2 rows and 2 columns")
+        if min(self.height / rows, self.width / cols) < 4:
+            raise EdofprojError(
+                f"a {rows}x{cols} dot grid does not fit {self.width}x{self.height} pixels "
+                f"(dot spacing {self.width / cols:.1f} x {self.height / rows:.1f} px; at least 4 px needed)"
+            )
+        if self.dot_radius_px is not None and self.dot_radius_px < 1:
+            raise EdofprojError(f"--dot-radius {self.dot_radius_px} must be >= 1 px")
+        if not (2 <= self.color_levels <= 17):
+            raise EdofprojError(f"--color-levels {self.color_levels} must be in 2..17")
+
+
+@dataclass
+class PatternEntry:
+    """One pattern file and its role data (see the module docstring)."""
+
+    file: str
+    role: str
+    index: int | None = None
+    color: tuple[float, float, float] | None = None
+    grid: tuple[int, int] | None = None
+    radius_px: int | None = None
+    dots: np.ndarray | None = None  # (rows * cols, 2) x, y in projector pixels, row-major
+
+    def to_json(self) -> dict:
+        item: dict = {"file": self.file, "role": self.role}
+        if self.index is not None:
+            item["index"] = int(self.index)
+        if self.color is not None:
+            item["color"] = [float(c) for c in self.color]
+        if self.grid is not None:
+            item["grid"] = [int(g) for g in self.grid]
+            item["radius_px"] = int(self.radius_px)
+            item["dots"] = [[float(x), float(y)] for x, y in self.dots]
+        return item
+
+
+@dataclass
+class PatternManifest:
+    """The pattern set of a folder: projector size and the files with their roles."""
+
+    width: int
+    height: int
+    entries: list[PatternEntry] = field(default_factory=list)
+
+    # -- lookups -----------------------------------------------------------------------
+    def with_role(self, role: str) -> list[PatternEntry]:
+        return [e for e in self.entries if e.role == role]
+
+    def one(self, role: str) -> PatternEntry:
+        found = self.with_role(role)
+        if len(found) != 1:
+            raise EdofprojError(f"the pattern manifest needs exactly one '{role}' pattern, found {len(found)}")
+        return found[0]
+
+    def primary(self, name: str) -> PatternEntry:
+        """The full field of primary ``red``, ``green`` or ``blue``."""
+        want = PRIMARY_COLORS[name]
+        for e in self.with_role("primary"):
+            if tuple(e.color) == want:
+                return e
+        raise EdofprojError(f"the pattern manifest has no {name} primary field")
+
+    # -- files -------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        return {"format": MANIFEST_FORMAT, "version": 1, "width": self.width, "height": self.height,
+                "files": [e.to_json() for e in self.entries]}
+
+    @classmethod
+    def load(cls, folder: str | Path) -> "PatternManifest":
+        path = Path(folder) / MANIFEST_NAME
+        if not Path(folder).is_dir():
+            raise EdofprojError(f"pattern folder '{folder}' does not exist")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            width, height = int(data["width"]), int(data["height"])
+            entries = []
+            for item in data["files"]:
+                role = item["role"]
+                if role not in ROLES:
+                    raise ValueError(f"unknown role '{role}'")
+                dots = np.asarray(item["dots"], dtype=float).reshape(-1, 2) if "dots" in item else None
+                entries.append(PatternEntry(
+                    file=str(item["file"]), role=role, index=item.get("index"),
+                    color=tuple(float(c) for c in item["color"]) if "color" in item else None,
+                    grid=tuple(int(g) for g in item["grid"]) if "grid" in item else None,
+                    radius_px=item.get("radius_px"), dots=dots,
+                ))
+        except FileNotFoundError:
+            raise EdofprojError(f"'{folder}' has no {MANIFEST_NAME} (make one with 'edofproj procams patterns')") from None
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise EdofprojError(f"cannot read '{path}': {exc}") from None
+        return cls(width=width, height=height, entries=entries)
+
+
+# ----------------------------------------------------------------------------- builders
+
+
+def bernoulli_noise(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """An ``(H, W, 3)`` float image of independent fair coin flips (0 or 1) per pixel and channel."""
+    return rng.integers(0, 2, size=(height, width, 3)).astype(np.float32)
+
+
+def dot_grid_centers(height: int, width: int, rows: int, cols: int) -> np.ndarray:
+    """Integer dot centres ``(rows * cols, 2)`` as ``(x, y)``: the centres of a ``rows x cols`` cell
+    grid over the image, rounded to pixels, row-major."""
+    ys = np.round((np.arange(rows) + 0.5) * height / rows - 0.5)
+    xs = np.round((np.arange(cols) + 0.5) * width / cols - 0.5)
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    return np.stack([grid_x.ravel(), grid_y.ravel()], axis=1)
+
+
+def dot_grid_image(height: int, width: int, centers: np.ndarray, radius_px: int) -> np.ndarray:
+    """White discs ``(x - cx)^2 + (y - cy)^2 <= r^2`` on black, ``(H, W, 3)`` float."""
+    image = np.zeros((height, width), np.float32)
+    offsets = np.arange(-radius_px, radius_px + 1)
+    oy, ox = np.meshgrid(offsets, offsets, indexing="ij")
+    disc = (ox ** 2 + oy ** 2) <= radius_px ** 2
+    for cx, cy in centers.astype(int):
+        ys, xs = cy + oy[disc], cx + ox[disc]
+        keep = (ys >= 0) & (ys < height) & (xs >= 0) & (xs < width)
+        image[ys[keep], xs[keep]] = 1.0
+    return np.repeat(image[:, :, None], 3, axis=2)
+
+
+def color_sample_values(levels: int) -> np.ndarray:
+    """The ``levels^3`` RGB input colours of the sampling grid, ``(levels^3, 3)``, red slowest.
+
+    Each value is an exact 8-bit level divided by 255."""
+    steps = np.round(np.linspace(0.0, 255.0, levels)) / 255.0
+    r, g, b = np.meshgrid(steps, steps, steps, indexing="ij")
+    return np.stack([r.ravel(), g.ravel(), b.ravel()], axis=1)
+
+
+def uniform_field(height: int, width: int, color) -> np.ndarray:
+    return np.broadcast_to(np.asarray(color, np.float32), (height, width, 3)).copy()
+
+
+def build_pattern_set(spec: PatternSpec) -> tuple[PatternManifest, dict[str, np.ndarray]]:
+    """All patterns of ``spec``: the manifest and ``{file name: (H, W, 3) float image in [0, 1]}``."""
+    spec.validate()
+    H, W = spec.height, spec.width
+    rng = np.random.default_rng(spec.seed)
+    manifest = PatternManifest(width=W, height=H)
+    images: dict[str, np.ndarray] = {}
+
+    def add(entry: PatternEntry, image: np.ndarray) -> None:
+        manifest.entries.append(entry)
+        images[entry.file] = image
+
+    for i in range(spec.bernoulli_count):
+        add(PatternEntry(f"bernoulli_{i:02d}.png", "bernoulli", index=i), bernoulli_noise(H, W, rng))
+
+    rows, cols = spec.dot_grid
+    radius = spec.dot_radius_px or max(1, int(min(H / rows, W / cols) // 8))
+    centers = dot_grid_centers(H, W, rows, cols)
+    add(PatternEntry("dots.png", "dots", grid=(rows, cols), radius_px=radius, dots=centers),
+        dot_grid_image(H, W, centers, radius))
+
+    for name, color in PRIMARY_COLORS.items():
+        add(PatternEntry(f"{name}.png", "primary", color=color), uniform_field(H, W, color))
+    add(PatternEntry("white.png", "white", color=(1.0, 1.0, 1.0)), uniform_field(H, W, (1, 1, 1)))
+    add(PatternEntry("black.png", "black", color=(0.0, 0.0, 0.0)), uniform_field(H, W, (0, 0, 0)))
+
+    digits = max(3, len(str(spec.color_levels ** 3 - 1)))
+    for i, color in enumerate(color_sample_values(spec.color_levels)):
+        add(PatternEntry(f"color_{i:0{digits}d}.png", "color_sample", index=i, color=tuple(color)),
+            uniform_field(H, W, color))
+    return manifest, images
+
+
+def read_pattern(folder: str | Path, entry: PatternEntry, manifest: PatternManifest) -> np.ndarray:
+    """A pattern image ``(H, W, 3)`` float in ``[0, 1]``, checked against the manifest's size."""
+    from .capture_io import read_rgb
+
+    image = read_rgb(Path(folder) / entry.file, what="pattern")
+    if image.shape[:2] != (manifest.height, manifest.width):
+        raise EdofprojError(
+            f"pattern '{entry.file}' is {image.shape[1]}x{image.shape[0]} but the manifest says "
+            f"{manifest.width}x{manifest.height}"
+        )
+    return image
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """``"16x32"`` -> ``(16, 32)`` (rows x columns)."""
+    try:
+        rows, cols = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise EdofprojError(f"--dots '{text}' must look like ROWSxCOLS, e.g. 16x32") from None
+    return rows, cols
+
+
+def manifest_json_text(manifest: PatternManifest) -> str:
+    return json.dumps(manifest.to_json(), indent=1) + "\n"
+
+
+__all__ = [
+    "PatternSpec", "PatternEntry", "PatternManifest", "build_pattern_set", "bernoulli_noise",
+    "dot_grid_centers", "dot_grid_image", "color_sample_values", "read_pattern", "parse_grid",
+    "MANIFEST_NAME",
+]

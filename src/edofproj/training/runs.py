@@ -1,0 +1,154 @@
+"""Run directories: their layout, and loading a trained run for evaluation, export or fine-tuning.
+
+    runs/<name>/
+      config.yaml              the full resolved configuration of the run
+      doe.npz                  the fabricated (quantized) DOE (:func:`edofproj.doe.save_doe`);
+                               absent for a lens-only run
+      checkpoints/last.pt      the newest checkpoint (+ step_XXXXXX.pt)
+      train_log.csv            loss per step
+      figures/                 loss curve, DOE profile, PSFs across depth
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from torch import nn
+
+from ..config import Config, dump_config, load_config, to_dict
+from ..doe import DOE, build_doe, load_doe
+from ..errors import EdofprojError
+from ..fileio import write_text_atomic
+from .checkpoint import LAST_NAME, load_checkpoint
+
+CONFIG_NAME = "config.yaml"
+DOE_NAME = "doe.npz"
+CHECKPOINT_DIR = "checkpoints"
+FIGURES_DIR = "figures"
+
+#: Keys that may change when a run is resumed (they do not change what is computed so far).
+RESUMABLE_KEYS = ("train.steps", "train.checkpoint_every", "train.keep_checkpoints", "train.threads",
+                  "train.device", "name")
+
+
+def build_net(cfg: Config) -> nn.Module:
+    """The compensation network of ``cfg.net`` (``net(target, captured) -> projector input``)."""
+    if cfg.net.architecture == "onlineprodeb":
+        from ..compensation.onlineprodeb import OnlineProDebNet
+
+        return OnlineProDebNet.from_preset("default", leaky_slope=cfg.net.leaky_slope)
+    from ..compensation.unet import CompensationUNet
+
+    return CompensationUNet.from_config(cfg.net)
+
+
+def build_run_doe(cfg: Config) -> DOE:
+    """The configured DOE, with the design-for-manufacture rules applied when
+    ``doe.min_feature_um > 0`` (:func:`edofproj.fabrication.design_rules.apply_design_rules`)."""
+    doe = build_doe(cfg)
+    if cfg.doe.min_feature_um > 0:
+        from ..fabrication.design_rules import apply_design_rules
+
+        doe = apply_design_rules(doe, cfg)
+    return doe
+
+
+def last_checkpoint_path(run_dir: str | Path) -> Path:
+    return Path(run_dir) / CHECKPOINT_DIR / LAST_NAME
+
+
+# ----------------------------------------------------------------------------- starting / resuming
+
+
+def check_new_run_dir(run_dir: str | Path) -> None:
+    """Refuse to start a fresh run in a directory that already holds files."""
+    path = Path(run_dir)
+    if path.exists() and not path.is_dir():
+        raise EdofprojError(f"--out '{path}' exists and is not a directory")
+    if path.is_dir() and any(path.iterdir()):
+        raise EdofprojError(f"--out '{path}' is not empty: use --resume to continue that run, or another --out")
+
+
+def saved_config(run_dir: str | Path, overrides=()) -> Config:
+    """The ``config.yaml`` of a run (plus ``section.key=value`` overrides)."""
+    path = Path(run_dir) / CONFIG_NAME
+    if not path.is_file():
+        raise EdofprojError(f"'{run_dir}' is not a training run (no {CONFIG_NAME})")
+    return load_config(str(path), overrides)
+
+
+def _flatten(data: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def check_resume_config(run_dir: str | Path, cfg: Config) -> None:
+    """Refuse to resume with a configuration that changes what the run computes."""
+    old = _flatten(to_dict(saved_config(run_dir)))
+    new = _flatten(to_dict(cfg))
+    changed = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMABLE_KEYS)
+    if changed:
+        shown = ", ".join(f"{k} ({old.get(k)!r} -> {new.get(k)!r})" for k in changed[:3])
+        more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
+        raise EdofprojError(
+            f"--resume: the config differs from {Path(run_dir) / CONFIG_NAME} in {shown}{more}; "
+            f"only {', '.join(RESUMABLE_KEYS)} may change"
+        )
+
+
+def write_run_config(run_dir: str | Path, cfg: Config) -> None:
+    write_text_atomic(Path(run_dir) / CONFIG_NAME, dump_config(cfg))
+
+
+# ----------------------------------------------------------------------------- loading a finished run
+
+
+@dataclass
+class TrainedRun:
+    """A trained run: its configuration, fabricated DOE, compensation network (eval mode)."""
+
+    cfg: Config
+    doe: DOE
+    net: nn.Module
+    run_dir: Path
+    step: int
+
+    def replace(self, **changes) -> "TrainedRun":
+        return dataclasses.replace(self, **changes)
+
+
+def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
+    """Load ``config.yaml``, the DOE and the network of the newest checkpoint of a run.
+
+    The DOE is the fabricated design in ``doe.npz`` when present (what a mask would make);
+    otherwise (a lens-only run, or a run without a finished checkpoint of its DOE) it is
+    rebuilt from the configuration and the checkpoint.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise EdofprojError(f"run directory '{run_dir}' does not exist")
+    cfg = saved_config(run_dir)
+    checkpoint = load_checkpoint(last_checkpoint_path(run_dir), map_location=map_location)
+    net = build_net(cfg)
+    try:
+        net.load_state_dict(checkpoint["net"])
+    except RuntimeError as exc:
+        raise EdofprojError(f"the checkpoint of '{run_dir}' does not fit its net config: "
+                            f"{str(exc).splitlines()[0]}") from None
+    net.eval()
+    doe_file = run_dir / DOE_NAME
+    if doe_file.is_file():
+        doe = load_doe(doe_file)
+    else:
+        doe = build_run_doe(cfg)
+        if checkpoint.get("doe"):
+            doe.load_state_dict(checkpoint["doe"])
+    doe.eval()
+    return TrainedRun(cfg=cfg, doe=doe, net=net, run_dir=run_dir, step=int(checkpoint["step"]))

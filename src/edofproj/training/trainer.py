@@ -1,0 +1,355 @@
+"""Joint end-to-end training of the DOE and the compensation network (paper Sec. 3, Fig. 2).
+
+One step, for a global batch of ``B`` training crops ``I_i``:
+
+1. draw a screen depth per crop, ``z_i ~ U(z_min, z_max)`` (:mod:`.sampling`);
+2. simulate the RGB PSFs of the current quantized DOE at all ``z_i`` in one call
+   (straight-through quantizer, so the DOE's parameters get gradients), or look them up
+   in a precomputed table for a fixed DOE (:mod:`.psf_table`);
+3. render ``I*_i = project(I_i, P_i)`` (each sample its own PSF), observe it with the camera
+   model, compensate ``Î_i = net(I_i, I*_i)`` and project again, ``Î*_i = project(clamp(Î_i), P_i)``
+   (:mod:`.end_to_end`);
+4. minimize ``L = (1/B) sum_i [alpha MSE(Î*_i, I_i) + beta D(Î*_i, I_i)]`` (Eq. 12) with Adam:
+   the DOE at ``lr_optics``, the network at ``lr_net``, both decayed as
+
+       lr(t) = lr_0 * f^(t / T)      (f = train.lr_final_fraction, T = train.steps),
+
+   after clipping the DOE's and the network's gradient norms (each) to ``train.grad_clip``.
+
+Runs are deterministic under ``train.seed`` and resume exactly from a checkpoint
+(:mod:`.checkpoint`). Under ``torchrun`` the same code runs data-parallel (:mod:`.distributed`):
+each process draws its share of the global batch, and DistributedDataParallel averages the
+gradients. Only rank 0 writes files. A non-finite loss or gradient stops the run with a
+one-line error naming the step; the last good checkpoint is kept.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import random
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..config import Config
+from ..doe import save_doe
+from ..errors import EdofprojError
+from ..optics.psf_bank import simulator_from_config
+from ..optics.radial_engine import warn_if_blur_exceeds_window
+from .checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
+from .distributed import (ProcessGroup, average_across_processes, barrier, setup_process_group,
+                          teardown_process_group)
+from .end_to_end import EndToEndProjector, SimulatedPSF
+from .psf_table import DepthPSFTable
+from .run_log import TrainingLog, read_log
+from .runs import (CHECKPOINT_DIR, DOE_NAME, FIGURES_DIR, TrainedRun, build_net, build_run_doe,  # noqa: F401
+                   check_new_run_dir, check_resume_config, last_checkpoint_path, load_run, write_run_config)
+from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
+
+#: Depths shown in ``figures/psf_depths.png``.
+FIGURE_DEPTHS = 6
+
+
+@dataclass
+class TrainingResult:
+    """What a call of :func:`train` did: steps ``start_step -> step``, the last loss, total seconds."""
+
+    run_dir: Path
+    start_step: int
+    step: int
+    loss: float
+    seconds: float
+
+
+# ----------------------------------------------------------------------------- building blocks
+
+
+def doe_is_trained(cfg: Config, doe: nn.Module) -> bool:
+    """The DOE is optimized when ``train.train_doe`` and it has trainable parameters (mlp, free)."""
+    return bool(cfg.train.train_doe) and any(p.requires_grad for p in doe.parameters())
+
+
+def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.Module:
+    """A :class:`SimulatedPSF` for a DOE being optimized, a :class:`DepthPSFTable` for a fixed one."""
+    engine = cfg.psf.engine if doe.radially_symmetric else "2d"
+    simulator = simulator_from_config(cfg, engine=engine, device=device)
+    z_min, z_max = cfg.psf.depth_min_mm * 1e-3, cfg.psf.depth_max_mm * 1e-3
+    warn_if_blur_exceeds_window(simulator.geometry, np.array([z_min, z_max]), simulator.window)
+    if trained:
+        return SimulatedPSF(doe, simulator)
+    for p in doe.parameters():
+        p.requires_grad_(False)
+    return DepthPSFTable.simulate(simulator, doe, z_min, z_max, cfg.train.psf_table_depths)
+
+
+def exponential_decay(total_steps: int, final_fraction: float):
+    """``t -> f^(t / T)``: the learning-rate multiplier after ``t`` of ``T`` steps."""
+    return lambda t: final_fraction ** (t / total_steps)
+
+
+def loss_terms(loss_fn, cfg: Config, projected: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(loss, mse, perceptual)``: the objective ``alpha mse + beta perceptual`` and its two
+    unweighted terms, from :meth:`CompensationLoss.terms` (perceptual ``nan`` when unused)."""
+    if hasattr(loss_fn, "terms"):
+        terms = loss_fn.terms(projected, target)
+        loss, mse, perceptual = terms["total"], terms["mse"].detach(), terms["perceptual"].detach()
+    else:
+        loss = loss_fn(projected, target)
+        mse = F.mse_loss(projected.detach(), target)
+        perceptual = torch.full_like(mse, math.nan)
+    if not (cfg.loss.beta > 0 and cfg.loss.perceptual != "none"):
+        perceptual = torch.full_like(mse, math.nan)
+    return loss, mse, perceptual
+
+
+def seed_everything(seed: int) -> None:
+    """Seed the global generators (network initialization; nothing else draws from them)."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    random.seed(seed)
+
+
+def _clip(parameters: list[nn.Parameter], max_norm: float) -> torch.Tensor:
+    """Clip the gradients' joint norm to ``max_norm`` (0: measure only); returns the norm before."""
+    grads = [p for p in parameters if p.grad is not None]
+    if not grads:
+        return torch.zeros(())
+    if max_norm > 0:
+        return torch.nn.utils.clip_grad_norm_(grads, max_norm)
+    return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in grads]))
+
+
+# ----------------------------------------------------------------------------- the training run
+
+
+class _Session:
+    """The state of one training session (one process): model, optimizer, data, files."""
+
+    def __init__(self, cfg: Config, run_dir: Path, group: ProcessGroup):
+        self.cfg = cfg
+        self.run_dir = run_dir
+        self.group = group
+        device = group.device
+        seed_everything(cfg.train.seed)
+
+        from .data import build_training_source
+        from .losses import build_loss
+
+        self.doe = build_run_doe(cfg).to(device)
+        self.doe_trained = doe_is_trained(cfg, self.doe)
+        self.net = build_net(cfg).to(device)
+        if not cfg.train.train_net:
+            for p in self.net.parameters():
+                p.requires_grad_(False)
+        psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
+        self.model = EndToEndProjector(psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture)
+
+        self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
+        self.net_params = [p for p in self.net.parameters() if p.requires_grad]
+        groups = []
+        if self.doe_params:
+            groups.append({"params": self.doe_params, "lr": cfg.train.lr_optics, "name": "doe"})
+        if self.net_params:
+            groups.append({"params": self.net_params, "lr": cfg.train.lr_net, "name": "net"})
+        if not groups:
+            raise EdofprojError("nothing to train: the DOE is fixed (train.train_doe=false or a fixed design) "
+                                "and train.train_net=false")
+        self.optimizer = torch.optim.Adam(groups)
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, exponential_decay(cfg.train.steps, cfg.train.lr_final_fraction))
+        self.loss_fn = build_loss(cfg.loss)
+        if hasattr(self.loss_fn, "to"):
+            self.loss_fn = self.loss_fn.to(device)
+        self.source = build_training_source(cfg.data, cfg.train.seed)
+        self.shard = BatchShard.for_rank(cfg.train.batch_size, group.rank, group.world_size)
+
+        self.step = 0
+        self.elapsed = 0.0
+        self.last_checkpoint_step = 0
+        self.wrapped: nn.Module = self.model
+        if group.distributed:
+            from torch.nn.parallel import DistributedDataParallel
+
+            # buffers (a PSF table) are identical on every rank: no need to sync them each step
+            no_buffer_sync = ({"forward_sync_buffers": False}
+                              if "forward_sync_buffers" in inspect.signature(DistributedDataParallel).parameters
+                              else {"broadcast_buffers": False})
+            self.wrapped = DistributedDataParallel(
+                self.model, device_ids=[device] if device.type == "cuda" else None, **no_buffer_sync)
+
+    # -- checkpoints ---------------------------------------------------------------
+    def state(self) -> dict:
+        return {
+            "step": self.step,
+            "elapsed_seconds": self.elapsed,
+            "doe": self.doe.state_dict() if self.doe_trained else {},
+            "net": self.net.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "rng": capture_rng_state(),
+            "world_size": self.group.world_size,
+            "sampling": "per-sample generators seeded by (train.seed, step, global index, stream)",
+        }
+
+    def restore(self, checkpoint: dict) -> None:
+        try:
+            if self.doe_trained:
+                self.doe.load_state_dict(checkpoint["doe"])
+            self.net.load_state_dict(checkpoint["net"])
+            self.optimizer.load_state_dict(checkpoint["optimizer"])
+            self.scheduler.load_state_dict(checkpoint["scheduler"])
+        except (RuntimeError, KeyError, ValueError) as exc:
+            raise EdofprojError(f"the checkpoint does not fit this run's model: {str(exc).splitlines()[0]}") from None
+        restore_rng_state(checkpoint["rng"])
+        self.step = int(checkpoint["step"])
+        self.elapsed = float(checkpoint["elapsed_seconds"])
+        self.last_checkpoint_step = self.step
+
+    def save(self) -> None:
+        """Checkpoint (and the current fabricated DOE), rank 0 only."""
+        if self.group.is_main:
+            save_checkpoint(self.run_dir / CHECKPOINT_DIR, self.state(), keep=self.cfg.train.keep_checkpoints)
+            if self.doe_trained:
+                self.save_doe()
+        self.last_checkpoint_step = self.step
+
+    def save_doe(self) -> None:
+        if self.cfg.doe.kind != "lens":
+            save_doe(self.doe, self.run_dir / DOE_NAME, samples=self.cfg.psf.pupil_samples)
+
+    # -- one optimizer step --------------------------------------------------------
+    def train_step(self) -> tuple[float, float, float]:
+        """One step on the global batch; returns (loss, mse, perceptual) averaged over the processes."""
+        cfg, step = self.cfg, self.step + 1
+        device = self.group.device
+        depths = sample_depths_m(cfg.train.seed, step, self.shard, cfg.psf.depth_min_mm * 1e-3,
+                                 cfg.psf.depth_max_mm * 1e-3, cfg.train.depth_sampling)
+        images = sample_images(self.source, cfg.train.seed, step, self.shard, cfg.data.crop).to(device)
+        noise = None
+        if cfg.train.noise_sigma > 0:
+            noise = sample_noise(cfg.train.seed, step, self.shard, tuple(images.shape[1:])).to(device)
+
+        self.model.train()
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="the geometric blur disk")  # warned once at the start
+            out = self.wrapped(images, depths, noise)
+        loss, mse, perceptual = loss_terms(self.loss_fn, cfg, out.projected, images)
+        logged = average_across_processes(torch.stack([loss.detach(), mse, perceptual]).float().cpu(), self.group)
+        if not math.isfinite(float(logged[0])):
+            self._stop_non_finite(step, "loss", float(logged[0]))
+
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        norms = [_clip(params, cfg.train.grad_clip) for params in (self.doe_params, self.net_params) if params]
+        if not all(math.isfinite(float(n)) for n in norms):
+            self._stop_non_finite(step, "gradient", math.nan)
+        self.optimizer.step()
+        self.scheduler.step()
+        self.step = step
+        return float(logged[0]), float(logged[1]), float(logged[2])
+
+    def _stop_non_finite(self, step: int, what: str, value: float) -> None:
+        where = (f"the last good checkpoint is step {self.last_checkpoint_step} "
+                 f"({last_checkpoint_path(self.run_dir)})" if self.last_checkpoint_step else "no checkpoint was written")
+        raise EdofprojError(f"training stopped: the {what} became {value} at step {step}; {where}")
+
+    def current_lr(self) -> float:
+        named = {g.get("name"): g["lr"] for g in self.optimizer.param_groups}
+        return float(named.get("net", named.get("doe")))
+
+    # -- end-of-session files ------------------------------------------------------
+    def write_figures(self) -> None:
+        from .figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
+
+        figures = self.run_dir / FIGURES_DIR
+        figures.mkdir(parents=True, exist_ok=True)
+        plot_loss_curve(read_log(self.run_dir / "train_log.csv"), figures / "loss.png")
+        plot_doe_profile(self.doe, figures / "doe_profile.png", samples=self.cfg.psf.pupil_samples)
+        depths = np.linspace(self.cfg.psf.depth_min_mm, self.cfg.psf.depth_max_mm, FIGURE_DEPTHS) * 1e-3
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="the geometric blur disk")
+            psf = self.model.psf_source(depths)
+        plot_psfs_across_depth(psf, depths, figures / "psf_depths.png")
+
+
+def train(cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: int | None = None,
+          progress: bool = True) -> TrainingResult:
+    """Train (or, with ``resume``, continue) the run in ``out_dir`` up to ``cfg.train.steps`` steps.
+
+    ``stop_after``: end this session after that many steps in total (the learning-rate
+    schedule still spans ``cfg.train.steps``), e.g. to train in chunks; a checkpoint is
+    written at the end of every session. Returns a :class:`TrainingResult`.
+    """
+    run_dir = Path(out_dir)
+    if cfg.train.threads > 0:
+        torch.set_num_threads(cfg.train.threads)
+    group = setup_process_group(cfg.train.device)
+    try:
+        return _train(cfg, run_dir, resume, stop_after, progress, group)
+    finally:
+        teardown_process_group(group)
+
+
+def _train(cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, progress: bool,
+           group: ProcessGroup) -> TrainingResult:
+    if resume:
+        check_resume_config(run_dir, cfg)
+        if not last_checkpoint_path(run_dir).is_file():
+            raise EdofprojError(f"--resume: '{run_dir}' has no checkpoint to continue from "
+                                f"({CHECKPOINT_DIR}/last.pt)")
+        checkpoint = load_checkpoint(last_checkpoint_path(run_dir))
+    else:
+        check_new_run_dir(run_dir)
+        checkpoint = None
+    barrier(group)
+
+    session = _Session(cfg, run_dir, group)
+    if checkpoint is not None:
+        session.restore(checkpoint)
+    start = session.step
+    end = cfg.train.steps if stop_after is None else min(cfg.train.steps, int(stop_after))
+    if group.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_run_config(run_dir, cfg)
+        if not session.doe_trained and start == 0:
+            session.save_doe()
+    if end <= start:
+        return TrainingResult(run_dir, start, start, math.nan, session.elapsed)
+
+    log = TrainingLog(run_dir, resume_step=start) if group.is_main else None
+    bar = None
+    if group.is_main and progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=end, initial=start, unit="step", dynamic_ncols=True, desc=cfg.name)
+    loss = math.nan
+    try:
+        clock = time.perf_counter()
+        base_elapsed = session.elapsed
+        while session.step < end:
+            lr = session.current_lr()
+            loss, mse, perceptual = session.train_step()
+            session.elapsed = base_elapsed + time.perf_counter() - clock
+            if log is not None:
+                log.write(session.step, loss, mse, perceptual, lr, session.elapsed)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss:.4g}")
+            if session.step % cfg.train.checkpoint_every == 0 or session.step == end:
+                session.save()
+    finally:
+        if bar is not None:
+            bar.close()
+        if log is not None:
+            log.close()
+    if group.is_main:
+        session.write_figures()
+    barrier(group)
+    return TrainingResult(run_dir, start, session.step, loss, session.elapsed)

@@ -1,0 +1,14 @@
+import os
+
+import pytest
+import torch
+
+# Tests are small; one thread keeps them predictable on shared 2-core machines.
+torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+
+
+@pytest.fixture
+def geometry():
+    from edofproj.optics.geometry import ProjectorGeometry
+
+    return ProjectorGeometry(aperture_diameter_m=7e-3, focus_distance_m=0.5, throw_ratio=1.5, width_px=800, height_px=600)
