@@ -6,6 +6,10 @@ exporter (``dynamo=False``, opset 17) with dynamic batch, height and width; Torc
 trace. Before the file is moved into place, the export is run on two frame sizes (the
 requested one and a smaller odd one) and compared with PyTorch: a maximum absolute
 difference above 1e-4 is an error and nothing is written.
+
+TorchScript (``torch.jit``) is deprecated in recent PyTorch releases in favour of
+``torch.export``; it is kept because C++/LibTorch deployments still load it. Loading the
+file with ``torch.jit.load`` may print PyTorch's deprecation warning.
 """
 
 from __future__ import annotations
@@ -60,20 +64,28 @@ def _write_onnx(net: torch.nn.Module, path: Path, height: int, width: int) -> No
 
 def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int) -> None:
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.simplefilter("ignore")  # tracer warnings; torch.jit's own deprecation notice
         traced = torch.jit.trace(net, _example_inputs(height, width, 0), check_trace=False)
-    torch.jit.save(traced, str(path))
+        torch.jit.save(traced, str(path))
 
 
 def _run_onnx(path: Path):
     import onnxruntime
 
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    return lambda target, captured: session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
+    declared = {i.name for i in session.get_inputs()}  # an input the network ignores is pruned
+
+    def run(target, captured):
+        feed = {"target": target.numpy(), "captured": captured.numpy()}
+        return session.run(None, {name: value for name, value in feed.items() if name in declared})[0]
+
+    return run
 
 
 def _run_torchscript(path: Path):
-    module = torch.jit.load(str(path), map_location="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.load(str(path), map_location="cpu")
 
     def run(target, captured):
         with torch.inference_mode():

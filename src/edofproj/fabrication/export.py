@@ -61,7 +61,7 @@ def plot_efficiency(path: Path, profile: RadialProfile, spectrum_cfg) -> None:
     alpha = phase_depth_ratio(lam, profile.design_wavelength_m, profile.material)
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for weights, colour in zip(spectrum.weights, ("tab:red", "tab:green", "tab:blue")):
-        ax.fill_between(lam * 1e9, 0, weights / weights.max() * 0.25, color=colour, alpha=0.25, lw=0)
+        ax.fill_between(lam * 1e9, 0, weights / weights.max() * 30, color=colour, alpha=0.25, lw=0)
     ax.plot(lam * 1e9, 100 * efficiency_spectrum(profile.levels, lam, profile.design_wavelength_m, profile.material),
             "k-", label=f"{profile.levels} levels")
     ax.plot(lam * 1e9, 100 * continuous_efficiency(alpha), "k--", lw=1, label="continuous profile")
@@ -70,7 +70,7 @@ def plot_efficiency(path: Path, profile: RadialProfile, spectrum_cfg) -> None:
     ax.set_ylabel("first-order efficiency (%)")
     ax.set_ylim(0, 100)
     ax.set_title("Scalar diffraction efficiency (shaded: primaries' SPDs, arbitrary scale)", fontsize=9)
-    ax.legend(loc="lower center")
+    ax.legend(loc="center right")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

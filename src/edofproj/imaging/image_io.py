@@ -11,6 +11,7 @@ OpenCV stores colour as BGR; the conversion to and from RGB happens here and now
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 from pathlib import Path
@@ -46,10 +47,22 @@ def _jpeg_is_truncated(data: bytes) -> bool:
     return False
 
 
+@contextlib.contextmanager
+def _quiet_opencv():
+    """Silence OpenCV's own warnings (e.g. "PNG input buffer is incomplete"): we raise our own error."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     """Decode encoded image bytes to an RGB ``uint8`` or ``uint16`` array ``(H, W, 3)``."""
     raw = np.frombuffer(data, dtype=np.uint8)
-    pixels = cv2.imdecode(raw, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH) if raw.size else None
+    with _quiet_opencv():
+        pixels = cv2.imdecode(raw, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH) if raw.size else None
     if pixels is None or pixels.size == 0 or _jpeg_is_truncated(data):
         raise EdofprojError(f"cannot read image '{name}': not a readable PNG/JPEG/TIFF/BMP file or truncated")
     if pixels.dtype not in (np.uint8, np.uint16):

@@ -229,10 +229,10 @@ class VirtualProCams:
         samples = cv2.remap(camera_light, self._camera_sample_map, None, cv2.INTER_NEAREST,
                             borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # black beyond the canvas
         Hc, Wc = self.camera_hw
-        pixels = cv2.resize(samples, (Wc, Hc), interpolation=cv2.INTER_AREA).astype(np.float64)
-        pixels = pixels + np.asarray(self.ambient)
-        pixels = pixels + rng.normal(0.0, self.noise_sigma, pixels.shape)
-        return (np.round(np.clip(pixels, 0.0, 1.0) * 255.0) / 255.0).astype(np.float32)
+        pixels = cv2.resize(samples, (Wc, Hc), interpolation=cv2.INTER_AREA)  # area mean of the sub-samples
+        pixels += np.asarray(self.ambient, dtype=np.float32)
+        pixels += np.float32(self.noise_sigma) * rng.standard_normal(pixels.shape, dtype=np.float32)
+        return np.round(np.clip(pixels, 0.0, 1.0) * 255.0) / np.float32(255.0)
 
     # ------------------------------------------------------------------ ground truth
     def ground_truth_json(self) -> dict:

@@ -294,34 +294,67 @@ def folder_split(folder: str | Path, test_fraction: float) -> tuple[list[Path], 
 # --------------------------------------------------------------------------- dead leaves
 
 
-def sample_disk_radii(count: int, min_radius: float, max_radius: float, generator: torch.Generator) -> np.ndarray:
-    """Radii with density ``p(r) = 2 r^-3 / (r_min^-2 - r_max^-2)`` on ``[r_min, r_max]`` (inverse CDF).
+def power_law_quantile(u: np.ndarray, exponent: int, min_radius: float, max_radius: float) -> np.ndarray:
+    """Inverse CDF of the density ``~ r^-k`` on ``[r_min, r_max]`` at ``u in [0, 1)``.
 
-    ``F(r) = (r_min^-2 - r^-2) / (r_min^-2 - r_max^-2)``, so ``r = (r_min^-2 - u (r_min^-2 - r_max^-2))^(-1/2)``.
+    ``k = 1``: ``r = r_min (r_max / r_min)^u``; otherwise
+    ``r = (r_min^(1-k) + u (r_max^(1-k) - r_min^(1-k)))^(1/(1-k))``.
     """
-    u = torch.rand(int(count), generator=generator, dtype=torch.float64).numpy()
-    a, b = min_radius ** -2.0, max_radius ** -2.0
-    return (a - u * (a - b)) ** -0.5
+    if exponent == 1:
+        return min_radius * (max_radius / min_radius) ** u
+    e = 1.0 - exponent
+    return (min_radius ** e + u * (max_radius ** e - min_radius ** e)) ** (1.0 / e)
+
+
+def _power_integral(exponent: int, min_radius: float, max_radius: float) -> float:
+    """``I_k = integral of r^-k over [r_min, r_max]``."""
+    if exponent == 1:
+        return math.log(max_radius / min_radius)
+    e = 1.0 - exponent
+    return (max_radius ** e - min_radius ** e) / e
 
 
 def sample_dead_leaves_disks(count: int, height: int, width: int, min_radius: float, max_radius: float,
                              generator: torch.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Up to ``count`` disks ``(radius, centre_x, centre_y)`` of a stationary Poisson process, in order.
+    """``count`` disks ``(radius, centre_x, centre_y)`` of a stationary Poisson process, front to back.
 
-    Pixel centres sit at integer coordinates ``0..W-1``, ``0..H-1``. Only disks that can touch
-    the image matter: a disk of radius ``r`` does iff its centre lies in the box ``B(r)`` =
-    ``[-r, W-1+r] x [-r, H-1+r]`` of area ``A(r)``. For a stationary process with radius
-    density ``p(r)`` those disks have radius density ``p(r) A(r) / E[A]`` and uniform centres in
-    ``B(r)``; the radius is drawn by rejection from ``p`` with acceptance ``A(r) / A(r_max)``.
+    The process has radius density ``p(r) ~ r^-3`` on ``[r_min, r_max]``. Pixel centres sit at
+    integer coordinates ``0..W-1``, ``0..H-1``; a disk of radius ``r`` can cover one iff its
+    centre lies in the box ``B(r) = [-r, W-1+r] x [-r, H-1+r]`` of area
+    ``A(r) = (a + 2r)(b + 2r)``, ``a = W-1``, ``b = H-1``. Those disks have radius density
+    ``q(r) ~ p(r) A(r) ~ ab r^-3 + 2(a+b) r^-2 + 4 r^-1`` -- a mixture of three truncated power
+    laws, drawn exactly by :func:`power_law_quantile` -- and uniform centres in ``B(r)``.
     """
-    radii = sample_disk_radii(count, min_radius, max_radius, generator)
-    u = torch.rand((3, int(count)), generator=generator, dtype=torch.float64).numpy()
-    area = (width - 1 + 2 * radii) * (height - 1 + 2 * radii)
-    keep = u[0] * (width - 1 + 2 * max_radius) * (height - 1 + 2 * max_radius) <= area
-    radii = radii[keep]
-    cx = -radii + u[1, keep] * (width - 1 + 2 * radii)
-    cy = -radii + u[2, keep] * (height - 1 + 2 * radii)
+    count = int(count)
+    a, b = width - 1.0, height - 1.0
+    u = torch.rand((4, count), generator=generator, dtype=torch.float64).numpy()
+    if max_radius == min_radius:
+        radii = np.full(count, float(min_radius))
+    else:
+        exponents = (3, 2, 1)
+        weights = np.array([a * b, 2 * (a + b), 4.0]) * [_power_integral(k, min_radius, max_radius) for k in exponents]
+        component = np.searchsorted(np.cumsum(weights) / weights.sum(), u[0], side="right").clip(0, 2)
+        radii = np.empty(count)
+        for c, k in enumerate(exponents):
+            chosen = component == c
+            radii[chosen] = power_law_quantile(u[1, chosen], k, min_radius, max_radius)
+    cx = -radii + u[2] * (a + 2 * radii)
+    cy = -radii + u[3] * (b + 2 * radii)
     return radii, cx, cy
+
+
+def disks_per_covering_layer(height: int, width: int, min_radius: float, max_radius: float) -> float:
+    """How many disks of :func:`sample_dead_leaves_disks` cover each pixel once on average.
+
+    With intensity ``lambda`` the coverage count is ``lambda pi E_p[r^2]`` and the number of disks
+    that can touch the image ``lambda E_p[A(r)]``; so one layer is ``E_p[A(r)] / (pi E_p[r^2])``
+    ``= (ab I_3 + 2(a+b) I_2 + 4 I_1) / (pi I_1)`` (``I_k`` the integrals of ``r^-k``).
+    """
+    a, b = width - 1.0, height - 1.0
+    if max_radius == min_radius:
+        return (a + 2 * min_radius) * (b + 2 * min_radius) / (math.pi * min_radius ** 2)
+    i3, i2, i1 = (_power_integral(k, min_radius, max_radius) for k in (3, 2, 1))
+    return (a * b * i3 + 2 * (a + b) * i2 + 4 * i1) / (math.pi * i1)
 
 
 def paint_front_most(labels: np.ndarray, radii: np.ndarray, cx: np.ndarray, cy: np.ndarray, first_index: int) -> None:
@@ -336,18 +369,16 @@ def paint_front_most(labels: np.ndarray, radii: np.ndarray, cx: np.ndarray, cy: 
     index = first_index + np.arange(radii.size)
     group = np.ceil(np.log2(np.maximum(radii, 1.0))).astype(int)  # radius in (2^(g-1), 2^g]
     for g in np.unique(group):
-        members = group == g
+        members = np.flatnonzero(group == g)
         reach = 2 ** int(g)
         offsets = np.arange(-reach, reach + 2)
-        bx = np.floor(cx[members]).astype(np.int64)
-        by = np.floor(cy[members]).astype(np.int64)
-        px = bx[:, None, None] + offsets[None, None, :]
-        py = by[:, None, None] + offsets[None, :, None]
-        inside = ((px - cx[members][:, None, None]) ** 2 + (py - cy[members][:, None, None]) ** 2
-                  <= radii[members][:, None, None] ** 2)
-        inside &= (px >= 0) & (px < width) & (py >= 0) & (py < height)
-        which = np.broadcast_to(index[members][:, None, None], inside.shape)[inside]
-        np.minimum.at(flat, (py * width + px)[inside], which)
+        x = np.floor(cx[members]).astype(np.int64)[:, None] + offsets  # (n, m) candidate columns
+        y = np.floor(cy[members]).astype(np.int64)[:, None] + offsets  # (n, m) candidate rows
+        dx2 = np.where((x >= 0) & (x < width), (x - cx[members, None]) ** 2, np.inf)
+        dy2 = np.where((y >= 0) & (y < height), (y - cy[members, None]) ** 2, np.inf)
+        inside = dy2[:, :, None] + dx2[:, None, :] <= radii[members, None, None] ** 2
+        k, i, j = np.nonzero(inside)
+        np.minimum.at(flat, y[k, i] * width + x[k, j], index[members[k]])
 
 
 def dead_leaves_labels(height: int, width: int, min_radius: float, max_radius: float,
@@ -369,15 +400,16 @@ def dead_leaves_labels(height: int, width: int, min_radius: float, max_radius: f
         raise EdofprojError(f"dead-leaves radii must satisfy 0 < min <= max, got {min_radius:g}, {max_radius:g}")
     unset = np.iinfo(np.int64).max
     labels = np.full((height, width), unset, dtype=np.int64)
-    # Expected number of disks to cover the area once: A / E[pi r^2] (r^-3 law: E[r^2] = 2 ln(rmax/rmin) / (rmin^-2 - rmax^-2)).
-    mean_r2 = (2 * math.log(max_radius / min_radius) / (min_radius ** -2 - max_radius ** -2)
-               if max_radius > min_radius else min_radius ** 2)
-    batch = max(int(3 * height * width / (math.pi * mean_r2)), 64)
+    # The first batch aims at ln(H W) + 2 covering layers (usually enough for every pixel), later ones at 2 more.
+    per_layer = disks_per_covering_layer(height, width, min_radius, max_radius)
+    layers = math.log(height * width) + 2
     drawn = 0
     while drawn < max_disks:
-        radii, cx, cy = sample_dead_leaves_disks(batch, height, width, min_radius, max_radius, generator)
+        radii, cx, cy = sample_dead_leaves_disks(int(math.ceil(layers * per_layer)), height, width,
+                                                 min_radius, max_radius, generator)
         paint_front_most(labels, radii, cx, cy, drawn)
         drawn += radii.size
+        layers = 2.0
         if not np.any(labels == unset):
             return labels
     raise EdofprojError(f"{max_disks} dead-leaves disks did not cover the image; increase the minimum radius")

@@ -70,7 +70,8 @@ def plot_doe_profile(doe, path: str | Path, samples: int = 1024) -> None:
             ax.set_xlabel("radius r (mm)")
             ax.set_ylabel("height h(r) (nm)")
             ax.set_xlim(0, R * 1e3)
-            ax.axhline(doe.h2pi_m * 1e9, color="0.6", ls=":", lw=0.8)
+            ax.set_ylim(0, doe.h2pi_m * 1e9 * 1.05)
+            ax.axhline(doe.h2pi_m * 1e9, color="0.6", ls=":", lw=0.8, label="one wave (2 pi)")
             ax.grid(alpha=0.3)
         else:
             n = min(samples, 512)

@@ -1,0 +1,124 @@
+"""A projector-camera calibration: geometric map + colour calibration, and its ``calib.npz`` file.
+
+:func:`calibrate` (or :func:`calibrate_folders`) runs :mod:`.geometry` on the dot grid, warps the black, primary and
+colour-sample captures into projector pixels and runs :mod:`.color` on them.
+:meth:`ProCamsCalibration.to_output_space` then turns any capture into projector output
+light per projector pixel, ``o(x) = M^-1 (c(q(x)) - c_black(q(x)))``, which is what the PSF acts on.
+
+``calib.npz`` keys: ``format`` (``"edofproj-procams-calibration"``), ``projector_hw``,
+``camera_hw``, ``map_x``, ``map_y`` (camera coordinates of every projector pixel), ``homography``,
+``dots_proj``, ``dots_cam``, ``mixing_matrix``, ``black_level`` (3,), ``black_image`` (the black
+capture in projector pixels, ``(H, W, 3)``), ``color_inputs``, ``color_outputs`` (``(N, 3)``,
+the colour-sample table) and ``neighbours``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ..fileio import save_npz_atomic
+from .capture_io import read_captures, saturated_fraction
+from .color import ColorCalibration, calibrate_color
+from .geometry import CameraMap, calibrate_geometry
+from .patterns import PRIMARY_COLORS, PatternManifest
+
+CALIBRATION_FORMAT = "edofproj-procams-calibration"
+
+
+def warn_if_saturated(captures: dict[str, np.ndarray], threshold: float = 1e-3) -> None:
+    """One warning naming the captures with more than ``threshold`` saturated pixels, worst first."""
+    fractions = {name: saturated_fraction(image) for name, image in captures.items()}
+    saturated = sorted(((f, n) for n, f in fractions.items() if f > threshold), reverse=True)
+    if saturated:
+        worst_fraction, worst = saturated[0]
+        warnings.warn(
+            f"{len(saturated)} of {len(captures)} captures have saturated pixels (worst '{worst}': "
+            f"{100 * worst_fraction:.1f} % of its pixels); saturated light is not measured -- lower the exposure",
+            stacklevel=2,
+        )
+
+
+@dataclass
+class ProCamsCalibration:
+    """Geometric map, colour calibration and the black capture in projector pixels."""
+
+    camera_map: CameraMap
+    color: ColorCalibration
+    black_image: np.ndarray
+
+    @property
+    def projector_hw(self) -> tuple[int, int]:
+        return self.camera_map.projector_hw
+
+    def to_output_space(self, capture: np.ndarray) -> np.ndarray:
+        """A camera capture as projector output light per projector pixel, ``(H, W, 3)`` float64."""
+        return self.color.camera_to_output(self.camera_map.warp(capture), self.black_image)
+
+    def save(self, path: str | Path) -> None:
+        cm, color = self.camera_map, self.color
+        save_npz_atomic(
+            path, format=np.array(CALIBRATION_FORMAT), projector_hw=np.array(cm.projector_hw),
+            camera_hw=np.array(cm.camera_hw), map_x=cm.map_x.astype(np.float32), map_y=cm.map_y.astype(np.float32),
+            homography=cm.homography, dots_proj=cm.dots_proj, dots_cam=cm.dots_cam,
+            mixing_matrix=color.mixing_matrix, black_level=color.black_level,
+            black_image=self.black_image.astype(np.float32), color_inputs=color.sample_inputs,
+            color_outputs=color.sample_outputs, neighbours=np.array(color.neighbours),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ProCamsCalibration":
+        try:
+            data = np.load(path, allow_pickle=False)
+            if str(data["format"]) != CALIBRATION_FORMAT:
+                raise ValueError(f"not a calibration file (format '{data['format']}')")
+            camera_map = CameraMap(map_x=data["map_x"].astype(np.float64), map_y=data["map_y"].astype(np.float64),
+                                   homography=data["homography"], dots_proj=data["dots_proj"],
+                                   dots_cam=data["dots_cam"], camera_hw=tuple(int(v) for v in data["camera_hw"]))
+            color = ColorCalibration(mixing_matrix=data["mixing_matrix"], black_level=data["black_level"],
+                                     sample_inputs=data["color_inputs"], sample_outputs=data["color_outputs"],
+                                     neighbours=int(data["neighbours"]))
+            black = data["black_image"].astype(np.float64)
+        except FileNotFoundError:
+            raise EdofprojError(f"calibration file '{path}' does not exist") from None
+        except (OSError, ValueError, KeyError) as exc:
+            raise EdofprojError(f"cannot read calibration file '{path}': {exc}") from None
+        return cls(camera_map=camera_map, color=color, black_image=black)
+
+
+def calibration_files(manifest: PatternManifest) -> list[str]:
+    """The pattern (and capture) files calibration needs: dots, black, primaries, colour samples."""
+    if not manifest.with_role("color_sample"):
+        raise EdofprojError("the pattern manifest has no colour samples (role 'color_sample')")
+    return ([manifest.one("dots").file, manifest.one("black").file]
+            + [manifest.primary(name).file for name in PRIMARY_COLORS]
+            + [e.file for e in manifest.with_role("color_sample")])
+
+
+def calibrate(manifest: PatternManifest, captures: Mapping[str, np.ndarray], neighbours: int = 6
+              ) -> ProCamsCalibration:
+    """Geometric and colour calibration from captures ``{pattern file: (Hc, Wc, 3) image}``."""
+    dots, black = manifest.one("dots"), manifest.one("black")
+    names = calibration_files(manifest)
+    camera_map = calibrate_geometry(captures[dots.file], captures[black.file], dots.dots, dots.grid,
+                                    (manifest.height, manifest.width))
+    warped = {name: camera_map.warp(captures[name]) for name in names if name != dots.file}
+    warn_if_saturated({name: warped[name] for name in names if name not in (dots.file, black.file)})
+    color = calibrate_color({name: warped[manifest.primary(name).file] for name in PRIMARY_COLORS},
+                            warped[black.file],
+                            [(e.color, warped[e.file]) for e in manifest.with_role("color_sample")],
+                            neighbours=neighbours)
+    return ProCamsCalibration(camera_map=camera_map, color=color, black_image=warped[black.file])
+
+
+def calibrate_folders(pattern_dir: str | Path, capture_dir: str | Path, neighbours: int = 6
+                      ) -> tuple[PatternManifest, ProCamsCalibration]:
+    """:func:`calibrate` on a pattern folder and its capture folder."""
+    manifest = PatternManifest.load(pattern_dir)
+    captures = read_captures(capture_dir, calibration_files(manifest))
+    return manifest, calibrate(manifest, captures, neighbours)

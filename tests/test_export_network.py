@@ -1,0 +1,136 @@
+"""Network export: ONNX (dynamic H/W) and TorchScript match PyTorch; atomic; one-line CLI errors."""
+
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.cli import main
+from edofproj.commands.export import export_network
+from edofproj.compensation.onlineprodeb import OnlineProDebNet
+from edofproj.compensation.unet import CompensationUNet
+from edofproj.errors import EdofprojError
+
+onnxruntime = pytest.importorskip("onnxruntime")
+
+
+def small_unet(seed: int = 0) -> CompensationUNet:
+    """A 3-scale U-Net whose zero-initialized head is randomized (so the output is not the identity)."""
+    torch.manual_seed(seed)
+    net = CompensationUNet([4, 8, 16])
+    torch.nn.init.normal_(net.head.weight, std=0.3)
+    return net.eval()
+
+
+def inputs(height, width, seed=7):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(1, 3, height, width, generator=g), torch.rand(1, 3, height, width, generator=g)
+
+
+def test_onnx_matches_pytorch_at_other_sizes(tmp_path):
+    net = small_unet()
+    path = tmp_path / "net.onnx"
+    worst = export_network(net, path, "onnx", height=48, width=64)
+    assert 0.0 <= worst < 1e-4
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == ["target", "captured"]
+    assert [o.name for o in session.get_outputs()] == ["projector_input"]
+    for height, width in [(48, 64), (30, 75)]:
+        target, captured = inputs(height, width)
+        out = session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
+        with torch.no_grad():
+            reference = net(target, captured).numpy()
+        assert out.shape == (1, 3, height, width)
+        assert np.abs(reference - target.numpy()).max() > 1e-2  # a non-trivial network
+        assert np.abs(out - reference).max() < 1e-4
+    assert [p.name for p in tmp_path.iterdir()] == ["net.onnx"]  # no temporary files left
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning")
+def test_torchscript_matches_pytorch(tmp_path):
+    net = small_unet(1)
+    path = tmp_path / "net.pt"
+    assert export_network(net, path, "torchscript", height=32, width=40) < 1e-4
+    module = torch.jit.load(str(path))
+    target, captured = inputs(32, 40)
+    with torch.no_grad():
+        assert torch.allclose(module(target, captured), net(target, captured), atol=1e-5)
+
+
+def test_onlineprodeb_exports_to_onnx(tmp_path):
+    torch.manual_seed(0)
+    net = OnlineProDebNet.from_preset("fast").eval()
+    torch.nn.init.normal_(net.generator.tail.weight, std=0.2)
+    assert export_network(net, tmp_path / "opd.onnx", "onnx", height=32, width=32) < 1e-4
+
+
+class SizeDependent(torch.nn.Module):
+    """A Python branch on the frame size: a trace freezes it, so other sizes come out wrong."""
+
+    def forward(self, target, captured):
+        if target.shape[-1] > 40:
+            return target + 2.0 * captured
+        return target - captured
+
+
+def test_failed_verification_writes_nothing(tmp_path):
+    path = tmp_path / "bad.onnx"
+    with pytest.raises(EdofprojError, match="differs from PyTorch.*nothing written"):
+        export_network(SizeDependent(), path, "onnx", height=48, width=64)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_missing_onnx_names_the_packages(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)
+    with pytest.raises(EdofprojError, match="pip install onnx onnxruntime"):
+        export_network(small_unet(), tmp_path / "net.onnx", "onnx")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.fixture
+def trained_run(tmp_path):
+    """A run directory as the trainer writes it: config.yaml + checkpoints/last.pt."""
+    from edofproj.config import Config
+    from edofproj.training.checkpoint import save_checkpoint
+    from edofproj.training.runs import CHECKPOINT_DIR, build_net, write_run_config
+
+    cfg = Config()
+    cfg.doe.kind = "lens"
+    cfg.net.widths = [4, 8, 16]
+    run_dir = tmp_path / "run"
+    write_run_config(run_dir, cfg.validate())
+    torch.manual_seed(3)
+    net = build_net(cfg)
+    torch.nn.init.normal_(net.head.weight, std=0.3)
+    save_checkpoint(run_dir / CHECKPOINT_DIR, {"step": 5, "net": net.state_dict(), "doe": {}})
+    return run_dir, net.eval()
+
+
+def test_cli_exports_a_run(trained_run, capsys):
+    run_dir, net = trained_run
+    assert main(["export", str(run_dir), "--format", "onnx", "--height", "32", "--width", "48"]) == 0
+    printed = capsys.readouterr().out
+    assert "net.onnx" in printed and "step 5" in printed
+    session = onnxruntime.InferenceSession(str(run_dir / "net.onnx"), providers=["CPUExecutionProvider"])
+    target, captured = inputs(40, 40)
+    out = session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
+    with torch.no_grad():
+        assert np.abs(out - net(target, captured).numpy()).max() < 1e-4
+    out_file = run_dir / "exported" / "net.pt"
+    assert main(["export", str(run_dir), "--format", "torchscript", "--out", str(out_file),
+                 "--height", "32", "--width", "32"]) == 0
+    assert out_file.is_file()
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["export", str(tmp_path / "empty")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "has no checkpoint" in err
+    assert main(["export", str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "does not exist" in err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["export", str(tmp_path / "empty"), "--format", "tflite"])
+    assert exit_info.value.code == 2
