@@ -4,6 +4,7 @@ import csv
 import time
 
 import pytest
+import torch
 
 from edofproj.cli import main
 from edofproj.errors import EdofprojError
@@ -50,7 +51,14 @@ def test_sizes_table_and_csv():
         ("wiener", "8", 1.25), ("unet", "8", 10.0), ("wiener", "16", 2.5)]
 
 
-def test_bench_cli_times_every_method_and_backend(tmp_path, capsys):
+@pytest.fixture
+def restore_threads():
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_bench_cli_times_every_method_and_backend(tmp_path, capsys, restore_threads):
     out = tmp_path / "bench.csv"
     code = main(["bench", "--sizes", "24x40", "--repeats", "1", "--warmup", "0", "--widths", "4,8",
                  "--methods", "wiener,unet,onlineprodeb,cls", "--cls-iterations", "2", "--window", "5",

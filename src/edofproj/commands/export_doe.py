@@ -51,8 +51,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"edofproj: error: {exc}", file=sys.stderr)
         return CriticalDimensionError.exit_code
     verdict = "passes" if report["passes_critical_dimension"] else "FAILS"
-    narrowest = min(m["narrowest_feature_um"] for m in report["masks"])
+    narrowest = min((m["narrowest_feature_um"] for m in report["masks"] if m["narrowest_feature_um"]),
+                    default=float("nan"))
     print(f"wrote {args.out}: {report['levels']} levels, {report['masks_count']} masks, {report['zones']} zones; "
-          f"narrowest feature {narrowest:.3g} um ({verdict} the {cd_um:g} um critical dimension); "
+          f"narrowest feature {narrowest:.4g} um ({verdict} the {cd_um:g} um critical dimension); "
           f"efficiency {100 * report['efficiency']['design_wavelength']:.1f} % at the design wavelength")
     return 0

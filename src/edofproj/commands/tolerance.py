@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     def progress(done: int, total: int) -> None:
         print(f"\rtrial {done}/{total}", end="" if done < total else "\n", file=sys.stderr, flush=True)
 
-    result = run_tolerance(profile, cfg, settings, np.asarray(depths_mm, dtype=float) * 1e-3, progress=progress)
+    result = run_tolerance(profile, cfg, settings, np.asarray(depths_mm, dtype=float) * 1e-3,
+                           progress=progress if sys.stderr.isatty() else None)
     out_dir = args.out or design.run_dir or design.doe_file.parent
     paths = write_outputs(result, out_dir, source=args.source)
     p05, p50, _ = result.percentiles()

@@ -21,7 +21,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
 from ..config import SpectrumConfig  # noqa: E402
 from ..doe.storage import load_doe  # noqa: E402
@@ -103,7 +102,7 @@ def export_doe(doe_file: str | Path, out_dir: str | Path, *, levels: int | None 
         if message:
             raise CriticalDimensionError(message)
 
-    narrowest_m = min([profile.narrowest_zone_m()] + [c.narrowest_um * 1e-6 for c in checks])
+    narrowest_m = min([profile.narrowest_zone_m()] + [c.narrowest_um * 1e-6 for c in checks if c.narrowest_um])
     tolerance_um = choose_arc_tolerance_um(narrowest_m, arc_tolerance_um)
     size = int(map_px) if map_px else auto_map_size_px(profile)
     pitch_um = 2 * profile.aperture_radius_m * 1e6 / size

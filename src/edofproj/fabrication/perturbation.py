@@ -114,7 +114,7 @@ class FabricatedRadialDOE(_Fabricated, RadialDOE):
 
     def edges_m(self) -> np.ndarray:
         """Every radius in (0, R) where the as-fabricated height may step."""
-        edges = np.concatenate([e for e in self.flat_edges] + [np.empty(0)])
+        edges = np.concatenate(self.flat_edges + [np.empty(0)])
         return np.unique(edges[(edges > 0) & (edges < self.aperture_radius_m)])
 
     def raw_height_m(self, r_m):

@@ -33,8 +33,8 @@ class MaskCheck:
     """Feature statistics of one mask."""
 
     mask: MaskLayer
-    narrowest_um: float
-    narrowest_at_um: float
+    narrowest_um: float | None  # None: the mask etches nothing
+    narrowest_at_um: float | None
     narrowest_kind: str
     below_cd: int
 
@@ -55,14 +55,14 @@ def check_mask(mask: MaskLayer, critical_dimension_m: float) -> MaskCheck:
     """Narrowest feature of a mask and the number of features below the critical dimension."""
     features = mask.features()
     if not features:
-        return MaskCheck(mask, float("inf"), float("nan"), "none", 0)
+        return MaskCheck(mask, None, None, "none", 0)
     widths = np.array([f.width_m for f in features])
     worst = features[int(np.argmin(widths))]
     return MaskCheck(
         mask=mask,
         narrowest_um=float(widths.min() * 1e6),
         narrowest_at_um=float(0.5 * (worst.inner_m + worst.outer_m) * 1e6),
-        narrowest_kind="etched ring" if worst.etched else "gap",
+        narrowest_kind=("etched " if worst.etched else "un-etched ") + ("disk" if worst.inner_m == 0.0 else "ring"),
         below_cd=int(np.sum(widths < critical_dimension_m * (1 - 1e-9))),
     )
 
@@ -75,14 +75,14 @@ def check_masks(masks: list[MaskLayer], critical_dimension_m: float) -> list[Mas
 
 def strict_failure_message(checks: list[MaskCheck], critical_dimension_um: float) -> str | None:
     """One line naming the worst violation, or None when every feature meets the CD."""
-    bad = [c for c in checks if c.below_cd]
+    bad = [c for c in checks if c.below_cd]  # below_cd > 0 implies a finite narrowest feature
     if not bad:
         return None
     worst = min(bad, key=lambda c: c.narrowest_um)
     total = sum(c.below_cd for c in bad)
     return (
         f"{total} feature(s) below the critical dimension {critical_dimension_um:g} um; narrowest: "
-        f"{worst.narrowest_kind} {worst.narrowest_um:.3g} um wide at r = {worst.narrowest_at_um:.1f} um on mask "
+        f"{worst.narrowest_kind} {worst.narrowest_um:.4g} um wide at r = {worst.narrowest_at_um:.1f} um on mask "
         f"{worst.mask.index} (GDS layer {worst.mask.gds_layer}); export without --strict for the full report"
     )
 
@@ -160,10 +160,11 @@ def report_markdown(report: dict) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for m in report["masks"]:
+        width, at = m["narrowest_feature_um"], m["narrowest_feature_at_radius_um"]
         lines.append(
             f"| {m['mask']} | {m['gds_layer']} | {m['etch_depth_nm']:.1f} | {m['rings']} | "
-            f"{m['narrowest_feature_um']:.3g} | {m['narrowest_feature_kind']} | "
-            f"{m['narrowest_feature_at_radius_um']:.1f} | {m['features_below_cd']} |"
+            f"{'-' if width is None else f'{width:.4g}'} | {m['narrowest_feature_kind']} | "
+            f"{'-' if at is None else f'{at:.1f}'} | {m['features_below_cd']} |"
         )
     lines += [
         "",
@@ -185,6 +186,10 @@ def report_markdown(report: dict) -> str:
         "simulation of the design already includes the quantized profile and the dispersion; these",
         "figures are the textbook estimate for locally periodic zones.",
     ]
+    if report.get("gds"):
+        gds = report["gds"]
+        lines += ["", f"GDSII: {gds['polygons']} polygons, {gds['vertices']} vertices, arc sagitta <= "
+                      f"{gds['tolerance_um']:g} um."]
     if report.get("files"):
         lines += ["", "## Files", ""]
         lines += [f"* `{name}`: {what}" for name, what in report["files"].items()]

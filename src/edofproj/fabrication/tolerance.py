@@ -24,7 +24,6 @@ import copy
 import math
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np

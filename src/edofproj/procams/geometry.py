@@ -1,10 +1,10 @@
 """Geometric calibration of a projector-camera pair from a captured dot grid (paper Sec. 5.2).
 
-1. **Detect** the dots in the black-subtracted capture: Otsu threshold
+1. **Detect** the dots in the black-subtracted, lightly smoothed capture: Otsu threshold ``t``
    (:func:`skimage.filters.threshold_otsu`), connected components
-   (:func:`cv2.connectedComponentsWithStats`), specks smaller than a quarter of the median
-   blob dropped, and the intensity-weighted centroid of each blob
-   (:func:`scipy.ndimage.center_of_mass`), ``c = sum_i I_i q_i / sum_i I_i`` -- sub-pixel.
+   (:func:`cv2.connectedComponentsWithStats`), specks smaller than a fifth of the largest blob
+   dropped, and the weighted centroid of each blob (:func:`scipy.ndimage.center_of_mass`),
+   ``c = sum_i w_i q_i / sum_i w_i`` with ``w_i = max(I_i - t, 0)`` -- sub-pixel.
 2. **Match** them to the projector's grid: the four corner dots (extremes of ``u + v`` and
    ``u - v``) give a first homography; every grid dot is predicted through it and paired with
    the nearest detection (``scipy.spatial.cKDTree``); the homography is refitted on all pairs
@@ -47,20 +47,26 @@ def apply_homography(homography: np.ndarray, points: np.ndarray) -> np.ndarray:
     return mapped[:, :2] / mapped[:, 2:3]
 
 
-def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.25) -> np.ndarray:
-    """Sub-pixel centres ``(n, 2)`` as ``(u, v)`` of the bright blobs of a black-subtracted grey image."""
-    gray = np.clip(np.asarray(gray, dtype=np.float64), 0.0, None)
-    if not np.any(gray > 0) or np.ptp(gray) <= 0:
+def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: float = 1.5) -> np.ndarray:
+    """Sub-pixel centres ``(n, 2)`` as ``(u, v)`` of the bright blobs of a black-subtracted grey image.
+
+    The image is smoothed by a Gaussian of ``smoothing_px`` (noise), thresholded at Otsu's level
+    ``t``; blobs smaller than ``min_area_fraction`` of the largest are dropped; each centre is the
+    centroid weighted by ``max(I - t, 0)``, which falls to zero at the blob's edge so the
+    pixelated rim of the mask does not bias it.
+    """
+    gray = np.asarray(gray, dtype=np.float64)
+    if gray.size == 0 or np.ptp(gray) <= 0:
         return np.zeros((0, 2))
-    threshold = threshold_otsu(gray)
-    mask = (gray > threshold).astype(np.uint8)
+    smooth = cv2.GaussianBlur(gray, (0, 0), smoothing_px)
+    threshold = threshold_otsu(smooth)
+    mask = (smooth > threshold).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA]
     if areas.size == 0:
         return np.zeros((0, 2))
-    keep = np.flatnonzero(areas >= min_area_fraction * np.median(areas)) + 1
-    weight = np.clip(gray - threshold, 0.0, None)  # falls to zero at the blob's edge: no pixelated rim
-    centres = ndimage.center_of_mass(weight, labels, keep)  # (row, col) per blob
+    keep = np.flatnonzero(areas >= min_area_fraction * areas.max()) + 1
+    centres = ndimage.center_of_mass(np.clip(smooth - threshold, 0.0, None), labels, keep)  # (row, col)
     return np.asarray(centres, dtype=np.float64).reshape(-1, 2)[:, ::-1]
 
 

@@ -8,37 +8,38 @@ PSF is
 
     p = F^-1 { sum_i conj(F{B_i}) F{C_i} / (sum_i |F{B_i}|^2 + eps) },                (13)
 
-with the Tikhonov term ``eps = eps_rel * median_f sum_i |F{B_i}|^2`` keeping frequencies where
-the patterns happen to carry little power from blowing up noise. (The median, not the mean:
-the mean power of 0/1 patterns is dominated by their DC term.)
+with the Tikhonov term ``eps = eps_rel * mean_f sum_i |F{B_i}|^2`` keeping frequencies where
+the patterns happen to carry little power from blowing up noise.
 
 **Exact data for Eq. 13.** Eq. 13 assumes ``C_i`` is the *circular* convolution of ``B_i`` with
-``p``. A region ``R`` cut out of a capture is not: light enters it from pattern pixels outside
-``R`` and leaves it. With ``m = K//2`` the window's radius, we use the grid ``R (+) m`` (``R``
-grown by ``m`` on each side, inside the projector image) and
+``p``; a region cut out of a capture is not. With ``m = K//2`` (the window's radius):
 
-* ``B~_i = B_i`` on ``R``, zero elsewhere: its linear convolution with a ``K x K`` kernel fits in
-  ``R (+) m``, so the circular convolution on that grid equals it;
-* ``C~_i = C_i - (B_i 1_{outside R}) (*) p^``: the capture minus the light of the pattern outside
-  ``R``, predicted with the current estimate ``p^``.
-
-This is exact when ``p^ = p``. The estimate over the whole inner image (the image minus a
-border of ``m``) starts from ``p^ = 0`` and is iterated; each pass shrinks the error roughly by
-the share of light in ``R (+) m`` that comes from outside ``R``.
+1. *Mean removal.* ``B' = B - mean(B)``. At every pixel at least ``m`` from the image border
+   (the domain ``D``) ``B (*) p = B' (*) p + mean(B) sum(p)``: the mean only adds a constant.
+2. *Masking.* For a region ``R`` with ``R (+) m`` (``R`` grown by ``m``) inside ``D``, on the grid
+   ``R (+) m``: ``B~ = B'`` on ``R``, zero elsewhere -- its linear convolution with a ``K x K``
+   kernel fits in the grid, so the circular one equals it -- and
+   ``C~ = C - (B' 1_{outside R}) (*) p^``, the capture minus the (zero-mean) light of the
+   pattern outside ``R`` predicted with the current estimate ``p^``. Then
+   ``C~ = B~ (*) p + const`` exactly when ``p^ = p``. The whole-image estimate starts from
+   ``p^ = 0`` and is iterated; since ``B'`` is zero-mean noise independent of ``B~``, each pass
+   shrinks the error by roughly the square root of the share of light in ``R (+) m`` coming
+   from outside ``R``.
+3. *The constant.* The DC term of Eq. 13 is set to zero (it only carries the constant: the
+   pattern mean times the PSF sum, the haze, any leftover black level); the kernel outside the
+   ``K x K`` window, where a windowed PSF is zero by definition, is then a constant floor,
+   whose mean is subtracted.
 
 **Energy.** The colour calibration makes a full field of output 1 read 1 -- haze included --
-so the kernel is in units of the emitted light (the pupil energy). Haze (light the PSF throws
-outside the window) and any leftover black level add a constant to ``C~``, i.e. a constant floor
-under the whole kernel; it is the kernel's mean *outside* the ``K x K`` window (where a
-windowed PSF is zero by definition) and is subtracted. Nothing is renormalized: ``sum p`` is
-the in-window energy ``energy_in_window``, the rest ``1 - sum p`` the haze, as in
-:mod:`edofproj.optics.psf_bank` and :func:`edofproj.imaging.project`.
+so the kernel is in units of the emitted light (the pupil energy). Nothing is renormalized:
+``sum p`` is the in-window energy ``energy_in_window`` and ``1 - sum p`` the haze, as in
+:mod:`edofproj.optics.psf_bank` and :func:`edofproj.imaging.project`. Values are not clipped
+at zero (clipping would bias the in-window energy upwards by the noise).
 
-**Patches** (paper Sec. 5.1, Fig. 7): the inner image is tiled by ``N x N`` patches (as many
-as fit, spread evenly); each is estimated as above with the whole-image estimate predicting
-the light from outside it. The PSF written out is the mean of the patch PSFs (``patch = 0``:
-the whole-image estimate alone). Values are not clipped at zero (clipping would bias the
-in-window energy upwards by the noise).
+**Patches** (paper Sec. 5.1, Fig. 7): the image minus a border of ``2m`` is tiled by ``N x N``
+patches (as many as fit, spread evenly); each is estimated as above with the whole-image
+estimate predicting the light from outside it. The PSF written out is the mean of the patch
+PSFs (``patch = 0``: the whole-image estimate alone).
 """
 
 from __future__ import annotations
@@ -63,14 +64,15 @@ DEFAULT_ITERATIONS = 4
 
 def eq13_kernel(patterns: np.ndarray, captures: np.ndarray, eps_rel: float = DEFAULT_EPS_REL) -> np.ndarray:
     """Paper Eq. 13 for one channel: the circular kernel ``(h, w)`` (zero shift at ``[0, 0]``) from
-    patterns and captures ``(n, h, w)``."""
+    patterns and captures ``(n, h, w)``, its DC term set to zero."""
     shape = patterns.shape[-2:]
     spectrum_b = scipy.fft.rfft2(patterns, workers=-1)
     spectrum_c = scipy.fft.rfft2(captures, workers=-1)
     numerator = np.sum(np.conj(spectrum_b) * spectrum_c, axis=0)
     power = np.sum(np.abs(spectrum_b) ** 2, axis=0)
-    eps = eps_rel * np.median(power)
-    return scipy.fft.irfft2(numerator / (power + eps), s=shape, workers=-1)
+    ratio = numerator / (power + eps_rel * power.mean())
+    ratio[0, 0] = 0.0  # the DC carries only a constant (module docstring, step 3)
+    return scipy.fft.irfft2(ratio, s=shape, workers=-1)
 
 
 def window_and_floor(kernel: np.ndarray, window: int) -> tuple[np.ndarray, float]:
@@ -125,8 +127,8 @@ def patch_boxes(height: int, width: int, margin: int, patch: int) -> np.ndarray:
         return np.array([[margin, height - margin, margin, width - margin]])
     if patch > min(inner_h, inner_w):
         raise EdofprojError(
-            f"--patch {patch} does not fit the {inner_w}x{inner_h} px inner image (the image minus the window's "
-            f"radius {margin}); use --patch {min(inner_h, inner_w)} or smaller, or 0 for one patch"
+            f"--patch {patch} does not fit the {inner_w}x{inner_h} px inner image (the image minus a border of "
+            f"{margin} px, twice the window's radius); use --patch {min(inner_h, inner_w)} or smaller, or 0"
         )
     starts_y = np.round(np.linspace(margin, height - margin - patch, max(inner_h // patch, 1))).astype(int)
     starts_x = np.round(np.linspace(margin, width - margin - patch, max(inner_w // patch, 1))).astype(int)
@@ -135,9 +137,10 @@ def patch_boxes(height: int, width: int, margin: int, patch: int) -> np.ndarray:
 
 def _estimate_region(patterns: np.ndarray, captures: np.ndarray, light_of_all: np.ndarray | None,
                      box, window: int, psf_prev: np.ndarray | None, eps_rel: float) -> np.ndarray:
-    """Eq. 13 on region ``box`` with the outside light removed (module docstring); ``(3, K, K)``.
+    """Eq. 13 on region ``box`` with the outside light removed (module docstring, step 2); ``(3, K, K)``.
 
-    ``light_of_all``: ``patterns (*) psf_prev`` over the whole image (None when ``psf_prev`` is None).
+    ``patterns``: mean-removed ``B'``; ``light_of_all``: ``B' (*) psf_prev`` over the whole image
+    (None when ``psf_prev`` is None).
     """
     m = window // 2
     y0, y1, x0, x1 = box
@@ -171,15 +174,16 @@ def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch:
         raise EdofprojError("eps_rel must be > 0 and iterations >= 1")
     H, W = patterns.shape[1:3]
     m = window // 2
-    if min(H, W) - 2 * m < window:
+    if min(H, W) - 4 * m < window:
         raise EdofprojError(f"a {W}x{H} image is too small for a {window} px window (needs at least "
-                            f"{3 * window - 1} px on each side)")
-    whole = patch_boxes(H, W, m, 0)[0]
+                            f"{window + 4 * m} px on each side)")
+    patterns = patterns - patterns.mean(axis=(1, 2), keepdims=True)  # B' (module docstring, step 1)
+    whole = patch_boxes(H, W, 2 * m, 0)[0]
     psf = None
     for _ in range(iterations + 1):
         light = None if psf is None else _convolve(patterns, psf)
         psf = _estimate_region(patterns, captures, light, whole, window, psf, eps_rel)
-    boxes = patch_boxes(H, W, m, patch)
+    boxes = patch_boxes(H, W, 2 * m, patch)
     if patch <= 0:
         patch_psfs = psf[None]
     else:

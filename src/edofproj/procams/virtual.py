@@ -5,9 +5,10 @@ Image formation for a projector input image ``u`` (``H x W x 3``, values in ``[0
 1. projector response, per channel: ``o = b + (1 - b) u^gamma`` (``b``: light leaking at
    input 0, as a fraction of the full output; full output = 1);
 2. optics at the screen depth (paper Eq. 9 with the haze of DESIGN.md "Energy"):
-   ``s = o (*) p + (1 - sum p) mean(o)`` by :func:`edofproj.imaging.project`, on a canvas with a
-   black margin of ``K//2 + 1`` px so the light spilling past the image border stays on the
-   screen (or :func:`~edofproj.imaging.render_depth_map` for a screen with a depth map);
+   ``s = o (*) p + (1 - sum p) mean(o)``, exactly :func:`edofproj.imaging.project` (or
+   :func:`~edofproj.imaging.render_depth_map` for a screen with a depth map) inside the image,
+   on a canvas with a black margin of ``K//2 + 1`` px that also keeps the direct light spilling
+   past the image border (the haze stays spread over the image);
 3. camera colour: ``c = M s + a`` (``M``: 3x3 colour-mixing matrix, ``a``: ambient light);
 4. camera geometry: camera pixel ``q = (u, v)`` sees projector coordinate ``x = H^-1(w)``, with
    the pinhole position ``w = c0 + (q - c0)(1 + k1 |q - c0|^2 / f^2)`` (radial lens
@@ -149,21 +150,33 @@ class VirtualProCams:
         return self.psf.shape[-1] // 2 + 1
 
     def screen_image(self, image: np.ndarray) -> np.ndarray:
-        """The light on the screen, ``(H + 2m, W + 2m, 3)`` in projector pixels, ``m`` = :attr:`canvas_margin_px`."""
+        """The light on the screen, ``(H + 2m, W + 2m, 3)`` in projector pixels, ``m`` = :attr:`canvas_margin_px`.
+
+        Inside the image this is exactly :func:`edofproj.imaging.project` (or
+        :func:`~edofproj.imaging.render_depth_map`) of the projector output: the direct light
+        (convolution) plus the haze ``(1 - sum p) mean(o)`` spread uniformly over the image.
+        The canvas's margin receives the direct light spilling past the image border only.
+        """
         H, W = self.projector_hw
         if image.shape[:2] != (H, W):
             raise EdofprojError(f"pattern is {image.shape[1]}x{image.shape[0]}, the projector {W}x{H}")
         m = self.canvas_margin_px
-        light = np.pad(self.projector_output(image), ((m, m), (m, m), (0, 0)))
-        tensor = torch.from_numpy(np.ascontiguousarray(light.transpose(2, 0, 1)))[None]
+        output = torch.from_numpy(np.ascontiguousarray(self.projector_output(image).transpose(2, 0, 1)))[None]
+        canvas = torch.nn.functional.pad(output, (m, m, m, m))
         psf = torch.from_numpy(self.psf)
         with torch.no_grad():
             if self.depth_map_m is None:
-                screen = project(tensor, psf)
+                direct = project(canvas, psf, haze=False)
+                haze = project(output, psf, haze=True) - project(output, psf, haze=False)
             else:
                 depth = np.pad(np.asarray(self.depth_map_m, dtype=np.float64), m, mode="edge")
-                screen = render_depth_map(tensor, depth, psf, layers=list(self.layer_depths_m))
-        return screen[0].numpy().transpose(1, 2, 0)
+                layers = list(self.layer_depths_m)
+                direct = render_depth_map(canvas, depth, psf, layers=layers, haze=False)
+                haze = (render_depth_map(output, self.depth_map_m, psf, layers=layers, haze=True)
+                        - render_depth_map(output, self.depth_map_m, psf, layers=layers, haze=False))
+        screen = direct[0].numpy()
+        screen[:, m:m + H, m:m + W] += haze[0].numpy()
+        return screen.transpose(1, 2, 0)
 
     # ------------------------------------------------------------------ geometry
     @property

@@ -11,7 +11,10 @@ Three training sources (``data.source``), each with ``sample(batch_size, crop, g
   horizontal and vertical flips.
 * ``folder`` -- every PNG/JPEG below ``data.folder`` (e.g. DIV2K), same crops and flips.
   Unreadable files and files smaller than the crop are skipped with one warning each.
-* ``dead-leaves`` -- synthetic scale-invariant images (:func:`dead_leaves_labels`).
+* ``dead-leaves`` -- synthetic scale-invariant images (:func:`dead_leaves_labels`): opaque
+  disks with radius density ``~ r^-3`` between ``data.dead_leaves_min_radius_px`` and
+  ``data.dead_leaves_max_radius_px``, each of one colour drawn from pixels of the built-in
+  training photographs (:func:`natural_color_palette`). About 20-40 ms per 128 x 128 image.
 
 Held-out test images (:func:`build_test_images`): each image name (a file's path relative
 to its folder) is ranked by its SHA-256 hash and the first ``round(test_fraction * n)`` of
@@ -93,7 +96,6 @@ def load_builtin_photo(name: str) -> np.ndarray:
         pixels = as_rgb(np.asarray(BUILTIN_PHOTOS[name]()))
     except (ImportError, OSError, ValueError) as exc:  # a trimmed installation without the data file
         raise EdofprojError(f"built-in photograph '{name}' cannot be loaded here: {exc}") from None
-    pixels = pixels.astype(np.uint8) if pixels.dtype == np.uint8 else pixels
     pixels.setflags(write=False)
     return pixels
 
@@ -319,8 +321,8 @@ def sample_dead_leaves_disks(count: int, height: int, width: int, min_radius: fl
     """``count`` disks ``(radius, centre_x, centre_y)`` of a stationary Poisson process, front to back.
 
     The process has radius density ``p(r) ~ r^-3`` on ``[r_min, r_max]``. Pixel centres sit at
-    integer coordinates ``0..W-1``, ``0..H-1``; a disk of radius ``r`` can cover one iff its
-    centre lies in the box ``B(r) = [-r, W-1+r] x [-r, H-1+r]`` of area
+    integer coordinates ``0..W-1``, ``0..H-1``; a disk of radius ``r`` can cover one only if
+    its centre lies in the box ``B(r) = [-r, W-1+r] x [-r, H-1+r]`` of area
     ``A(r) = (a + 2r)(b + 2r)``, ``a = W-1``, ``b = H-1``. Those disks have radius density
     ``q(r) ~ p(r) A(r) ~ ab r^-3 + 2(a+b) r^-2 + 4 r^-1`` -- a mixture of three truncated power
     laws, drawn exactly by :func:`power_law_quantile` -- and uniform centres in ``B(r)``.

@@ -111,6 +111,23 @@ def broadcast_flag(flag: bool, group: ProcessGroup) -> bool:
     return bool(tensor.item())
 
 
+def replica_max_difference(parameters, group: ProcessGroup) -> float:
+    """``max_r max |theta_r - theta_0|`` over the processes' copies of ``parameters`` (0.0 when alone).
+
+    Data-parallel replicas take identical steps, so this is exactly 0 unless they diverged.
+    A collective call: every process must make it.
+    """
+    if not group.distributed:
+        return 0.0
+    tensors = [p.detach().reshape(-1).double() for p in parameters]
+    flat = torch.cat(tensors) if tensors else torch.zeros(1, dtype=torch.float64, device=group.device)
+    reference = flat.clone()
+    dist.broadcast(reference, src=0)
+    difference = (flat - reference).abs().max().reshape(1)
+    dist.all_reduce(difference, op=dist.ReduceOp.MAX)
+    return float(difference.item())
+
+
 def barrier(group: ProcessGroup) -> None:
     if group.distributed:
         dist.barrier()

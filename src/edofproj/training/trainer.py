@@ -44,8 +44,8 @@ from ..errors import EdofprojError
 from ..optics.psf_bank import simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
 from .checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
-from .distributed import (ProcessGroup, average_across_processes, barrier, setup_process_group,
-                          teardown_process_group)
+from .distributed import (ProcessGroup, average_across_processes, barrier, replica_max_difference,
+                          setup_process_group, teardown_process_group)
 from .end_to_end import EndToEndProjector, SimulatedPSF
 from .psf_table import DepthPSFTable
 from .run_log import TrainingLog, read_log
@@ -213,9 +213,15 @@ class _Session:
         self.last_checkpoint_step = self.step
 
     def save(self) -> None:
-        """Checkpoint (and the current fabricated DOE), rank 0 only."""
+        """Checkpoint (and the current fabricated DOE), written by rank 0 after checking that all
+        data-parallel replicas still hold identical parameters (a collective call)."""
+        difference = replica_max_difference(list(self.model.parameters()), self.group)
+        if difference != 0.0:
+            raise EdofprojError(f"data-parallel replicas diverged at step {self.step} "
+                                f"(parameters differ by up to {difference:.3g})")
         if self.group.is_main:
-            save_checkpoint(self.run_dir / CHECKPOINT_DIR, self.state(), keep=self.cfg.train.keep_checkpoints)
+            state = dict(self.state(), replica_max_difference=difference)
+            save_checkpoint(self.run_dir / CHECKPOINT_DIR, state, keep=self.cfg.train.keep_checkpoints)
             if self.doe_trained:
                 self.save_doe()
         self.last_checkpoint_step = self.step
