@@ -94,7 +94,8 @@ def main() -> None:
                         help="comma-separated preset names (default: all)")
     parser.add_argument("--sizes", default=",".join(f"{h}x{w}" for h, w in SIZES),
                         help="comma-separated HxW frame sizes")
-    parser.add_argument("--threads", type=int, default=2, help="intra-op threads (PyTorch, ONNX Runtime, SciPy FFT)")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="intra-op threads (PyTorch, ONNX Runtime, SciPy FFT)")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-onnx", action="store_true", help="skip ONNX Runtime")

@@ -1,6 +1,5 @@
 """Box-constrained least squares: operator = projection, exact adjoint, recovery, monotone, feasible."""
 
-import numpy as np
 import pytest
 import torch
 
@@ -91,4 +90,4 @@ def test_user_errors():
     with pytest.raises(EdofprojError, match="K odd"):
         box_constrained_deconvolution(image, torch.ones(1, 3, 4, 4) / 16)
     with pytest.raises(EdofprojError, match="does not match"):
-        box_constrained_deconvolution(image, torch.ones(1, 1, 3, 3) / 9)
+        box_constrained_deconvolution(image, torch.ones(1, 2, 3, 3) / 9)

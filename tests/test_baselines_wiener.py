@@ -132,3 +132,10 @@ def test_user_errors_are_one_line():
         WienerCompensator(cross_psf(), 1e-3)(np.zeros((3, 4, 4)))
     with pytest.raises(EdofprojError, match="metric"):
         tune_wiener_nsr(torch.zeros(1, 3, 16, 16), torch.tensor(cross_psf()), project, [1e-3], metric="ssim")
+
+
+def test_one_channel_psf_applies_to_every_channel():
+    psf = torch.tensor(cross_psf()[:1], dtype=torch.float32)  # (1, K, K)
+    batch = torch.rand(2, 3, 20, 24, generator=torch.Generator().manual_seed(3))
+    assert torch.allclose(wiener_deconvolve(batch, psf[None], 1e-3),
+                          wiener_deconvolve(batch, psf.expand(3, 5, 5), 1e-3), atol=1e-6)

@@ -79,7 +79,8 @@ def test_perceptual_term_is_averaged_over_the_batch():
     pred_b, target_b = photo_pair(64, noise=0.3, seed=2)
     loss = build_loss(LossConfig(alpha=0.0, beta=1.0, perceptual="ssim"))
     both = loss(torch.cat([pred_a, pred_b]), torch.cat([target_a, target_b]))
-    assert both.item() == pytest.approx((loss(pred_a, target_a) + loss(pred_b, target_b)).item() / 2, rel=1e-5)
+    separate = (loss(pred_a, target_a) + loss(pred_b, target_b)).item() / 2
+    assert both.item() == pytest.approx(separate, rel=1e-5)
 
 
 def test_dists_loss_without_weights_raises_unless_unused(tmp_path, monkeypatch):
@@ -96,7 +97,8 @@ def test_dists_loss_with_weights_dir(tmp_path, monkeypatch):
     gen = torch.Generator().manual_seed(0)
     state = {}
     for index, out_ch, in_ch in VGG16_CONVS:
-        state[f"features.{index}.weight"] = torch.randn(out_ch, in_ch, 3, 3, generator=gen) * (2 / (9 * in_ch)) ** 0.5
+        std = (2 / (9 * in_ch)) ** 0.5
+        state[f"features.{index}.weight"] = torch.randn(out_ch, in_ch, 3, 3, generator=gen) * std
         state[f"features.{index}.bias"] = torch.zeros(out_ch)
     torch.save(state, tmp_path / "vgg16-397923af.pth")
     loss = build_loss(LossConfig(perceptual="dists", weights_dir=str(tmp_path)))
@@ -106,7 +108,8 @@ def test_dists_loss_with_weights_dir(tmp_path, monkeypatch):
     terms = loss.terms(variable, target)
     terms["total"].backward()
     assert terms["perceptual"].item() > 0
-    assert terms["total"].item() == pytest.approx(terms["mse"].item() + 0.05 * terms["perceptual"].item(), rel=1e-6)
+    expected = terms["mse"].item() + 0.05 * terms["perceptual"].item()
+    assert terms["total"].item() == pytest.approx(expected, rel=1e-6)
     assert variable.grad.abs().sum() > 0
 
 

@@ -221,7 +221,8 @@ def test_real_dists_ranks_blur_levels():
     assert all(a < b for a, b in zip(values, values[1:])) and 0 < values[0] < values[-1] < 1
 
 
-@pytest.mark.skipif(not REAL["lpips-alex"], reason="torchvision's alexnet-owt-7be5be79.pth is not in the hub cache")
+@pytest.mark.skipif(not REAL["lpips-alex"],
+                    reason="torchvision's alexnet-owt-7be5be79.pth is not in the hub cache")
 def test_real_lpips_ranks_noise_levels():
     lpips = metrics.lpips("alex")
     image = photo(128)

@@ -343,17 +343,47 @@ class TrainConfig:
 
 @dataclass
 class EvaluationConfig:
-    """Depth sweep and methods for ``edofproj evaluate``."""
+    """Depth sweep and methods for ``edofproj evaluate`` (see :mod:`edofproj.evaluation.pipeline`).
+
+    ``depths_mm``: flat-screen depths of the sweep. ``comparison_depths_mm``: the rows of the
+    side-by-side figure (paper Fig. 6: 320, 630, 800 mm). Tilted screen (paper Sec. 5.3): a plane
+    turned by ``tilt_deg`` whose depth runs from the in-focus distance ``v`` to
+    ``v + tilt_span_mm``. ``image_size``: ``[height, width]`` each held-out image is scaled to
+    cover and centre-cropped to (``[]``: native sizes). ``cls_iterations``: iterations of the
+    box-constrained solver. The Wiener NSR is tuned on ``wiener_tuning_images`` training crops
+    at ``wiener_tuning_depths`` depths of the training range.
+    """
 
     depths_mm: list = field(
         default_factory=lambda: [250.0, 300.0, 350.0, 400.0, 450.0, 500.0, 550.0, 600.0,
                                  650.0, 700.0, 750.0, 800.0, 900.0]
     )
+    comparison_depths_mm: list = field(default_factory=lambda: [320.0, 630.0, 800.0])
     tilt_deg: float = 50.0
+    tilt_span_mm: float = 200.0
+    image_size: list = field(default_factory=lambda: [256, 256])
+    cls_iterations: int = 100
+    wiener_tuning_images: int = 8
+    wiener_tuning_depths: int = 6
 
     def validate(self) -> None:
-        if not self.depths_mm or any(d <= 0 for d in self.depths_mm):
+        if not self.depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.depths_mm):
             raise ConfigError("evaluation.depths_mm needs one or more positive depths")
+        if not self.comparison_depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.comparison_depths_mm):
+            raise ConfigError("evaluation.comparison_depths_mm needs one or more positive depths")
+        if not (math.isfinite(self.tilt_deg) and 0 < abs(self.tilt_deg) < 90):
+            raise ConfigError(f"evaluation.tilt_deg={self.tilt_deg} must be between 0 and 90 degrees (exclusive)")
+        _positive(self, "tilt_span_mm", "evaluation.tilt_span_mm")
+        if self.image_size and (len(self.image_size) != 2 or any(
+                isinstance(s, bool) or not isinstance(s, (int, float)) or int(s) != s or s < 16
+                for s in self.image_size)):
+            raise ConfigError(
+                f"evaluation.image_size={self.image_size} must be [height, width] with integers >= 16, or [] (native)"
+            )
+        if self.cls_iterations < 1:
+            raise ConfigError("evaluation.cls_iterations must be >= 1")
+        if self.wiener_tuning_images < 1 or self.wiener_tuning_depths < 1:
+            raise ConfigError("evaluation.wiener_tuning_images and evaluation.wiener_tuning_depths must be >= 1")
 
 
 @dataclass

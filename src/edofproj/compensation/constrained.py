@@ -99,7 +99,7 @@ def box_constrained_deconvolution(
 ):
     """The projector input ``x ∈ [0,1]`` minimizing ``½‖p ⊛ x + h·mean(x) − I‖²``.
 
-    ``target`` (B, C, H, W) in [0, 1]; ``psf`` (C, K, K) or (1|B, C, K, K). Returns ``x``
+    ``target`` (B, C, H, W) in [0, 1]; ``psf`` (C|1, K, K) or (1|B, C|1, K, K). Returns ``x``
     (B, C, H, W), or ``(x, objective)`` with ``objective`` a tensor ``(iterations + 1, B)``
     of ``f`` at the start and after each iteration when ``return_objective``.
     ``callback(k, x)`` is called with the iterate after each iteration ``k = 1 … iterations``.
@@ -111,7 +111,7 @@ def box_constrained_deconvolution(
     if target.ndim != 4:
         raise EdofprojError(f"target must be (B, C, H, W), got {tuple(target.shape)}")
     psf = psf.to(target.device, target.dtype)
-    if psf.shape[-3] != target.shape[1] or (psf.ndim == 4 and psf.shape[0] not in (1, target.shape[0])):
+    if psf.shape[-3] not in (1, target.shape[1]) or (psf.ndim == 4 and psf.shape[0] not in (1, target.shape[0])):
         raise EdofprojError(f"PSF {tuple(psf.shape)} does not match target {tuple(target.shape)}")
     with torch.no_grad():
         op = BlurHazeOperator(psf, target.shape[-2], target.shape[-1], haze=haze)

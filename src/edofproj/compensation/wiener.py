@@ -101,11 +101,17 @@ def optical_transfer_function(psf, height: int, width: int, haze: bool = True) -
     return otf
 
 
+def checked_nsr(nsr: float) -> float:
+    """``nsr`` as a float, or a one-line error unless it is finite and >= 0."""
+    value = float(nsr)
+    if not (np.isfinite(value) and value >= 0):
+        raise EdofprojError(f"Wiener NSR={nsr} must be a finite number >= 0")
+    return value
+
+
 def wiener_filter(otf: np.ndarray, nsr: float) -> np.ndarray:
     """The Wiener filter ``G = conj(H) / (|H|² + NSR)``."""
-    if not (np.isfinite(nsr) and nsr >= 0):
-        raise EdofprojError(f"Wiener NSR={nsr} must be a finite number >= 0")
-    return np.conj(otf) / (np.abs(otf) ** 2 + nsr)
+    return np.conj(otf) / (np.abs(otf) ** 2 + checked_nsr(nsr))
 
 
 # --------------------------------------------------------------------------- NumPy / SciPy
@@ -122,12 +128,11 @@ class WienerCompensator:
 
     def __init__(self, psf, nsr: float, haze: bool = True, pad: bool = True, workers: int | None = None):
         self.psf = _psf_3d(psf)
-        self.nsr = float(nsr)
+        self.nsr = checked_nsr(nsr)
         self.haze = bool(haze)
         self.pad = bool(pad)
         self.workers = int(workers) if workers else (os.cpu_count() or 1)
         self._filters: dict[tuple[int, int], tuple[tuple[int, int, int, int], np.ndarray]] = {}
-        wiener_filter(np.ones(1), self.nsr)  # validates nsr
 
     @property
     def window(self) -> int:
@@ -183,29 +188,42 @@ def _check_torch_inputs(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     if psf.ndim == 3:
         psf = psf.unsqueeze(0)
     if (psf.ndim != 4 or psf.shape[-1] != psf.shape[-2] or psf.shape[-1] % 2 == 0
-            or psf.shape[1] != image.shape[1] or psf.shape[0] not in (1, image.shape[0])):
+            or psf.shape[1] not in (1, image.shape[1]) or psf.shape[0] not in (1, image.shape[0])):
         raise EdofprojError(
-            f"PSF must be (C,K,K) or (1|B,C,K,K) with K odd matching image {tuple(image.shape)}, got {tuple(psf.shape)}"
+            f"PSF must be (C|1,K,K) or (1|B,C|1,K,K) with K odd matching image {tuple(image.shape)}, "
+            f"got {tuple(psf.shape)}"
         )
     return psf
+
+
+def _torch_wiener_filter(psf: torch.Tensor, height: int, width: int, nsr: float, haze: bool, pad: bool):
+    """(padding, complex filter (N, C, Hp, Wp//2+1)) for frames of ``height × width``."""
+    pads = padding_for(height, width, psf.shape[-1], pad)
+    otf = _otf_torch(psf, height + pads[0] + pads[1], width + pads[2] + pads[3], haze)
+    return pads, otf.conj() / (otf.abs() ** 2 + checked_nsr(nsr))
+
+
+def _apply_torch_filter(image: torch.Tensor, pads: tuple[int, int, int, int], filt: torch.Tensor) -> torch.Tensor:
+    """Reflect-pad, filter in the Fourier domain, crop, clamp to [0, 1]."""
+    top, bottom, left, right = pads
+    height, width = image.shape[-2:]
+    padded = F.pad(image, (left, right, top, bottom), mode="reflect") if any(pads) else image
+    restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
+    return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
 
 
 def wiener_deconvolve(image: torch.Tensor, psf: torch.Tensor, nsr: float, haze: bool = True,
                       pad: bool = True) -> torch.Tensor:
     """PyTorch Wiener deconvolution, ``clamp(F⁻¹{conj(H)·F{I}/(|H|²+NSR)}, 0, 1)``.
 
-    ``image`` (B, C, H, W); ``psf`` (C, K, K) or (1|B, C, K, K) (one PSF per sample).
+    ``image`` (B, C, H, W); ``psf`` (C, K, K) or (1|B, C, K, K) (one PSF per sample; a PSF
+    channel axis of 1 applies to every colour channel).
     Differentiable, on the device of ``image``; same padding and haze model as
     :class:`WienerCompensator`.
     """
     psf = _check_torch_inputs(image, psf).to(image.device, image.dtype)
-    height, width = image.shape[-2:]
-    top, bottom, left, right = padding_for(height, width, psf.shape[-1], pad)
-    padded = F.pad(image, (left, right, top, bottom), mode="reflect") if pad else image
-    otf = _otf_torch(psf, padded.shape[-2], padded.shape[-1], haze)
-    filt = otf.conj() / (otf.abs() ** 2 + float(nsr))
-    restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
-    return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
+    pads, filt = _torch_wiener_filter(psf, image.shape[-2], image.shape[-1], nsr, haze, pad)
+    return _apply_torch_filter(image, pads, filt)
 
 
 class TorchWienerCompensator:
@@ -217,25 +235,18 @@ class TorchWienerCompensator:
 
     def __init__(self, psf, nsr: float, haze: bool = True, pad: bool = True):
         self.psf = torch.as_tensor(_psf_3d(psf), dtype=torch.float32).unsqueeze(0)
-        self.nsr = float(nsr)
+        self.nsr = checked_nsr(nsr)
         self.haze = bool(haze)
         self.pad = bool(pad)
         self._filters: dict = {}
-        wiener_filter(np.ones(1), self.nsr)  # validates nsr
 
     def __call__(self, image: torch.Tensor) -> torch.Tensor:
         _check_torch_inputs(image, self.psf)
-        height, width = image.shape[-2:]
-        key = (height, width, image.device, image.dtype)
+        key = (image.shape[-2], image.shape[-1], image.device, image.dtype)
         if key not in self._filters:
-            pads = padding_for(height, width, self.psf.shape[-1], self.pad)
-            otf = _otf_torch(self.psf.to(image.device, image.dtype),
-                             height + pads[0] + pads[1], width + pads[2] + pads[3], self.haze)
-            self._filters[key] = (pads, otf.conj() / (otf.abs() ** 2 + self.nsr))
-        (top, bottom, left, right), filt = self._filters[key]
-        padded = F.pad(image, (left, right, top, bottom), mode="reflect") if self.pad else image
-        restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
-        return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
+            psf = self.psf.to(image.device, image.dtype)
+            self._filters[key] = _torch_wiener_filter(psf, key[0], key[1], self.nsr, self.haze, self.pad)
+        return _apply_torch_filter(image, *self._filters[key])
 
 
 # --------------------------------------------------------------------------- NSR selection

@@ -93,7 +93,9 @@ def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels)
 
 
-def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _ssim_and_contrast_structure(
+    pred: torch.Tensor, target: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean SSIM and mean contrast-structure term per image, both ``(B,)``.
 
     With local Gaussian-weighted means ``mu``, variances ``sigma^2`` and covariance
@@ -204,7 +206,8 @@ def available_perceptual_metrics(weights_dir: Optional[PathLike] = None) -> dict
     Only checks that the files exist (cheap); loading can still fail on a corrupt file.
     """
     needs = {"dists": ("dists", "vgg16")}
-    needs.update({f"lpips-{net}": (f"lpips-{net}", backbone) for net, (backbone, _) in LPIPS_BACKBONES.items()})
+    for net, (backbone, _) in LPIPS_BACKBONES.items():
+        needs[f"lpips-{net}"] = (f"lpips-{net}", backbone)
     available = {}
     for name in PERCEPTUAL_METRICS:
         metric_file, backbone = needs[name]

@@ -48,7 +48,8 @@ class LPIPS(nn.Module):
             )
         self.backbone = backbone
         for index, weight in enumerate(layer_weights):
-            self.register_buffer(f"layer_weight_{index}", weight.detach().reshape(1, -1, 1, 1).float().clone())
+            weight = weight.detach().reshape(1, -1, 1, 1).float().clone()
+            self.register_buffer(f"layer_weight_{index}", weight)
         self.register_buffer("shift", torch.tensor(LPIPS_SHIFT).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("scale", torch.tensor(LPIPS_SCALE).view(1, 3, 1, 1), persistent=False)
         self.requires_grad_(False)

@@ -1,10 +1,11 @@
 """Geometric calibration of a projector-camera pair from a captured dot grid (paper Sec. 5.2).
 
-1. **Detect** the dots in the black-subtracted, lightly smoothed capture: Otsu threshold ``t``
+1. **Detect** the dots in the black-subtracted, lightly smoothed capture: Otsu threshold
    (:func:`skimage.filters.threshold_otsu`), connected components
    (:func:`cv2.connectedComponentsWithStats`), specks smaller than a fifth of the largest blob
-   dropped, and the weighted centroid of each blob (:func:`scipy.ndimage.center_of_mass`),
-   ``c = sum_i w_i q_i / sum_i w_i`` with ``w_i = max(I_i - t, 0)`` -- sub-pixel.
+   dropped; each centre is then the intensity centroid ``c = sum_i I_i q_i / sum_i I_i`` over a
+   square of half the dot spacing around the blob, re-centred a few times -- sub-pixel, and
+   unbiased for lopsided blobs (a threshold would cut their faint side).
 2. **Match** them to the projector's grid: the four corner dots (extremes of ``u + v`` and
    ``u - v``) give a first homography; every grid dot is predicted through it and paired with
    the nearest detection (``scipy.spatial.cKDTree``); the homography is refitted on all pairs
@@ -47,27 +48,42 @@ def apply_homography(homography: np.ndarray, points: np.ndarray) -> np.ndarray:
     return mapped[:, :2] / mapped[:, 2:3]
 
 
-def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: float = 1.5) -> np.ndarray:
+def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: float = 1.5,
+                refinements: int = 3) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` as ``(u, v)`` of the bright blobs of a black-subtracted grey image.
 
-    The image is smoothed by a Gaussian of ``smoothing_px`` (noise), thresholded at Otsu's level
-    ``t``; blobs smaller than ``min_area_fraction`` of the largest are dropped; each centre is the
-    centroid weighted by ``max(I - t, 0)``, which falls to zero at the blob's edge so the
-    pixelated rim of the mask does not bias it.
+    Blobs: the image smoothed by a Gaussian of ``smoothing_px`` (noise), thresholded at Otsu's
+    level; blobs smaller than ``min_area_fraction`` of the largest are dropped. Centres: the
+    intensity centroid ``sum_i I_i q_i / sum_i I_i`` of the unthresholded image over a square of
+    half the distance to the nearest other blob, re-centred ``refinements`` times -- a
+    threshold would cut a lopsided blob's faint side and move its centroid.
     """
     gray = np.asarray(gray, dtype=np.float64)
     if gray.size == 0 or np.ptp(gray) <= 0:
         return np.zeros((0, 2))
     smooth = cv2.GaussianBlur(gray, (0, 0), smoothing_px)
-    threshold = threshold_otsu(smooth)
-    mask = (smooth > threshold).astype(np.uint8)
+    mask = (smooth > threshold_otsu(smooth)).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA]
     if areas.size == 0:
         return np.zeros((0, 2))
     keep = np.flatnonzero(areas >= min_area_fraction * areas.max()) + 1
-    centres = ndimage.center_of_mass(np.clip(smooth - threshold, 0.0, None), labels, keep)  # (row, col)
-    return np.asarray(centres, dtype=np.float64).reshape(-1, 2)[:, ::-1]
+    centres = np.asarray(ndimage.center_of_mass(mask, labels, keep), dtype=np.float64).reshape(-1, 2)[:, ::-1]
+    if len(centres) < 2:
+        return centres
+    half = max(2, int(0.5 * np.min(cKDTree(centres).query(centres, k=2)[0][:, 1])))
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    for _ in range(refinements):
+        for n, (u, v) in enumerate(centres):
+            cu, cv = int(round(u)), int(round(v))
+            u0, u1 = max(cu - half, 0), min(cu + half + 1, gray.shape[1])
+            v0, v1 = max(cv - half, 0), min(cv + half + 1, gray.shape[0])
+            weights = smooth[v0:v1, u0:u1]
+            total = weights.sum()
+            if total > 0:
+                centres[n] = [(weights.sum(axis=0) @ (offsets[u0 - cu + half:u1 - cu + half] + cu)) / total,
+                              (weights.sum(axis=1) @ (offsets[v0 - cv + half:v1 - cv + half] + cv)) / total]
+    return centres
 
 
 def _pair_with_grid(predicted: np.ndarray, detected: np.ndarray, spacing_px: float) -> np.ndarray | None:

@@ -58,7 +58,7 @@ from ..optics.psf_bank import PSFBank
 from .calibration import ProCamsCalibration, warn_if_saturated
 from .patterns import PatternManifest
 
-DEFAULT_EPS_REL = 1e-3
+DEFAULT_EPS_REL = 1e-4
 DEFAULT_ITERATIONS = 4
 
 
@@ -170,8 +170,8 @@ def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch:
         raise EdofprojError(f"patterns {patterns.shape} and captures {captures.shape} must both be (n, H, W, 3)")
     if window < 3 or window % 2 == 0:
         raise EdofprojError(f"--window {window} must be odd and >= 3")
-    if eps_rel <= 0 or iterations < 1:
-        raise EdofprojError("eps_rel must be > 0 and iterations >= 1")
+    if eps_rel <= 0 or iterations < 0:
+        raise EdofprojError("eps_rel must be > 0 and iterations >= 0")
     H, W = patterns.shape[1:3]
     m = window // 2
     if min(H, W) - 4 * m < window:

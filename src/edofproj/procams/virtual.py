@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..imaging import project, render_depth_map
+from ..imaging import haze_term, layer_weights, project, render_depth_map
 from .capture_io import atomic_folder, write_rgb_png
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
 
@@ -167,13 +167,12 @@ class VirtualProCams:
         with torch.no_grad():
             if self.depth_map_m is None:
                 direct = project(canvas, psf, haze=False)
-                haze = project(output, psf, haze=True) - project(output, psf, haze=False)
+                haze = haze_term(output, psf)
             else:
                 depth = np.pad(np.asarray(self.depth_map_m, dtype=np.float64), m, mode="edge")
-                layers = list(self.layer_depths_m)
-                direct = render_depth_map(canvas, depth, psf, layers=layers, haze=False)
-                haze = (render_depth_map(output, self.depth_map_m, psf, layers=layers, haze=True)
-                        - render_depth_map(output, self.depth_map_m, psf, layers=layers, haze=False))
+                direct = render_depth_map(canvas, depth, psf, layers=list(self.layer_depths_m), haze=False)
+                weights = layer_weights(self.depth_map_m, self.layer_depths_m).to(output.dtype)  # (n, H, W)
+                haze = sum(haze_term(output * weights[l], psf[l:l + 1]) for l in range(len(self.layer_depths_m)))
         screen = direct[0].numpy()
         screen[:, m:m + H, m:m + W] += haze[0].numpy()
         return screen.transpose(1, 2, 0)

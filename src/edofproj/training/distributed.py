@@ -81,7 +81,12 @@ def setup_process_group(device: str = "auto") -> ProcessGroup:
         backend = "nccl" if chosen.type == "cuda" else "gloo"
         if chosen.type == "cuda":
             torch.cuda.set_device(chosen)
-        dist.init_process_group(backend=backend, rank=rank, world_size=world_size)
+        try:
+            dist.init_process_group(backend=backend, rank=rank, world_size=world_size)
+        except (RuntimeError, ValueError) as exc:
+            first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise EdofprojError(f"cannot join the {backend} process group as rank {rank} of {world_size} "
+                                f"(start data-parallel runs with torchrun): {first_line}") from None
     return ProcessGroup(rank, world_size, local_rank, chosen)
 
 
@@ -95,20 +100,10 @@ def average_across_processes(values: torch.Tensor, group: ProcessGroup) -> torch
     """The mean of ``values`` over all processes (a copy; unchanged for a single process)."""
     values = values.detach().clone()
     if group.distributed:
+        values = values.to(group.device)  # nccl reduces GPU tensors only
         dist.all_reduce(values, op=dist.ReduceOp.SUM)
-        values /= group.world_size
+        values = (values / group.world_size).cpu()
     return values
-
-
-def broadcast_flag(flag: bool, group: ProcessGroup) -> bool:
-    """Rank 0's boolean, on every process (so all take the same branch)."""
-    if not group.distributed:
-        return flag
-    tensor = torch.tensor([1 if flag else 0], dtype=torch.int64)
-    if group.device.type == "cuda":
-        tensor = tensor.to(group.device)
-    dist.broadcast(tensor, src=0)
-    return bool(tensor.item())
 
 
 def replica_max_difference(parameters, group: ProcessGroup) -> float:

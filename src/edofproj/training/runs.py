@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -119,9 +118,6 @@ class TrainedRun:
     net: nn.Module
     run_dir: Path
     step: int
-
-    def replace(self, **changes) -> "TrainedRun":
-        return dataclasses.replace(self, **changes)
 
 
 def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:

@@ -1,0 +1,71 @@
+"""The acceptance bars of the demo, measured on held-out images (never assumed).
+
+(a) ``doe+net`` has the best mean SSIM over the training depth range of all evaluated methods;
+(b) ``doe+net``'s worst depth in that range (lowest per-depth mean SSIM) beats every other
+    method's worst depth;
+(c) the demo's wall time is within its budget.
+
+A bar compares against the methods that were actually evaluated; the report lists them (a
+method whose run was not trained cannot be beaten or lost to). A bar that could not be
+measured (``doe+net`` missing) is reported as not measured, never as passed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .methods import OURS
+from .results import MetricsTable
+
+
+@dataclass
+class Bar:
+    """One bar: its statement, the outcome (None: not measured) and the numbers behind it."""
+
+    key: str
+    statement: str
+    passed: bool | None
+    measured: str
+
+    @property
+    def verdict(self) -> str:
+        return "not measured" if self.passed is None else ("PASS" if self.passed else "FAIL")
+
+
+def ssim_bars(table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim") -> list[Bar]:
+    """Bars (a) and (b) on ``table`` over ``range_mm``."""
+    lo, hi = range_mm
+    span = f"{lo:.0f}-{hi:.0f} mm"
+    statement_a = f"{OURS} has the best mean SSIM over {span} of all evaluated methods"
+    statement_b = f"{OURS}'s worst depth in {span} beats every other method's worst depth (SSIM)"
+    methods = table.methods()
+    others = [m for m in methods if m != OURS]
+    if OURS not in methods:
+        missing = f"{OURS} was not evaluated"
+        return [Bar("a", statement_a, None, missing), Bar("b", statement_b, None, missing)]
+    if not others:
+        alone = "no other method was evaluated"
+        return [Bar("a", statement_a, None, alone), Bar("b", statement_b, None, alone)]
+    stats = {m: table.range_stats(m, metric, lo, hi) for m in methods}
+    ours = stats[OURS]
+    if math.isnan(ours.mean):
+        none = f"no {OURS} result inside {span}"
+        return [Bar("a", statement_a, None, none), Bar("b", statement_b, None, none)]
+
+    best_other_mean = max(others, key=lambda m: stats[m].mean)
+    passed_a = all(ours.mean > stats[m].mean for m in others)
+    measured_a = (f"{OURS} {ours.mean:.4f}; best other: {best_other_mean} {stats[best_other_mean].mean:.4f} "
+                  f"(compared: {', '.join(others)})")
+
+    best_other_worst = max(others, key=lambda m: stats[m].worst)
+    passed_b = all(ours.worst > stats[m].worst for m in others)
+    measured_b = (f"{OURS} worst {ours.worst:.4f} at {ours.worst_depth_mm:.0f} mm; best other worst: "
+                  f"{best_other_worst} {stats[best_other_worst].worst:.4f} at {stats[best_other_worst].worst_depth_mm:.0f} mm")
+    return [Bar("a", statement_a, passed_a, measured_a), Bar("b", statement_b, passed_b, measured_b)]
+
+
+def wall_time_bar(seconds: float, budget_seconds: float) -> Bar:
+    """Bar (c): ``seconds <= budget_seconds``."""
+    return Bar("c", f"demo wall time <= {budget_seconds / 60:.0f} min", seconds <= budget_seconds,
+               f"{seconds / 60:.1f} min ({seconds:.0f} s)")

@@ -1,0 +1,159 @@
+"""Figures of an evaluation (matplotlib, Agg backend, PNG written atomically).
+
+* :func:`plot_metric_vs_depth` -- a metric against the screen depth, one line per method,
+  the training depth range shaded;
+* :func:`plot_comparison` -- the side-by-side grid of the paper's Fig. 6: rows = depths,
+  columns = the target and each method, PSNR / SSIM (and LPIPS when available) on each tile,
+  the best value of each row in bold red;
+* :func:`plot_tilted` -- the same for the tilted screen (one row);
+* :func:`plot_training_curves` -- the training loss of every run, one line each.
+
+The PSF figure is :func:`edofproj.evaluation.psf_plots.plot_psf_comparison` and the DOE profile
+:func:`edofproj.training.figures.plot_doe_profile`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..fileio import atomic_path  # noqa: E402
+from .results import METRIC_LABELS, MetricsTable, better  # noqa: E402
+
+#: Metrics written on the tiles of the comparison figures, with their short labels (paper Fig. 6).
+TILE_METRICS = (("psnr", "P", "{:.2f}"), ("ssim", "S", "{:.3f}"), ("lpips", "L", "{:.3f}"))
+
+
+def _save(fig, path: str | Path, dpi: int = 110) -> None:
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
+    plt.close(fig)
+
+
+def _method_style(index: int, name: str) -> dict:
+    """Ours thick and black, the rest from a colour cycle; lens-based dashed, DOE-based solid."""
+    if name == "doe+net":
+        return dict(color="black", lw=2.4, ls="-", marker="o", ms=4, zorder=5)
+    colour = plt.cm.tab10(index % 10)
+    return dict(color=colour, lw=1.3, ls="--" if name.startswith("lens") else "-", marker=".", ms=5)
+
+
+def plot_metric_vs_depth(table: MetricsTable, metric: str, path: str | Path,
+                         design_range_mm: tuple[float, float] | None = None, title: str | None = None) -> None:
+    """Mean ``metric`` over the images against depth, one line per method."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    if design_range_mm is not None:
+        ax.axvspan(*design_range_mm, color="0.92", zorder=0, label="training range")
+    for index, method in enumerate(table.methods()):
+        means = table.per_depth_means(method, metric)
+        depths = sorted(means)
+        ax.plot(depths, [means[z] for z in depths], label=method, **_method_style(index, method))
+    ax.set_xlabel("screen depth z (mm)")
+    ax.set_ylabel(METRIC_LABELS.get(metric, metric) + ("" if metric not in ("lpips", "dists") else " (lower is better)"))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc="best")
+    ax.set_title(title or f"{METRIC_LABELS.get(metric, metric)} vs depth (mean over the test images)", fontsize=10)
+    _save(fig, path)
+
+
+def _tile_text(scores: dict, best: dict) -> list[tuple[str, bool]]:
+    parts = []
+    for metric, short, fmt in TILE_METRICS:
+        if metric in scores:
+            parts.append((f"{short} {fmt.format(scores[metric])}", scores[metric] == best.get(metric)))
+    return parts
+
+
+def _best_of(row_scores: Sequence[dict]) -> dict:
+    best = {}
+    for scores in row_scores:
+        for metric, value in scores.items():
+            if metric not in best or better(metric, value, best[metric]):
+                best[metric] = value
+    return best
+
+
+def _annotate(ax, parts: list[tuple[str, bool]]) -> None:
+    y = 0.02
+    for text, is_best in reversed(parts):
+        ax.text(0.02, y, text, transform=ax.transAxes, fontsize=7, va="bottom", ha="left",
+                color="red" if is_best else "white", fontweight="bold" if is_best else "normal",
+                bbox=dict(facecolor="black", alpha=0.55, pad=1.0, lw=0))
+        y += 0.11
+
+
+def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]], path, title: str) -> None:
+    """``rows``: ``(row label, target, [(method, display, scores)])``."""
+    n_cols = 1 + max(len(r[2]) for r in rows)
+    height, width = rows[0][1].shape[:2]
+    tile = 2.0
+    fig, axes = plt.subplots(len(rows), n_cols, figsize=(tile * n_cols, tile * height / width * len(rows) + 0.6),
+                             squeeze=False)
+    for r, (label, target, tiles) in enumerate(rows):
+        best = _best_of([scores for _, _, scores in tiles])
+        axes[r, 0].imshow(np.clip(target, 0, 1))
+        axes[r, 0].set_ylabel(label, fontsize=9)
+        if r == 0:
+            axes[r, 0].set_title("target", fontsize=9)
+        for c, (method, display, scores) in enumerate(tiles, start=1):
+            ax = axes[r, c]
+            ax.imshow(np.clip(display, 0, 1))
+            if r == 0:
+                ax.set_title(method, fontsize=9, fontweight="bold" if method == "doe+net" else "normal")
+            _annotate(ax, _tile_text(scores, best))
+        for ax in axes[r]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path, dpi=120)
+
+
+def plot_comparison(target: np.ndarray, examples: dict, depths_mm: Sequence[float], methods: Sequence[str],
+                    path: str | Path, image_name: str = "") -> None:
+    """Paper Fig. 6: rows = ``depths_mm``, columns = target + ``methods``; ``examples`` from
+    :func:`edofproj.evaluation.sweep.example_displays`."""
+    rows = []
+    for z in depths_mm:
+        tiles = [(m, *examples[(float(z), m)]) for m in methods if (float(z), m) in examples]
+        rows.append((f"z = {z:.0f} mm", target, tiles))
+    _image_grid(rows, path, f"Simulated projections{' of ' + image_name if image_name else ''} "
+                            "(P = PSNR dB, S = SSIM, L = LPIPS; best of each row in red)")
+
+
+def plot_tilted(target: np.ndarray, examples: dict, methods: Sequence[str], path: str | Path,
+                near_mm: float, far_mm: float, tilt_deg: float) -> None:
+    """The tilted screen: target + one tile per method (near edge on the left)."""
+    tiles = [(m, *examples[m]) for m in methods if m in examples]
+    label = f"{near_mm:.0f} mm (left) to\n{far_mm:.0f} mm (right)"
+    _image_grid([(label, target, tiles)], path,
+                f"Tilted screen ({tilt_deg:g} deg, depth {near_mm:.0f}-{far_mm:.0f} mm; P = PSNR, S = SSIM)")
+
+
+def plot_training_curves(curves: Sequence[tuple[str, list[dict]]], path: str | Path) -> None:
+    """Training loss (moving average over 1/20 of the run) against step, one line per run."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.0))
+    for index, (label, rows) in enumerate(curves):
+        if not rows:
+            continue
+        steps = np.array([r["step"] for r in rows], dtype=float)
+        loss = np.array([r["loss"] for r in rows], dtype=float)
+        width = max(1, len(loss) // 20)
+        smooth = np.convolve(loss, np.ones(width) / width, mode="valid") if len(loss) >= width else loss
+        style = _method_style(index, label)
+        style.pop("marker", None)
+        ax.plot(steps, loss, color=style["color"], alpha=0.15, lw=0.6)
+        ax.plot(steps[len(steps) - len(smooth):], smooth, label=label, **style)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("training loss (alpha MSE + beta perceptual)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Training curves (moving average; faint: per step)", fontsize=10)
+    _save(fig, path)

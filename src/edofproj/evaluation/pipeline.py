@@ -1,0 +1,344 @@
+"""``evaluate``: score a trained run and its baselines on held-out images; write tables and figures.
+
+The straight line of an evaluation:
+
+1. load the run (config, fabricated DOE, network) and the separate baseline runs found in the
+   baselines directory (:data:`~edofproj.evaluation.methods.BASELINE_RUN_DIRS`; default: the
+   run's parent directory, where the demo puts them side by side);
+2. prepare the methods (:mod:`.methods`): optical designs and their PSFs (:mod:`.designs`), the
+   Wiener NSR of each design tuned on *training* crops, the networks;
+3. score every method on every held-out image at every depth (:func:`.sweep.flat_screen_sweep`)
+   and on the tilted screen (:func:`.sweep.tilted_screen_sweep`);
+4. write ``metrics.csv``, ``tilted_metrics.csv`` and the figures into the output directory
+   (:mod:`.figures`); the write-up is :mod:`.writeup`.
+
+A method whose run does not exist is skipped with a note, unless it was asked for by name.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..config import apply_overrides, to_dict
+from ..errors import EdofprojError
+from .designs import OpticalDesign
+from .methods import (ConstrainedCompensation, MethodSpec, NetworkCompensation, PreparedMethod, WienerCompensation,
+                      no_compensation, select_methods, training_crops, tune_nsr)
+from .progress import StageProgress
+from .results import MetricsTable
+
+FIGURES_DIR = "figures"
+METRICS_NAME = "metrics.csv"
+TILTED_METRICS_NAME = "tilted_metrics.csv"
+#: Config sections a baseline run must share with the evaluated run (same projector, same light).
+SHARED_SECTIONS = ("optics", "spectrum")
+#: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained).
+EVALUATION_OVERRIDE_PREFIXES = ("evaluation.", "imaging.", "data.max_test_images")
+
+
+@dataclass
+class Evaluation:
+    """Everything an evaluation measured and wrote."""
+
+    out_dir: Path
+    run: object                                  # edofproj.training.runs.TrainedRun
+    cfg: object                                  # the run's config with the evaluation overrides
+    methods: list[PreparedMethod]
+    designs: dict[str, OpticalDesign]
+    images: list[tuple[str, object]]
+    depths_mm: list[float]
+    range_mm: tuple[float, float]
+    table: MetricsTable
+    tilted: MetricsTable
+    comparison: dict
+    tilted_examples: dict
+    notes: list[str] = field(default_factory=list)
+    nsr: dict[str, float] = field(default_factory=dict)
+    perceptual: list[str] = field(default_factory=list)
+    perceptual_missing: list[str] = field(default_factory=list)
+    baseline_runs: dict[str, object] = field(default_factory=dict)
+    files: dict[str, Path] = field(default_factory=dict)
+    figures: dict[str, Path] = field(default_factory=dict)
+    seconds: float = math.nan
+
+
+# --------------------------------------------------------------------------- runs
+
+
+def require_trained_run(run_dir: str | Path) -> Path:
+    """The run directory, or a one-line error when it is missing or has no checkpoint."""
+    from ..training.runs import CONFIG_NAME, last_checkpoint_path
+
+    path = Path(run_dir)
+    if not path.is_dir():
+        raise EdofprojError(f"run directory '{run_dir}' does not exist")
+    if not (path / CONFIG_NAME).is_file():
+        raise EdofprojError(f"'{run_dir}' is not a training run (no {CONFIG_NAME})")
+    if not last_checkpoint_path(path).is_file():
+        raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(path)}): train it first")
+    return path
+
+
+def evaluation_config(cfg, overrides: Sequence[str] = ()):
+    """The run's config with ``--set`` overrides of the evaluation keys only."""
+    for item in overrides or ():
+        key = item.split("=", 1)[0].strip()
+        if not key.startswith(EVALUATION_OVERRIDE_PREFIXES):
+            raise EdofprojError(
+                f"--set {key}: evaluate only changes evaluation.*, imaging.* and data.max_test_images "
+                "(the rest is the run's trained configuration)"
+            )
+    return apply_overrides(cfg, overrides) if overrides else cfg
+
+
+def _expected_keys(spec: MethodSpec) -> dict[str, str]:
+    return dict(item.split("=", 1) for item in spec.train_overrides)
+
+
+def _check_baseline(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | None:
+    """Why the baseline run at ``path`` cannot stand for ``spec`` next to ``cfg`` (None: it can)."""
+    flat = {"doe.kind": baseline_cfg.doe.kind, "net.architecture": baseline_cfg.net.architecture}
+    for key, value in _expected_keys(spec).items():
+        if key in flat and flat[key] != value:
+            return f"its config has {key}={flat[key]}, expected {value}"
+    for section in SHARED_SECTIONS:
+        if to_dict(getattr(baseline_cfg, section)) != to_dict(getattr(cfg, section)):
+            return f"its {section} section differs from the evaluated run's (a different projector)"
+    return None
+
+
+# --------------------------------------------------------------------------- preparation
+
+
+class MethodBuilder:
+    """Builds :class:`PreparedMethod` objects, sharing designs and tuned NSRs between methods."""
+
+    def __init__(self, run, cfg, baselines_dir: Path, explicit: bool) -> None:
+        from ..doe import build_doe
+
+        self.run = run
+        self.cfg = cfg
+        self.baselines_dir = baselines_dir
+        self.explicit = explicit
+        self.designs: dict[str, OpticalDesign] = {}
+        self.nsr: dict[str, float] = {}
+        self.notes: list[str] = []
+        self.baseline_runs: dict[str, object] = {}
+        self._build_doe = build_doe
+        self._train_images = None
+
+    def design(self, key: str, label: str, doe) -> OpticalDesign:
+        if key not in self.designs:
+            self.designs[key] = OpticalDesign(key, label, doe, self.cfg)
+        return self.designs[key]
+
+    def lens(self) -> OpticalDesign:
+        return self.design("lens", "lens", self._build_doe(self.cfg, "lens"))
+
+    def run_design(self) -> OpticalDesign:
+        return self.design("run", "doe", self.run.doe)
+
+    def tuned_nsr(self, design: OpticalDesign) -> float:
+        if design.key not in self.nsr:
+            if self._train_images is None:
+                self._train_images = training_crops(self.cfg, self.cfg.evaluation.wiener_tuning_images,
+                                                    seed=self.cfg.train.seed)
+            self.nsr[design.key], _ = tune_nsr(design, self._train_images, self.cfg)
+        return self.nsr[design.key]
+
+    def baseline(self, spec: MethodSpec):
+        """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
+        from ..training.runs import last_checkpoint_path, load_run
+
+        path = self.baselines_dir / spec.run_dir
+        if not last_checkpoint_path(path).is_file():
+            reason = f"no trained run at '{path}'"
+            hint = " ".join(f"--set {o}" for o in spec.train_overrides)
+            if self.explicit:
+                raise EdofprojError(f"method {spec.name} needs {reason} (train one: edofproj train --config "
+                                    f"<config> --out {path} {hint})")
+            self.notes.append(f"{spec.name} skipped: {reason}")
+            return None
+        baseline = load_run(path)
+        problem = _check_baseline(spec, path, self.cfg, baseline.cfg)
+        if problem:
+            if self.explicit:
+                raise EdofprojError(f"method {spec.name}: the run '{path}' does not fit: {problem}")
+            self.notes.append(f"{spec.name} skipped: the run '{path}' does not fit: {problem}")
+            return None
+        self.baseline_runs[spec.name] = baseline
+        return baseline
+
+    def build(self, spec: MethodSpec) -> PreparedMethod | None:
+        baseline = self.baseline(spec) if spec.needs_separate_run else None
+        if spec.needs_separate_run and baseline is None:
+            return None
+        if spec.optics == "lens":
+            design = self.lens()
+        elif spec.optics == "run":
+            design = self.run_design()
+        else:
+            design = self.design(spec.run_dir, spec.name.split("+")[0], baseline.doe)
+        detail = ""
+        if spec.compensation == "none":
+            compensate = no_compensation
+        elif spec.compensation == "wiener":
+            nsr = self.tuned_nsr(design)
+            compensate = WienerCompensation(nsr)
+            detail = f"NSR {nsr:.3g}"
+        elif spec.compensation == "cls":
+            compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
+            detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
+        else:
+            source = baseline if baseline is not None else self.run
+            compensate = NetworkCompensation(source.net)
+            detail = f"{source.cfg.net.architecture}, {source.step} steps ({source.run_dir})"
+        return PreparedMethod(spec, design, compensate, detail)
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_dir: str | Path | None = None,
+                 depths_mm: Sequence[float] | None = None, methods: Sequence[str] | None = None,
+                 baselines_dir: str | Path | None = None, overrides: Sequence[str] = (),
+                 progress: StageProgress | None = None) -> Evaluation:
+    """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run)."""
+    import time
+
+    from ..training.runs import load_run
+    from .images import evaluation_images
+    from .sweep import example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
+
+    clock = time.perf_counter()
+    specs = select_methods(methods)  # unknown names fail before any work
+    run_path = require_trained_run(run_dir)
+    if depths_mm is not None:
+        depths_mm = [float(z) for z in depths_mm]
+        if not depths_mm or any(not (math.isfinite(z) and z > 0) for z in depths_mm):
+            raise EdofprojError(f"--depths-mm needs positive depths, got {depths_mm}")
+    out = Path(out_dir) if out_dir is not None else run_path
+    progress = progress or StageProgress("evaluate", enabled=False)
+
+    run = load_run(run_path)
+    cfg = evaluation_config(run.cfg, overrides)
+    depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
+    range_mm = (float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm))
+    images = evaluation_images(cfg, images_dir)
+
+    progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
+    builder = MethodBuilder(run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent,
+                            explicit=bool(methods))
+    prepared = []
+    for spec in specs:
+        method = builder.build(spec)
+        if method is not None:
+            prepared.append(method)
+        progress.advance(1, detail=spec.name)
+    if not prepared:
+        raise EdofprojError("no method could be evaluated: " + "; ".join(builder.notes))
+    for note in builder.notes:
+        progress.note(note)
+
+    perceptual = load_perceptual_metrics(cfg.loss.weights_dir)
+    from .sweep import PERCEPTUAL_COLUMNS
+
+    missing = [c for c in PERCEPTUAL_COLUMNS if c not in perceptual]
+
+    units = len(prepared) * len(images)
+    progress.start("flat-screen sweep", units * len(depths),
+                   detail=f"{len(prepared)} methods x {len(depths)} depths x {len(images)} images")
+    table = flat_screen_sweep(prepared, images, depths, perceptual, progress.advance)
+    progress.finish()
+    progress.start("tilted screen", units)
+    tilted, tilted_examples = tilted_screen_sweep(prepared, images, cfg, perceptual, progress.advance)
+    comparison_depths = [float(z) for z in cfg.evaluation.comparison_depths_mm]
+    comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual)
+    progress.finish()
+
+    evaluation = Evaluation(out_dir=out, run=run, cfg=cfg, methods=prepared, designs=builder.designs,
+                            images=images, depths_mm=depths, range_mm=range_mm, table=table, tilted=tilted,
+                            comparison=comparison, tilted_examples=tilted_examples, notes=builder.notes,
+                            nsr=builder.nsr, perceptual=list(perceptual), perceptual_missing=missing,
+                            baseline_runs=builder.baseline_runs)
+    write_tables(evaluation)
+    progress.start("figures", 1)
+    write_figures(evaluation)
+    progress.finish()
+    evaluation.seconds = time.perf_counter() - clock
+    return evaluation
+
+
+# --------------------------------------------------------------------------- files
+
+
+def write_tables(ev: Evaluation) -> None:
+    ev.out_dir.mkdir(parents=True, exist_ok=True)
+    ev.files["metrics"] = ev.out_dir / METRICS_NAME
+    ev.table.write_csv(ev.files["metrics"])
+    ev.files["tilted_metrics"] = ev.out_dir / TILTED_METRICS_NAME
+    ev.tilted.write_csv(ev.files["tilted_metrics"])
+
+
+def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
+    return np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, count) * 1e-3
+
+
+def write_figures(ev: Evaluation) -> None:
+    """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
+    from ..training.figures import plot_doe_profile
+    from ..training.run_log import read_log
+    from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
+    from .psf_plots import plot_psf_comparison
+
+    figures = ev.out_dir / FIGURES_DIR
+    figures.mkdir(parents=True, exist_ok=True)
+    for metric in ev.table.metrics:
+        path = figures / f"eval_{metric}_vs_depth.png"
+        plot_metric_vs_depth(ev.table, metric, path, ev.range_mm)
+        ev.figures[f"{metric}_vs_depth"] = path
+
+    methods = [m.name for m in ev.methods]
+    name, image = ev.images[0]
+    target = image.permute(1, 2, 0).numpy()
+    ev.figures["comparison"] = figures / "eval_comparison.png"
+    plot_comparison(target, ev.comparison, ev.cfg.evaluation.comparison_depths_mm, methods,
+                    ev.figures["comparison"], image_name=name)
+    if ev.tilted.rows:
+        row = ev.tilted.rows[0]
+        ev.figures["tilted"] = figures / "eval_tilted.png"
+        plot_tilted(target, ev.tilted_examples, methods, ev.figures["tilted"], row["near_mm"], row["far_mm"],
+                    ev.cfg.evaluation.tilt_deg)
+
+    depths_m = psf_figure_depths_m(ev.cfg)
+    panels = []
+    lens = ev.designs.get("lens")
+    if lens is None:
+        from ..doe import build_doe
+
+        lens = OpticalDesign("lens", "lens", build_doe(ev.cfg, "lens"), ev.cfg)
+    run_design = ev.designs.get("run") or OpticalDesign("run", "doe", ev.run.doe, ev.cfg)
+    panels.append(("lens", lens.doe, lens.bank(depths_m)))
+    panels.append(("learned DOE", run_design.doe, run_design.bank(depths_m)))
+    for key, design in ev.designs.items():
+        if key not in ("lens", "run"):
+            panels.append((design.label, design.doe, design.bank(depths_m)))
+    ev.figures["psf"] = figures / "eval_psf_lens_vs_doe.png"
+    plot_psf_comparison(panels, ev.figures["psf"])
+
+    ev.figures["doe_profile"] = figures / "eval_doe_profile.png"
+    plot_doe_profile(ev.run.doe, ev.figures["doe_profile"], samples=ev.cfg.psf.pupil_samples)
+
+    curves = [("doe+net", read_log(ev.run.run_dir / "train_log.csv"))]
+    curves += [(method, read_log(run.run_dir / "train_log.csv")) for method, run in ev.baseline_runs.items()]
+    if any(rows for _, rows in curves):
+        ev.figures["training"] = figures / "eval_training_curves.png"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            plot_training_curves(curves, ev.figures["training"])

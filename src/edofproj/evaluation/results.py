@@ -1,0 +1,135 @@
+"""The metrics table of an evaluation: one row per (method, depth, image), and its statistics.
+
+``metrics.csv`` columns: ``method,depth_mm,image,psnr,ssim,ms_ssim`` and, when their weights are
+present on the machine, ``lpips,dists``. A perceptual metric that cannot be computed is *left
+out* (never written as 0). The tilted screen has its own table (``tilted_metrics.csv``:
+``method,near_mm,far_mm,image,...``).
+
+Statistics over a depth range ``[lo, hi]`` (the training range, 300-800 mm for the presets):
+with ``m(z)`` the mean of a metric over the images at depth ``z``,
+
+    mean  = (1 / |Z|) sum_{z in Z} m(z),          worst = min_{z in Z} m(z)   (max for lower-is-better)
+
+where ``Z`` are the evaluated depths inside the range.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ..fileio import write_text_atomic
+
+BASE_METRICS = ("psnr", "ssim", "ms_ssim")
+PERCEPTUAL_METRICS = ("lpips", "dists")
+#: Whether a larger value is better, per metric column.
+HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "ms_ssim": True, "lpips": False, "dists": False}
+METRIC_LABELS = {"psnr": "PSNR (dB)", "ssim": "SSIM", "ms_ssim": "MS-SSIM", "lpips": "LPIPS", "dists": "DISTS"}
+
+
+def better(metric: str, a: float, b: float) -> bool:
+    """Is value ``a`` strictly better than ``b`` for ``metric``?"""
+    return a > b if HIGHER_IS_BETTER[metric] else a < b
+
+
+@dataclass
+class RangeStats:
+    """Mean and worst of the per-depth means of one method and metric over a depth range."""
+
+    mean: float
+    worst: float
+    worst_depth_mm: float
+    depths: int
+
+
+@dataclass
+class MetricsTable:
+    """Rows of ``keys`` (e.g. method, depth_mm, image) and ``metrics`` values."""
+
+    keys: tuple[str, ...]
+    metrics: tuple[str, ...]
+    rows: list[dict] = field(default_factory=list)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return self.keys + self.metrics
+
+    def add(self, **row) -> None:
+        missing = [c for c in self.columns if c not in row]
+        if missing:
+            raise ValueError(f"row misses columns {missing}")
+        self.rows.append({c: row[c] for c in self.columns})
+
+    # -- selection ---------------------------------------------------------------------
+    def methods(self) -> list[str]:
+        return list(dict.fromkeys(r["method"] for r in self.rows))
+
+    def depths_mm(self) -> list[float]:
+        return sorted({float(r["depth_mm"]) for r in self.rows})
+
+    def values(self, metric: str, **where) -> np.ndarray:
+        return np.array([float(r[metric]) for r in self.rows
+                         if all(_same(r[k], v) for k, v in where.items())], dtype=float)
+
+    def mean(self, metric: str, **where) -> float:
+        values = self.values(metric, **where)
+        return float(values.mean()) if values.size else math.nan
+
+    def per_depth_means(self, method: str, metric: str) -> dict[float, float]:
+        return {z: self.mean(metric, method=method, depth_mm=z) for z in self.depths_mm()
+                if self.values(metric, method=method, depth_mm=z).size}
+
+    def range_stats(self, method: str, metric: str, lo_mm: float, hi_mm: float) -> RangeStats:
+        means = {z: m for z, m in self.per_depth_means(method, metric).items() if lo_mm - 1e-9 <= z <= hi_mm + 1e-9}
+        if not means:
+            return RangeStats(math.nan, math.nan, math.nan, 0)
+        pick = min if HIGHER_IS_BETTER[metric] else max
+        worst_depth = pick(means, key=means.get)
+        return RangeStats(float(np.mean(list(means.values()))), means[worst_depth], worst_depth, len(means))
+
+    # -- files ---------------------------------------------------------------------------
+    def to_csv(self) -> str:
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+        writer.writerow(self.columns)
+        for row in self.rows:
+            writer.writerow([_format(row[c]) for c in self.columns])
+        return buffer.getvalue()
+
+    def write_csv(self, path: str | Path) -> None:
+        write_text_atomic(path, self.to_csv())
+
+    @classmethod
+    def read_csv(cls, path: str | Path, keys: tuple[str, ...]) -> "MetricsTable":
+        try:
+            with open(path, newline="", encoding="utf-8") as handle:
+                reader = csv.DictReader(handle)
+                header = tuple(reader.fieldnames or ())
+                rows = list(reader)
+        except OSError as exc:
+            raise EdofprojError(f"cannot read metrics file '{path}': {exc.strerror or exc}") from None
+        if header[: len(keys)] != keys:
+            raise EdofprojError(f"'{path}' is not a metrics table (columns {', '.join(header)})")
+        table = cls(keys, header[len(keys):])
+        for row in rows:
+            table.rows.append({k: (row[k] if k in ("method", "image") else float(row[k])) for k in header})
+        return table
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    return abs(float(a) - float(b)) < 1e-6
+
+
+def _format(value) -> str:
+    if isinstance(value, str):
+        return value
+    value = float(value)
+    return "NA" if math.isnan(value) else f"{value:.6g}"

@@ -1,0 +1,109 @@
+"""Summary tables of an evaluation (report blocks and plain text for the terminal).
+
+* :func:`range_table` -- one row per method: mean and worst (with its depth) over the training
+  depth range of each metric (the headline table);
+* :func:`depth_table` -- one metric, one row per method, one column per depth, plus the mean
+  and worst over the range;
+* :func:`tilted_table` -- the tilted screen, mean over the images per method;
+* :func:`format_text_table` -- any :class:`~edofproj.evaluation.report.Table` as aligned text.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from .report import Table
+from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
+
+
+def _fmt(metric: str, value: float) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "NA"
+    return f"{value:.2f}" if metric == "psnr" else f"{value:.4f}"
+
+
+def _bold_best(metric: str, values: list[float]) -> list[bool]:
+    finite = [v for v in values if not math.isnan(v)]
+    if not finite:
+        return [False] * len(values)
+    best = max(finite) if HIGHER_IS_BETTER[metric] else min(finite)
+    return [v == best for v in values]
+
+
+def _cells(metric: str, values: list[float], extra: list[str] | None = None) -> list[str]:
+    bold = _bold_best(metric, values)
+    cells = [f"**{_fmt(metric, v)}**" if b else _fmt(metric, v) for v, b in zip(values, bold)]
+    if extra:
+        cells = [f"{c} {e}" for c, e in zip(cells, extra)]
+    return cells
+
+
+def range_table(table: MetricsTable, range_mm: tuple[float, float], metrics: Sequence[str] | None = None) -> Table:
+    """Rows = methods; columns = mean and worst depth of each metric over ``range_mm`` (best in bold)."""
+    metrics = list(metrics or table.metrics)
+    methods = table.methods()
+    lo, hi = range_mm
+    columns: list[list[str]] = []
+    header = ["method"]
+    for metric in metrics:
+        stats = [table.range_stats(m, metric, lo, hi) for m in methods]
+        label = METRIC_LABELS.get(metric, metric)
+        header += [f"mean {label}", f"worst {label} (depth)"]
+        columns.append(_cells(metric, [s.mean for s in stats]))
+        columns.append(_cells(metric, [s.worst for s in stats],
+                              [f"({s.worst_depth_mm:.0f})" if s.depths else "" for s in stats]))
+    rows = [[method] + [col[i] for col in columns] for i, method in enumerate(methods)]
+    return Table(header, rows, f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
+                               f"images; worst = lowest, or highest for LPIPS/DISTS; best of each column in bold)")
+
+
+def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float]) -> Table:
+    """One metric: rows = methods, columns = depths, mean and worst over ``range_mm``."""
+    depths = table.depths_mm()
+    methods = table.methods()
+    lo, hi = range_mm
+    label = METRIC_LABELS.get(metric, metric)
+    per_method = {m: table.per_depth_means(m, metric) for m in methods}
+    columns = []
+    for z in depths:
+        columns.append(_cells(metric, [per_method[m].get(z, math.nan) for m in methods]))
+    stats = [table.range_stats(m, metric, lo, hi) for m in methods]
+    columns.append(_cells(metric, [s.mean for s in stats]))
+    columns.append(_cells(metric, [s.worst for s in stats]))
+    header = ["method"] + [f"{z:.0f}" for z in depths] + [f"mean {lo:.0f}-{hi:.0f}", f"worst {lo:.0f}-{hi:.0f}"]
+    rows = [[m] + [col[i] for col in columns] for i, m in enumerate(methods)]
+    return Table(header, rows, f"{label} per depth (mm), mean over the test images")
+
+
+def tilted_table(table: MetricsTable) -> Table:
+    """Rows = methods; columns = the mean of each metric over the images on the tilted screen."""
+    methods = table.methods()
+    columns = [_cells(metric, [table.mean(metric, method=m) for m in methods]) for metric in table.metrics]
+    header = ["method"] + [METRIC_LABELS.get(m, m) for m in table.metrics]
+    rows = [[m] + [col[i] for col in columns] for i, m in enumerate(methods)]
+    near, far = (table.rows[0]["near_mm"], table.rows[0]["far_mm"]) if table.rows else (math.nan, math.nan)
+    return Table(header, rows, f"Tilted screen, depth {near:.0f}-{far:.0f} mm: mean over the test images")
+
+
+def format_text_table(table: Table) -> str:
+    """Aligned plain text (no Markdown bold markers)."""
+    rows = [table.header] + [[c.replace("**", "") for c in row] for row in table.rows]
+    widths = [max(len(str(row[i])) for row in rows) for i in range(len(table.header))]
+    lines = []
+    for index, row in enumerate(rows):
+        cells = [str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(row, widths))]
+        lines.append("  ".join(cells))
+        if index == 0:
+            lines.append("  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def winner(table: MetricsTable, metric: str, range_mm: tuple[float, float]) -> str | None:
+    """The method with the best mean of ``metric`` over the range (None for an empty table)."""
+    best, best_value = None, math.nan
+    for method in table.methods():
+        value = table.range_stats(method, metric, *range_mm).mean
+        if not math.isnan(value) and (best is None or better(metric, value, best_value)):
+            best, best_value = method, value
+    return best

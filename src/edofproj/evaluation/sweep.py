@@ -1,0 +1,179 @@
+"""Running the methods: the flat-screen depth sweep and the tilted screen, scored per image.
+
+Flat screen at depth ``z`` (each method's design PSF ``p_z``; see :mod:`.methods`)::
+
+    I* = project(I, p_z),   x = compensate(I, I*, p_z),   display = project(clamp(x, 0, 1), p_z)
+
+Tilted screen (paper Sec. 5.3): a plane turned by ``evaluation.tilt_deg`` about the vertical
+axis whose depth runs from the in-focus distance ``v`` (left column) to ``v + tilt_span_mm``
+(right column), ``1/z`` affine across the columns
+(:func:`edofproj.imaging.screens.tilted_plane_depth_map`). The projection of an image ``x`` on
+it is rendered by depth layers, ``render(x)`` (:func:`edofproj.imaging.depth_layers.render_depth_map`,
+``imaging.depth_layers`` layers evenly spaced in ``1/z``), so::
+
+    I* = render(I),   x = compensate(I, I*, p_c),   display = render(clamp(x, 0, 1))
+
+The networks get the tilted capture ``I*``, as they would from a camera. Wiener and CLS need
+one PSF: they get ``p_c``, the PSF at the depth of the screen's middle column
+(``1/z_c = (1/near + 1/far) / 2``) -- a spatially invariant deconvolution, which is what those
+methods can do on a screen whose blur varies across the image.
+
+Scores per image: PSNR, SSIM, MS-SSIM (:mod:`edofproj.evaluation.metrics`) and the perceptual
+metrics whose weights are present (LPIPS with AlexNet, DISTS).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from ..imaging.depth_layers import layer_depths_m, render_depth_map
+from ..imaging.projection import project
+from ..imaging.screens import tilted_plane_depth_map
+from . import metrics
+from .results import BASE_METRICS, MetricsTable
+
+Progress = Callable[[int], None]
+"""``progress(units_done)``: called after each (method, image) evaluation with the number just done."""
+
+#: Perceptual metrics reported when their weights are present: column name -> metric name.
+PERCEPTUAL_COLUMNS = {"lpips": "lpips-alex", "dists": "dists"}
+
+
+def load_perceptual_metrics(weights_dir=None) -> dict:
+    """The perceptual metric objects that can be built here, by column name (``{}`` when none)."""
+    available = metrics.available_perceptual_metrics(weights_dir)
+    loaded = {}
+    for column, name in PERCEPTUAL_COLUMNS.items():
+        if available.get(name):
+            try:
+                loaded[column] = metrics.perceptual_metric(name, weights_dir).eval()
+            except metrics.PerceptualWeightsMissing:
+                continue
+    return loaded
+
+
+def score(display: torch.Tensor, target: torch.Tensor, perceptual: dict) -> dict[str, float]:
+    """Metrics of one displayed image ``(1, 3, H, W)`` against its target."""
+    values = {
+        "psnr": float(metrics.psnr(display, target)[0]),
+        "ssim": float(metrics.ssim(display, target)[0]),
+        "ms_ssim": float(metrics.ms_ssim(display, target)[0]),
+    }
+    for column, metric in perceptual.items():
+        values[column] = float(metric(display, target)[0])
+    return values
+
+
+def metric_columns(perceptual: dict) -> tuple[str, ...]:
+    return BASE_METRICS + tuple(c for c in PERCEPTUAL_COLUMNS if c in perceptual)
+
+
+def _by_design(methods) -> "OrderedDict[str, list]":
+    groups: OrderedDict[str, list] = OrderedDict()
+    for method in methods:
+        groups.setdefault(method.design.key, []).append(method)
+    return groups
+
+
+def _batch(image: torch.Tensor) -> torch.Tensor:
+    return image.unsqueeze(0) if image.ndim == 3 else image
+
+
+def flat_screen_displays(methods, image: torch.Tensor, depth_mm: float):
+    """Yield ``(method, display)`` for every method at one depth: ``display (1, 3, H, W)``."""
+    target = _batch(image)
+    for group in _by_design(methods).values():
+        psf = group[0].design.psf([depth_mm * 1e-3])
+        captured = project(target, psf)
+        for method in group:
+            x = method.compensate(target, captured, psf)
+            yield method, project(x, psf)
+
+
+def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depths_mm: Sequence[float],
+                      perceptual: dict, progress: Progress | None = None) -> MetricsTable:
+    """Score every method on every image at every depth (rows: method, depth_mm, image)."""
+    table = MetricsTable(("method", "depth_mm", "image"), metric_columns(perceptual))
+    with torch.inference_mode():
+        for depth_mm in depths_mm:
+            for name, image in images:
+                for method, display in flat_screen_displays(methods, image, depth_mm):
+                    table.add(method=method.name, depth_mm=float(depth_mm), image=name,
+                              **score(display, _batch(image), perceptual))
+                    if progress is not None:
+                        progress(1)
+    order = {m.name: i for i, m in enumerate(methods)}
+    table.rows.sort(key=lambda r: (r["depth_mm"], order[r["method"]]))
+    return table
+
+
+def example_displays(methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict) -> dict:
+    """``{(depth_mm, method name): (display (H, W, 3) array, scores)}`` for the comparison figure."""
+    examples = {}
+    target = _batch(image)
+    with torch.inference_mode():
+        for depth_mm in depths_mm:
+            for method, display in flat_screen_displays(methods, image, depth_mm):
+                examples[(float(depth_mm), method.name)] = (_to_array(display), score(display, target, perceptual))
+    return examples
+
+
+# --------------------------------------------------------------------------- tilted screen
+
+
+class TiltedScreen:
+    """The tilted plane of the module docstring for images of ``height x width`` pixels."""
+
+    def __init__(self, cfg, height: int, width: int) -> None:
+        ev = cfg.evaluation
+        self.near_m = cfg.optics.focus_mm * 1e-3
+        self.far_m = (cfg.optics.focus_mm + ev.tilt_span_mm) * 1e-3
+        self.tilt_deg = float(ev.tilt_deg)
+        self.depth_map_m = tilted_plane_depth_map(height, width, self.tilt_deg, self.near_m, self.far_m)
+        self.layers_m = layer_depths_m(self.near_m, self.far_m, cfg.imaging.depth_layers)
+        self.centre_m = 2.0 / (1.0 / self.near_m + 1.0 / self.far_m)
+
+    def render(self, x: torch.Tensor, design) -> torch.Tensor:
+        """What the tilted screen shows when the projector (with ``design``) emits ``x``."""
+        return render_depth_map(x, self.depth_map_m, design.psf(self.layers_m), layers=self.layers_m)
+
+    def displays(self, methods, image: torch.Tensor):
+        """Yield ``(method, display)`` on this screen for every method."""
+        target = _batch(image)
+        for group in _by_design(methods).values():
+            design = group[0].design
+            captured = self.render(target, design)
+            centre_psf = design.psf([self.centre_m])
+            for method in group:
+                x = method.compensate(target, captured, centre_psf)
+                yield method, self.render(x, design)
+
+
+def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg, perceptual: dict,
+                        progress: Progress | None = None) -> tuple[MetricsTable, dict]:
+    """Score every method on the tilted screen. Returns the table (rows: method, near_mm,
+    far_mm, image) and the displays of the first image ``{method name: (array, scores)}``."""
+    table = MetricsTable(("method", "near_mm", "far_mm", "image"), metric_columns(perceptual))
+    examples = {}
+    screens: dict[tuple[int, int], TiltedScreen] = {}
+    with torch.inference_mode():
+        for index, (name, image) in enumerate(images):
+            size = tuple(image.shape[-2:])
+            screen = screens.setdefault(size, TiltedScreen(cfg, *size))
+            for method, display in screen.displays(methods, image):
+                values = score(display, _batch(image), perceptual)
+                table.add(method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3, image=name,
+                          **values)
+                if index == 0:
+                    examples[method.name] = (_to_array(display), values)
+                if progress is not None:
+                    progress(1)
+    return table, examples
+
+
+def _to_array(image: torch.Tensor) -> np.ndarray:
+    return _batch(image)[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy()
