@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import shutil
 
 import numpy as np
 import pytest
@@ -73,6 +74,21 @@ def test_resume_continues_bit_for_bit(straight_run, tmp_path):
     for ra, rb in zip(rows_a, rows_b):
         assert {k: v for k, v in ra.items() if k != "seconds"} == {k: v for k, v in rb.items() if k != "seconds"}
     assert np.array_equal(np.load(straight_dir / "doe.npz")["height_m"], np.load(run_dir / "doe.npz")["height_m"])
+
+
+def test_resume_after_a_crash_drops_the_log_rows_past_the_checkpoint(straight_run, tmp_path):
+    cfg, straight_dir, _ = straight_run
+    crashed = tmp_path / "crashed"
+    shutil.copytree(straight_dir, crashed)
+    # as if the process died after step 8 was logged but before its checkpoint was written
+    shutil.copyfile(crashed / "checkpoints" / "step_000006.pt", crashed / "checkpoints" / "last.pt")
+    result = train(cfg, crashed, resume=True, progress=False)
+    assert (result.start_step, result.step) == (6, 8)
+    rows_a, rows_b = _log_rows(straight_dir), _log_rows(crashed)
+    assert [r["step"] for r in rows_b] == [str(s) for s in range(1, 9)]
+    assert [r["loss"] for r in rows_a] == [r["loss"] for r in rows_b]
+    _assert_same_state(load_checkpoint(straight_dir / "checkpoints" / "last.pt")["net"],
+                       load_checkpoint(crashed / "checkpoints" / "last.pt")["net"])
 
 
 def test_a_different_seed_trains_differently(straight_run, tmp_path):

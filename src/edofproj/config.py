@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -464,6 +465,9 @@ def _unknown_choice(label: str, value: Any, choices: typing.Iterable[str]) -> st
     return f"{label}={value!r} is not one of {', '.join(choices)}{did_you_mean}"
 
 
+_FLOAT_LITERAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def _coerce(value: Any, annotation: Any, label: str) -> Any:
     """Convert a YAML value to the annotated type, or raise a ConfigError."""
     origin = typing.get_origin(annotation)
@@ -486,6 +490,8 @@ def _coerce(value: Any, annotation: Any, label: str) -> Any:
             raise ConfigError(f"{label}={value!r} must be an integer")
         return int(value)
     if annotation is float:
+        if isinstance(value, str) and _FLOAT_LITERAL.fullmatch(value.strip()):
+            value = float(value)  # PyYAML (YAML 1.1) reads 3e-3 (no dot) as a string
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{label}={value!r} must be a number")
         if not math.isfinite(float(value)):

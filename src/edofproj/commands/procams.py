@@ -80,6 +80,8 @@ def register(subparsers) -> None:
                    help="screen distance, mm (default: depth_mm in the capture folder's captures.json)")
     add_optics_options(p)
     p.add_argument("--eps", type=float, default=None, help="Tikhonov epsilon relative to the mean pattern power (1e-4)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="passes removing the light that enters each region from outside it (8)")
     p.add_argument("--patch-psfs", default=None, metavar="FILE",
                    help="also write the per-patch PSFs and patch centres (.npz)")
     p.set_defaults(func=run_estimate_psf)
@@ -106,6 +108,13 @@ def run_patterns(args) -> int:
 
 
 # --------------------------------------------------------------------------- simulate
+
+
+def _note_width(manifest, cfg) -> None:
+    """Say so when the patterns are not as wide as the projector the optics config describes."""
+    if manifest.width != cfg.optics.width_px:
+        print(f"note: the patterns are {manifest.width} px wide but optics.width_px is {cfg.optics.width_px}: "
+              "PSFs and pixel pitch are for the latter (patterns = a crop of its image; else pass --width-px)")
 
 
 def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
@@ -152,6 +161,7 @@ def run_simulate(args) -> int:
     depth_m = args.depth_mm * 1e-3
     psf = _simulated_psf(args, cfg, depth_m)
     gamma = tuple(args.gamma) * (3 // len(args.gamma))
+    _note_width(manifest, cfg)
     rig = VirtualProCams.example((manifest.height, manifest.width), psf, seed=args.seed,
                                  camera_scale=args.camera_scale, gamma=gamma, noise_sigma=args.noise_sigma,
                                  depth_m=depth_m,
@@ -211,7 +221,7 @@ def run_estimate_psf(args) -> int:
     from ..procams.calibration import ProCamsCalibration
     from ..procams.capture_io import read_captures
     from ..procams.patterns import PatternManifest, read_pattern
-    from ..procams.psf_estimation import DEFAULT_EPS_REL, bernoulli_files, measure_psf
+    from ..procams.psf_estimation import DEFAULT_EPS_REL, DEFAULT_ITERATIONS, bernoulli_files, measure_psf
 
     for flag, path in (("--out", args.out), ("--patch-psfs", args.patch_psfs)):
         if path is not None and not str(path).endswith(".npz"):
@@ -228,7 +238,9 @@ def run_estimate_psf(args) -> int:
     patterns = {f: read_pattern(args.patterns, entries[f], manifest) for f in files}
     captures = read_captures(args.captures, files, expected_hw=calibration.camera_map.camera_hw)
     estimate = measure_psf(manifest, patterns, captures, calibration, cfg.psf.window, patch=args.patch,
-                           eps_rel=args.eps if args.eps is not None else DEFAULT_EPS_REL)
+                           eps_rel=args.eps if args.eps is not None else DEFAULT_EPS_REL,
+                           iterations=args.iterations if args.iterations is not None else DEFAULT_ITERATIONS)
+    _note_width(manifest, cfg)
     pitch = float(ProjectorGeometry.from_config(cfg.optics).pixel_pitch_m(depth_mm * 1e-3))
     where = "whole image" if args.patch <= 0 else f"mean of {len(estimate.patch_boxes)} patches of {args.patch} px"
     bank = estimate.to_bank(depth_mm * 1e-3, pitch,

@@ -84,7 +84,7 @@ def _annotate(ax, parts: list[tuple[str, bool]]) -> None:
     for text, is_best in reversed(parts):
         ax.text(0.02, y, text, transform=ax.transAxes, fontsize=7, va="bottom", ha="left",
                 color="red" if is_best else "white", fontweight="bold" if is_best else "normal",
-                bbox=dict(facecolor="black", alpha=0.55, pad=1.0, lw=0))
+                bbox=dict(facecolor="white" if is_best else "black", alpha=0.8 if is_best else 0.55, pad=1.0, lw=0))
         y += 0.11
 
 

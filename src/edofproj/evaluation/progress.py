@@ -38,21 +38,28 @@ class StageProgress:
         self.detail = ""
         self._stage_start = time.perf_counter()
         self._last_print = 0.0
+        self._eta_override: float | None = None
 
     def start(self, stage: str, total: float, later_s: float = 0.0, detail: str = "") -> None:
         self.stage, self.total, self.done, self.later_s, self.detail = stage, max(float(total), 1e-9), 0.0, later_s, detail
         self._stage_start = time.perf_counter()
         self._last_print = 0.0
+        self._eta_override = None
         self._show(force=True)
 
     def eta_s(self) -> float:
+        if self._eta_override is not None:
+            return self._eta_override
         elapsed = time.perf_counter() - self._stage_start
         if self.done <= 0:
             return float("nan")
         return elapsed * max(self.total - self.done, 0.0) / self.done
 
-    def set(self, done: float, detail: str | None = None, total: float | None = None) -> None:
+    def set(self, done: float, detail: str | None = None, total: float | None = None,
+            eta_s: float | None = None) -> None:
+        """Progress ``done`` of ``total``; ``eta_s`` replaces the extrapolated ETA (e.g. parallel jobs)."""
         self.done = float(done)
+        self._eta_override = eta_s
         if total is not None:
             self.total = max(float(total), 1e-9)
         if detail is not None:

@@ -65,8 +65,7 @@ body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; max
 h1 { border-bottom: 2px solid #444; padding-bottom: .2em; }
 h2 { border-bottom: 1px solid #bbb; padding-bottom: .15em; margin-top: 1.8em; }
 table { border-collapse: collapse; margin: .6em 0 1.2em; font-size: 0.88em; }
-th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
-th:first-child, td:first-child { text-align: left; }
+th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: left; }
 th { background: #f0f0f0; }
 caption { caption-side: top; text-align: left; font-style: italic; padding-bottom: .3em; }
 figure { margin: 1em 0 1.6em; }
@@ -135,6 +134,20 @@ class Report:
             write_text_atomic(html_path, self.to_html())
 
 
+_NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _is_number(cell: str) -> bool:
+    text = str(cell).replace("**", "").split(" (")[0].strip()
+    return text in ("NA", "-", "") or bool(_NUMBER.match(text))
+
+
+def _numeric_columns(table: Table) -> list[bool]:
+    """Right-align the columns whose cells are all numbers (the first column never)."""
+    return [index > 0 and all(_is_number(row[index]) for row in table.rows if index < len(row))
+            for index in range(len(table.header))]
+
+
 def _block_markdown(block: Block, base_dir: Path) -> list[str]:
     if isinstance(block, Heading):
         return ["#" * max(2, block.level) + " " + block.text]
@@ -145,7 +158,7 @@ def _block_markdown(block: Block, base_dir: Path) -> list[str]:
     if isinstance(block, Table):
         lines = [f"*{block.caption}*", ""] if block.caption else []
         lines.append("| " + " | ".join(_md_cell(h) for h in block.header) + " |")
-        lines.append("|" + "|".join(["---"] + ["---:"] * (len(block.header) - 1)) + "|")
+        lines.append("|" + "|".join("---:" if numeric else "---" for numeric in _numeric_columns(block)) + "|")
         lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in block.rows]
         return lines
     if isinstance(block, Figure):
@@ -166,9 +179,11 @@ def _block_html(block: Block) -> str:
         return "<ul>\n" + "\n".join(f"<li>{_inline_html(item)}</li>" for item in block.items) + "\n</ul>"
     if isinstance(block, Table):
         caption = f"<caption>{_inline_html(block.caption)}</caption>" if block.caption else ""
+        numeric = _numeric_columns(block)
         head = "<tr>" + "".join(f"<th>{_inline_html(h)}</th>" for h in block.header) + "</tr>"
-        rows = "\n".join("<tr>" + "".join(f"<td>{_inline_html(str(c))}</td>" for c in row) + "</tr>"
-                         for row in block.rows)
+        rows = "\n".join("<tr>" + "".join(
+            f"<td style=\"text-align:{'right' if numeric[i] else 'left'}\">{_inline_html(str(c))}</td>"
+            for i, c in enumerate(row)) + "</tr>" for row in block.rows)
         return f"<table>{caption}\n<thead>{head}</thead>\n<tbody>\n{rows}\n</tbody></table>"
     if isinstance(block, Figure):
         return (f"<figure><img src=\"{image_data_uri(block.path)}\" alt=\"{html.escape(block.caption)}\">"

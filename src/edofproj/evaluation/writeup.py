@@ -12,6 +12,7 @@ from typing import Sequence
 
 from .bars import Bar
 from .methods import METHOD_NAMES
+from .results import METRIC_LABELS
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
 from .summary import depth_table, range_table, tilted_table
 
@@ -107,7 +108,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.add(Heading("Quality against depth"))
     for metric in ev.table.metrics:
         if f"{metric}_vs_depth" in figures:
-            report.add(Figure(figures[f"{metric}_vs_depth"], f"{metric.upper()} against screen depth, mean over the "
+            report.add(Figure(figures[f"{metric}_vs_depth"], f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
                                                               f"test images (training range shaded)."))
     report.extend(results_tables(ev)[1:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))

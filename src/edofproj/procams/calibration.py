@@ -1,7 +1,8 @@
 """A projector-camera calibration: geometric map + colour calibration, and its ``calib.npz`` file.
 
-:func:`calibrate` (or :func:`calibrate_folders`) runs :mod:`.geometry` on the dot grid, warps the black, primary and
-colour-sample captures into projector pixels and runs :mod:`.color` on them.
+:func:`calibrate` (or :func:`calibrate_folders`) runs :mod:`.geometry` on the dot grid, warps
+the black, primary, white and colour-sample captures into projector pixels, warns about
+saturated ones and runs :mod:`.color` on them.
 :meth:`ProCamsCalibration.to_output_space` then turns any capture into projector output
 light per projector pixel, ``o(x) = M^-1 (c(q(x)) - c_black(q(x)))``, which is what the PSF acts on.
 
@@ -75,8 +76,8 @@ class ProCamsCalibration:
     def load(cls, path: str | Path) -> "ProCamsCalibration":
         try:
             data = np.load(path, allow_pickle=False)
-            if str(data["format"]) != CALIBRATION_FORMAT:
-                raise ValueError(f"not a calibration file (format '{data['format']}')")
+            if "format" not in data or str(data["format"]) != CALIBRATION_FORMAT:
+                raise ValueError("not a calibration file (make one with 'edofproj procams calibrate')")
             camera_map = CameraMap(map_x=data["map_x"].astype(np.float64), map_y=data["map_y"].astype(np.float64),
                                    homography=data["homography"], dots_proj=data["dots_proj"],
                                    dots_cam=data["dots_cam"], camera_hw=tuple(int(v) for v in data["camera_hw"]))
@@ -92,11 +93,13 @@ class ProCamsCalibration:
 
 
 def calibration_files(manifest: PatternManifest) -> list[str]:
-    """The pattern (and capture) files calibration needs: dots, black, primaries, colour samples."""
+    """The pattern (and capture) files calibration needs: dots, black, primaries, white (the
+    brightest field: only checked for saturation) and the colour samples."""
     if not manifest.with_role("color_sample"):
         raise EdofprojError("the pattern manifest has no colour samples (role 'color_sample')")
     return ([manifest.one("dots").file, manifest.one("black").file]
             + [manifest.primary(name).file for name in PRIMARY_COLORS]
+            + [e.file for e in manifest.with_role("white")]
             + [e.file for e in manifest.with_role("color_sample")])
 
 

@@ -23,7 +23,11 @@ embedding (Roweis & Saul 2000; paper ref. [26]):
 solved in closed form as ``w ~ (G + lambda I)^-1 1`` with the local Gram matrix
 ``G_jl = (u - u_j) . (u - u_l)`` and ``lambda = 1e-3 trace(G)``. The same interpolation with the
 roles of ``u`` and ``o`` swapped gives the inverse ``u = f^-1(o)``. A query that coincides with a
-sample returns that sample exactly.
+sample returns that sample exactly. ``k = 6`` by default: on 6 levels per channel of a
+gamma-2.2 projector (virtual ProCams) it gave a mean response error of 0.009, against 0.012
+for ``k = 8`` and, for ``k = 4``, 0.011 with a 0.15 maximum where the 4 neighbours are coplanar.
+The inverse is less accurate (mean 0.03 there): the samples form an uneven grid in output
+space, so a query's neighbours are lopsided.
 
 Means are taken over the *interior* of each warped capture (:func:`interior_mean`): the
 full field minus an inset of 15 % of each side, where the PSF's blur of the image border does

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import EdofprojError
+from .capture_io import read_rgb
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_FORMAT = "edofproj-procams-patterns"
@@ -156,6 +157,8 @@ class PatternManifest:
                 if role not in ROLES:
                     raise ValueError(f"unknown role '{role}'")
                 dots = np.asarray(item["dots"], dtype=float).reshape(-1, 2) if "dots" in item else None
+                if dots is not None and len(dots) != int(np.prod(item["grid"])):
+                    raise ValueError(f"'{item['file']}' lists {len(dots)} dots for a {item['grid']} grid")
                 entries.append(PatternEntry(
                     file=str(item["file"]), role=role, index=item.get("index"),
                     color=tuple(float(c) for c in item["color"]) if "color" in item else None,
@@ -247,8 +250,6 @@ def build_pattern_set(spec: PatternSpec) -> tuple[PatternManifest, dict[str, np.
 
 def read_pattern(folder: str | Path, entry: PatternEntry, manifest: PatternManifest) -> np.ndarray:
     """A pattern image ``(H, W, 3)`` float in ``[0, 1]``, checked against the manifest's size."""
-    from .capture_io import read_rgb
-
     image = read_rgb(Path(folder) / entry.file, what="pattern")
     if image.shape[:2] != (manifest.height, manifest.width):
         raise EdofprojError(

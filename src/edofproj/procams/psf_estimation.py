@@ -21,10 +21,11 @@ the patterns happen to carry little power from blowing up noise.
    kernel fits in the grid, so the circular one equals it -- and
    ``C~ = C - (B' 1_{outside R}) (*) p^``, the capture minus the (zero-mean) light of the
    pattern outside ``R`` predicted with the current estimate ``p^``. Then
-   ``C~ = B~ (*) p + const`` exactly when ``p^ = p``. The whole-image estimate starts from
-   ``p^ = 0`` and is iterated; since ``B'`` is zero-mean noise independent of ``B~``, each pass
+   ``C~ = B~ (*) p + const`` exactly when ``p^ = p``. The estimate is iterated, each pass
+   using the previous one as ``p^`` (the whole image starts from ``p^ = 0``, a patch from the
+   whole-image estimate); since ``B'`` is zero-mean noise independent of ``B~``, each pass
    shrinks the error by roughly the square root of the share of light in ``R (+) m`` coming
-   from outside ``R``.
+   from outside ``R``. (A region therefore needs ``R (+) 2m`` inside the image.)
 3. *The constant.* The DC term of Eq. 13 is set to zero (it only carries the constant: the
    pattern mean times the PSF sum, the haze, any leftover black level); the kernel outside the
    ``K x K`` window, where a windowed PSF is zero by definition, is then a constant floor,
@@ -37,9 +38,10 @@ so the kernel is in units of the emitted light (the pupil energy). Nothing is re
 at zero (clipping would bias the in-window energy upwards by the noise).
 
 **Patches** (paper Sec. 5.1, Fig. 7): the image minus a border of ``2m`` is tiled by ``N x N``
-patches (as many as fit, spread evenly); each is estimated as above with the whole-image
-estimate predicting the light from outside it. The PSF written out is the mean of the patch
-PSFs (``patch = 0``: the whole-image estimate alone).
+patches (as many as fit, spread evenly); each is estimated as above, the light from outside it
+predicted first with the whole-image estimate, then with its own (the PSF taken as constant
+within ``m`` of the patch). The PSF written out is the mean of the patch PSFs (``patch = 0``:
+the whole-image estimate alone).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from .calibration import ProCamsCalibration, warn_if_saturated
 from .patterns import PatternManifest
 
 DEFAULT_EPS_REL = 1e-4
-DEFAULT_ITERATIONS = 4
+DEFAULT_ITERATIONS = 8
 
 
 def eq13_kernel(patterns: np.ndarray, captures: np.ndarray, eps_rel: float = DEFAULT_EPS_REL) -> np.ndarray:
@@ -135,35 +137,42 @@ def patch_boxes(height: int, width: int, margin: int, patch: int) -> np.ndarray:
     return np.array([[y, y + patch, x, x + patch] for y in starts_y for x in starts_x])
 
 
-def _estimate_region(patterns: np.ndarray, captures: np.ndarray, light_of_all: np.ndarray | None,
-                     box, window: int, psf_prev: np.ndarray | None, eps_rel: float) -> np.ndarray:
-    """Eq. 13 on region ``box`` with the outside light removed (module docstring, step 2); ``(3, K, K)``.
+def _estimate_region(patterns: np.ndarray, captures: np.ndarray, box, window: int, start: np.ndarray | None,
+                     iterations: int, eps_rel: float) -> np.ndarray:
+    """Eq. 13 on region ``box`` with the light from outside it removed (module docstring, step 2),
+    ``iterations`` times after a first pass that predicts that light with ``start`` (None: no light);
+    each later pass predicts it with the region's own previous estimate. Returns ``(3, K, K)``.
 
-    ``patterns``: mean-removed ``B'``; ``light_of_all``: ``B' (*) psf_prev`` over the whole image
-    (None when ``psf_prev`` is None).
+    ``patterns``: mean-removed ``B'``. The light reaching ``R (+) m`` comes from the pattern in
+    ``R (+) 2m``, so everything is computed on that grid.
     """
     m = window // 2
     y0, y1, x0, x1 = box
-    grid = (slice(None), slice(y0 - m, y1 + m), slice(x0 - m, x1 + m))
+    near = (slice(None), slice(y0 - 2 * m, y1 + 2 * m), slice(x0 - 2 * m, x1 + 2 * m))
     inside = np.zeros(patterns.shape[1:3], dtype=patterns.dtype)
     inside[y0:y1, x0:x1] = 1.0
-    pattern_inside = patterns[grid] * inside[grid[1:]][None, :, :, None]
-    data = captures[grid]
-    if psf_prev is not None:
-        light_from_inside = _convolve(pattern_inside, psf_prev)
-        data = data - (light_of_all[grid] - light_from_inside)
-    psf = np.empty((3, window, window))
-    for c in range(3):
-        kernel = eq13_kernel(pattern_inside[..., c], data[..., c], eps_rel)
-        windowed, floor = window_and_floor(kernel, window)
-        psf[c] = windowed - floor
+    pattern_near = patterns[near]
+    pattern_outside = pattern_near * (1.0 - inside[near[1:]])[None, :, :, None]
+    grid = (slice(None), slice(m, -m), slice(m, -m))  # R (+) m within R (+) 2m
+    pattern_inside = (pattern_near - pattern_outside)[grid]
+    psf = start
+    for _ in range(iterations + 1):
+        data = captures[near][grid]
+        if psf is not None:
+            data = data - _convolve(pattern_outside, psf)[grid]
+        psf = np.empty((3, window, window))
+        for c in range(3):
+            kernel = eq13_kernel(pattern_inside[..., c], data[..., c], eps_rel)
+            windowed, floor = window_and_floor(kernel, window)
+            psf[c] = windowed - floor
     return psf
 
 
 def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch: int = 0,
                  eps_rel: float = DEFAULT_EPS_REL, iterations: int = DEFAULT_ITERATIONS) -> PSFEstimate:
     """Measure the PSF from patterns and captures ``(n, H, W, 3)`` in projector output space
-    (module docstring). ``window`` K (odd), ``patch`` N px (0: whole image)."""
+    (module docstring). ``window`` K (odd), ``patch`` N px (0: whole image), ``iterations``
+    passes that remove the light from outside each region (0: none)."""
     patterns = np.asarray(patterns, dtype=np.float64)
     captures = np.asarray(captures, dtype=np.float64)
     if patterns.shape != captures.shape or patterns.ndim != 4 or patterns.shape[-1] != 3:
@@ -172,25 +181,22 @@ def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch:
         raise EdofprojError(f"--window {window} must be odd and >= 3")
     if eps_rel <= 0 or iterations < 0:
         raise EdofprojError("eps_rel must be > 0 and iterations >= 0")
+    if 0 < patch < window:
+        raise EdofprojError(f"--patch {patch} must be at least the window ({window} px), or 0 for the whole image")
     H, W = patterns.shape[1:3]
     m = window // 2
     if min(H, W) - 4 * m < window:
         raise EdofprojError(f"a {W}x{H} image is too small for a {window} px window (needs at least "
                             f"{window + 4 * m} px on each side)")
     patterns = patterns - patterns.mean(axis=(1, 2), keepdims=True)  # B' (module docstring, step 1)
-    whole = patch_boxes(H, W, 2 * m, 0)[0]
-    psf = None
-    for _ in range(iterations + 1):
-        light = None if psf is None else _convolve(patterns, psf)
-        psf = _estimate_region(patterns, captures, light, whole, window, psf, eps_rel)
+    whole = _estimate_region(patterns, captures, patch_boxes(H, W, 2 * m, 0)[0], window, None, iterations, eps_rel)
     boxes = patch_boxes(H, W, 2 * m, patch)
     if patch <= 0:
-        patch_psfs = psf[None]
+        patch_psfs = whole[None]
     else:
-        light = _convolve(patterns, psf)
-        patch_psfs = np.stack([_estimate_region(patterns, captures, light, box, window, psf, eps_rel)
+        patch_psfs = np.stack([_estimate_region(patterns, captures, box, window, whole, iterations, eps_rel)
                                for box in boxes])
-    return PSFEstimate(psf=patch_psfs.mean(axis=0), patch_psfs=patch_psfs, patch_boxes=boxes, whole_image_psf=psf)
+    return PSFEstimate(psf=patch_psfs.mean(axis=0), patch_psfs=patch_psfs, patch_boxes=boxes, whole_image_psf=whole)
 
 
 def bernoulli_files(manifest: PatternManifest) -> list[str]:
@@ -211,9 +217,10 @@ def measure_psf(manifest: PatternManifest, patterns: Mapping[str, np.ndarray], c
             f"the calibration is for a {calibration.projector_hw[1]}x{calibration.projector_hw[0]} projector image, "
             f"the patterns are {manifest.width}x{manifest.height}"
         )
-    warn_if_saturated({f: captures[f] for f in files})
+    warped = {f: calibration.camera_map.warp(captures[f]) for f in files}
+    warn_if_saturated(warped)
     pattern_out = np.stack([calibration.color.input_to_output(patterns[f]) for f in files])
-    capture_out = np.stack([calibration.to_output_space(captures[f]) for f in files])
+    capture_out = np.stack([calibration.color.camera_to_output(warped[f], calibration.black_image) for f in files])
     estimate = estimate_psf(pattern_out, capture_out, window, patch, eps_rel, iterations)
     energy = estimate.energy_in_window
     if np.any(energy > 1.05) or np.any(energy < 0.05):

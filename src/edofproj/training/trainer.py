@@ -36,7 +36,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from ..config import Config
 from ..doe import save_doe
@@ -94,19 +93,16 @@ def exponential_decay(total_steps: int, final_fraction: float):
     return lambda t: final_fraction ** (t / total_steps)
 
 
-def loss_terms(loss_fn, cfg: Config, projected: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def loss_terms(loss_fn, cfg: Config, projected: torch.Tensor,
+               target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(loss, mse, perceptual)``: the objective ``alpha mse + beta perceptual`` and its two
-    unweighted terms, from :meth:`CompensationLoss.terms` (perceptual ``nan`` when unused)."""
-    if hasattr(loss_fn, "terms"):
-        terms = loss_fn.terms(projected, target)
-        loss, mse, perceptual = terms["total"], terms["mse"].detach(), terms["perceptual"].detach()
-    else:
-        loss = loss_fn(projected, target)
-        mse = F.mse_loss(projected.detach(), target)
-        perceptual = torch.full_like(mse, math.nan)
+    unweighted terms, from :meth:`~edofproj.training.losses.CompensationLoss.terms`
+    (``perceptual`` is ``nan`` when the loss has no perceptual term)."""
+    terms = loss_fn.terms(projected, target)
+    perceptual = terms["perceptual"].detach()
     if not (cfg.loss.beta > 0 and cfg.loss.perceptual != "none"):
-        perceptual = torch.full_like(mse, math.nan)
-    return loss, mse, perceptual
+        perceptual = torch.full_like(perceptual, math.nan)
+    return terms["total"], terms["mse"].detach(), perceptual
 
 
 def seed_everything(seed: int) -> None:

@@ -1,0 +1,76 @@
+"""``edofproj compensate``: the trained network on image files -> the image to send to the projector.
+
+    edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
+    edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
+
+The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
+projection ``I*``: either a camera capture already warped into projector space (``--capture``,
+same size as the target) or the simulated capture ``I* = project(I, p_z)`` of the run's DOE on a
+flat screen at ``--depth-mm``. ``x`` is clamped to ``[0, 1]`` (what a projector can emit) and
+written as an 8- or 16-bit image. Any image size. With ``--depth-mm``, ``--preview`` also writes
+the simulated projection of ``x``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import EdofprojError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("compensate", help="compute the projector image for a target with a trained network",
+                              description=__doc__.split("\n")[0])
+    p.add_argument("run", metavar="RUN", help="trained run directory")
+    p.add_argument("--image", required=True, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--capture", default=None, metavar="CAPTURED",
+                        help="the uncompensated projection captured by a camera, warped to projector space")
+    source.add_argument("--depth-mm", type=float, default=None,
+                        help="simulate the capture on a flat screen at this depth (mm) with the run's DOE")
+    p.add_argument("--out", required=True, metavar="PROJ", help="output image: the projector input")
+    p.add_argument("--preview", default=None, metavar="SHOWN",
+                   help="with --depth-mm: also write the simulated projection of the output")
+    p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the outputs")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import torch
+
+    from ..evaluation.pipeline import require_trained_run
+    from ..imaging.image_io import check_output_path, read_image, write_image
+    from ..imaging.projection import project
+    from ..training.runs import load_run
+
+    if args.preview is not None and args.depth_mm is None:
+        raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
+    if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
+        raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
+    check_output_path(args.out, args.bits)
+    if args.preview is not None:
+        check_output_path(args.preview, args.bits)
+    trained = load_run(require_trained_run(args.run))
+    target = read_image(args.image).unsqueeze(0)
+    psf = None
+    if args.capture is not None:
+        captured = read_image(args.capture).unsqueeze(0)
+        if captured.shape != target.shape:
+            raise EdofprojError(
+                f"--image is {target.shape[-2]}x{target.shape[-1]} px but --capture is "
+                f"{captured.shape[-2]}x{captured.shape[-1]} px (height x width): warp the capture to projector space"
+            )
+    else:
+        from ..evaluation.designs import OpticalDesign
+
+        psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
+        captured = project(target, psf)
+    with torch.inference_mode():
+        compensated = trained.net(target, captured).clamp(0.0, 1.0)
+    write_image(args.out, compensated[0], bits=args.bits)
+    print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px)")
+    if args.preview is not None:
+        with torch.inference_mode():
+            write_image(args.preview, project(compensated, psf)[0], bits=args.bits)
+        print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")
+    return 0

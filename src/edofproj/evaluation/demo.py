@@ -1,0 +1,258 @@
+"""The demo: train our method and its baselines on built-in data, evaluate, and write the report.
+
+Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StageProgress`):
+
+1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
+   (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly) and ``lens_net``
+   (the same U-Net without a DOE) always; ``axicon_net``, ``cubic_net`` and
+   ``lens_onlineprodeb`` when they are predicted to fit the time budget;
+2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
+   others as baselines, on the held-out built-in photographs;
+3. **timing** -- milliseconds per compensated frame (:mod:`.timing`);
+4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
+   ``metrics.csv``, with the pass/fail bars of :mod:`.bars` measured on the held-out images.
+
+``--quick`` shrinks everything (few steps, small crops, two small test images, three depths)
+into a smoke run of about two minutes; its numbers are not meant to be judged.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+from ..config import load_config
+from ..errors import EdofprojError
+from .bars import Bar, ssim_bars, wall_time_bar
+from .methods import METHOD_NAMES, OURS, method_spec
+from .progress import StageProgress, format_duration
+from .report import Heading, Paragraph, Table
+from .schedule import ParallelTrainer, TrainingJob
+
+OURS_RUN_DIR = "doe_net"
+LOG_DIR = "logs"
+
+
+@dataclass(frozen=True)
+class DemoSettings:
+    """Budget and sizes of a demo. ``overrides`` apply to every run (training and evaluation keys)."""
+
+    name: str
+    budget_s: float
+    overrides: tuple[str, ...]
+    evaluation_estimate_s: float
+    timing_sizes: tuple[tuple[int, int], ...]
+    timing_repeats: int
+    cubic_table_depths: int
+
+
+FULL = DemoSettings(
+    name="full", budget_s=15 * 60,
+    overrides=("train.checkpoint_every=100",),
+    evaluation_estimate_s=170.0, timing_sizes=((256, 256), (600, 800)), timing_repeats=3, cubic_table_depths=24,
+)
+QUICK = DemoSettings(
+    name="quick", budget_s=2 * 60,
+    overrides=("train.steps=12", "train.batch_size=2", "data.crop=64", "train.checkpoint_every=12",
+               "train.psf_table_depths=16", "evaluation.image_size=[96,128]",
+               "data.max_test_images=2", "evaluation.depths_mm=[300,500,800]", "evaluation.cls_iterations=30",
+               "evaluation.wiener_tuning_images=4", "evaluation.wiener_tuning_depths=3", "imaging.depth_layers=4"),
+    evaluation_estimate_s=35.0, timing_sizes=((128, 128),), timing_repeats=2, cubic_table_depths=8,
+)
+
+#: Training cost per step relative to ``lens+net`` (a U-Net with a precomputed PSF table), and
+#: one-off start-up seconds, measured with the cpu preset on a 2-core machine (one thread each):
+#: lens+net 0.55 s/step; doe+net 0.83 s/step (the DOE's PSFs are simulated every step);
+#: OnlineProDeb 3.9 s/step; the cubic plate needs the 2-D engine, about 2.3 s per simulated depth.
+JOB_COSTS = {
+    "doe+net": (1.5, 15.0),
+    "lens+net": (1.0, 15.0),
+    "axicon+net": (1.0, 15.0),
+    "cubic+net": (1.0, 15.0),
+    "lens+onlineprodeb": (7.0, 15.0),
+}
+CUBIC_SECONDS_PER_DEPTH = 2.3
+#: Optional baselines in the order they are tried.
+OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
+TIMING_ESTIMATE_S = {"full": 40.0, "quick": 5.0}
+REPORT_MARGIN_S = 15.0
+
+
+def cubic_evaluation_depths(cfg) -> int:
+    """Depths at which the evaluation simulates the cubic plate (2-D engine): sweep, comparison,
+    tilted-screen layers and its centre."""
+    depths = set(cfg.evaluation.depths_mm) | set(cfg.evaluation.comparison_depths_mm)
+    return len(depths) + cfg.imaging.depth_layers + 1
+
+
+def demo_jobs(out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | None,
+              user_overrides: Sequence[str]) -> list[TrainingJob]:
+    """The training runs of a demo: ours and lens+net required, the others optional (or required
+    when named in ``methods``). The cubic plate's cost includes its PSF table and the 2-D PSFs
+    its evaluation will need."""
+    steps = cfg.train.steps
+    common = list(settings.overrides) + list(user_overrides)
+    wanted = set(methods) if methods else None
+    jobs = []
+
+    def add(method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0) -> None:
+        cost, setup = JOB_COSTS[method]
+        jobs.append(TrainingJob(method, out / run_dir, common + list(extra), steps, required, cost, setup + setup_extra))
+
+    add(OURS, OURS_RUN_DIR, [], True)
+    baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
+    for method in baseline_methods:
+        spec = method_spec(method)
+        if wanted is not None and method not in wanted:
+            continue
+        required = method == "lens+net" or wanted is not None
+        extra = list(spec.train_overrides)
+        setup_extra = 0.0
+        if method == "cubic+net":
+            extra.append(f"train.psf_table_depths={settings.cubic_table_depths}")
+            setup_extra = CUBIC_SECONDS_PER_DEPTH * (settings.cubic_table_depths + cubic_evaluation_depths(cfg))
+        add(method, spec.run_dir, extra, required, setup_extra)
+    return jobs
+
+
+def jobs_table(jobs: Sequence[TrainingJob]) -> Table:
+    rows = []
+    for job in jobs:
+        done = job.steps_done()
+        seconds = job.training_seconds()
+        rows.append([job.method, job.run_dir.name, f"{min(done, job.steps)}/{job.steps}",
+                     f"{seconds:.0f}" if done else "-", job.status, job.note])
+    return Table(["method", "run", "steps", "training s", "status", "note"], rows,
+                 "Training runs (two one-thread processes in parallel)")
+
+
+def timing_rows(evaluation, settings: DemoSettings) -> list:
+    """Milliseconds per compensated 3-channel frame of the evaluated methods (median)."""
+    import torch
+
+    from . import timing
+
+    cases = []
+    run_design = evaluation.designs.get("run")
+    focus_m = evaluation.cfg.optics.focus_mm * 1e-3
+    by_name = {m.name: m for m in evaluation.methods}
+    psf = run_design.psf([focus_m])[0].numpy() if run_design is not None else None
+    if "doe+wiener" in by_name and psf is not None:
+        cases.append(timing.wiener_scipy_case(psf, evaluation.nsr.get("run", 1e-3), workers=torch.get_num_threads()))
+    for name in (OURS, "lens+onlineprodeb"):
+        if name in by_name:
+            cases.append(timing.network_torch_case(by_name[name].compensate.net, name))
+    results = timing.time_cases(cases, list(settings.timing_sizes), repeats=settings.timing_repeats, warmup=1)
+    if "lens+cls" in by_name and psf is not None:
+        cls_case = timing.cls_torch_case(psf, evaluation.cfg.evaluation.cls_iterations)
+        results += timing.time_cases([cls_case], list(settings.timing_sizes[:1]), repeats=1, warmup=0)
+    return results
+
+
+def timing_section(results, threads: int) -> list:
+    if not results:
+        return []
+    sizes = list(dict.fromkeys((t.height, t.width) for t in results))
+    methods = list(dict.fromkeys((t.method, t.backend) for t in results))
+    value = {(t.method, t.backend, t.height, t.width): t.median_ms for t in results}
+    rows = [[m, b] + [f"{value[(m, b, h, w)]:.1f}" if (m, b, h, w) in value else "-" for h, w in sizes]
+            for m, b in methods]
+    return [Heading("Timing"),
+            Paragraph(f"Median milliseconds per compensated 3-channel frame on this CPU ({threads} thread(s)); "
+                      "the paper's Table 1 was measured on a V100 GPU. CLS: 1 frame at the smallest size."),
+            Table(["method", "backend"] + [f"{h}x{w}" for h, w in sizes], rows)]
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise EdofprojError(f"--out '{out}' exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()):
+        raise EdofprojError(f"--out '{out}' is not empty: choose another directory or remove it")
+
+
+@dataclass
+class DemoResult:
+    out: Path
+    evaluation: object
+    bars: list[Bar]
+    jobs: list[TrainingJob]
+    wall_s: float
+    report_html: Path
+
+
+def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods: Sequence[str] | None = None,
+             overrides: Sequence[str] = (), workers: int = 2, budget_s: float | None = None,
+             timing: bool = True, progress: StageProgress | None = None) -> DemoResult:
+    """Run the demo into ``out`` (module docstring); returns what it measured and wrote."""
+    import torch
+
+    from .pipeline import evaluate_run
+    from .writeup import bars_section, write_documents
+
+    clock = time.perf_counter()
+    settings = QUICK if quick else FULL
+    budget = float(budget_s) if budget_s is not None else settings.budget_s
+    for name in methods or ():
+        method_spec(name)
+    if methods and OURS not in methods:
+        raise EdofprojError(f"--methods must include {OURS} (the demo trains and evaluates it)")
+    out = Path(out)
+    _check_out(out)
+    cfg = load_config(config, list(settings.overrides) + list(overrides))  # validates every override up front
+    if cfg.data.source == "folder" and not cfg.data.folder:
+        raise EdofprojError("the demo uses built-in data; data.source=folder needs data.folder")
+    progress = progress or StageProgress("demo", enabled=False)
+
+    jobs = demo_jobs(out, settings, cfg, methods, overrides)
+    later = settings.evaluation_estimate_s + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
+    deadline = clock + budget - later - REPORT_MARGIN_S
+    out.mkdir(parents=True, exist_ok=True)
+    progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
+    trainer = ParallelTrainer(jobs, config, out / LOG_DIR, workers, deadline, progress, later_s=later)
+    trainer.run()
+    progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
+
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    progress.note("stage 2/4 evaluation")
+    trained = {j.method for j in jobs if j.status == "done"}
+    eval_methods = [m for m in (methods or METHOD_NAMES) if not method_spec(m).needs_separate_run or m in trained]
+    evaluation = evaluate_run(out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out,
+                              progress=progress)
+    for job in jobs:
+        if job.status != "done":
+            evaluation.notes.append(f"{job.method} not evaluated: {job.note or job.status}")
+
+    timings = []
+    if timing:
+        progress.start("stage 3/4 timing", 1)
+        timings = timing_rows(evaluation, settings)
+        progress.finish()
+
+    progress.start("stage 4/4 report", 1)
+    bars = ssim_bars(evaluation.table, evaluation.range_mm)
+    wall_s = time.perf_counter() - clock
+    bars.append(wall_time_bar(wall_s, budget))
+    preface = [Heading("Demo"),
+               Paragraph(f"`edofproj demo{' --quick' if quick else ''}`: preset '{config}', {cfg.train.steps} training "
+                         f"steps per run, built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
+                         f"up to the report, budget {format_duration(budget)}."
+                         + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged."
+                            if quick else "")),
+               jobs_table(jobs)] + bars_section(bars)
+    paths = write_documents(evaluation, title="edofproj demo report", preface=preface,
+                            extra=timing_section(timings, torch.get_num_threads()))
+    progress.finish()
+    return DemoResult(out, evaluation, bars, jobs, time.perf_counter() - clock, paths["report_html"])
+
+
+def demo_finished_message(result: DemoResult) -> str:
+    from .summary import format_text_table, range_table
+
+    lines = [format_text_table(range_table(result.evaluation.table, result.evaluation.range_mm, ["ssim", "psnr"])), ""]
+    lines += [f"bar ({b.key}) {b.verdict}: {b.statement} -- {b.measured}" for b in result.bars]
+    lines += ["", f"report: {result.report_html}", f"(markdown: {result.report_html.with_suffix('.md')}; "
+                                                   f"total {format_duration(result.wall_s)})"]
+    return "\n".join(lines)
+

@@ -1,0 +1,216 @@
+"""Training several runs side by side within a time budget (one-thread ``edofproj train`` processes).
+
+On a small CPU, two one-thread training processes finish more work than one two-thread process
+(DESIGN.md, measured), so runs are trained as ``workers`` parallel subprocesses
+``python -m edofproj.cli train --config PRESET --out RUN --set train.threads=1 ...``.
+
+Jobs are started in order. *Required* jobs always run. An *optional* job starts only when it
+is predicted to end before ``deadline``:
+
+    now + setup_s + steps * rate * relative_cost  <=  deadline
+
+where ``rate`` is the measured seconds per step of a reference job (the first required job
+with ``relative_cost == 1``; before it has logged a step, ``default_rate``), and
+``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
+and its one-off start-up cost (process start, PSF tables). A job that cannot fit is skipped
+with a note. Progress is read from each run's ``train_log.csv``.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+from ..errors import EdofprojError
+from .progress import StageProgress, format_duration
+
+POLL_S = 1.0
+
+
+@dataclass
+class TrainingJob:
+    """One run to train: ``method`` it serves, its directory, config overrides and cost model."""
+
+    method: str
+    run_dir: Path
+    overrides: list[str]
+    steps: int
+    required: bool = True
+    relative_cost: float = 1.0
+    setup_s: float = 15.0
+    status: str = "pending"  # pending, running, done, failed, skipped
+    note: str = ""
+    process: subprocess.Popen | None = None
+    started: float = 0.0
+    ended: float = 0.0
+
+    def steps_done(self) -> int:
+        """Rows in the run's ``train_log.csv`` (one per optimizer step)."""
+        log = self.run_dir / "train_log.csv"
+        try:
+            with log.open("rb") as handle:
+                return max(sum(1 for _ in handle) - 1, 0)
+        except OSError:
+            return 0
+
+    def training_seconds(self) -> float:
+        """Seconds of training logged by the run (last row's ``seconds``)."""
+        try:
+            lines = (self.run_dir / "train_log.csv").read_text(encoding="utf-8").strip().splitlines()
+            return float(lines[-1].split(",")[-1]) if len(lines) > 1 else 0.0
+        except (OSError, ValueError, IndexError):
+            return 0.0
+
+
+def train_command(config: str, job: TrainingJob) -> list[str]:
+    sets = [item for override in ["train.threads=1"] + list(job.overrides) for item in ("--set", override)]
+    return [sys.executable, "-m", "edofproj.cli", "train", "--config", config, "--out", str(job.run_dir),
+            "--steps", str(job.steps), "--quiet"] + sets
+
+
+class ParallelTrainer:
+    """Runs :class:`TrainingJob` s as ``workers`` parallel processes before ``deadline`` (module docstring)."""
+
+    def __init__(self, jobs: Sequence[TrainingJob], config: str, log_dir: Path, workers: int, deadline: float,
+                 progress: StageProgress, default_rate_s: float = 0.6, later_s: float = 0.0) -> None:
+        self.jobs = list(jobs)
+        self.config = config
+        self.log_dir = Path(log_dir)
+        self.workers = max(int(workers), 1)
+        self.deadline = deadline
+        self.progress = progress
+        self.default_rate_s = default_rate_s
+        self.later_s = later_s
+
+    # -- cost model ------------------------------------------------------------------------
+    def reference_rate_s(self) -> float:
+        """Measured seconds per step of the reference job (see module docstring)."""
+        for job in self.jobs:
+            if job.required and job.relative_cost == 1.0 and job.status in ("running", "done"):
+                steps = job.steps_done()
+                if steps >= 3:
+                    return job.training_seconds() / steps
+        return self.default_rate_s
+
+    def predicted_seconds(self, job: TrainingJob) -> float:
+        return job.setup_s + job.steps * self.reference_rate_s() * job.relative_cost
+
+    def remaining_seconds(self, job: TrainingJob) -> float:
+        if job.status == "pending":
+            return self.predicted_seconds(job)
+        if job.status != "running":
+            return 0.0
+        done = job.steps_done()
+        rate = job.training_seconds() / done if done >= 3 else self.reference_rate_s() * job.relative_cost
+        start_up = max(job.setup_s - (time.perf_counter() - job.started), 0.0) if done == 0 else 0.0
+        return start_up + (job.steps - done) * rate
+
+    # -- processes -------------------------------------------------------------------------
+    def start(self, job: TrainingJob) -> None:
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log = (self.log_dir / f"{job.run_dir.name}.log").open("w", encoding="utf-8")
+        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+        job.process = subprocess.Popen(train_command(self.config, job), stdout=log, stderr=subprocess.STDOUT, env=env)
+        log.close()
+        job.status, job.started = "running", time.perf_counter()
+
+    def poll(self, job: TrainingJob) -> None:
+        code = job.process.poll()
+        if code is None:
+            return
+        job.ended = time.perf_counter()
+        if code == 0:
+            job.status = "done"
+            return
+        job.status = "failed"
+        job.note = f"training failed (exit {code}): {self.last_log_line(job)}"
+        if job.required:
+            self.stop_all()
+            raise EdofprojError(f"training the {job.method} run failed: {self.last_log_line(job)} "
+                                f"(log: {self.log_dir / (job.run_dir.name + '.log')})")
+
+    def last_log_line(self, job: TrainingJob) -> str:
+        try:
+            lines = [line for line in (self.log_dir / f"{job.run_dir.name}.log").read_text(
+                encoding="utf-8", errors="replace").splitlines() if line.strip()]
+        except OSError:
+            return "no log"
+        return lines[-1].strip() if lines else "no output"
+
+    def stop_all(self) -> None:
+        """Terminate the training processes this trainer started (by their process ids)."""
+        for job in self.jobs:
+            if job.process is not None and job.process.poll() is None:
+                job.process.terminate()
+                try:
+                    job.process.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    job.process.kill()
+                job.status, job.note = "failed", "stopped"
+
+    # -- the loop ----------------------------------------------------------------------------
+    def next_job(self) -> TrainingJob | None:
+        """The next pending job that may start now; optional jobs that cannot fit are skipped."""
+        for job in self.jobs:
+            if job.status != "pending":
+                continue
+            if job.required:
+                return job
+            predicted = self.predicted_seconds(job)
+            if time.perf_counter() + predicted <= self.deadline:
+                return job
+            job.status = "skipped"
+            job.note = (f"not trained: predicted {format_duration(predicted)} (min:s) for {job.steps} steps "
+                        f"would end after the time budget")
+            self.progress.note(f"{job.method}: {job.note}")
+        return None
+
+    def run(self) -> list[TrainingJob]:
+        try:
+            while True:
+                running = [j for j in self.jobs if j.status == "running"]
+                while len(running) < self.workers:
+                    job = self.next_job()
+                    if job is None:
+                        break
+                    self.start(job)
+                    running.append(job)
+                if not running:
+                    break
+                time.sleep(POLL_S)
+                for job in running:
+                    self.poll(job)
+                self.report()
+        except BaseException:
+            self.stop_all()
+            raise
+        return self.jobs
+
+    def report(self) -> None:
+        active = [j for j in self.jobs if j.status in ("running", "done", "pending")]
+        done = sum(min(j.steps_done(), j.steps) for j in active)
+        total = sum(j.steps for j in active)
+        detail = ", ".join(f"{j.method} {min(j.steps_done(), j.steps)}/{j.steps}" for j in self.jobs
+                           if j.status in ("running", "done"))
+        eta = self.eta_s()
+        self.progress.later_s = self.later_s
+        self.progress.set(done, detail=detail, total=max(total, 1), eta_s=eta)
+
+    def eta_s(self) -> float:
+        """Time until the last job ends, simulating the worker slots with the current estimates
+        (optional jobs that would end after the deadline are left out: they will be skipped)."""
+        now = time.perf_counter()
+        slots = sorted(self.remaining_seconds(j) for j in self.jobs if j.status == "running")
+        slots += [0.0] * (self.workers - len(slots))
+        for job in self.jobs:
+            if job.status == "pending":
+                slots.sort()
+                predicted = self.predicted_seconds(job)
+                if job.required or now + slots[0] + predicted <= self.deadline:
+                    slots[0] += predicted
+        return max(slots) if slots else 0.0

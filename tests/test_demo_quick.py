@@ -1,0 +1,61 @@
+"""``edofproj demo --quick`` end to end with tiny runs: two training processes, evaluation, timing, report."""
+
+import csv
+import math
+
+from edofproj.cli import main
+
+#: Shrinks the quick demo further so that the test takes well under a minute.
+TINY = [
+    "psf.pupil_samples=384", "psf.window=15", "doe.mlp_frequencies=4", "doe.mlp_hidden=8",
+    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
+    "net.widths=[4,8]", "data.crop=32", "train.steps=3", "train.batch_size=1", "train.psf_table_depths=4",
+    "train.checkpoint_every=3", "evaluation.image_size=[48,64]", "evaluation.depths_mm=[300,500,800]",
+    "evaluation.comparison_depths_mm=[320,800]", "evaluation.cls_iterations=5", "evaluation.wiener_tuning_images=2",
+    "evaluation.wiener_tuning_depths=2", "imaging.depth_layers=2", "data.max_test_images=2",
+]
+
+
+def test_quick_demo_writes_a_complete_report(tmp_path, capsys):
+    out = tmp_path / "demo"
+    args = ["demo", "--quick", "--quiet", "--out", str(out), "--methods", "lens,lens+wiener,lens+net,doe,doe+net"]
+    for item in TINY:
+        args += ["--set", item]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "report:" in printed and str(out / "report.html") in printed
+    assert "bar (a)" in printed and "bar (c)" in printed
+
+    for run in ("doe_net", "lens_net"):
+        assert (out / run / "checkpoints" / "last.pt").is_file()
+    for name in ("report.html", "report.md", "summary.md", "metrics.csv", "tilted_metrics.csv"):
+        assert (out / name).is_file(), name
+
+    with open(out / "metrics.csv", newline="") as handle:
+        reader = csv.DictReader(handle)
+        assert reader.fieldnames[:6] == ["method", "depth_mm", "image", "psnr", "ssim", "ms_ssim"]
+        rows = list(reader)
+    assert {r["method"] for r in rows} == {"lens", "lens+wiener", "lens+net", "doe", "doe+net"}
+    for row in rows:
+        assert math.isfinite(float(row["psnr"])) and 0.0 <= float(row["ms_ssim"]) <= 1.0
+        assert -1.0 <= float(row["ssim"]) <= 1.0
+
+    html = (out / "report.html").read_text()
+    for section in ("Pass/fail bars", "Summary", "Side-by-side comparison", "Tilted screen", "Optics", "Training",
+                    "Timing", "demo wall time"):
+        assert section in html, section
+    assert html.count("data:image/png;base64,") >= 7  # metric plots, comparison, tilted, PSF, DOE, training
+    markdown = (out / "report.md").read_text()
+    assert "(figures/eval_psf_lens_vs_doe.png)" in markdown and (out / "figures" / "eval_psf_lens_vs_doe.png").is_file()
+
+
+def test_demo_refuses_a_non_empty_output(tmp_path, capsys):
+    (tmp_path / "old.txt").write_text("x")
+    assert main(["demo", "--quick", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not empty" in err
+
+
+def test_demo_needs_our_method(tmp_path, capsys):
+    assert main(["demo", "--quick", "--out", str(tmp_path / "d"), "--methods", "lens,lens+net"]) == 2
+    assert "doe+net" in capsys.readouterr().err

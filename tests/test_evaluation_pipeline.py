@@ -1,0 +1,165 @@
+"""End to end: ``edofproj evaluate`` and ``edofproj compensate`` on tiny runs trained here (a few seconds)."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.cli import main
+from edofproj.config import load_config
+from edofproj.evaluation.results import BASE_METRICS
+from edofproj.evaluation.sweep import PERCEPTUAL_COLUMNS, load_perceptual_metrics
+from edofproj.imaging.image_io import read_image, write_image
+
+#: A tiny but physically valid setup: 384 pupil samples resolve the defocus phase at 300 mm.
+TINY = [
+    "psf.pupil_samples=384", "psf.window=15", "doe.mlp_frequencies=4", "doe.mlp_hidden=8",
+    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
+    "net.widths=[4,8]", "data.crop=32", "train.steps=2", "train.batch_size=1", "train.psf_table_depths=4",
+    "train.checkpoint_every=2", "train.threads=1",
+    "evaluation.image_size=[48,64]", "evaluation.depths_mm=[300,500]", "evaluation.comparison_depths_mm=[320]",
+    "evaluation.cls_iterations=5", "evaluation.wiener_tuning_images=2", "evaluation.wiener_tuning_depths=2",
+    "imaging.depth_layers=2", "data.max_test_images=2",
+]
+METHODS = "lens,lens+wiener,lens+cls,lens+net,doe,doe+wiener,doe+net"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """``<root>/doe_net`` (joint) and ``<root>/lens_net`` (its lens-only baseline), 2 steps each."""
+    from edofproj.training.trainer import train
+
+    root = tmp_path_factory.mktemp("runs")
+    train(load_config(None, TINY), root / "doe_net", progress=False)
+    train(load_config(None, TINY + ["doe.kind=lens"]), root / "lens_net", progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def evaluated(runs):
+    code = main(["evaluate", str(runs / "doe_net"), "--methods", METHODS, "--quiet"])
+    assert code == 0
+    return runs / "doe_net"
+
+
+def read_rows(path):
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        return reader.fieldnames, list(reader)
+
+
+def test_evaluate_writes_every_file(evaluated):
+    for name in ("metrics.csv", "tilted_metrics.csv", "summary.md", "report.md", "report.html"):
+        assert (evaluated / name).is_file(), name
+    for name in ("eval_ssim_vs_depth.png", "eval_psnr_vs_depth.png", "eval_comparison.png", "eval_tilted.png",
+                 "eval_psf_lens_vs_doe.png", "eval_doe_profile.png", "eval_training_curves.png"):
+        assert (evaluated / "figures" / name).stat().st_size > 1000, name
+    html = (evaluated / "report.html").read_text()
+    assert "data:image/png;base64," in html and 'src="figures/' not in html
+    assert "](figures/eval_comparison.png)" in (evaluated / "report.md").read_text()
+
+
+def test_metrics_csv_columns_and_values(evaluated):
+    header, rows = read_rows(evaluated / "metrics.csv")
+    available = [c for c in PERCEPTUAL_COLUMNS if c in load_perceptual_metrics()]
+    assert header == ["method", "depth_mm", "image", *BASE_METRICS, *available]  # never a column of zeros
+    assert {r["method"] for r in rows} == set(METHODS.split(","))
+    assert {float(r["depth_mm"]) for r in rows} == {300.0, 500.0}
+    assert len(rows) == len(METHODS.split(",")) * 2 * 2  # methods x depths x images
+    for row in rows:
+        psnr, ssim, ms_ssim = float(row["psnr"]), float(row["ssim"]), float(row["ms_ssim"])
+        assert math.isfinite(psnr) and psnr > 5
+        assert -1.0 <= ssim <= 1.0 and 0.0 <= ms_ssim <= 1.0
+    _, tilted = read_rows(evaluated / "tilted_metrics.csv")
+    assert {r["method"] for r in tilted} == set(METHODS.split(","))
+    assert all(float(r["near_mm"]) == 500.0 and float(r["far_mm"]) == 700.0 for r in tilted)
+
+
+def test_lens_is_sharper_in_focus_than_at_300_mm(evaluated):
+    _, rows = read_rows(evaluated / "metrics.csv")
+    lens = {(float(r["depth_mm"]), r["image"]): r for r in rows if r["method"] == "lens"}
+    for image in {key[1] for key in lens}:
+        in_focus, near = lens[(500.0, image)], lens[(300.0, image)]
+        assert float(in_focus["ssim"]) > float(near["ssim"]) + 0.1
+        assert float(in_focus["psnr"]) > float(near["psnr"]) + 5
+
+
+def test_known_psf_compensation_beats_no_compensation_at_300_mm(evaluated):
+    _, rows = read_rows(evaluated / "metrics.csv")
+
+    def mean_ssim(method):
+        return np.mean([float(r["ssim"]) for r in rows if r["method"] == method and float(r["depth_mm"]) == 300])
+
+    assert mean_ssim("lens+wiener") > mean_ssim("lens")
+    assert mean_ssim("lens+cls") > mean_ssim("lens")
+
+
+def test_summary_mentions_skipped_and_unavailable(runs, tmp_path):
+    out = tmp_path / "ev"
+    assert main(["evaluate", str(runs / "doe_net"), "--methods", "lens,doe+net", "--out", str(out), "--quiet",
+                 "--depths-mm", "300"]) == 0
+    summary = (out / "summary.md").read_text()
+    assert "Not evaluated:" in summary and "cubic+net" in summary
+    if not load_perceptual_metrics():
+        assert "unavailable" in summary
+
+
+def test_missing_baseline_is_a_note_unless_requested(runs, tmp_path, capsys):
+    out = tmp_path / "ev"
+    assert main(["evaluate", str(runs / "doe_net"), "--out", str(out), "--quiet", "--depths-mm", "500"]) == 0
+    assert "axicon+net skipped" in capsys.readouterr().err
+    code = main(["evaluate", str(runs / "doe_net"), "--methods", "axicon+net", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "axicon_net" in err
+
+
+def test_unknown_method_is_one_line_listing_the_known_ones(runs, capsys):
+    assert main(["evaluate", str(runs / "doe_net"), "--methods", "lens,doe+magic"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "doe+magic" in err and "lens+wiener" in err and "axicon+net" in err
+
+
+def test_run_without_checkpoint_is_one_line(tmp_path, capsys):
+    run = tmp_path / "empty_run"
+    run.mkdir()
+    (run / "config.yaml").write_text("name: x\n")
+    assert main(["evaluate", str(run)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "checkpoint" in err
+
+
+def test_evaluate_refuses_to_change_the_trained_config(runs, capsys):
+    assert main(["evaluate", str(runs / "doe_net"), "--set", "net.widths=[8,16]"]) == 2
+    assert "evaluation" in capsys.readouterr().err
+
+
+def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
+    write_image(tmp_path / "target.png", torch.rand(3, 40, 50))
+    write_image(tmp_path / "capture.png", torch.rand(3, 38, 50))
+    code = main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"),
+                 "--capture", str(tmp_path / "capture.png"), "--out", str(tmp_path / "out.png")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "40x50" in err and "38x50" in err
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_compensate_any_size_with_simulated_capture(runs, tmp_path):
+    target = torch.rand(3, 37, 53)
+    write_image(tmp_path / "target.png", target)
+    assert main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"), "--depth-mm", "350",
+                 "--out", str(tmp_path / "proj.png"), "--preview", str(tmp_path / "shown.png")]) == 0
+    projector_input = read_image(tmp_path / "proj.png")
+    assert projector_input.shape == (3, 37, 53)
+    assert read_image(tmp_path / "shown.png").shape == (3, 37, 53)
+
+
+def test_compensate_with_a_capture_file(runs, tmp_path):
+    write_image(tmp_path / "target.png", torch.rand(3, 24, 30))
+    write_image(tmp_path / "capture.png", torch.rand(3, 24, 30))
+    assert main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"),
+                 "--capture", str(tmp_path / "capture.png"), "--out", str(tmp_path / "proj.png"), "--bits", "16"]) == 0
+    assert read_image(tmp_path / "proj.png").shape == (3, 24, 30)
