@@ -228,3 +228,15 @@ def test_cli_trains_and_refuses_an_existing_run_in_one_line(tmp_path, capsys):
     assert main(["train", "--out", str(out), "--resume", "--steps", "3", "--quiet"]) == 0
     assert "steps 2 -> 3 of 3" in capsys.readouterr().out
     assert load_config(str(out / "config.yaml")).name == "cli_run"
+
+
+def test_onlineprodeb_baseline_trains_with_the_same_loop(tmp_path):
+    cfg = tiny_config("doe.kind=lens", "net.architecture=onlineprodeb", "train.steps=1")
+    result = train(cfg, tmp_path / "opd", progress=False)
+    assert result.step == 1 and np.isfinite(result.loss)
+    run = load_run(tmp_path / "opd")
+    assert type(run.net).__name__ == "OnlineProDebNet"
+    seed_everything(cfg.train.seed)
+    build_run_doe(cfg)
+    initial = build_net(cfg).state_dict()
+    assert any(not torch.equal(initial[k], v) for k, v in run.net.state_dict().items())

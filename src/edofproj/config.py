@@ -189,6 +189,8 @@ class NetConfig:
     ``2**(len(widths)-1)`` and cropped back). Named width presets:
     ``edofproj.compensation.unet.UNET_WIDTH_PRESETS``. ``architecture``: ``unet`` (ours) or
     ``onlineprodeb`` (the baseline re-implementation, its default preset; ``widths`` unused).
+    ``space_to_depth``: run the U-Net on ``s x s`` pixel blocks at ``1/s`` resolution (the
+    real-time variant; 1 = the paper's full-resolution network).
     """
 
     widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -197,8 +199,11 @@ class NetConfig:
     downsampling: str = "conv"
     upsampling: str = "transpose"
     padding_mode: str = "replicate"
+    space_to_depth: int = 1
 
     def validate(self) -> None:
+        if self.space_to_depth < 1:
+            raise ConfigError(f"net.space_to_depth={self.space_to_depth} must be >= 1")
         if (
             len(self.widths) < 2
             or any(isinstance(w, bool) or not isinstance(w, (int, float)) for w in self.widths)
@@ -349,8 +354,10 @@ class EvaluationConfig:
     ``depths_mm``: flat-screen depths of the sweep. ``comparison_depths_mm``: the rows of the
     side-by-side figure (paper Fig. 6: 320, 630, 800 mm). Tilted screen (paper Sec. 5.3): a plane
     turned by ``tilt_deg`` whose depth runs from the in-focus distance ``v`` to
-    ``v + tilt_span_mm``. ``image_size``: ``[height, width]`` each held-out image is scaled to
-    cover and centre-cropped to (``[]``: native sizes). ``cls_iterations``: iterations of the
+    ``v + tilt_span_mm``. ``image_size``: ``[height, width]`` of the scored images (``[]``:
+    native sizes); ``image_scaling``: ``crop`` takes the centre of each image at its native
+    resolution (the pixel scale of the training crops; smaller images are scaled up to cover),
+    ``cover`` scales each image to cover the size first. ``cls_iterations``: iterations of the
     box-constrained solver. The Wiener NSR is tuned on ``wiener_tuning_images`` training crops
     at ``wiener_tuning_depths`` depths of the training range.
     """
@@ -363,6 +370,7 @@ class EvaluationConfig:
     tilt_deg: float = 50.0
     tilt_span_mm: float = 200.0
     image_size: list = field(default_factory=lambda: [256, 256])
+    image_scaling: str = "crop"
     cls_iterations: int = 100
     wiener_tuning_images: int = 8
     wiener_tuning_depths: int = 6
@@ -381,6 +389,8 @@ class EvaluationConfig:
             raise ConfigError(
                 f"evaluation.image_size={self.image_size} must be [height, width] with integers >= 16, or [] (native)"
             )
+        if self.image_scaling not in ("crop", "cover"):
+            raise ConfigError(_unknown_choice("evaluation.image_scaling", self.image_scaling, ("crop", "cover")))
         if self.cls_iterations < 1:
             raise ConfigError("evaluation.cls_iterations must be >= 1")
         if self.wiener_tuning_images < 1 or self.wiener_tuning_depths < 1:

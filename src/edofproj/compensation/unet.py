@@ -13,7 +13,13 @@ connections). A final 1×1 convolution maps to 3 channels; it starts at zero, so
 network is exactly the identity ``projector_input = I`` (residual learning from the long skip
 ``I -> output``).
 
-Images of any size are padded on the bottom and right to a multiple of ``2**(S-1)``
+Real-time variant (``space_to_depth = s > 1``): the input pair is first rearranged into
+``s x s`` pixel blocks (``pixel_unshuffle``: 6 channels at full resolution become ``6 s^2``
+channels at ``1/s`` resolution), the U-Net runs at ``1/s`` resolution, and its ``3 s^2``
+output channels are rearranged back (``pixel_shuffle``) into the full-resolution residual.
+Every output pixel still gets its own value; the cost of the finest scale drops by ``s^2``.
+
+Images of any size are padded on the bottom and right to a multiple of ``s 2**(S-1)``
 (replicate or reflect) and the output is cropped back. The output is *not* clamped: the
 caller clamps to the projector's ``[0, 1]`` range before projecting.
 """
@@ -37,6 +43,9 @@ UNET_WIDTH_PRESETS: dict[str, list[int]] = {
     "default": [16, 32, 64, 128, 128, 128, 128],
     "fast": [4, 8, 16, 32, 32, 32, 32],
 }
+
+#: The real-time network: ``space_to_depth`` factor and widths (see ``benchmarks/bench_unet.py``).
+REALTIME_PRESET = {"space_to_depth": 4, "widths": [32, 48, 64, 96]}
 
 DOWNSAMPLING_MODES = ("conv", "maxpool")
 UPSAMPLING_MODES = ("transpose", "bilinear")
@@ -100,6 +109,8 @@ class CompensationUNet(nn.Module):
         upsampling: ``transpose`` (transposed convolution) or ``bilinear`` (+ 3×3 conv).
         padding_mode: how images are padded to a multiple of ``2**(len(widths)-1)``:
             ``replicate`` or ``reflect``.
+        space_to_depth: ``s >= 1``; with ``s > 1`` the U-Net runs at ``1/s`` resolution on
+            ``s x s`` pixel blocks (pixel unshuffle / shuffle), for real-time use.
     """
 
     def __init__(
@@ -111,8 +122,12 @@ class CompensationUNet(nn.Module):
         downsampling: str = "conv",
         upsampling: str = "transpose",
         padding_mode: str = "replicate",
+        space_to_depth: int = 1,
     ) -> None:
         super().__init__()
+        if int(space_to_depth) != space_to_depth or space_to_depth < 1:
+            raise EdofprojError(f"U-Net space_to_depth={space_to_depth} must be an integer >= 1")
+        self.space_to_depth = int(space_to_depth)
         widths = [int(w) for w in widths]
         if len(widths) < 2 or min(widths) < 1:
             raise EdofprojError(f"U-Net widths={widths} need at least two positive channel counts")
@@ -136,9 +151,10 @@ class CompensationUNet(nn.Module):
         self.in_channels = in_channels
         self.out_channels = out_channels
         self.padding_mode = padding_mode
-        self.size_multiple = 2 ** (len(widths) - 1)
+        self.size_multiple = self.space_to_depth * 2 ** (len(widths) - 1)
+        block = self.space_to_depth**2
 
-        self.encoder = nn.ModuleList([ConvBlock(in_channels, widths[0], leaky_slope)])
+        self.encoder = nn.ModuleList([ConvBlock(in_channels * block, widths[0], leaky_slope)])
         self.down = nn.ModuleList()
         for coarse, fine in zip(widths[1:], widths[:-1]):
             self.down.append(_downsampling(fine, downsampling, leaky_slope))
@@ -149,7 +165,7 @@ class CompensationUNet(nn.Module):
         for scale in reversed(range(len(widths) - 1)):
             self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
             self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
-        self.head = nn.Conv2d(widths[0], out_channels, 1)
+        self.head = nn.Conv2d(widths[0], out_channels * block, 1)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
 
@@ -162,6 +178,7 @@ class CompensationUNet(nn.Module):
             downsampling=net_cfg.downsampling,
             upsampling=net_cfg.upsampling,
             padding_mode=net_cfg.padding_mode,
+            space_to_depth=net_cfg.space_to_depth,
         )
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
@@ -178,6 +195,8 @@ class CompensationUNet(nn.Module):
         height, width = target.shape[-2], target.shape[-1]
         x = torch.cat([target, captured], dim=1)
         x = self._pad_to_multiple(x, height, width)
+        if self.space_to_depth > 1:
+            x = F.pixel_unshuffle(x, self.space_to_depth)
 
         skips = []
         for scale, block in enumerate(self.encoder):
@@ -188,7 +207,10 @@ class CompensationUNet(nn.Module):
         x = skips.pop()
         for up, block in zip(self.up, self.decoder):
             x = block(torch.cat([up(x), skips.pop()], dim=1))
-        residual = self.head(x)[..., :height, :width]
+        residual = self.head(x)
+        if self.space_to_depth > 1:
+            residual = F.pixel_shuffle(residual, self.space_to_depth)
+        residual = residual[..., :height, :width]
         return target + residual
 
     def _pad_to_multiple(self, x: torch.Tensor, height, width) -> torch.Tensor:

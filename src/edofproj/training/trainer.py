@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..config import Config
+from ..config import Config, to_dict
 from ..doe import save_doe
 from ..errors import EdofprojError
 from ..optics.psf_bank import simulator_from_config
@@ -191,6 +191,7 @@ class _Session:
             "scheduler": self.scheduler.state_dict(),
             "rng": capture_rng_state(),
             "world_size": self.group.world_size,
+            "config": to_dict(self.cfg),
             "sampling": "per-sample generators seeded by (train.seed, step, global index, stream)",
         }
 
@@ -287,7 +288,9 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: in
 
     ``stop_after``: end this session after that many steps in total (the learning-rate
     schedule still spans ``cfg.train.steps``), e.g. to train in chunks; a checkpoint is
-    written at the end of every session. Returns a :class:`TrainingResult`.
+    written at the end of every session. Resuming with a larger ``train.steps`` extends the
+    run; the remaining learning rates then follow ``lr_0 f^(t / T)`` with the new ``T``.
+    Returns a :class:`TrainingResult`.
     """
     run_dir = Path(out_dir)
     if cfg.train.threads > 0:
