@@ -1,0 +1,182 @@
+"""Fine-tuning the compensation network on measured PSFs (paper Sec. 5.3: 20 iterations, 300–900 mm).
+
+The DOE is fixed (it has been fabricated); only the network learns. The PSFs come from
+``.npz`` files in the ``edofproj psf`` format (e.g. written by ``edofproj procams estimate-psf``,
+one file per measured depth or several depths per file). Between measured depths the PSF is
+interpolated linearly in inverse depth, in which the defocus blur is linear
+(b(z) = D T W |1/z - 1/v| pixels):
+
+    PSF(z) = (1 - t) PSF(z_i) + t PSF(z_{i+1}),   t = (1/z - 1/z_i) / (1/z_{i+1} - 1/z_i).
+
+Each step draws depths uniformly in the measured range and training crops, renders
+``I* = project(I, PSF(z))``, and minimizes the run's loss on ``project(clamp(net(I, I*)), PSF(z))``,
+exactly as in joint training (:mod:`.end_to_end`). The result is a new run directory (the
+original run is never modified) that ``edofproj evaluate``/``compensate``/``export`` accept.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import EdofprojError
+from ..fileio import write_text_atomic
+from ..optics.psf_bank import PSFBank
+from .checkpoint import save_checkpoint
+from .end_to_end import EndToEndProjector
+from .runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
+from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
+from .trainer import loss_terms, seed_everything
+
+
+class MeasuredPSFTable(nn.Module):
+    """PSFs measured at arbitrary depths; ``table(depths_m) -> (B, C, K, K)`` interpolated in 1/z."""
+
+    def __init__(self, psf: torch.Tensor, depths_m) -> None:
+        super().__init__()
+        depths_m = np.asarray(depths_m, dtype=np.float64)
+        order = np.argsort(-depths_m)  # increasing inverse depth
+        self.register_buffer("psf", psf[torch.as_tensor(order.copy())].float().clone())
+        self.depths_m = depths_m[order]
+        self.inverse = torch.as_tensor(1.0 / self.depths_m)
+
+    @classmethod
+    def from_files(cls, paths) -> "MeasuredPSFTable":
+        """Load and merge PSF files; they must share the window and hold RGB (or grey) PSFs."""
+        psfs, depths = [], []
+        for path in paths:
+            bank = PSFBank.load(path)
+            if bank.psf.shape[1] not in (1, 3):
+                raise EdofprojError(f"PSF file '{path}' has {bank.psf.shape[1]} channels; expected 3 (RGB) or 1")
+            psfs.append(bank.psf.expand(-1, 3, -1, -1) if bank.psf.shape[1] == 1 else bank.psf)
+            depths.extend(bank.depths_m.tolist())
+        windows = {p.shape[-1] for p in psfs}
+        if len(windows) != 1:
+            raise EdofprojError(f"the measured PSF files have different windows {sorted(windows)}: re-estimate "
+                                "them with the same --window")
+        depths = np.asarray(depths)
+        if len(np.unique(np.round(depths, 6))) != len(depths):
+            raise EdofprojError(f"the measured PSF files repeat a depth: {np.round(depths * 1e3, 1).tolist()} mm")
+        return cls(torch.cat(psfs), depths)
+
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        return float(self.depths_m.min()), float(self.depths_m.max())
+
+    def forward(self, depths_m) -> torch.Tensor:
+        inverse = 1.0 / torch.as_tensor(np.asarray(depths_m, dtype=np.float64))
+        lo, hi = float(self.inverse[0]), float(self.inverse[-1])
+        if torch.any(inverse < lo - 1e-9) or torch.any(inverse > hi + 1e-9):
+            raise EdofprojError(f"depths outside the measured {self.depths_m.min() * 1e3:.0f}-"
+                                f"{self.depths_m.max() * 1e3:.0f} mm")
+        n = len(self.depths_m)
+        if n == 1:
+            return self.psf[[0] * len(inverse)]
+        upper = torch.searchsorted(self.inverse, inverse.clamp(lo, hi)).clamp(1, n - 1)
+        lower = upper - 1
+        t = ((inverse - self.inverse[lower]) / (self.inverse[upper] - self.inverse[lower])).clamp(0, 1)
+        t = t.to(self.psf.dtype)[:, None, None, None]
+        return (1 - t) * self.psf[lower] + t * self.psf[upper]
+
+
+@dataclass
+class FinetuneResult:
+    run_dir: Path
+    steps: int
+    depth_range_m: tuple[float, float]
+    first_loss: float
+    last_loss: float
+
+
+def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = None, batch_size: int | None = None,
+             seed: int | None = None, progress: bool = True) -> FinetuneResult:
+    """Fine-tune the network of ``run_dir`` on measured PSFs; write a new run to ``out_dir``.
+
+    ``lr`` defaults to the run's ``train.lr_net`` times its final decay fraction (where its
+    schedule ended); ``batch_size`` and ``seed`` default to the run's.
+    """
+    if steps < 1:
+        raise EdofprojError(f"--steps {steps} must be >= 1")
+    if not psf_files:
+        raise EdofprojError("give at least one measured PSF file with --psfs")
+    out_dir = Path(out_dir)
+    if out_dir.resolve() == Path(run_dir).resolve():
+        raise EdofprojError("--out must differ from the run directory: fine-tuning never overwrites the run")
+    check_new_run_dir(out_dir)
+    table = MeasuredPSFTable.from_files(psf_files)
+    trained = load_run(run_dir)
+    cfg = trained.cfg
+    z_min, z_max = table.depth_range_m
+    train_cfg = dataclasses.replace(
+        cfg.train, batch_size=batch_size or cfg.train.batch_size, seed=cfg.train.seed if seed is None else seed,
+        steps=steps, train_doe=False)
+    cfg = dataclasses.replace(cfg, train=train_cfg, name=f"{cfg.name}-finetuned",
+                              psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3))
+    seed_everything(cfg.train.seed)
+
+    from .data import build_training_source
+    from .losses import build_loss
+
+    net = trained.net
+    net.train()
+    for p in net.parameters():
+        p.requires_grad_(True)
+    model = EndToEndProjector(table, net, cfg.train.noise_sigma, cfg.train.quantize_capture)
+    learning_rate = lr if lr is not None else cfg.train.lr_net * cfg.train.lr_final_fraction
+    optimizer = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    loss_fn = build_loss(cfg.loss)
+    source = build_training_source(cfg.data, cfg.train.seed)
+    shard = BatchShard.for_rank(cfg.train.batch_size, 0, 1)
+
+    rows = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=steps, unit="step", dynamic_ncols=True, desc="finetune")
+    clock = time.perf_counter()
+    for step in range(1, steps + 1):
+        depths = sample_depths_m(cfg.train.seed, step, shard, z_min, z_max, "uniform")
+        images = sample_images(source, cfg.train.seed, step, shard, cfg.data.crop)
+        noise = sample_noise(cfg.train.seed, step, shard, tuple(images.shape[1:])) if cfg.train.noise_sigma > 0 else None
+        out = model(images, depths, noise)
+        loss, mse, perceptual = loss_terms(loss_fn, cfg, out.projected, images)
+        if not torch.isfinite(loss):
+            raise EdofprojError(f"fine-tuning stopped: the loss became {float(loss)} at step {step}; nothing written")
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.train.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.train.grad_clip)
+        optimizer.step()
+        rows.append((step, float(loss), float(mse), float(perceptual), learning_rate, time.perf_counter() - clock))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(loss):.4g}")
+    if bar is not None:
+        bar.close()
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_run_config(out_dir, cfg)
+    source_doe = Path(run_dir) / DOE_NAME
+    if source_doe.is_file():
+        shutil.copyfile(source_doe, out_dir / DOE_NAME)
+    net.eval()
+    save_checkpoint(out_dir / CHECKPOINT_DIR, {
+        "step": steps, "net": net.state_dict(), "doe": {}, "finetuned_from": str(run_dir),
+        "measured_psfs": [str(p) for p in psf_files], "measured_depths_m": table.depths_m.tolist(),
+    })
+    text = io.StringIO()
+    writer = csv.writer(text)
+    writer.writerow(["step", "loss", "mse", "perceptual", "lr", "seconds"])
+    writer.writerows(rows)
+    write_text_atomic(out_dir / "train_log.csv", text.getvalue())
+    return FinetuneResult(out_dir, steps, (z_min, z_max), rows[0][1], rows[-1][1])
