@@ -37,6 +37,9 @@ def register(subparsers) -> None:
                         help="depths, e.g. 300,500,800 or 300:800:100 (default: evaluation.depths_mm)")
     parser.add_argument("--out", default=None, metavar="DIR", help="output directory")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--ssim-images", type=int, default=3, metavar="N",
+                        help="held-out images for the compensated SSIM when RUN has a trained network "
+                             "(default 3; 0 skips it)")
     add_config_options(parser)
     parser.set_defaults(func=run)
 
@@ -63,8 +66,20 @@ def run(args: argparse.Namespace) -> int:
     def progress(done: int, total: int) -> None:
         print(f"\rtrial {done}/{total}", end="" if done < total else "\n", file=sys.stderr, flush=True)
 
+    evaluate_ssim = None
+    if design.run_dir is not None and args.ssim_images > 0 and (design.run_dir / "checkpoints" / "last.pt").is_file():
+        import torch
+
+        from ..fabrication.tolerance import compensated_ssim_evaluator
+        from ..training.data import build_test_images
+        from ..training.runs import load_run
+
+        trained = load_run(design.run_dir)
+        images = torch.stack([img for _, img in build_test_images(cfg.data, size=128)[:args.ssim_images]])
+        evaluate_ssim = compensated_ssim_evaluator(trained.net, cfg, images, settings.engine)
+        print(f"compensated SSIM on {len(images)} held-out images with the run's network", file=sys.stderr)
     result = run_tolerance(profile, cfg, settings, np.asarray(depths_mm, dtype=float) * 1e-3,
-                           progress=progress if sys.stderr.isatty() else None)
+                           evaluate_ssim=evaluate_ssim, progress=progress if sys.stderr.isatty() else None)
     out_dir = args.out or design.run_dir or design.doe_file.parent
     paths = write_outputs(result, out_dir, source=args.source)
     p05, p50, _ = result.percentiles()

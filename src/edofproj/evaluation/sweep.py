@@ -37,8 +37,10 @@ from . import metrics
 from .results import BASE_METRICS, MetricsTable
 
 Progress = Callable[[int], None]
-"""``progress(units_done)``: called after each (method, image) evaluation with the number just done."""
+"""``progress(units_done)``: called after each method has run on a batch, with the number of images."""
 
+#: Images of the same size evaluated together (one batch through each method).
+MAX_BATCH = 8
 #: Perceptual metrics reported when their weights are present: column name -> metric name.
 PERCEPTUAL_COLUMNS = {"lpips": "lpips-alex", "dists": "dists"}
 
@@ -56,16 +58,16 @@ def load_perceptual_metrics(weights_dir=None) -> dict:
     return loaded
 
 
-def score(display: torch.Tensor, target: torch.Tensor, perceptual: dict) -> dict[str, float]:
-    """Metrics of one displayed image ``(1, 3, H, W)`` against its target."""
-    values = {
-        "psnr": float(metrics.psnr(display, target)[0]),
-        "ssim": float(metrics.ssim(display, target)[0]),
-        "ms_ssim": float(metrics.ms_ssim(display, target)[0]),
+def score(display: torch.Tensor, target: torch.Tensor, perceptual: dict) -> list[dict[str, float]]:
+    """Metrics of each displayed image of a batch ``(B, 3, H, W)`` against its target: ``B`` dicts."""
+    columns = {
+        "psnr": metrics.psnr(display, target),
+        "ssim": metrics.ssim(display, target),
+        "ms_ssim": metrics.ms_ssim(display, target),
     }
     for column, metric in perceptual.items():
-        values[column] = float(metric(display, target)[0])
-    return values
+        columns[column] = metric(display, target)
+    return [{name: float(values[i]) for name, values in columns.items()} for i in range(display.shape[0])]
 
 
 def metric_columns(perceptual: dict) -> tuple[str, ...]:
@@ -79,13 +81,20 @@ def _by_design(methods) -> "OrderedDict[str, list]":
     return groups
 
 
-def _batch(image: torch.Tensor) -> torch.Tensor:
-    return image.unsqueeze(0) if image.ndim == 3 else image
+def image_batches(images: Sequence[tuple[str, torch.Tensor]], max_batch: int = MAX_BATCH):
+    """``[(names, (B, 3, H, W))]``: consecutive images of the same size stacked (at most ``max_batch``)."""
+    batches: list[tuple[list[str], list[torch.Tensor]]] = []
+    for name, image in images:
+        if batches and batches[-1][1][0].shape == image.shape and len(batches[-1][0]) < max_batch:
+            batches[-1][0].append(name)
+            batches[-1][1].append(image)
+        else:
+            batches.append(([name], [image]))
+    return [(names, torch.stack(stack)) for names, stack in batches]
 
 
-def flat_screen_displays(methods, image: torch.Tensor, depth_mm: float):
-    """Yield ``(method, display)`` for every method at one depth: ``display (1, 3, H, W)``."""
-    target = _batch(image)
+def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
+    """Yield ``(method, display)`` for every method at one depth; ``target`` and ``display`` ``(B, 3, H, W)``."""
     for group in _by_design(methods).values():
         psf = group[0].design.psf([depth_mm * 1e-3])
         captured = project(target, psf)
@@ -98,27 +107,29 @@ def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depth
                       perceptual: dict, progress: Progress | None = None) -> MetricsTable:
     """Score every method on every image at every depth (rows: method, depth_mm, image)."""
     table = MetricsTable(("method", "depth_mm", "image"), metric_columns(perceptual))
+    batches = image_batches(images)
     with torch.inference_mode():
         for depth_mm in depths_mm:
-            for name, image in images:
-                for method, display in flat_screen_displays(methods, image, depth_mm):
-                    table.add(method=method.name, depth_mm=float(depth_mm), image=name,
-                              **score(display, _batch(image), perceptual))
+            for names, target in batches:
+                for method, display in flat_screen_displays(methods, target, depth_mm):
+                    for name, values in zip(names, score(display, target, perceptual)):
+                        table.add(method=method.name, depth_mm=float(depth_mm), image=name, **values)
                     if progress is not None:
-                        progress(1)
+                        progress(len(names))
     order = {m.name: i for i, m in enumerate(methods)}
-    table.rows.sort(key=lambda r: (r["depth_mm"], order[r["method"]]))
+    names = {name: i for i, (name, _) in enumerate(images)}
+    table.rows.sort(key=lambda r: (r["depth_mm"], order[r["method"]], names[r["image"]]))
     return table
 
 
 def example_displays(methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict) -> dict:
     """``{(depth_mm, method name): (display (H, W, 3) array, scores)}`` for the comparison figure."""
     examples = {}
-    target = _batch(image)
+    target = image.unsqueeze(0)
     with torch.inference_mode():
         for depth_mm in depths_mm:
-            for method, display in flat_screen_displays(methods, image, depth_mm):
-                examples[(float(depth_mm), method.name)] = (_to_array(display), score(display, target, perceptual))
+            for method, display in flat_screen_displays(methods, target, depth_mm):
+                examples[(float(depth_mm), method.name)] = (_to_array(display), score(display, target, perceptual)[0])
     return examples
 
 
@@ -141,9 +152,8 @@ class TiltedScreen:
         """What the tilted screen shows when the projector (with ``design``) emits ``x``."""
         return render_depth_map(x, self.depth_map_m, design.psf(self.layers_m), layers=self.layers_m)
 
-    def displays(self, methods, image: torch.Tensor):
-        """Yield ``(method, display)`` on this screen for every method."""
-        target = _batch(image)
+    def displays(self, methods, target: torch.Tensor):
+        """Yield ``(method, display)`` on this screen for every method; ``target`` ``(B, 3, H, W)``."""
         for group in _by_design(methods).values():
             design = group[0].design
             captured = self.render(target, design)
@@ -160,20 +170,22 @@ def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg
     table = MetricsTable(("method", "near_mm", "far_mm", "image"), metric_columns(perceptual))
     examples = {}
     screens: dict[tuple[int, int], TiltedScreen] = {}
+    first = images[0][0]
     with torch.inference_mode():
-        for index, (name, image) in enumerate(images):
-            size = tuple(image.shape[-2:])
+        for names, target in image_batches(images):
+            size = tuple(target.shape[-2:])
             screen = screens.setdefault(size, TiltedScreen(cfg, *size))
-            for method, display in screen.displays(methods, image):
-                values = score(display, _batch(image), perceptual)
-                table.add(method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3, image=name,
-                          **values)
-                if index == 0:
-                    examples[method.name] = (_to_array(display), values)
+            for method, display in screen.displays(methods, target):
+                for index, (name, values) in enumerate(zip(names, score(display, target, perceptual))):
+                    table.add(method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3,
+                              image=name, **values)
+                    if name == first:
+                        examples[method.name] = (_to_array(display[index: index + 1]), values)
                 if progress is not None:
-                    progress(1)
+                    progress(len(names))
     return table, examples
 
 
 def _to_array(image: torch.Tensor) -> np.ndarray:
-    return _batch(image)[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+    """The first image of a batch as an ``(H, W, 3)`` array in ``[0, 1]``."""
+    return image[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy()

@@ -14,8 +14,11 @@ sum), so a 3 x 3 simulation window gives E exactly.
 Engines: ``radial`` (default) simulates the radial proxy of overlay errors on rings split at
 every edge (:mod:`.ring_engine`: exact for sub-micrometre shifts); ``2d`` simulates true
 lateral mask shifts and DOE decentre on the 2-D FFT engine (point-sampled on its grid;
-much slower). Compensated image quality needs a trained network: pass
-``evaluate_ssim(doe, depths_m) -> SSIM per depth`` to add it (not wired to trained runs here).
+much slower). Compensated image quality needs a trained network:
+:func:`compensated_ssim_evaluator` builds ``evaluate_ssim(doe, depths_m) -> SSIM per depth``
+from a run's network and held-out images (``edofproj tolerance RUN`` does this when the run
+has a checkpoint): each as-fabricated DOE's PSFs (run window) blur the images, the network
+compensates, the compensated input is projected, and SSIM is taken against the target.
 """
 
 from __future__ import annotations
@@ -97,9 +100,9 @@ def energy_concentration(psf: torch.Tensor, box_px: int = CONCENTRATION_BOX_PX) 
 class FabricatedPSF:
     """PSFs of as-fabricated DOEs for one config: builds the simulator once."""
 
-    def __init__(self, cfg, engine: str = "radial"):
+    def __init__(self, cfg, engine: str = "radial", window: int = CONCENTRATION_BOX_PX):
         self.engine = engine
-        self.sim = simulator_from_config(cfg, engine=engine, window=CONCENTRATION_BOX_PX)
+        self.sim = simulator_from_config(cfg, engine=engine, window=window)
 
     def doe(self, profile: RadialProfile, masks, errors: FabricationErrors):
         cls = FabricatedRadialDOE if self.engine == "radial" else FabricatedDOE2D
@@ -114,6 +117,27 @@ class FabricatedPSF:
             # the haze outside the 3x3 box is irrelevant to the concentration
             warnings.filterwarnings("ignore", message="the geometric blur disk")
             return sim(doe, depths_m)
+
+
+def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "radial") -> SSIMEvaluator:
+    """``evaluate_ssim(doe, depths_m)``: mean SSIM over ``images`` (B, 3, H, W) of
+    ``project(clamp(net(I, project(I, P_z))), P_z)`` against ``I``, for each depth ``z``."""
+    from ..evaluation.metrics import ssim
+    from ..imaging.projection import project
+
+    psf_of = FabricatedPSF(cfg, engine, window=cfg.psf.window)
+
+    def evaluate(doe, depths_m) -> np.ndarray:
+        psf = psf_of(doe, depths_m).float()
+        scores = []
+        with torch.no_grad():
+            for i in range(len(depths_m)):
+                captured = project(images, psf[i:i + 1])
+                projected = project(net(images, captured).clamp(0.0, 1.0), psf[i:i + 1])
+                scores.append(float(ssim(projected, images).mean()))
+        return np.asarray(scores)
+
+    return evaluate
 
 
 def check_aperture(profile: RadialProfile, cfg) -> None:
