@@ -6,10 +6,6 @@ import argparse
 import sys
 
 from ..errors import EdofprojError
-from ..fabrication.export import export_doe
-from ..fabrication.inputs import DesignInput
-from ..fabrication.profile import check_power_of_two_levels
-from ..fabrication.report import CriticalDimensionError
 from ._common import add_config_options
 
 
@@ -36,6 +32,10 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..fabrication.export import export_doe
+    from ..fabrication.inputs import DesignInput
+    from ..fabrication.profile import check_power_of_two_levels
+    from ..fabrication.report import CriticalDimensionError
     if args.levels is not None:
         check_power_of_two_levels(args.levels)
     if args.critical_dimension_um is not None and not args.critical_dimension_um > 0:

@@ -7,10 +7,6 @@ import sys
 
 import numpy as np
 
-from ..fabrication.inputs import DesignInput
-from ..fabrication.profile import RadialProfile
-from ..fabrication.tolerance import ToleranceSettings, run_tolerance
-from ..fabrication.tolerance_report import write_outputs
 from ._common import add_config_options, parse_number_list
 
 
@@ -45,6 +41,10 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..fabrication.inputs import DesignInput
+    from ..fabrication.profile import RadialProfile
+    from ..fabrication.tolerance import ToleranceSettings, run_tolerance
+    from ..fabrication.tolerance_report import write_outputs
     design = DesignInput.resolve(args.source)
     cfg = design.config(args.config, args.overrides)
     fab = cfg.fabrication

@@ -51,7 +51,7 @@ class DemoSettings:
 FULL = DemoSettings(
     name="full", budget_s=15 * 60,
     overrides=("train.checkpoint_every=100",),
-    evaluation_estimate_s=170.0, timing_sizes=((256, 256), (600, 800)), timing_repeats=3, cubic_table_depths=24,
+    evaluation_estimate_s=130.0, timing_sizes=((256, 256), (600, 800)), timing_repeats=3, cubic_table_depths=24,
 )
 QUICK = DemoSettings(
     name="quick", budget_s=2 * 60,
