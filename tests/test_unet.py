@@ -185,3 +185,18 @@ def test_bad_arguments_raise_one_line_errors():
         CompensationUNet(SMALL, upsampling="nearest")
     with pytest.raises(EdofprojError, match="same shape"):
         CompensationUNet(SMALL)(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 9))
+
+
+@pytest.mark.parametrize("height, width", [(600, 800), (37, 53)])
+def test_space_to_depth_variant_is_identity_at_start_and_keeps_every_pixel(height, width):
+    torch.manual_seed(0)
+    net = CompensationUNet([8, 12, 16], space_to_depth=4)
+    target, captured = torch.rand(1, 3, height, width), torch.rand(1, 3, height, width)
+    assert torch.equal(net(target, captured), target)
+    # after a perturbation of the head, neighbouring pixels inside one 4x4 block differ: the
+    # pixel shuffle gives every output pixel its own value
+    with torch.no_grad():
+        net.head.weight.normal_(0, 0.1)
+    residual = net(target, captured) - target
+    assert residual.shape == target.shape
+    assert not torch.allclose(residual[..., 0:4:2, 0:4:2], residual[..., 1:4:2, 1:4:2])
