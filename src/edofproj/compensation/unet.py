@@ -44,9 +44,6 @@ UNET_WIDTH_PRESETS: dict[str, list[int]] = {
     "fast": [4, 8, 16, 32, 32, 32, 32],
 }
 
-#: The real-time network: ``space_to_depth`` factor and widths (see ``benchmarks/bench_unet.py``).
-REALTIME_PRESET = {"space_to_depth": 4, "widths": [32, 48, 64, 96]}
-
 DOWNSAMPLING_MODES = ("conv", "maxpool")
 UPSAMPLING_MODES = ("transpose", "bilinear")
 PADDING_MODES = ("replicate", "reflect")
