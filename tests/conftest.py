@@ -1,9 +1,8 @@
-import os
 
 import pytest
 import torch
 
-# Tests are small; one thread keeps them predictable on shared 2-core machines.
+# Tests use small tensors: one thread is fastest for them and predictable on shared 2-core machines.
 torch.set_num_threads(1)
 
 

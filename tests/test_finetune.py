@@ -1,6 +1,5 @@
 """Fine-tuning on measured PSFs: interpolation, refusal, and a real improvement."""
 
-import numpy as np
 import pytest
 import torch
 

@@ -11,15 +11,6 @@ from edofproj.errors import EdofprojError
 from edofproj.perceptual import PerceptualWeightsMissing
 from edofproj.training.losses import CompensationLoss, build_loss
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """Small tensors run fastest (and predictably on a shared machine) on one thread."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
-
-
 VGG16_CONVS = [(0, 64, 3), (2, 64, 64), (5, 128, 64), (7, 128, 128), (10, 256, 128),
                (12, 256, 256), (14, 256, 256), (17, 512, 256), (19, 512, 512), (21, 512, 512),
                (24, 512, 512), (26, 512, 512), (28, 512, 512)]

@@ -18,15 +18,6 @@ from edofproj.evaluation.metrics import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """Small tensors run fastest (and predictably on a shared machine) on one thread."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
-
-
 def photo_pair(height, width, noise=0.08, seed=0, dtype=torch.float64):
     """A crop of skimage's astronaut and a noisy, slightly darkened copy, (1, 3, H, W)."""
     image = data.astronaut()[60:60 + height, 120:120 + width] / 255.0

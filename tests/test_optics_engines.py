@@ -1,6 +1,5 @@
 """Radial vs 2-D engine, convergence in pupil sampling, sampling refusals, gradients."""
 
-import numpy as np
 import pytest
 import torch
 

@@ -3,7 +3,6 @@ network trained for another depth range, and the compensated projections with th
 get better on held-out images."""
 
 import numpy as np
-import pytest
 import torch
 
 from edofproj.config import Config, apply_overrides

@@ -14,15 +14,6 @@ from edofproj.errors import EdofprojError
 SMALL = [4, 8, 8, 16, 16, 16, 16]  # 7 scales, few channels: fast tests
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """Small convolutions run fastest (and predictably on a shared machine) on one thread."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
-
-
 def images(height, width, batch=1, seed=0):
     gen = torch.Generator().manual_seed(seed)
     return (torch.rand(batch, 3, height, width, generator=gen),
