@@ -32,7 +32,8 @@ from scipy import fft as sfft
 
 from ..errors import EdofprojError, SamplingError
 from .geometry import ProjectorGeometry
-from .radial_engine import MAX_DEFOCUS_STEP_RAD, check_depths, check_window, warn_if_blur_exceeds_window
+from .radial_engine import (MAX_DEFOCUS_STEP_RAD, check_depths, check_pupil_samples, check_window,
+                            warn_if_blur_exceeds_window)
 
 
 def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.ndarray:
@@ -50,9 +51,7 @@ class FourierPSFEngine:
                  dtype: torch.dtype = torch.float64, device=None, depth_chunk: int = 2):
         self.geometry = geometry
         self.window = check_window(window)
-        if pupil_samples < 16 or pupil_samples % 2:
-            raise EdofprojError(f"pupil_samples={pupil_samples} must be an even number >= 16")
-        self.M = int(pupil_samples)
+        self.M = check_pupil_samples(pupil_samples)
         self.wavelengths_m = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")

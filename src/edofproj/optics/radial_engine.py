@@ -59,6 +59,13 @@ def check_window(window: int) -> int:
     return int(window)
 
 
+def check_pupil_samples(pupil_samples: int) -> int:
+    """Pupil samples across the diameter: an even number >= 16."""
+    if int(pupil_samples) != pupil_samples or pupil_samples < 16 or pupil_samples % 2:
+        raise EdofprojError(f"pupil_samples={pupil_samples} must be an even number >= 16")
+    return int(pupil_samples)
+
+
 def check_depths(depths_m) -> np.ndarray:
     z = np.atleast_1d(np.asarray(depths_m, dtype=float))
     if z.size == 0 or np.any(~np.isfinite(z)) or np.any(z <= 0):
@@ -142,9 +149,7 @@ class RadialPSFEngine:
                  dtype: torch.dtype = torch.float64, device: torch.device | str | None = None):
         self.geometry = geometry
         self.window = check_window(window)
-        if pupil_samples < 16 or pupil_samples % 2:
-            raise EdofprojError(f"pupil_samples={pupil_samples} must be an even number >= 16")
-        self.pupil_samples = int(pupil_samples)
+        self.pupil_samples = check_pupil_samples(pupil_samples)
         self.wavelengths_m = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")
