@@ -90,3 +90,17 @@ def test_measured_spd_csv(tmp_path):
     assert np.allclose(s.wavelengths_m[np.argmax(s.weights, axis=1)] * 1e9, [640, 550, 430])
     with pytest.raises(EdofprojError, match="cannot read SPD file"):
         Spectrum.from_csv(tmp_path / "missing.csv", [500])
+
+
+def test_a_design_finer_than_the_pupil_sampling_is_refused_with_the_fix(tmp_path):
+    from edofproj.errors import SamplingError
+    from edofproj.optics.geometry import ProjectorGeometry
+    from edofproj.optics.radial_engine import RadialPSFEngine
+
+    doe = build_doe(Config(), "axicon")
+    save_doe(doe, tmp_path / "d.npz", samples=1024)  # 512 rings of 6.84 um
+    fine = load_doe(tmp_path / "d.npz")
+    engine = RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=512)
+    with pytest.raises(SamplingError, match=r"rings 6\.84 um wide .* use pupil_samples >= 1024"):
+        engine.psf(fine, [0.5])
+    RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=1024).psf(fine, [0.5])  # resolved

@@ -12,11 +12,25 @@ The phase added at wavelength lambda is ``2 pi (n(lambda) - 1) h / lambda``.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
+from ..errors import SamplingError
 from ..optics.materials import height_2pi_m, refractive_index
 from .quantization import wrap_and_quantize
+
+
+def require_resolved_feature(feature_m: float, sample_m: float, aperture_radius_m: float, what: str) -> None:
+    """Refuse pupil samples wider than the design's narrowest feature (its rings or zones):
+    the sampling would merge features it cannot resolve. Names the ``pupil_samples`` needed."""
+    if sample_m > feature_m * (1 + 1e-6):
+        need = 2 * math.ceil(aperture_radius_m / feature_m - 1e-9)
+        raise SamplingError(
+            f"{what} {feature_m * 1e6:.2f} um wide but pupil samples are {sample_m * 1e6:.2f} um apart: "
+            f"use pupil_samples >= {need}"
+        )
 
 
 class DOE(nn.Module):

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from ..errors import SamplingError
-from .base import RadialDOE
+from .base import RadialDOE, require_resolved_feature
 
 
 def positional_encoding(u: torch.Tensor, frequencies: int) -> torch.Tensor:
@@ -86,8 +86,5 @@ class FreeRadialDOE(RadialDOE):
         return (self.heights * self.h2pi_m)[idx].to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
-        if ring_width_m > self.aperture_radius_m / self.rings * 1.0001:
-            raise SamplingError(
-                f"the free profile has {self.rings} rings but the pupil is sampled more coarsely: "
-                f"use pupil_samples >= {2 * self.rings}"
-            )
+        require_resolved_feature(self.aperture_radius_m / self.rings, ring_width_m, self.aperture_radius_m,
+                                 f"the free profile's {self.rings} rings are")

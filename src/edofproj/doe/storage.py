@@ -17,7 +17,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
-from .base import DOE, RadialDOE
+from .base import DOE, RadialDOE, require_resolved_feature
 from .quantization import quantize_levels
 
 FORMAT = "edofproj-doe-v1"
@@ -41,15 +41,8 @@ class TabulatedRadialDOE(RadialDOE):
         return self.table_height_m.to(r_m.device)[idx].to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
-        from ..errors import SamplingError
-
         finest = float(torch.min(torch.diff(self.ring_edges_m)))
-        if ring_width_m > finest * 1.0001:
-            n = int(np.ceil(2 * self.aperture_radius_m / finest))
-            raise SamplingError(
-                f"the DOE file has rings {finest * 1e6:.2f} um wide but pupil samples are "
-                f"{ring_width_m * 1e6:.2f} um apart: use pupil_samples >= {n}"
-            )
+        require_resolved_feature(finest, ring_width_m, self.aperture_radius_m, "the DOE file has rings")
 
     def describe(self):
         return f"{self.description} ({len(self.table_height_m)} rings)"

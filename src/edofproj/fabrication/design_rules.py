@@ -22,8 +22,8 @@ import math
 
 import torch
 
-from ..doe.base import RadialDOE
-from ..errors import EdofprojError, SamplingError
+from ..doe.base import RadialDOE, require_resolved_feature
+from ..errors import EdofprojError
 
 
 def block_width_m(min_feature_m: float, aperture_radius_m: float, grid_m: float | None = None) -> float:
@@ -71,12 +71,8 @@ class MinimumFeatureRadialDOE(RadialDOE):
         return self.inner.raw_height_m(centres)[self.block_index(r_m)]
 
     def check_sampling(self, ring_width_m):
-        if ring_width_m > self.block_m * (1 + 1e-6):
-            raise SamplingError(
-                f"the minimum-feature blocks are {self.block_m * 1e6:.2f} um wide but pupil samples are "
-                f"{ring_width_m * 1e6:.2f} um apart: use pupil_samples >= "
-                f"{2 * math.ceil(self.aperture_radius_m / self.block_m)}"
-            )
+        require_resolved_feature(self.block_m, ring_width_m, self.aperture_radius_m,
+                                 "the minimum-feature blocks are")
 
     def describe(self):
         return (f"{self.inner.describe()}, constant over {self.block_m * 1e6:.2f} um blocks "

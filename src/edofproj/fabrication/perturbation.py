@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..doe.base import DOE, RadialDOE
-from ..errors import EdofprojError, SamplingError
+from ..doe.base import DOE, RadialDOE, require_resolved_feature
+from ..errors import EdofprojError
 from .masks import MaskLayer, top_surface_m
 from .profile import RadialProfile
 
@@ -148,12 +148,8 @@ class FabricatedDOE2D(_Fabricated, DOE):
         return height.to(x_m.dtype)
 
     def check_sampling(self, ring_width_m):
-        if ring_width_m > self.nominal_zone_m * (1 + 1e-6):
-            raise SamplingError(
-                f"the design's narrowest zone is {self.nominal_zone_m * 1e6:.2f} um but the 2-D pupil samples are "
-                f"{ring_width_m * 1e6:.2f} um apart: use pupil_samples >= "
-                f"{2 * int(np.ceil(self.aperture_radius_m / self.nominal_zone_m))}"
-            )
+        require_resolved_feature(self.nominal_zone_m, ring_width_m, self.aperture_radius_m,
+                                 "the design's narrowest zone is")
 
     def describe(self):
         return "as-fabricated DOE (2-D)"
