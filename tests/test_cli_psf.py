@@ -47,8 +47,8 @@ def test_monochromatic_psf_has_one_channel(tmp_path):
 ])
 def test_bad_input_one_line_exit_2_no_output(tmp_path, args, message):
     out = tmp_path / "psf.npz"
-    res = run_cli("psf", "--depth-mm", "500", *args, "--out", str(out)) if "--depth-mm" not in args else \
-        run_cli("psf", *args, "--out", str(out))
+    depth = [] if "--depth-mm" in args else ["--depth-mm", "500"]
+    res = run_cli("psf", *depth, *args, "--out", str(out))
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in res.stderr

@@ -13,15 +13,10 @@ from edofproj.config import Config, apply_overrides, dump_config
 from edofproj.training.checkpoint import load_checkpoint
 from edofproj.training.trainer import train
 
-torch.set_num_threads(1)
+from tiny_training import TINY_TRAINING
 
-TINY = [
-    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
-    "psf.pupil_samples=256", "psf.window=11", "psf.depth_min_mm=350", "psf.depth_max_mm=800",
-    "doe.mlp_frequencies=6", "doe.mlp_hidden=16", "doe.mlp_layers=2",
-    "net.widths=[4,8,8]", "data.crop=32", "train.batch_size=4", "train.threads=1",
-    "train.steps=3", "train.checkpoint_every=3", "train.noise_sigma=0.01",
-]
+
+TINY = TINY_TRAINING + ["train.batch_size=4", "train.steps=3", "train.checkpoint_every=3", "train.noise_sigma=0.01"]
 
 
 def tiny_config(*extra: str) -> Config:

@@ -19,15 +19,10 @@ from edofproj.training.run_log import COLUMNS
 from edofproj.training.runs import build_net, build_run_doe
 from edofproj.training.trainer import load_run, seed_everything, train
 
-torch.set_num_threads(1)
+from tiny_training import TINY_TRAINING
 
-TINY = [
-    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
-    "psf.pupil_samples=256", "psf.window=11", "psf.depth_min_mm=350", "psf.depth_max_mm=800",
-    "doe.mlp_frequencies=6", "doe.mlp_hidden=16", "doe.mlp_layers=2",
-    "net.widths=[4,8,8]", "data.crop=32", "train.batch_size=2", "train.threads=1",
-    "train.steps=8", "train.checkpoint_every=2", "train.keep_checkpoints=2", "train.psf_table_depths=16",
-]
+
+TINY = TINY_TRAINING + ["train.batch_size=2", "train.steps=8", "train.checkpoint_every=2", "train.keep_checkpoints=2", "train.psf_table_depths=16"]
 
 
 def tiny_config(*extra: str) -> Config:

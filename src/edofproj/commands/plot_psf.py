@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ..errors import EdofprojError
 from ._common import add_config_options, config_from_args
-from .psf import add_optics_options, depths_from_args, optics_overrides
+from .psf import add_optics_options, depths_from_args, psf_overrides
 
 
 def register(subparsers) -> None:
@@ -27,10 +27,7 @@ def run(args) -> int:
     from ..evaluation.psf_plots import plot_psf_comparison
     from ..optics.psf_bank import simulator_from_config
 
-    extra = optics_overrides(args)
-    if args.window is not None:
-        extra.append(f"psf.window={args.window}")
-    cfg = config_from_args(args, extra)
+    cfg = config_from_args(args, psf_overrides(args))
     specs = list(args.doe) or ["lens", cfg.doe.kind]
     if len(specs) == 1:
         specs = ["lens"] + specs

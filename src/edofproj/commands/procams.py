@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import EdofprojError
 from ._common import add_config_options, config_from_args
-from .psf import add_optics_options, optics_overrides
+from .psf import add_optics_options, psf_overrides
 
 
 def register(subparsers) -> None:
@@ -147,10 +147,7 @@ def run_simulate(args) -> int:
     from ..procams.patterns import PatternManifest
     from ..procams.virtual import VirtualProCams, simulate_captures
 
-    extra = optics_overrides(args)
-    if args.window is not None:
-        extra.append(f"psf.window={args.window}")
-    cfg = config_from_args(args, extra)
+    cfg = config_from_args(args, psf_overrides(args))
     if args.depth_mm <= 0:
         raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
     if len(args.gamma) not in (1, 3) or any(not (0.1 <= g <= 10) for g in args.gamma):
@@ -226,10 +223,7 @@ def run_estimate_psf(args) -> int:
     for flag, path in (("--out", args.out), ("--patch-psfs", args.patch_psfs)):
         if path is not None and not str(path).endswith(".npz"):
             raise EdofprojError(f"{flag} '{path}' must end in .npz")
-    extra = optics_overrides(args)
-    if args.window is not None:
-        extra.append(f"psf.window={args.window}")
-    cfg = config_from_args(args, extra)
+    cfg = config_from_args(args, psf_overrides(args))
     depth_mm = _depth_mm(args)
     manifest = PatternManifest.load(args.patterns)
     calibration = ProCamsCalibration.load(args.calib)

@@ -20,10 +20,14 @@ def add_optics_options(parser) -> None:
     parser.add_argument("--width-px", type=int, help="projector image width, pixels")
 
 
-def optics_overrides(args) -> list[str]:
-    pairs = (("aperture_mm", args.aperture_mm), ("focus_mm", args.focus_mm),
-             ("throw_ratio", args.throw_ratio), ("width_px", args.width_px))
-    return [f"optics.{key}={value}" for key, value in pairs if value is not None]
+def psf_overrides(args) -> list[str]:
+    """Config overrides from the optics options and, where the command has them, ``--window``,
+    ``--pupil-samples`` and ``--engine``."""
+    pairs = (("optics.aperture_mm", "aperture_mm"), ("optics.focus_mm", "focus_mm"),
+             ("optics.throw_ratio", "throw_ratio"), ("optics.width_px", "width_px"),
+             ("psf.window", "window"), ("psf.pupil_samples", "pupil_samples"), ("psf.engine", "engine"))
+    values = ((key, getattr(args, attr, None)) for key, attr in pairs)
+    return [f"{key}={value}" for key, value in values if value is not None]
 
 
 def depths_from_args(depth_specs, cfg) -> np.ndarray:
@@ -64,14 +68,7 @@ def run(args) -> int:
     from ..optics.psf_bank import simulator_from_config
     from ..optics.spectra import check_wavelengths_nm
 
-    extra = optics_overrides(args)
-    if args.window is not None:
-        extra.append(f"psf.window={args.window}")
-    if args.pupil_samples is not None:
-        extra.append(f"psf.pupil_samples={args.pupil_samples}")
-    if args.engine is not None:
-        extra.append(f"psf.engine={args.engine}")
-    cfg = config_from_args(args, extra)
+    cfg = config_from_args(args, psf_overrides(args))
     if args.wavelength_nm is not None:
         check_wavelengths_nm([args.wavelength_nm])
     depths_m = depths_from_args(args.depth_mm, cfg)
