@@ -152,3 +152,31 @@ def test_crop_larger_than_every_image_is_a_user_error():
     source = PhotoSource([("coords", coordinate_image(20, 30))], crop=16)
     with pytest.raises(EdofprojError, match="larger than every training image"):
         source.sample(1, crop=24)
+
+
+def test_dead_leaves_fraction_mixes_each_sample_and_is_validated():
+    from edofproj.config import ConfigError
+    from edofproj.training.data import MixedSource, build_training_source
+
+    class Constant:
+        crop = 8
+
+        def __init__(self, value):
+            self.value = value
+
+        def sample(self, batch_size, crop=None, generator=None):
+            return torch.full((batch_size, 3, crop or self.crop, crop or self.crop), self.value)
+
+    def fraction_of_leaves(fraction, n=400):
+        batch = MixedSource(Constant(0.0), Constant(1.0), fraction).sample(n, generator=torch.Generator().manual_seed(5))
+        return batch[:, 0, 0, 0].mean().item()
+
+    assert fraction_of_leaves(0.0) == 0.0
+    assert fraction_of_leaves(1.0) == 1.0
+    assert abs(fraction_of_leaves(0.3) - 0.3) < 0.07  # binomial(400, 0.3): 3 sigma = 0.069
+    source = build_training_source(dataclasses.replace(DataConfig(), crop=32, dead_leaves_fraction=0.5), seed=3)
+    assert isinstance(source, MixedSource) and source.sample(4).shape == (4, 3, 32, 32)
+    with pytest.raises(ConfigError, match="dead_leaves_fraction"):
+        dataclasses.replace(DataConfig(), dead_leaves_fraction=1.5).validate()
+    with pytest.raises(ConfigError, match="data.source=builtin or folder"):
+        dataclasses.replace(DataConfig(), source="dead-leaves", dead_leaves_fraction=0.5).validate()

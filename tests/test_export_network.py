@@ -58,6 +58,18 @@ def test_torchscript_matches_pytorch(tmp_path):
         assert torch.allclose(module(target, captured), net(target, captured), atol=1e-5)
 
 
+@pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning")
+def test_prefilter_network_exports_to_torchscript_not_onnx(tmp_path):
+    torch.manual_seed(2)
+    net = CompensationUNet([4, 8], prefilter_bins=8).eval()
+    torch.nn.init.normal_(net.prefilter.gain, std=0.1)
+    torch.nn.init.normal_(net.head.weight, std=0.3)
+    assert export_network(net, tmp_path / "net.pt", "torchscript", height=32, width=40) < 1e-4
+    with pytest.raises(EdofprojError, match="use --format torchscript"):
+        export_network(net, tmp_path / "net.onnx", "onnx", height=32, width=40)
+    assert not (tmp_path / "net.onnx").exists()
+
+
 def test_onlineprodeb_exports_to_onnx(tmp_path):
     torch.manual_seed(0)
     net = OnlineProDebNet.from_preset("fast").eval()

@@ -190,7 +190,9 @@ class NetConfig:
     ``edofproj.compensation.unet.UNET_WIDTH_PRESETS``. ``architecture``: ``unet`` (ours) or
     ``onlineprodeb`` (the baseline re-implementation, its default preset; ``widths`` unused).
     ``space_to_depth``: run the U-Net on ``s x s`` pixel blocks at ``1/s`` resolution (the
-    real-time variant; 1 = the paper's full-resolution network).
+    real-time variant; 1 = the paper's full-resolution network). ``prefilter_bins``: > 0 adds a
+    learned rotationally symmetric Fourier filter of the target in front of the U-Net
+    (:mod:`edofproj.compensation.radial_filter`, that many radial nodes); 0 = the paper's U-Net.
     """
 
     widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -200,10 +202,13 @@ class NetConfig:
     upsampling: str = "transpose"
     padding_mode: str = "replicate"
     space_to_depth: int = 1
+    prefilter_bins: int = 0
 
     def validate(self) -> None:
         if self.space_to_depth < 1:
             raise ConfigError(f"net.space_to_depth={self.space_to_depth} must be >= 1")
+        if self.prefilter_bins != 0 and self.prefilter_bins < 2:
+            raise ConfigError(f"net.prefilter_bins={self.prefilter_bins} must be 0 (none) or >= 2")
         if (
             len(self.widths) < 2
             or any(isinstance(w, bool) or not isinstance(w, (int, float)) for w in self.widths)
@@ -248,7 +253,8 @@ class DataConfig:
     Held-out test images: a deterministic ``test_fraction`` of the built-in photographs or of
     ``folder`` (see :mod:`edofproj.training.data`), or all of ``test_folder`` when given
     (then ``folder`` is used for training in full). ``max_test_images``: 0 keeps all.
-    Dead leaves: disk radii with density ~ r^-3 between the two radii (pixels).
+    Dead leaves: disk radii with density ~ r^-3 between the two radii (pixels);
+    ``dead_leaves_fraction`` > 0 mixes that share of dead-leaves images into a photo source.
     """
 
     source: str = "builtin"
@@ -259,6 +265,7 @@ class DataConfig:
     max_test_images: int = 0
     dead_leaves_min_radius_px: float = 1.0
     dead_leaves_max_radius_px: float = 128.0
+    dead_leaves_fraction: float = 0.0
 
     def validate(self) -> None:
         choices = ("builtin", "dead-leaves", "folder")
@@ -274,6 +281,11 @@ class DataConfig:
             raise ConfigError("data.test_fraction must be in (0, 1)")
         if self.max_test_images < 0:
             raise ConfigError(f"data.max_test_images={self.max_test_images} must be >= 0 (0: all)")
+        if not (0.0 <= self.dead_leaves_fraction <= 1.0):
+            raise ConfigError(f"data.dead_leaves_fraction={self.dead_leaves_fraction} must be in [0, 1]")
+        if self.dead_leaves_fraction > 0 and self.source == "dead-leaves":
+            raise ConfigError("data.dead_leaves_fraction mixes dead leaves into photographs: use it with "
+                              "data.source=builtin or folder")
         _positive(self, "dead_leaves_min_radius_px", "data.dead_leaves_min_radius_px")
         if not (self.dead_leaves_min_radius_px >= 0.5):
             raise ConfigError(

@@ -109,6 +109,9 @@ def export_network(net: torch.nn.Module, path: str | Path, format: str = "onnx",
         raise EdofprojError(f"export size {height}x{width} must be positive")
     if format == "onnx":
         _require_onnx()
+        if getattr(net, "prefilter", None) is not None:
+            raise EdofprojError("ONNX export cannot hold the network's radial Fourier pre-filter "
+                                "(net.prefilter_bins > 0; torch's ONNX exporter has no FFT): use --format torchscript")
     net = copy.deepcopy(net).cpu().float().eval()
     worst = float("nan")
     with atomic_path(path) as tmp:

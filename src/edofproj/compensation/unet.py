@@ -19,6 +19,13 @@ channels at ``1/s`` resolution), the U-Net runs at ``1/s`` resolution, and its `
 output channels are rearranged back (``pixel_shuffle``) into the full-resolution residual.
 Every output pixel still gets its own value; the cost of the finest scale drops by ``s^2``.
 
+Wide-filter variant (``prefilter_bins = N > 0``): a learned rotationally symmetric linear
+filter ``J = h * I`` (:class:`~edofproj.compensation.radial_filter.RadialFourierFilter`, one
+real FFT pair, starts as the identity) is applied to the target first; the U-Net sees
+``[I, I*, J]`` and predicts the residual on top of ``J``:
+
+    projector_input = J + f([I, I*, J])
+
 Images of any size are padded on the bottom and right to a multiple of ``s 2**(S-1)``
 (replicate or reflect) and the output is cropped back. The output is *not* clamped: the
 caller clamps to the projector's ``[0, 1]`` range before projecting.
@@ -33,6 +40,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
+from .radial_filter import RadialFourierFilter
 
 #: Named channel widths (one entry per scale, 7 scales as in the paper).
 #: ``paper``: widths in the range shown in the paper's Fig. 5; ``default``: the
@@ -108,6 +116,8 @@ class CompensationUNet(nn.Module):
             ``replicate`` or ``reflect``.
         space_to_depth: ``s >= 1``; with ``s > 1`` the U-Net runs at ``1/s`` resolution on
             ``s x s`` pixel blocks (pixel unshuffle / shuffle), for real-time use.
+        prefilter_bins: ``N > 0`` adds the learned radial Fourier pre-filter with ``N``
+            nodes (module docstring); 0 = the paper's plain U-Net.
     """
 
     def __init__(
@@ -120,6 +130,7 @@ class CompensationUNet(nn.Module):
         upsampling: str = "transpose",
         padding_mode: str = "replicate",
         space_to_depth: int = 1,
+        prefilter_bins: int = 0,
     ) -> None:
         super().__init__()
         if int(space_to_depth) != space_to_depth or space_to_depth < 1:
@@ -150,8 +161,12 @@ class CompensationUNet(nn.Module):
         self.padding_mode = padding_mode
         self.size_multiple = self.space_to_depth * 2 ** (len(widths) - 1)
         block = self.space_to_depth**2
+        if int(prefilter_bins) != prefilter_bins or prefilter_bins < 0:
+            raise EdofprojError(f"U-Net prefilter_bins={prefilter_bins} must be an integer >= 0 (0: none)")
+        self.prefilter = RadialFourierFilter(out_channels, int(prefilter_bins)) if prefilter_bins else None
+        unet_inputs = in_channels + (out_channels if self.prefilter is not None else 0)
 
-        self.encoder = nn.ModuleList([ConvBlock(in_channels * block, widths[0], leaky_slope)])
+        self.encoder = nn.ModuleList([ConvBlock(unet_inputs * block, widths[0], leaky_slope)])
         self.down = nn.ModuleList()
         for coarse, fine in zip(widths[1:], widths[:-1]):
             self.down.append(_downsampling(fine, downsampling, leaky_slope))
@@ -176,10 +191,12 @@ class CompensationUNet(nn.Module):
             upsampling=net_cfg.upsampling,
             padding_mode=net_cfg.padding_mode,
             space_to_depth=net_cfg.space_to_depth,
+            prefilter_bins=net_cfg.prefilter_bins,
         )
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
-        """``target + f(concat(target, captured))``, same size as ``target``, unclamped.
+        """``target + f(concat(target, captured))`` (with a pre-filter ``J``: ``J + f(concat(target,
+        captured, J))``), same size as ``target``, unclamped.
 
         ``target`` and ``captured`` are ``(B, C, H, W)`` with ``2 * C == in_channels`` channels
         in total; any ``H, W >= 1``.
@@ -190,7 +207,9 @@ class CompensationUNet(nn.Module):
                 f"{tuple(target.shape)} and {tuple(captured.shape)}"
             )
         height, width = target.shape[-2], target.shape[-1]
-        x = torch.cat([target, captured], dim=1)
+        base = target if self.prefilter is None else self.prefilter(target)
+        inputs = [target, captured] if self.prefilter is None else [target, captured, base]
+        x = torch.cat(inputs, dim=1)
         x = self._pad_to_multiple(x, height, width)
         if self.space_to_depth > 1:
             x = F.pixel_unshuffle(x, self.space_to_depth)
@@ -208,7 +227,7 @@ class CompensationUNet(nn.Module):
         if self.space_to_depth > 1:
             residual = F.pixel_shuffle(residual, self.space_to_depth)
         residual = residual[..., :height, :width]
-        return target + residual
+        return base + residual
 
     def _pad_to_multiple(self, x: torch.Tensor, height, width) -> torch.Tensor:
         """Pad bottom/right so that height and width are multiples of ``2**(scales-1)``."""
