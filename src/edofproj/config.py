@@ -299,13 +299,18 @@ class DataConfig:
             )
 
 
+DEPTH_SPACINGS = ("depth", "defocus")
+
+
 @dataclass
 class TrainConfig:
     """Joint training of DOE and compensation network (paper Sec. 4.1, Fig. 2).
 
     Each step draws ``batch_size`` crops and one screen depth per crop in
     ``[psf.depth_min_mm, psf.depth_max_mm]`` (``depth_sampling``: ``uniform`` or
-    ``stratified`` over the batch), and updates the DOE (Adam, ``lr_optics``) and the network
+    ``stratified`` over the batch; ``depth_spacing``: ``depth``, uniform in ``z``, or
+    ``defocus``, uniform in ``1/z``, i.e. in defocus, which puts half the draws of 300-800 mm
+    below 436 mm where the blur grows fastest), and updates the DOE (Adam, ``lr_optics``) and the network
     (Adam, ``lr_net``). Both learning rates decay exponentially to ``lr_final_fraction`` of
     their start over ``steps`` (the paper: x0.99 per iteration for 150 iterations);
     gradients of the DOE and of the network are each clipped to the norm ``grad_clip``
@@ -330,6 +335,7 @@ class TrainConfig:
     train_doe: bool = True
     train_net: bool = True
     depth_sampling: str = "uniform"
+    depth_spacing: str = "depth"
     psf_table_depths: int = 128
     noise_sigma: float = 0.0
     quantize_capture: bool = False
@@ -351,6 +357,8 @@ class TrainConfig:
             raise ConfigError("train.noise_sigma must be >= 0")
         if self.depth_sampling not in ("uniform", "stratified"):
             raise ConfigError(_unknown_choice("train.depth_sampling", self.depth_sampling, ("uniform", "stratified")))
+        if self.depth_spacing not in DEPTH_SPACINGS:
+            raise ConfigError(_unknown_choice("train.depth_spacing", self.depth_spacing, DEPTH_SPACINGS))
         if self.psf_table_depths < 2:
             raise ConfigError("train.psf_table_depths must be >= 2")
         if self.threads < 0:

@@ -37,7 +37,7 @@ def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray
     return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
 
 
-def network_from_widths(spec: str) -> torch.nn.Module:
+def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0) -> torch.nn.Module:
     """A :class:`CompensationUNet` of a named width preset or comma-separated channel counts."""
     from ..compensation.unet import CompensationUNet, width_preset
 
@@ -45,7 +45,7 @@ def network_from_widths(spec: str) -> torch.nn.Module:
         widths = [int(w) for w in spec.split(",")]
     else:
         widths = width_preset(spec)
-    return CompensationUNet(widths)
+    return CompensationUNet(widths, space_to_depth=space_to_depth, prefilter_bins=prefilter_bins)
 
 
 def devices(requested: str) -> list[str]:
@@ -65,6 +65,10 @@ def register(subparsers) -> None:
     p.add_argument("--run", default=None, help="time the trained network of this run directory")
     p.add_argument("--widths", default=None,
                    help="U-Net width preset (default, fast, paper) or channel counts, e.g. 8,16,32 (without --run)")
+    p.add_argument("--space-to-depth", type=int, default=1,
+                   help="run the untrained U-Net of --widths on s x s pixel blocks (without --run)")
+    p.add_argument("--prefilter-bins", type=int, default=0,
+                   help="add the radial Fourier pre-filter to the untrained U-Net of --widths (without --run)")
     p.add_argument("--methods", default="wiener,unet",
                    help=f"comma-separated subset of {', '.join(METHODS)} (default: wiener,unet)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
@@ -93,8 +97,9 @@ def run(args) -> int:
         if args.threads < 1:
             raise EdofprojError("--threads must be >= 1")
         torch.set_num_threads(args.threads)
-    if args.run and args.widths:
-        raise EdofprojError("--widths and --run exclude each other (a run has its own network)")
+    if args.run and (args.widths or args.space_to_depth != 1 or args.prefilter_bins):
+        raise EdofprojError("--widths/--space-to-depth/--prefilter-bins and --run exclude each other "
+                            "(a run has its own network)")
 
     cfg = Config()
     net = None
@@ -108,7 +113,7 @@ def run(args) -> int:
             trained = load_run(args.run)
             cfg, net, net_label = trained.cfg, trained.net, trained.cfg.net.architecture
         else:
-            net = network_from_widths(args.widths or "default")
+            net = network_from_widths(args.widths or "default", args.space_to_depth, args.prefilter_bins)
     psf = disk_psf(args.window if args.window is not None else cfg.psf.window)
 
     networks = []
@@ -130,6 +135,10 @@ def run(args) -> int:
             for index, (label, network) in enumerate(networks):
                 cases.append(timing.network_torch_case(network, label, device))
                 if args.no_onnx:
+                    continue
+                if getattr(network, "prefilter", None) is not None:
+                    print(f"edofproj: note: {label} has a Fourier pre-filter, which ONNX export cannot hold: "
+                          f"skipping {label}/onnxruntime", file=sys.stderr)
                     continue
                 if not timing.onnx_available(device):
                     print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",

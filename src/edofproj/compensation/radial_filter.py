@@ -14,7 +14,9 @@ values moves ``H`` by up to ``GAIN_SCALE * lr``, so gains of a few units (a typi
 filter) are reached within a short training run at the network's learning rate.
 ``pad`` replicates the border by
 ``margin_px`` pixels on every side before the FFT and the result is cropped back, so the
-filter's circular wrap-around falls into the margin.
+filter's circular wrap-around falls into the margin. (The padded size is not rounded up to a
+fast FFT length: the padding must not depend on the frame size, or a traced TorchScript export
+would only be valid at its example size.)
 
 A U-Net has to assemble a wide inverse filter from features that its down-sampling blurs;
 the defocus PSFs of the projector are up to ~30 px wide, and their inverse filters wider.

@@ -17,6 +17,10 @@ Depths (paper Sec. 4.1, "arbitrary depths ranging from 300 mm to 800 mm"):
 * ``stratified``: z_i = z_min + (i + u_i) / B (z_max - z_min):  one draw in each of B
   equal sub-ranges, so every batch covers the whole range (lower-variance gradients for
   small batches; still uniform marginally).
+
+With ``spacing="defocus"`` the same ``u`` is spread uniformly in inverse depth (defocus,
+diopters) instead: ``1/z = 1/z_min + u (1/z_max - 1/z_min)``. The blur-disk diameter grows
+like ``|1/z - 1/v|``, so this spends equal effort per unit of defocus.
 """
 
 from __future__ import annotations
@@ -77,16 +81,21 @@ class BatchShard:
 
 
 def sample_depths_m(seed: int, step: int, shard: BatchShard, depth_min_m: float, depth_max_m: float,
-                    mode: str = "uniform") -> np.ndarray:
+                    mode: str = "uniform", spacing: str = "depth") -> np.ndarray:
     """Screen depths (m) of the shard's samples at ``step`` (see the module docstring)."""
     if mode not in DEPTH_SAMPLING:
         raise EdofprojError(f"depth sampling '{mode}' is not one of {', '.join(DEPTH_SAMPLING)}")
+    if spacing not in ("depth", "defocus"):
+        raise EdofprojError(f"depth spacing '{spacing}' is not one of depth, defocus")
     depths = []
     for i in shard.indices:
         u = float(torch.rand((), generator=sample_generator(seed, step, i, DEPTH_STREAM), dtype=torch.float64))
         if mode == "stratified":
             u = (i + u) / shard.global_size
-        depths.append(depth_min_m + u * (depth_max_m - depth_min_m))
+        if spacing == "defocus":
+            depths.append(1.0 / (1.0 / depth_min_m + u * (1.0 / depth_max_m - 1.0 / depth_min_m)))
+        else:
+            depths.append(depth_min_m + u * (depth_max_m - depth_min_m))
     return np.asarray(depths, dtype=np.float64)
 
 

@@ -233,7 +233,7 @@ class _Session:
         cfg, step = self.cfg, self.step + 1
         device = self.group.device
         depths = sample_depths_m(cfg.train.seed, step, self.shard, cfg.psf.depth_min_mm * 1e-3,
-                                 cfg.psf.depth_max_mm * 1e-3, cfg.train.depth_sampling)
+                                 cfg.psf.depth_max_mm * 1e-3, cfg.train.depth_sampling, cfg.train.depth_spacing)
         images = sample_images(self.source, cfg.train.seed, step, self.shard, cfg.data.crop).to(device)
         noise = None
         if cfg.train.noise_sigma > 0:
