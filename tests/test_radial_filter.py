@@ -66,3 +66,12 @@ def test_config_and_bad_values():
         load_config("cpu", ["net.prefilter_bins=1"])
     with pytest.raises(EdofprojError, match="bins"):
         RadialFourierFilter(3, 1)
+
+
+def test_inference_cache_follows_parameter_updates():
+    layer = RadialFourierFilter(3, 6, margin_px=2)
+    image = torch.rand(1, 3, 16, 16)
+    with torch.no_grad():
+        assert torch.allclose(layer(image), image, atol=1e-6)
+        layer.gain.fill_(0.1)  # an in-place update (as an optimizer step) must not reuse the old H
+        assert torch.allclose(layer(image), 2 * image, atol=1e-5)

@@ -76,11 +76,22 @@ class RadialFourierFilter(nn.Module):
             raise EdofprojError(f"radial filter margin_px={margin_px} must be an integer >= 0")
         self.margin_px = int(margin_px)
         self.gain = nn.Parameter(torch.zeros(int(channels), int(bins)))
+        self._cache: dict = {}
 
     def transfer_function(self, height: int, width: int) -> torch.Tensor:
-        """``H_c(rho)`` on the ``rfft2`` grid of a ``height x width`` frame: ``(C, height, width // 2 + 1)``."""
+        """``H_c(rho)`` on the ``rfft2`` grid of a ``height x width`` frame: ``(C, height, width // 2 + 1)``.
+
+        Without gradients (inference) it is kept per frame size and parameter version, so a video
+        stream computes it once."""
+        reuse = not torch.is_grad_enabled() and not torch.jit.is_tracing()
+        key = (height, width, self.gain.device, self.gain._version)
+        if reuse and key in self._cache:
+            return self._cache[key]
         rho = radial_frequency(height, width, self.gain.device)
-        return 1 + hat_interpolation(GAIN_SCALE * self.gain, rho)
+        transfer = 1 + hat_interpolation(GAIN_SCALE * self.gain, rho)
+        if reuse:
+            self._cache = {key: transfer}
+        return transfer
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """Filter ``image (B, C, H, W)``; same shape out."""
