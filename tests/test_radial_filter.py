@@ -75,3 +75,10 @@ def test_inference_cache_follows_parameter_updates():
         assert torch.allclose(layer(image), image, atol=1e-6)
         layer.gain.fill_(0.1)  # an in-place update (as an optimizer step) must not reuse the old H
         assert torch.allclose(layer(image), 2 * image, atol=1e-5)
+
+
+def test_network_description_names_the_prefilter():
+    from edofproj.compensation.unet import describe_network
+
+    assert describe_network(load_config("cpu").net) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
+    assert describe_network(load_config("paper").net) == "U-Net 32-256 (7 scales)"

@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..compensation.unet import describe_network
 from ..config import apply_overrides, to_dict
 from ..errors import EdofprojError
 from .designs import OpticalDesign
@@ -198,7 +199,10 @@ class MethodBuilder:
         else:
             source = baseline if baseline is not None else self.run
             compensate = NetworkCompensation(source.net)
-            detail = f"{source.cfg.net.architecture}, {source.step} steps ({source.run_dir})"
+            loss = source.cfg.loss
+            perceptual = f" + {loss.beta:g} (1 - {loss.perceptual.upper()})" if loss.beta > 0 and loss.perceptual != "none" else ""
+            detail = (f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
+                      f"({source.run_dir})")
         return PreparedMethod(spec, design, compensate, detail)
 
 
