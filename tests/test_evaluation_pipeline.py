@@ -163,3 +163,15 @@ def test_compensate_with_a_capture_file(runs, tmp_path):
     assert main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"),
                  "--capture", str(tmp_path / "capture.png"), "--out", str(tmp_path / "proj.png"), "--bits", "16"]) == 0
     assert read_image(tmp_path / "proj.png").shape == (3, 24, 30)
+
+
+def test_score_range_defaults_to_the_training_range_and_is_validated():
+    from edofproj.config import ConfigError
+    from edofproj.evaluation.pipeline import score_range_mm
+
+    assert score_range_mm(load_config(None, ["psf.depth_min_mm=275"])) == (275.0, 800.0)
+    assert score_range_mm(load_config(None, ["psf.depth_min_mm=275", "evaluation.score_range_mm=[300,800]"])) == (300.0, 800.0)
+    with pytest.raises(ConfigError, match="score_range_mm"):
+        load_config(None, ["evaluation.score_range_mm=[800,300]"])
+    with pytest.raises(ConfigError, match="wiener_tuning_metric"):
+        load_config(None, ["evaluation.wiener_tuning_metric=mse"])

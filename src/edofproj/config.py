@@ -379,7 +379,11 @@ class EvaluationConfig:
     resolution (the pixel scale of the training crops; smaller images are scaled up to cover),
     ``cover`` scales each image to cover the size first. ``cls_iterations``: iterations of the
     box-constrained solver. The Wiener NSR is tuned on ``wiener_tuning_images`` training crops
-    at ``wiener_tuning_depths`` depths of the training range.
+    at ``wiener_tuning_depths`` depths of the scored range. ``score_range_mm``: ``[near, far]``
+    over which summaries and the demo's bars take the mean and the worst depth (``[]``: the
+    training range ``psf.depth_min_mm`` - ``psf.depth_max_mm``). ``wiener_tuning_metric``: what
+    the NSR maximizes, ``ssim`` (the metric of the demo's bars, so the baseline is as strong as
+    it can be there) or ``psnr`` (the MSE-optimal choice).
     """
 
     depths_mm: list = field(
@@ -394,8 +398,20 @@ class EvaluationConfig:
     cls_iterations: int = 100
     wiener_tuning_images: int = 8
     wiener_tuning_depths: int = 6
+    score_range_mm: list = field(default_factory=list)
+    wiener_tuning_metric: str = "ssim"
 
     def validate(self) -> None:
+        if self.wiener_tuning_metric not in ("ssim", "psnr"):
+            raise ConfigError(_unknown_choice("evaluation.wiener_tuning_metric", self.wiener_tuning_metric,
+                                              ("ssim", "psnr")))
+        if self.score_range_mm and (
+                len(self.score_range_mm) != 2
+                or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d)
+                       for d in self.score_range_mm)
+                or not 0 < self.score_range_mm[0] < self.score_range_mm[1]):
+            raise ConfigError(f"evaluation.score_range_mm={self.score_range_mm} must be [near, far] with "
+                              "0 < near < far (mm), or [] (the training range)")
         if not self.depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.depths_mm):
             raise ConfigError("evaluation.depths_mm needs one or more positive depths")
         if not self.comparison_depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.comparison_depths_mm):

@@ -14,8 +14,9 @@ The methods, by name:
 name                 optics            compensation
 ==================== ================= =====================================================
 ``lens``             bare lens         none (``x = I``)
-``lens+wiener``      bare lens         Wiener deconvolution with the known PSF; NSR tuned on
-                                       *training* images over the training depth range
+``lens+wiener``      bare lens         Wiener deconvolution with the known PSF; NSR tuned (for
+                                       SSIM by default) on *training* images over the scored
+                                       depth range
 ``lens+cls``         bare lens         box-constrained least squares with the known PSF
 ``lens+net``         bare lens         our U-Net trained on lens-only PSFs (a separate run)
 ``lens+onlineprodeb`` bare lens        OnlineProDeb (re-implementation), trained on the same
@@ -180,10 +181,15 @@ def training_crops(cfg, count: int, seed: int = 0) -> torch.Tensor:
 
 
 def tune_nsr(design, train_images: torch.Tensor, cfg) -> tuple[float, dict[float, float]]:
-    """The Wiener NSR of ``design`` that maximizes the mean PSNR of the compensated projection
-    of the *training* crops over ``evaluation.wiener_tuning_depths`` depths of the training range."""
+    """The Wiener NSR of ``design`` that maximizes the mean ``evaluation.wiener_tuning_metric``
+    (SSIM or PSNR) of the compensated projection of the *training* crops over
+    ``evaluation.wiener_tuning_depths`` depths of the scored range."""
     from ..compensation.wiener import tune_wiener_nsr
     from ..imaging.projection import project
+    from .metrics import ssim
+    from .pipeline import score_range_mm
 
-    depths_m = np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3
-    return tune_wiener_nsr(train_images, design.psf(depths_m), project)
+    near_mm, far_mm = score_range_mm(cfg)
+    depths_m = np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3
+    metric = ssim if cfg.evaluation.wiener_tuning_metric == "ssim" else "psnr"
+    return tune_wiener_nsr(train_images, design.psf(depths_m), project, metric=metric)

@@ -209,6 +209,15 @@ class MethodBuilder:
 # --------------------------------------------------------------------------- evaluation
 
 
+def score_range_mm(cfg) -> tuple[float, float]:
+    """Depths (mm) over which means and worst depths are taken: ``evaluation.score_range_mm``, or
+    the training range when that is empty."""
+    if cfg.evaluation.score_range_mm:
+        near, far = cfg.evaluation.score_range_mm
+        return float(near), float(far)
+    return float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm)
+
+
 def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_dir: str | Path | None = None,
                  depths_mm: Sequence[float] | None = None, methods: Sequence[str] | None = None,
                  baselines_dir: str | Path | None = None, overrides: Sequence[str] = (),
@@ -233,7 +242,7 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     run = load_run(run_path)
     cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
-    range_mm = (float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm))
+    range_mm = score_range_mm(cfg)
     images = evaluation_images(cfg, images_dir)
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
