@@ -45,11 +45,12 @@ def _method_style(index: int, name: str) -> dict:
 
 
 def plot_metric_vs_depth(table: MetricsTable, metric: str, path: str | Path,
-                         design_range_mm: tuple[float, float] | None = None, title: str | None = None) -> None:
-    """Mean ``metric`` over the images against depth, one line per method."""
+                         scored_range_mm: tuple[float, float] | None = None, title: str | None = None) -> None:
+    """Mean ``metric`` over the images against depth, one line per method; the depth range the
+    summaries score (``evaluation.score_range_mm``) shaded."""
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    if design_range_mm is not None:
-        ax.axvspan(*design_range_mm, color="0.92", zorder=0, label="training range")
+    if scored_range_mm is not None:
+        ax.axvspan(*scored_range_mm, color="0.92", zorder=0, label="scored range")
     for index, method in enumerate(table.methods()):
         means = table.per_depth_means(method, metric)
         depths = sorted(means)
@@ -123,8 +124,10 @@ def plot_comparison(target: np.ndarray, examples: dict, depths_mm: Sequence[floa
     for z in depths_mm:
         tiles = [(m, *examples[(float(z), m)]) for m in methods if (float(z), m) in examples]
         rows.append((f"z = {z:.0f} mm", target, tiles))
+    has_lpips = any("lpips" in scores for _, _, row in rows for _, _, scores in row)
+    legend = "P = PSNR dB, S = SSIM" + (", L = LPIPS" if has_lpips else "")
     _image_grid(rows, path, f"Simulated projections{' of ' + image_name if image_name else ''} "
-                            "(P = PSNR dB, S = SSIM, L = LPIPS; best of each row in red)")
+                            f"({legend}; best of each row in red)")
 
 
 def plot_tilted(target: np.ndarray, examples: dict, methods: Sequence[str], path: str | Path,

@@ -5,7 +5,7 @@ present on the machine, ``lpips,dists``. A perceptual metric that cannot be comp
 out* (never written as 0). The tilted screen has its own table (``tilted_metrics.csv``:
 ``method,near_mm,far_mm,image,...``).
 
-Statistics over a depth range ``[lo, hi]`` (the training range, 300-800 mm for the presets):
+Statistics over a depth range ``[lo, hi]`` (``evaluation.score_range_mm``: 300-800 mm for the presets):
 with ``m(z)`` the mean of a metric over the images at depth ``z``,
 
     mean  = (1 / |Z|) sum_{z in Z} m(z),          worst = min_{z in Z} m(z)   (max for lower-is-better)

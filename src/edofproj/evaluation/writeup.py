@@ -109,7 +109,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     for metric in ev.table.metrics:
         if f"{metric}_vs_depth" in figures:
             report.add(Figure(figures[f"{metric}_vs_depth"], f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
-                                                              f"test images (training range shaded)."))
+                                                              f"test images (scored depth range shaded)."))
     report.extend(results_tables(ev)[1:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
     if "comparison" in figures:
