@@ -74,7 +74,7 @@ class MethodSpec:
 
 METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("lens", "lens", "none", "bare lens, no compensation"),
-    MethodSpec("lens+wiener", "lens", "wiener", "bare lens + non-blind Wiener deconvolution (NSR tuned on training images)"),
+    MethodSpec("lens+wiener", "lens", "wiener", "bare lens + non-blind Wiener deconvolution"),
     MethodSpec("lens+cls", "lens", "cls", "bare lens + box-constrained least squares (non-blind)"),
     MethodSpec("lens+net", "lens", "net", "bare lens + our U-Net trained on lens-only PSFs (separate run)",
                run_dir="lens_net", train_overrides=("doe.kind=lens",)),
@@ -82,7 +82,7 @@ METHODS: tuple[MethodSpec, ...] = (
                "bare lens + OnlineProDeb (our re-implementation), trained on the same simulated lens-only data",
                run_dir="lens_onlineprodeb", train_overrides=("doe.kind=lens", "net.architecture=onlineprodeb")),
     MethodSpec("doe", "run", "none", "learned DOE, no compensation"),
-    MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution (NSR tuned on training images)"),
+    MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution"),
     MethodSpec("doe+net", "run", "net", "learned DOE + jointly trained U-Net (ours)"),
     MethodSpec("cubic+net", "baseline", "net", "cubic phase plate + the same U-Net trained with it (separate run)",
                run_dir="cubic_net", train_overrides=("doe.kind=cubic",)),

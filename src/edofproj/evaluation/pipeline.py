@@ -192,7 +192,9 @@ class MethodBuilder:
         elif spec.compensation == "wiener":
             nsr = self.tuned_nsr(design)
             compensate = WienerCompensation(nsr)
-            detail = f"NSR {nsr:.3g}"
+            near_mm, far_mm = score_range_mm(self.cfg)
+            detail = (f"NSR {nsr:.3g}, tuned for {self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops "
+                      f"at {near_mm:.0f}-{far_mm:.0f} mm")
         elif spec.compensation == "cls":
             compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
