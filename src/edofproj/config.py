@@ -193,6 +193,9 @@ class NetConfig:
     real-time variant; 1 = the paper's full-resolution network). ``prefilter_bins``: > 0 adds a
     learned rotationally symmetric Fourier filter of the target in front of the U-Net
     (:mod:`edofproj.compensation.radial_filter`, that many radial nodes); 0 = the paper's U-Net.
+    ``architecture: multirate`` is the real-time network of
+    :mod:`edofproj.compensation.multirate`: ``space_to_depth`` (>= 2) is its block size,
+    and ``prefilter_bins`` (>= 2) the nodes of its low-resolution Fourier filter.
     """
 
     widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -220,13 +223,18 @@ class NetConfig:
         if not (0.0 <= self.leaky_slope < 1.0):
             raise ConfigError(f"net.leaky_slope={self.leaky_slope} must be in [0, 1)")
         for key, choices in (
-            ("architecture", ("unet", "onlineprodeb")),
+            ("architecture", ("unet", "onlineprodeb", "multirate")),
             ("downsampling", ("conv", "maxpool")),
             ("upsampling", ("transpose", "bilinear")),
             ("padding_mode", ("replicate", "reflect")),
         ):
             if getattr(self, key) not in choices:
                 raise ConfigError(_unknown_choice(f"net.{key}", getattr(self, key), choices))
+        if self.architecture == "multirate" and (self.space_to_depth < 2 or self.prefilter_bins < 2):
+            raise ConfigError(
+                f"net.architecture=multirate needs net.space_to_depth >= 2 (its block size, got "
+                f"{self.space_to_depth}) and net.prefilter_bins >= 2 (its filter nodes, got {self.prefilter_bins})"
+            )
 
 
 @dataclass

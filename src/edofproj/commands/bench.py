@@ -37,14 +37,21 @@ def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray
     return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
 
 
-def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0) -> torch.nn.Module:
-    """A :class:`CompensationUNet` of a named width preset or comma-separated channel counts."""
+def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0,
+                        architecture: str = "unet") -> torch.nn.Module:
+    """An untrained network of a named width preset or comma-separated channel counts:
+    :class:`CompensationUNet` or, for ``architecture="multirate"``, :class:`MultirateCompensationNet`
+    (``space_to_depth`` is then its block size, ``prefilter_bins`` its filter's nodes)."""
     from ..compensation.unet import CompensationUNet, width_preset
 
     if spec.replace(",", "").replace(" ", "").isdigit():
         widths = [int(w) for w in spec.split(",")]
     else:
         widths = width_preset(spec)
+    if architecture == "multirate":
+        from ..compensation.multirate import MultirateCompensationNet
+
+        return MultirateCompensationNet(widths, block=space_to_depth, filter_bins=prefilter_bins)
     return CompensationUNet(widths, space_to_depth=space_to_depth, prefilter_bins=prefilter_bins)
 
 
@@ -69,6 +76,9 @@ def register(subparsers) -> None:
                    help="run the untrained U-Net of --widths on s x s pixel blocks (without --run)")
     p.add_argument("--prefilter-bins", type=int, default=0,
                    help="add the radial Fourier pre-filter to the untrained U-Net of --widths (without --run)")
+    p.add_argument("--architecture", choices=("unet", "multirate"), default="unet",
+                   help="untrained network of --widths: the U-Net, or the multi-rate real-time network "
+                        "(needs --space-to-depth >= 2 and --prefilter-bins >= 2)")
     p.add_argument("--methods", default="wiener,unet",
                    help=f"comma-separated subset of {', '.join(METHODS)} (default: wiener,unet)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
@@ -97,8 +107,8 @@ def run(args) -> int:
         if args.threads < 1:
             raise EdofprojError("--threads must be >= 1")
         torch.set_num_threads(args.threads)
-    if args.run and (args.widths or args.space_to_depth != 1 or args.prefilter_bins):
-        raise EdofprojError("--widths/--space-to-depth/--prefilter-bins and --run exclude each other "
+    if args.run and (args.widths or args.space_to_depth != 1 or args.prefilter_bins or args.architecture != "unet"):
+        raise EdofprojError("--widths/--architecture/--space-to-depth/--prefilter-bins and --run exclude each other "
                             "(a run has its own network)")
 
     cfg = Config()
@@ -113,7 +123,9 @@ def run(args) -> int:
             trained = load_run(args.run)
             cfg, net, net_label = trained.cfg, trained.net, trained.cfg.net.architecture
         else:
-            net = network_from_widths(args.widths or "default", args.space_to_depth, args.prefilter_bins)
+            net = network_from_widths(args.widths or "default", args.space_to_depth, args.prefilter_bins,
+                                      args.architecture)
+            net_label = args.architecture
     psf = disk_psf(args.window if args.window is not None else cfg.psf.window)
 
     networks = []

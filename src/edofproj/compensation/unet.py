@@ -60,9 +60,13 @@ PADDING_MODES = ("replicate", "reflect")
 def describe_network(net_cfg) -> str:
     """One line naming a :class:`~edofproj.config.NetConfig`'s network, e.g. ``U-Net 16-128 (4 scales)
     + radial pre-filter (48 nodes)``."""
+    widths = [int(w) for w in net_cfg.widths]
+    if net_cfg.architecture == "multirate":
+        s = net_cfg.space_to_depth
+        return (f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
+                f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)")
     if net_cfg.architecture != "unet":
         return net_cfg.architecture
-    widths = [int(w) for w in net_cfg.widths]
     text = f"U-Net {min(widths)}-{max(widths)} ({len(widths)} scales)"
     if net_cfg.space_to_depth > 1:
         text += f" on {net_cfg.space_to_depth}x{net_cfg.space_to_depth} pixel blocks"

@@ -38,6 +38,10 @@ def build_net(cfg: Config) -> nn.Module:
         from ..compensation.onlineprodeb import OnlineProDebNet
 
         return OnlineProDebNet.from_preset("default", leaky_slope=cfg.net.leaky_slope)
+    if cfg.net.architecture == "multirate":
+        from ..compensation.multirate import MultirateCompensationNet
+
+        return MultirateCompensationNet.from_config(cfg.net)
     from ..compensation.unet import CompensationUNet
 
     return CompensationUNet.from_config(cfg.net)

@@ -1,0 +1,233 @@
+"""A multi-rate compensation network for real-time use on a CPU.
+
+The compensation network must apply a *wide* linear filter (the inverse of defocus PSFs up to
+~30 px across), a *local* linear filter (the rising high-frequency gain of that inverse) and a
+*non-linear* correction (what no linear filter does: respect the projector's [0, 1] range,
+adapt to the unknown depth seen in the capture). At full resolution all three are expensive on
+a CPU: a Fourier filter of the whole frame costs as much as Wiener deconvolution itself, and
+every full-resolution layer of a 3-channel image is memory-bound. This network works on
+``s x s`` pixel blocks (``s`` = 4 by default) and splits the work by frequency:
+
+    projector_input = I + S_s( L U + B D + W f )
+
+* ``U``: the ``s^2`` pixels of each block of the target ``I``, per colour (a pixel unshuffle,
+  done as one stride-``s`` convolution of each colour plane); ``P`` their block means.
+* ``D = F^-1[H(rho) F[P]] - P``: the wide, low-frequency part of the inverse filter, a learned
+  rotationally symmetric Fourier filter
+  (:class:`~edofproj.compensation.radial_filter.RadialFourierFilter`) applied to ``P``, i.e. to
+  ``s^2`` times fewer samples than a full-resolution FFT.
+* ``L``: the local linear part, a 3x3 convolution over neighbouring blocks from the ``s^2``
+  pixels to the ``s^2`` pixels, the same for every colour (colours ride in the batch dimension): every output pixel is a learned linear combination of
+  the pixels within ``s`` to ``2s - 1`` pixels of it (a polyphase form of a ``3s x 3s`` filter).
+* ``B``: returns ``D`` to the pixels, a 3x3 convolution over neighbouring blocks (the same for
+  every colour) that starts as bilinear interpolation between block centres (and stays learnable).
+* ``f``: the features of a U-Net at ``1/s`` resolution
+  (:class:`~edofproj.compensation.unet.ConvBlock` scales) fed with ``s x s``-patch embeddings
+  (stride-``s`` convolutions) of ``I`` and of the capture ``I*`` and a 1x1 embedding of ``D``; ``W`` (1x1) maps them to pixel
+  values.
+* ``S_s``: places each block's ``s^2 C`` values at full resolution (a pixel shuffle, fused with
+  the sum so that the full-resolution image is written once).
+
+``L``, ``W``, ``H - 1`` start at zero, so an untrained network is the identity
+``projector_input = I`` (up to FFT round-off). Images of any size are padded on the bottom and
+right (replicate) to a multiple of ``s`` at full resolution and of ``2**(S-1)`` at ``1/s``
+resolution, and the output is cropped back. The output is not clamped: the caller clamps to the
+projector's range. The only full-resolution operations are three stride-``s`` convolutions and
+the final sum; ``edofproj bench`` measures the whole.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..errors import EdofprojError
+from .radial_filter import RadialFourierFilter
+from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, ConvBlock, _downsampling, _upsampling
+
+
+def bilinear_block_weights(block: int) -> torch.Tensor:
+    """``(block, block, 3, 3)``: the weight of each of the 3x3 neighbouring block centres on pixel
+    ``(py, px)`` of the central block under bilinear interpolation.
+
+    Block centres sit at ``(s - 1)/2`` within their block; pixel ``p`` is at offset
+    ``t = (p - (s - 1)/2) / s`` (in blocks) from its own centre, so along one axis it takes
+    ``1 - |t|`` from its own block and ``|t|`` from the neighbour on the side of ``t``."""
+    s = int(block)
+    taps = torch.zeros(s, 3, dtype=torch.float64)
+    for p in range(s):
+        t = (p - (s - 1) / 2) / s
+        taps[p, 1] = 1 - abs(t)
+        taps[p, 2 if t > 0 else 0] += abs(t)
+    return torch.einsum("yi,xj->yxij", taps, taps).float()
+
+
+def unshuffle_weight(block: int) -> torch.Tensor:
+    """Weights ``(s^2, 1, s, s)`` of a stride-``s`` convolution of one colour plane that equals
+    ``F.pixel_unshuffle``: output channel ``s py + px`` picks pixel ``(py, px)`` of each block."""
+    return torch.eye(block * block).reshape(block * block, 1, block, block)
+
+
+def add_block_pixels(image: torch.Tensor, per_colour: torch.Tensor, mixed: torch.Tensor, block: int) -> torch.Tensor:
+    """``image + pixel_shuffle(per_colour) + pixel_shuffle(mixed)`` in one pass over the image.
+
+    ``image (B, C, H, W)``; ``per_colour (B C, s^2, H/s, W/s)``: each colour plane's block pixel values
+    (channel ``s py + px``); ``mixed (B, C s^2, H/s, W/s)``: the same for all colours, in
+    :func:`torch.nn.functional.pixel_shuffle`'s channel order ``(colour, row, column)``. Either
+    block tensor may be in any memory format; the result is contiguous ``(B, C, H, W)``."""
+    b, c, height, width = image.shape
+    s = int(block)
+    hb, wb = height // s, width // s
+    pixels = image.contiguous().view(b, c, hb, s, wb, s)
+    own = per_colour.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
+    shared = mixed.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
+    return (pixels + own + shared).view(b, c, height, width)
+
+
+class MultirateCompensationNet(nn.Module):
+    """``projector_input = I + S_s(L U + B D + W f)`` (module docstring).
+
+    Args:
+        widths: channels of each U-Net scale at ``1/block`` resolution, finest first.
+        block: ``s >= 2``, the resolution ratio between the image and the U-Net.
+        filter_bins: radial nodes of the low-resolution Fourier filter (``>= 2``).
+        filter_margin_blocks: border replicated (in blocks) around ``P`` before its FFT.
+        leaky_slope, downsampling, upsampling: as in
+            :class:`~edofproj.compensation.unet.CompensationUNet`.
+        channels: colour channels ``C`` of target and capture (3).
+    """
+
+    #: Full-resolution inputs are read by strided convolutions and the final sum, which are
+    #: fastest on contiguous (not channels-last) images; ``edofproj bench`` follows this.
+    channels_last_inputs = False
+
+    def __init__(
+        self,
+        widths: Sequence[int] = (16, 24, 32, 48),
+        block: int = 4,
+        filter_bins: int = 48,
+        filter_margin_blocks: int = 16,
+        leaky_slope: float = 0.2,
+        downsampling: str = "conv",
+        upsampling: str = "transpose",
+        channels: int = 3,
+    ) -> None:
+        super().__init__()
+        if int(block) != block or block < 2:
+            raise EdofprojError(f"multirate network block={block} must be an integer >= 2 (net.space_to_depth)")
+        if int(filter_bins) != filter_bins or filter_bins < 2:
+            raise EdofprojError(f"multirate network filter_bins={filter_bins} must be an integer >= 2 "
+                                f"(net.prefilter_bins)")
+        widths = [int(w) for w in widths]
+        if len(widths) < 2 or min(widths) < 1:
+            raise EdofprojError(f"multirate network widths={widths} need at least two positive channel counts")
+        if downsampling not in DOWNSAMPLING_MODES or upsampling not in UPSAMPLING_MODES:
+            raise EdofprojError(f"multirate network: downsampling must be one of {', '.join(DOWNSAMPLING_MODES)} "
+                                f"and upsampling one of {', '.join(UPSAMPLING_MODES)}")
+        s = self.block = int(block)
+        self.widths = widths
+        self.channels = c = int(channels)
+        self.lowres_multiple = 2 ** (len(widths) - 1)
+
+        # The linear paths act on each colour plane alike: colours ride in the batch dimension.
+        self.register_buffer("unshuffle_weight", unshuffle_weight(s), persistent=False)
+        self.register_buffer("mean_weight", torch.full((1, s * s, 1, 1), 1.0 / (s * s)), persistent=False)
+        self.prefilter = RadialFourierFilter(c, int(filter_bins), margin_px=int(filter_margin_blocks))
+        # L: local linear filter over the 3x3 neighbouring blocks (zero at start).
+        self.local_filter = nn.Conv2d(s * s, s * s, 3, padding=1, padding_mode="replicate", bias=False)
+        nn.init.zeros_(self.local_filter.weight)
+        # B: D back to the pixels, bilinear at start.
+        self.correction_to_pixels = nn.Conv2d(1, s * s, 3, padding=1, padding_mode="replicate", bias=False)
+        with torch.no_grad():
+            self.correction_to_pixels.weight.copy_(bilinear_block_weights(s).reshape(s * s, 1, 3, 3))
+
+        # U-Net at 1/s resolution, and W.
+        self.embed_target = nn.Conv2d(c, widths[0], s, stride=s)
+        self.embed_captured = nn.Conv2d(c, widths[0], s, stride=s, bias=False)
+        self.embed_correction = nn.Conv2d(c, widths[0], 1, bias=False)
+        self.activation = nn.LeakyReLU(leaky_slope)
+        self.encoder = nn.ModuleList([ConvBlock(widths[0], widths[0], leaky_slope)])
+        self.down = nn.ModuleList()
+        for coarse, fine in zip(widths[1:], widths[:-1]):
+            self.down.append(_downsampling(fine, downsampling, leaky_slope))
+            self.encoder.append(ConvBlock(fine, coarse, leaky_slope))
+        self.up = nn.ModuleList()
+        self.decoder = nn.ModuleList()
+        for scale in reversed(range(len(widths) - 1)):
+            self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
+            self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
+        self.head = nn.Conv2d(widths[0], c * s * s, 1)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    @classmethod
+    def from_config(cls, net_cfg) -> "MultirateCompensationNet":
+        """Build from a :class:`edofproj.config.NetConfig` (``space_to_depth`` is the block size,
+        ``prefilter_bins`` the filter's nodes)."""
+        return cls(
+            widths=net_cfg.widths,
+            block=net_cfg.space_to_depth,
+            filter_bins=net_cfg.prefilter_bins,
+            leaky_slope=net_cfg.leaky_slope,
+            downsampling=net_cfg.downsampling,
+            upsampling=net_cfg.upsampling,
+        )
+
+    def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+        """``I + S_s(L U + B D + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
+        if not torch.jit.is_tracing() and (
+            target.dim() != 4 or captured.shape != target.shape or target.shape[1] != self.channels
+        ):
+            raise EdofprojError(
+                f"MultirateCompensationNet needs target and captured of the same shape (B, {self.channels}, H, W), "
+                f"got {tuple(target.shape)} and {tuple(captured.shape)}"
+            )
+        height, width = target.shape[-2], target.shape[-1]
+        s, c = self.block, self.channels
+        lowres = torch.channels_last
+        full_target = _pad_bottom_right(target, s)
+        full_captured = _pad_bottom_right(captured, s)
+
+        b, hb, wb = full_target.shape[0], full_target.shape[-2] // s, full_target.shape[-1] // s
+        planes = full_target.contiguous().view(b * c, 1, full_target.shape[-2], full_target.shape[-1])
+        block_pixels = F.conv2d(planes, self.unshuffle_weight, stride=s).contiguous(memory_format=lowres)  # U
+        means = F.conv2d(block_pixels, self.mean_weight).view(b, c, hb, wb)  # P
+        correction = (self.prefilter(means) - means).contiguous()  # D
+
+        features = self.activation(
+            self.embed_target(full_target) + self.embed_captured(full_captured)
+            + self.embed_correction(correction)
+        )
+        features = self._unet(features.contiguous(memory_format=lowres))
+        linear = self.local_filter(block_pixels) + self.correction_to_pixels(correction.view(b * c, 1, hb, wb))
+        output = add_block_pixels(full_target, linear, self.head(features), s)
+        return output[..., :height, :width]
+
+    def _unet(self, x: torch.Tensor) -> torch.Tensor:
+        """The U-Net body at ``1/s`` resolution (input padded to a multiple of ``2**(S-1)``, output cropped)."""
+        height, width = x.shape[-2], x.shape[-1]
+        x = _pad_bottom_right(x, self.lowres_multiple)
+        skips = []
+        for scale, block in enumerate(self.encoder):
+            if scale > 0:
+                x = self.down[scale - 1](x)
+            x = block(x)
+            skips.append(x)
+        x = skips.pop()
+        for up, block in zip(self.up, self.decoder):
+            x = block(torch.cat([up(x), skips.pop()], dim=1))
+        return x[..., :height, :width]
+
+
+def _pad_bottom_right(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """Replicate-pad bottom/right to a multiple of ``multiple`` (no copy when already one)."""
+    pad_bottom = (multiple - x.shape[-2] % multiple) % multiple
+    pad_right = (multiple - x.shape[-1] % multiple) % multiple
+    if not (pad_bottom or pad_right or torch.jit.is_tracing()):
+        return x
+    return F.pad(x, (0, pad_right, 0, pad_bottom), mode="replicate")
+
+

@@ -1,0 +1,200 @@
+"""Multi-rate real-time network: identity at start, bilinear return path, fused pixel shuffle,
+any size, TorchScript export, config."""
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from torch.nn import functional as F
+
+from edofproj.commands.export import export_network
+from edofproj.compensation.multirate import (
+    MultirateCompensationNet,
+    add_block_pixels,
+    bilinear_block_weights,
+    unshuffle_weight,
+)
+from edofproj.config import Config, ConfigError, NetConfig
+from edofproj.errors import EdofprojError
+from edofproj.training.runs import build_net
+
+SMALL = [4, 6, 8]
+
+
+def images(height, width, batch=1, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    return (torch.rand(batch, 3, height, width, generator=gen),
+            torch.rand(batch, 3, height, width, generator=gen))
+
+
+def trained_looking(net, seed=0):
+    """Randomize every zero-initialized part (head, filter nodes, local filter) so the output is not the identity."""
+    torch.manual_seed(seed)
+    with torch.no_grad():
+        net.head.weight.normal_(0, 0.2)
+        net.head.bias.normal_(0, 0.05)
+        net.prefilter.gain.normal_(0, 0.1)
+        net.local_filter.weight.normal_(0, 0.05)
+        net.correction_to_pixels.weight.add_(0.05 * torch.randn_like(net.correction_to_pixels.weight))
+    return net.eval()
+
+
+@pytest.mark.parametrize("size", [(600, 800), (37, 53), (1, 1), (5, 130)])
+def test_untrained_network_is_the_identity(size):
+    net = MultirateCompensationNet(SMALL)
+    target, captured = images(*size, batch=2)
+    with torch.no_grad():
+        out = net(target, captured)
+    assert out.shape == target.shape
+    torch.testing.assert_close(out, target, rtol=0, atol=2e-6)  # FFT round-off of the identity filter
+
+
+@pytest.mark.parametrize("block", [2, 3, 4, 5])
+def test_bilinear_block_weights_interpolate_a_ramp_exactly(block):
+    """Each pixel's 3x3 weights sum to 1, and a linear ramp's block means (the ramp's value at the
+    block centres) come back as the ramp itself away from the border."""
+    weights = bilinear_block_weights(block)
+    torch.testing.assert_close(weights.sum(dim=(-2, -1)), torch.ones(block, block))
+    net = MultirateCompensationNet(SMALL, block=block)
+    hb, wb = 9, 11
+    yy, xx = torch.meshgrid(torch.arange(hb * block, dtype=torch.float64),
+                            torch.arange(wb * block, dtype=torch.float64), indexing="ij")
+    ramp = (0.3 * yy - 0.7 * xx + 2.0).float()[None, None]
+    means = F.avg_pool2d(ramp, block)
+    with torch.no_grad():
+        values = net.correction_to_pixels(means)  # (1, s^2, hb, wb)
+    upsampled = F.pixel_shuffle(values, block)
+    inner = (..., slice(block, -block), slice(block, -block))
+    torch.testing.assert_close(upsampled[inner], ramp[inner], rtol=0, atol=1e-4)
+
+
+def test_unshuffle_convolution_equals_pixel_unshuffle():
+    image = torch.rand(2, 1, 12, 20)
+    torch.testing.assert_close(F.conv2d(image, unshuffle_weight(4), stride=4), F.pixel_unshuffle(image, 4),
+                               rtol=0, atol=0)
+
+
+def test_fused_block_sum_equals_two_pixel_shuffles():
+    """``add_block_pixels`` == image + pixel_shuffle of the per-colour blocks (colours in the batch)
+    + pixel_shuffle of the shared blocks, in either memory format."""
+    s, c = 4, 3
+    image = torch.rand(2, c, 12, 20)
+    per_colour = torch.rand(2 * c, s * s, 3, 5)
+    mixed = torch.rand(2, s * s * c, 3, 5)
+    reference = image + F.pixel_shuffle(per_colour.reshape(2, c * s * s, 3, 5), s) + F.pixel_shuffle(mixed, s)
+    torch.testing.assert_close(add_block_pixels(image, per_colour, mixed, s), reference, rtol=0, atol=1e-6)
+    last = torch.channels_last
+    torch.testing.assert_close(
+        add_block_pixels(image, per_colour.contiguous(memory_format=last), mixed.contiguous(memory_format=last), s),
+        reference, rtol=0, atol=1e-6)
+
+
+def test_local_filter_is_a_shift_invariant_filter_when_its_taps_say_so():
+    """Loading the polyphase taps of a full-resolution 3x3 kernel into L reproduces that
+    convolution exactly away from the image border (where L replicates whole blocks, not pixels):
+    the local path can represent any small filter."""
+    s = 4
+    kernel = torch.tensor([[0.0, -0.5, 0.0], [-0.5, 3.0, -0.5], [0.0, -0.5, 0.0]])
+    net = MultirateCompensationNet(SMALL, block=s)
+    with torch.no_grad():
+        weight = torch.zeros(s, s, s, s, 3, 3)  # (out py, out px, in py, in px, block dy, block dx)
+        for py in range(s):
+            for px in range(s):
+                for ky in range(3):
+                    for kx in range(3):
+                        y, x = py + ky - 1, px + kx - 1  # input pixel, relative to the block's origin
+                        weight[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
+        net.local_filter.weight.copy_(weight.reshape(s * s, s * s, 3, 3))
+        net.local_filter.weight.sub_(torch.eye(s * s).reshape(s * s, s * s, 1, 1) * F.pad(
+            torch.ones(1, 1), (1, 1, 1, 1)))  # the output already holds I itself: subtract the identity tap
+    target, captured = images(16, 24)
+    with torch.no_grad():
+        out = net(target, captured)
+    reference = F.conv2d(F.pad(target, (1, 1, 1, 1), mode="replicate"), kernel.expand(3, 1, 3, 3), groups=3)
+    inner = (..., slice(1, -1), slice(1, -1))
+    torch.testing.assert_close(out[inner], reference[inner], rtol=0, atol=1e-5)
+    assert (out - target).abs().max() > 0.1
+
+
+@pytest.mark.parametrize("size", [(37, 53), (6, 130)])
+def test_any_size_equals_explicit_padding_then_crop(size):
+    """The net pads bottom/right to a multiple of the block size (replicate) and crops back."""
+    height, width = size
+    net = trained_looking(MultirateCompensationNet(SMALL))
+    target, captured = images(height, width)
+    pad = ((0, 0), (0, 0), (0, -height % 4), (0, -width % 4))
+    padded_t = torch.from_numpy(np.pad(target.numpy(), pad, mode="edge"))
+    padded_c = torch.from_numpy(np.pad(captured.numpy(), pad, mode="edge"))
+    with torch.no_grad():
+        out = net(target, captured)
+        reference = net(padded_t, padded_c)[..., :height, :width]
+    assert (out - target).abs().max() > 1e-2
+    torch.testing.assert_close(out, reference, rtol=0, atol=1e-6)
+
+
+def test_channels_last_and_batch_give_the_same_output():
+    net = trained_looking(MultirateCompensationNet(SMALL))
+    target, captured = images(40, 56, batch=2)
+    with torch.no_grad():
+        reference = net(target, captured)
+        single = net(target[1:], captured[1:])
+        net_cl = net.to(memory_format=torch.channels_last)
+        out = net_cl(target.contiguous(memory_format=torch.channels_last),
+                     captured.contiguous(memory_format=torch.channels_last))
+    torch.testing.assert_close(out, reference, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(single, reference[1:], rtol=1e-5, atol=1e-5)
+
+
+def test_zero_initialized_network_learns_and_gradients_reach_every_part():
+    torch.manual_seed(0)
+    net = MultirateCompensationNet(SMALL)
+    optimizer = torch.optim.Adam(net.parameters(), lr=3e-3)
+    target, captured = images(32, 32, batch=2)
+    losses = []
+    for _ in range(40):
+        optimizer.zero_grad()
+        loss = torch.mean((net(target, captured) - (1.2 * target + 0.1)) ** 2)
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.1 * losses[0]
+    for name in ("local_filter.weight", "head.weight", "prefilter.gain", "correction_to_pixels.weight",
+                 "embed_target.weight"):
+        assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
+
+
+def test_torchscript_export_matches_pytorch_at_two_sizes(tmp_path):
+    net = trained_looking(MultirateCompensationNet(SMALL))
+    worst = export_network(net, tmp_path / "net.pt", "torchscript", height=64, width=96)
+    assert 0.0 <= worst <= 1e-4
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        loaded = torch.jit.load(str(tmp_path / "net.pt"))
+    target, captured = images(45, 77, seed=3)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(target, captured), net(target, captured), rtol=0, atol=1e-5)
+
+
+def test_onnx_export_is_refused_in_one_line(tmp_path):
+    pytest.importorskip("onnx")
+    with pytest.raises(EdofprojError, match="use --format torchscript"):
+        export_network(MultirateCompensationNet(SMALL), tmp_path / "net.onnx", "onnx")
+    assert not (tmp_path / "net.onnx").exists()
+
+
+def test_config_builds_the_network_and_refuses_bad_values():
+    cfg = Config()
+    cfg.net = NetConfig(architecture="multirate", widths=[8, 12, 16], space_to_depth=4, prefilter_bins=24)
+    cfg.net.validate()
+    net = build_net(cfg)
+    assert isinstance(net, MultirateCompensationNet)
+    assert net.block == 4 and net.widths == [8, 12, 16] and net.prefilter.gain.shape == (3, 24)
+    with pytest.raises(ConfigError, match="space_to_depth >= 2"):
+        NetConfig(architecture="multirate", space_to_depth=1, prefilter_bins=24).validate()
+    with pytest.raises(ConfigError, match="prefilter_bins >= 2"):
+        NetConfig(architecture="multirate", space_to_depth=4, prefilter_bins=0).validate()
+    with pytest.raises(EdofprojError, match="block=1"):
+        MultirateCompensationNet(SMALL, block=1)
+    with pytest.raises(EdofprojError, match="same shape"):
+        MultirateCompensationNet(SMALL)(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 9))
