@@ -35,8 +35,9 @@ def trained_looking(net, seed=0):
         net.head.weight.normal_(0, 0.2)
         net.head.bias.normal_(0, 0.05)
         net.prefilter.gain.normal_(0, 0.1)
-        net.local_filter.weight.normal_(0, 0.05)
-        net.correction_to_pixels.weight.add_(0.05 * torch.randn_like(net.correction_to_pixels.weight))
+        for local, upsampling in zip(net.local_filter, net.correction_to_pixels):
+            local.weight.normal_(0, 0.05)
+            upsampling.weight.add_(0.05 * torch.randn_like(upsampling.weight))
     return net.eval()
 
 
@@ -63,7 +64,7 @@ def test_bilinear_block_weights_interpolate_a_ramp_exactly(block):
     ramp = (0.3 * yy - 0.7 * xx + 2.0).float()[None, None]
     means = F.avg_pool2d(ramp, block)
     with torch.no_grad():
-        values = net.correction_to_pixels(means)  # (1, s^2, hb, wb)
+        values = net.correction_to_pixels[1](means)  # (1, s^2, hb, wb)
     upsampled = F.pixel_shuffle(values, block)
     inner = (..., slice(block, -block), slice(block, -block))
     torch.testing.assert_close(upsampled[inner], ramp[inner], rtol=0, atol=1e-4)
@@ -75,43 +76,42 @@ def test_unshuffle_convolution_equals_pixel_unshuffle():
                                rtol=0, atol=0)
 
 
-def test_fused_block_sum_equals_two_pixel_shuffles():
-    """``add_block_pixels`` == image + pixel_shuffle of the per-colour blocks (colours in the batch)
-    + pixel_shuffle of the shared blocks, in either memory format."""
+def test_fused_block_sum_equals_pixel_shuffle():
+    """``add_block_pixels`` == image + pixel_shuffle(blocks), in either memory format."""
     s, c = 4, 3
     image = torch.rand(2, c, 12, 20)
-    per_colour = torch.rand(2 * c, s * s, 3, 5)
-    mixed = torch.rand(2, s * s * c, 3, 5)
-    reference = image + F.pixel_shuffle(per_colour.reshape(2, c * s * s, 3, 5), s) + F.pixel_shuffle(mixed, s)
-    torch.testing.assert_close(add_block_pixels(image, per_colour, mixed, s), reference, rtol=0, atol=1e-6)
+    blocks = torch.rand(2, s * s * c, 3, 5)
+    reference = image + F.pixel_shuffle(blocks, s)
+    torch.testing.assert_close(add_block_pixels(image, blocks, s), reference, rtol=0, atol=0)
     last = torch.channels_last
-    torch.testing.assert_close(
-        add_block_pixels(image, per_colour.contiguous(memory_format=last), mixed.contiguous(memory_format=last), s),
-        reference, rtol=0, atol=1e-6)
+    torch.testing.assert_close(add_block_pixels(image, blocks.contiguous(memory_format=last), s), reference,
+                               rtol=0, atol=0)
 
 
 def test_local_filter_is_a_shift_invariant_filter_when_its_taps_say_so():
-    """Loading the polyphase taps of a full-resolution 3x3 kernel into L reproduces that
-    convolution exactly away from the image border (where L replicates whole blocks, not pixels):
-    the local path can represent any small filter."""
+    """Loading the polyphase taps of a full-resolution 3x3 kernel (one per colour) into L
+    reproduces that convolution exactly away from the image border (where L replicates whole
+    blocks, not pixels): the local path can represent any small filter, colour by colour."""
     s = 4
-    kernel = torch.tensor([[0.0, -0.5, 0.0], [-0.5, 3.0, -0.5], [0.0, -0.5, 0.0]])
+    laplacian = torch.tensor([[0.0, -0.5, 0.0], [-0.5, 3.0, -0.5], [0.0, -0.5, 0.0]])
+    kernels = [laplacian, 0.5 * laplacian + 0.5 * torch.eye(3).flip(0), torch.full((3, 3), 1 / 9)]
     net = MultirateCompensationNet(SMALL, block=s)
+    identity_tap = torch.eye(s * s).reshape(s * s, s * s, 1, 1) * F.pad(torch.ones(1, 1), (1, 1, 1, 1))
     with torch.no_grad():
-        weight = torch.zeros(s, s, s, s, 3, 3)  # (out py, out px, in py, in px, block dy, block dx)
-        for py in range(s):
-            for px in range(s):
-                for ky in range(3):
-                    for kx in range(3):
-                        y, x = py + ky - 1, px + kx - 1  # input pixel, relative to the block's origin
-                        weight[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
-        net.local_filter.weight.copy_(weight.reshape(s * s, s * s, 3, 3))
-        net.local_filter.weight.sub_(torch.eye(s * s).reshape(s * s, s * s, 1, 1) * F.pad(
-            torch.ones(1, 1), (1, 1, 1, 1)))  # the output already holds I itself: subtract the identity tap
+        for local, kernel in zip(net.local_filter, kernels):
+            weight = torch.zeros(s, s, s, s, 3, 3)  # (out py, out px, in py, in px, block dy, block dx)
+            for py in range(s):
+                for px in range(s):
+                    for ky in range(3):
+                        for kx in range(3):
+                            y, x = py + ky - 1, px + kx - 1  # input pixel, relative to the block's origin
+                            weight[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
+            # the output already holds I itself: L adds the kernel minus the identity
+            local.weight.copy_(weight.reshape(s * s, s * s, 3, 3) - identity_tap)
     target, captured = images(16, 24)
     with torch.no_grad():
         out = net(target, captured)
-    reference = F.conv2d(F.pad(target, (1, 1, 1, 1), mode="replicate"), kernel.expand(3, 1, 3, 3), groups=3)
+    reference = F.conv2d(F.pad(target, (1, 1, 1, 1), mode="replicate"), torch.stack(kernels)[:, None], groups=3)
     inner = (..., slice(1, -1), slice(1, -1))
     torch.testing.assert_close(out[inner], reference[inner], rtol=0, atol=1e-5)
     assert (out - target).abs().max() > 0.1
@@ -159,8 +159,8 @@ def test_zero_initialized_network_learns_and_gradients_reach_every_part():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < 0.1 * losses[0]
-    for name in ("local_filter.weight", "head.weight", "prefilter.gain", "correction_to_pixels.weight",
-                 "embed_target.weight"):
+    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.weight", "prefilter.gain",
+                 "correction_to_pixels.1.weight", "embed_target.weight"):
         assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
 
 

@@ -16,11 +16,11 @@ every full-resolution layer of a 3-channel image is memory-bound. This network w
   rotationally symmetric Fourier filter
   (:class:`~edofproj.compensation.radial_filter.RadialFourierFilter`) applied to ``P``, i.e. to
   ``s^2`` times fewer samples than a full-resolution FFT.
-* ``L``: the local linear part, a 3x3 convolution over neighbouring blocks from the ``s^2``
-  pixels to the ``s^2`` pixels, the same for every colour (colours ride in the batch dimension): every output pixel is a learned linear combination of
+* ``L``: the local linear part, per colour a 3x3 convolution over neighbouring blocks from the
+  ``s^2`` pixels to the ``s^2`` pixels: every output pixel is a learned linear combination of
   the pixels within ``s`` to ``2s - 1`` pixels of it (a polyphase form of a ``3s x 3s`` filter).
-* ``B``: returns ``D`` to the pixels, a 3x3 convolution over neighbouring blocks (the same for
-  every colour) that starts as bilinear interpolation between block centres (and stays learnable).
+* ``B``: returns ``D`` to the pixels, per colour a 3x3 convolution over neighbouring blocks that
+  starts as bilinear interpolation between block centres (and stays learnable).
 * ``f``: the features of a U-Net at ``1/s`` resolution
   (:class:`~edofproj.compensation.unet.ConvBlock` scales) fed with ``s x s``-patch embeddings
   (stride-``s`` convolutions) of ``I`` and of the capture ``I*`` and a 1x1 embedding of ``D``; ``W`` (1x1) maps them to pixel
@@ -71,20 +71,17 @@ def unshuffle_weight(block: int) -> torch.Tensor:
     return torch.eye(block * block).reshape(block * block, 1, block, block)
 
 
-def add_block_pixels(image: torch.Tensor, per_colour: torch.Tensor, mixed: torch.Tensor, block: int) -> torch.Tensor:
-    """``image + pixel_shuffle(per_colour) + pixel_shuffle(mixed)`` in one pass over the image.
-
-    ``image (B, C, H, W)``; ``per_colour (B C, s^2, H/s, W/s)``: each colour plane's block pixel values
-    (channel ``s py + px``); ``mixed (B, C s^2, H/s, W/s)``: the same for all colours, in
-    :func:`torch.nn.functional.pixel_shuffle`'s channel order ``(colour, row, column)``. Either
-    block tensor may be in any memory format; the result is contiguous ``(B, C, H, W)``."""
+def add_block_pixels(image: torch.Tensor, blocks: torch.Tensor, block: int) -> torch.Tensor:
+    """``image + pixel_shuffle(blocks)`` in one pass over the image: ``image (B, C, H, W)``,
+    ``blocks (B, C s^2, H/s, W/s)`` with each block's pixel values in
+    :func:`torch.nn.functional.pixel_shuffle`'s channel order ``(colour, row, column)``;
+    the result is contiguous ``(B, C, H, W)``."""
     b, c, height, width = image.shape
     s = int(block)
     hb, wb = height // s, width // s
     pixels = image.contiguous().view(b, c, hb, s, wb, s)
-    own = per_colour.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
-    shared = mixed.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
-    return (pixels + own + shared).view(b, c, height, width)
+    values = blocks.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
+    return (pixels + values).view(b, c, height, width)
 
 
 class MultirateCompensationNet(nn.Module):
@@ -132,17 +129,23 @@ class MultirateCompensationNet(nn.Module):
         self.channels = c = int(channels)
         self.lowres_multiple = 2 ** (len(widths) - 1)
 
-        # The linear paths act on each colour plane alike: colours ride in the batch dimension.
+        # U and P of every colour plane (colours ride in the batch dimension).
         self.register_buffer("unshuffle_weight", unshuffle_weight(s), persistent=False)
         self.register_buffer("mean_weight", torch.full((1, s * s, 1, 1), 1.0 / (s * s)), persistent=False)
         self.prefilter = RadialFourierFilter(c, int(filter_bins), margin_px=int(filter_margin_blocks))
-        # L: local linear filter over the 3x3 neighbouring blocks (zero at start).
-        self.local_filter = nn.Conv2d(s * s, s * s, 3, padding=1, padding_mode="replicate", bias=False)
-        nn.init.zeros_(self.local_filter.weight)
-        # B: D back to the pixels, bilinear at start.
-        self.correction_to_pixels = nn.Conv2d(1, s * s, 3, padding=1, padding_mode="replicate", bias=False)
-        with torch.no_grad():
-            self.correction_to_pixels.weight.copy_(bilinear_block_weights(s).reshape(s * s, 1, 3, 3))
+        # L (zero at start) and B (bilinear at start), one of each per colour: the PSFs, and so
+        # the inverse filters, differ between colours. (One dense convolution per colour: grouped
+        # convolutions are several times slower on CPUs.)
+        self.local_filter = nn.ModuleList()
+        self.correction_to_pixels = nn.ModuleList()
+        for _ in range(c):
+            local = nn.Conv2d(s * s, s * s, 3, padding=1, padding_mode="replicate", bias=False)
+            nn.init.zeros_(local.weight)
+            self.local_filter.append(local)
+            upsampling = nn.Conv2d(1, s * s, 3, padding=1, padding_mode="replicate", bias=False)
+            with torch.no_grad():
+                upsampling.weight.copy_(bilinear_block_weights(s).reshape(s * s, 1, 3, 3))
+            self.correction_to_pixels.append(upsampling)
 
         # U-Net at 1/s resolution, and W.
         self.embed_target = nn.Conv2d(c, widths[0], s, stride=s)
@@ -193,7 +196,7 @@ class MultirateCompensationNet(nn.Module):
 
         b, hb, wb = full_target.shape[0], full_target.shape[-2] // s, full_target.shape[-1] // s
         planes = full_target.contiguous().view(b * c, 1, full_target.shape[-2], full_target.shape[-1])
-        block_pixels = F.conv2d(planes, self.unshuffle_weight, stride=s).contiguous(memory_format=lowres)  # U
+        block_pixels = F.conv2d(planes, self.unshuffle_weight, stride=s)  # U, (B C, s^2, H/s, W/s)
         means = F.conv2d(block_pixels, self.mean_weight).view(b, c, hb, wb)  # P
         correction = (self.prefilter(means) - means).contiguous()  # D
 
@@ -202,8 +205,15 @@ class MultirateCompensationNet(nn.Module):
             + self.embed_correction(correction)
         )
         features = self._unet(features.contiguous(memory_format=lowres))
-        linear = self.local_filter(block_pixels) + self.correction_to_pixels(correction.view(b * c, 1, hb, wb))
-        output = add_block_pixels(full_target, linear, self.head(features), s)
+        shared = self.head(features).reshape(b, c, s * s, hb, wb)  # W f
+        block_pixels = block_pixels.view(b, c, s * s, hb, wb)
+        values = torch.stack([
+            self.local_filter[i](block_pixels[:, i].contiguous(memory_format=lowres))
+            + self.correction_to_pixels[i](correction[:, i: i + 1])
+            + shared[:, i]
+            for i in range(c)
+        ], dim=1)
+        output = add_block_pixels(full_target, values.view(b, c * s * s, hb, wb), s)
         return output[..., :height, :width]
 
     def _unet(self, x: torch.Tensor) -> torch.Tensor:
