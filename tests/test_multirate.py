@@ -10,6 +10,7 @@ from torch.nn import functional as F
 
 from edofproj.commands.export import export_network
 from edofproj.compensation.multirate import (
+    LOCAL_GAIN_SCALE,
     MultirateCompensationNet,
     add_block_pixels,
     bilinear_block_weights,
@@ -32,8 +33,8 @@ def trained_looking(net, seed=0):
     """Randomize every zero-initialized part (head, filter nodes, local filter) so the output is not the identity."""
     torch.manual_seed(seed)
     with torch.no_grad():
-        net.head.weight.normal_(0, 0.2)
-        net.head.bias.normal_(0, 0.05)
+        [h.weight.normal_(0, 0.2) for h in net.head]
+        [h.bias.normal_(0, 0.05) for h in net.head]
         net.prefilter.gain.normal_(0, 0.1)
         for local, upsampling in zip(net.local_filter, net.correction_to_pixels):
             local.weight.normal_(0, 0.05)
@@ -107,7 +108,7 @@ def test_local_filter_is_a_shift_invariant_filter_when_its_taps_say_so():
                             y, x = py + ky - 1, px + kx - 1  # input pixel, relative to the block's origin
                             weight[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
             # the output already holds I itself: L adds the kernel minus the identity
-            local.weight.copy_(weight.reshape(s * s, s * s, 3, 3) - identity_tap)
+            local.weight.copy_((weight.reshape(s * s, s * s, 3, 3) - identity_tap) / LOCAL_GAIN_SCALE)
     target, captured = images(16, 24)
     with torch.no_grad():
         out = net(target, captured)
@@ -131,6 +132,17 @@ def test_any_size_equals_explicit_padding_then_crop(size):
         reference = net(padded_t, padded_c)[..., :height, :width]
     assert (out - target).abs().max() > 1e-2
     torch.testing.assert_close(out, reference, rtol=0, atol=1e-6)
+
+
+def test_inference_path_equals_the_differentiable_path():
+    """Without gradients each colour plane is written straight into the output; same numbers."""
+    net = trained_looking(MultirateCompensationNet(SMALL))
+    target, captured = images(37, 53, batch=2)
+    with torch.no_grad():
+        fast = net(target, captured)
+    differentiable = net(target, captured)
+    assert differentiable.requires_grad
+    torch.testing.assert_close(fast, differentiable.detach(), rtol=0, atol=1e-6)
 
 
 def test_channels_last_and_batch_give_the_same_output():
@@ -159,7 +171,7 @@ def test_zero_initialized_network_learns_and_gradients_reach_every_part():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < 0.1 * losses[0]
-    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.weight", "prefilter.gain",
+    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.1.weight", "prefilter.gain",
                  "correction_to_pixels.1.weight", "embed_target.weight"):
         assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
 

@@ -28,7 +28,7 @@ every full-resolution layer of a 3-channel image is memory-bound. This network w
 * ``S_s``: places each block's ``s^2 C`` values at full resolution (a pixel shuffle, fused with
   the sum so that the full-resolution image is written once).
 
-``L``, ``W``, ``H - 1`` start at zero, so an untrained network is the identity
+``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``W``, ``H - 1`` start at zero, so an untrained network is the identity
 ``projector_input = I`` (up to FFT round-off). Images of any size are padded on the bottom and
 right (replicate) to a multiple of ``s`` at full resolution and of ``2**(S-1)`` at ``1/s``
 resolution, and the output is cropped back. The output is not clamped: the caller clamps to the
@@ -47,6 +47,14 @@ from torch.nn import functional as F
 from ..errors import EdofprojError
 from .radial_filter import RadialFourierFilter
 from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, ConvBlock, _downsampling, _upsampling
+
+
+#: The local filter's stored weights are ``L / LOCAL_GAIN_SCALE``: an optimizer step of size ``lr``
+#: moves a tap of ``L`` by up to ``LOCAL_GAIN_SCALE * lr``, so the taps of an inverse filter (a
+#: centre gain of a few units) are reached in a short training run at the network's learning
+#: rate (as :data:`~edofproj.compensation.radial_filter.GAIN_SCALE` does for ``H``). Chosen on the
+#: validation split (``configs/realtime.yaml``): 10 trains well, 30 diverged.
+LOCAL_GAIN_SCALE = 10.0
 
 
 def bilinear_block_weights(block: int) -> torch.Tensor:
@@ -71,17 +79,21 @@ def unshuffle_weight(block: int) -> torch.Tensor:
     return torch.eye(block * block).reshape(block * block, 1, block, block)
 
 
-def add_block_pixels(image: torch.Tensor, blocks: torch.Tensor, block: int) -> torch.Tensor:
+def add_block_pixels(image: torch.Tensor, blocks: torch.Tensor, block: int,
+                     out: torch.Tensor | None = None) -> torch.Tensor:
     """``image + pixel_shuffle(blocks)`` in one pass over the image: ``image (B, C, H, W)``,
     ``blocks (B, C s^2, H/s, W/s)`` with each block's pixel values in
     :func:`torch.nn.functional.pixel_shuffle`'s channel order ``(colour, row, column)``;
-    the result is contiguous ``(B, C, H, W)``."""
+    the result is ``(B, C, H, W)``, written into ``out`` when given (no autograd then)."""
     b, c, height, width = image.shape
     s = int(block)
     hb, wb = height // s, width // s
-    pixels = image.contiguous().view(b, c, hb, s, wb, s)
+    pixels = image.reshape(b, c, hb, s, wb, s)
     values = blocks.reshape(b, c, s, s, hb, wb).permute(0, 1, 4, 2, 5, 3)
-    return (pixels + values).view(b, c, height, width)
+    if out is not None:
+        torch.add(pixels, values, out=out.view(b, c, hb, s, wb, s))
+        return out
+    return (pixels + values).reshape(b, c, height, width)
 
 
 class MultirateCompensationNet(nn.Module):
@@ -162,9 +174,10 @@ class MultirateCompensationNet(nn.Module):
         for scale in reversed(range(len(widths) - 1)):
             self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
             self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
-        self.head = nn.Conv2d(widths[0], c * s * s, 1)
-        nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        self.head = nn.ModuleList(nn.Conv2d(widths[0], s * s, 1) for _ in range(c))  # W, one per colour
+        for head in self.head:
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
@@ -201,19 +214,23 @@ class MultirateCompensationNet(nn.Module):
         correction = (self.prefilter(means) - means).contiguous()  # D
 
         features = self.activation(
-            self.embed_target(full_target) + self.embed_captured(full_captured)
+            _full_resolution_conv(self.embed_target, full_target) + _full_resolution_conv(self.embed_captured, full_captured)
             + self.embed_correction(correction)
         )
-        features = self._unet(features.contiguous(memory_format=lowres))
-        shared = self.head(features).reshape(b, c, s * s, hb, wb)  # W f
+        features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
         block_pixels = block_pixels.view(b, c, s * s, hb, wb)
-        values = torch.stack([
-            self.local_filter[i](block_pixels[:, i].contiguous(memory_format=lowres))
+        per_colour = [
+            self.head[i](features)
+            + LOCAL_GAIN_SCALE * self.local_filter[i](block_pixels[:, i].contiguous(memory_format=lowres))
             + self.correction_to_pixels[i](correction[:, i: i + 1])
-            + shared[:, i]
             for i in range(c)
-        ], dim=1)
-        output = add_block_pixels(full_target, values.view(b, c * s * s, hb, wb), s)
+        ]
+        if torch.is_grad_enabled() or torch.jit.is_tracing():
+            output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * s * s, hb, wb), s)
+        else:  # inference: each colour plane written straight into the output (no stacked copy)
+            output = torch.empty(full_target.shape, dtype=full_target.dtype, device=full_target.device)
+            for i, values in enumerate(per_colour):
+                add_block_pixels(full_target[:, i: i + 1], values, s, out=output[:, i: i + 1])
         return output[..., :height, :width]
 
     def _unet(self, x: torch.Tensor) -> torch.Tensor:
@@ -230,6 +247,14 @@ class MultirateCompensationNet(nn.Module):
         for up, block in zip(self.up, self.decoder):
             x = block(torch.cat([up(x), skips.pop()], dim=1))
         return x[..., :height, :width]
+
+
+def _full_resolution_conv(conv: nn.Conv2d, image: torch.Tensor) -> torch.Tensor:
+    """``conv(image)`` with the weights in the image's memory format: a contiguous image is then not
+    copied to channels-last first (the copy of a full-resolution frame costs more than the
+    stride-``s`` convolution itself)."""
+    layout = torch.channels_last if image.is_contiguous(memory_format=torch.channels_last) else torch.contiguous_format
+    return F.conv2d(image, conv.weight.contiguous(memory_format=layout), conv.bias, conv.stride)
 
 
 def _pad_bottom_right(x: torch.Tensor, multiple: int) -> torch.Tensor:

@@ -84,7 +84,9 @@ class RadialFourierFilter(nn.Module):
         Without gradients (inference) it is kept per frame size and parameter version, so a video
         stream computes it once."""
         reuse = not torch.is_grad_enabled() and not torch.jit.is_tracing()
-        key = (height, width, self.gain.device, self.gain._version)
+        # Parameters created under torch.inference_mode have no version counter (and cannot be trained).
+        version = -1 if self.gain.is_inference() else self.gain._version
+        key = (height, width, self.gain.device, version)
         if reuse and key in self._cache:
             return self._cache[key]
         rho = radial_frequency(height, width, self.gain.device)
