@@ -139,12 +139,13 @@ def cls_torch_case(psf, iterations: int = 100, device: str = "cpu") -> Case:
 
 def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu",
                        channels_last: bool = True) -> Case:
-    """``net(target, captured)`` in ``torch.inference_mode`` (``channels_last`` memory format for
-    weights and images, unless the network says ``channels_last_inputs = False``)."""
+    """``net(target, captured)`` in ``torch.inference_mode`` (``channels_last`` memory format for the
+    weights, and for the images unless the network says ``channels_last_inputs = False``)."""
     net = net.eval().to(device)
-    channels_last = channels_last and getattr(net, "channels_last_inputs", True)
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
     net = net.to(memory_format=memory_format)
+    if not getattr(net, "channels_last_inputs", True):
+        memory_format = torch.contiguous_format
 
     def build(height: int, width: int) -> FrameFunction:
         target = _random_frame(height, width, device, 0).contiguous(memory_format=memory_format)
