@@ -65,7 +65,7 @@ def test_bilinear_block_weights_interpolate_a_ramp_exactly(block):
     ramp = (0.3 * yy - 0.7 * xx + 2.0).float()[None, None]
     means = F.avg_pool2d(ramp, block)
     with torch.no_grad():
-        values = net.correction_to_pixels[1](means)  # (1, s^2, hb, wb)
+        values = net.correction_to_pixels[1](F.pad(means, (1, 1, 1, 1), mode="replicate"))  # (1, s^2, hb, wb)
     upsampled = F.pixel_shuffle(values, block)
     inner = (..., slice(block, -block), slice(block, -block))
     torch.testing.assert_close(upsampled[inner], ramp[inner], rtol=0, atol=1e-4)
