@@ -33,8 +33,8 @@ def trained_looking(net, seed=0):
     """Randomize every zero-initialized part (head, filter nodes, local filter) so the output is not the identity."""
     torch.manual_seed(seed)
     with torch.no_grad():
-        [h.weight.normal_(0, 0.2) for h in net.head]
-        [h.bias.normal_(0, 0.05) for h in net.head]
+        net.head.weight.normal_(0, 0.2)
+        net.head.bias.normal_(0, 0.05)
         net.prefilter.gain.normal_(0, 0.1)
         for local, upsampling in zip(net.local_filter, net.correction_to_pixels):
             local.weight.normal_(0, 0.05)
@@ -171,7 +171,7 @@ def test_zero_initialized_network_learns_and_gradients_reach_every_part():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < 0.1 * losses[0]
-    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.1.weight", "prefilter.gain",
+    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.weight", "prefilter.gain",
                  "correction_to_pixels.1.weight", "embed_target.weight"):
         assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
 
@@ -193,6 +193,16 @@ def test_onnx_export_is_refused_in_one_line(tmp_path):
     with pytest.raises(EdofprojError, match="use --format torchscript"):
         export_network(MultirateCompensationNet(SMALL), tmp_path / "net.onnx", "onnx")
     assert not (tmp_path / "net.onnx").exists()
+
+
+@pytest.mark.parametrize("upsampling", ["transpose", "bilinear"])
+def test_unet_follows_the_configured_upsampling_and_skips_blocks_at_the_finest_scale(upsampling):
+    net = MultirateCompensationNet([4, 6, 8], upsampling=upsampling)
+    first = net.up[0] if upsampling == "transpose" else net.up[0][0]
+    assert isinstance(first, torch.nn.ConvTranspose2d if upsampling == "transpose" else torch.nn.Upsample)
+    assert isinstance(net.encoder[0], torch.nn.Identity)
+    convs = [m for m in net.decoder[-1].modules() if isinstance(m, torch.nn.Conv2d)]
+    assert [m.kernel_size for m in convs] == [(1, 1)]
 
 
 def test_config_builds_the_network_and_refuses_bad_values():

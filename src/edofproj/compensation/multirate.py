@@ -179,10 +179,9 @@ class MultirateCompensationNet(nn.Module):
             self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
             self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope) if scale else
                                 nn.Sequential(nn.Conv2d(2 * widths[0], widths[0], 1), nn.LeakyReLU(leaky_slope)))
-        self.head = nn.ModuleList(nn.Conv2d(widths[0], s * s, 1) for _ in range(c))  # W, one per colour
-        for head in self.head:
-            nn.init.zeros_(head.weight)
-            nn.init.zeros_(head.bias)
+        self.head = nn.Conv2d(widths[0], c * s * s, 1)  # W: pixel values, colour-major channels
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
@@ -226,8 +225,9 @@ class MultirateCompensationNet(nn.Module):
         # one block of replicate padding for the 3x3 convolutions over neighbouring blocks
         padded_pixels = _pad_one_block(block_pixels.contiguous(memory_format=lowres)).view(b, c, s * s, hb + 2, wb + 2)
         padded_correction = _pad_one_block(correction)
+        shared = self.head(features)
         per_colour = [
-            self.head[i](features)
+            shared[:, i * s * s: (i + 1) * s * s]
             + LOCAL_GAIN_SCALE * self.local_filter[i](padded_pixels[:, i])
             + self.correction_to_pixels[i](padded_correction[:, i: i + 1])
             for i in range(c)
