@@ -21,15 +21,16 @@ every full-resolution layer of a 3-channel image is memory-bound. This network w
   the pixels within ``s`` to ``2s - 1`` pixels of it (a polyphase form of a ``3s x 3s`` filter).
 * ``B``: returns ``D`` to the pixels, per colour a 3x3 convolution over neighbouring blocks that
   starts as bilinear interpolation between block centres (and stays learnable).
-* ``f``: the features of a U-Net whose finest scale is ``1/s``
-  (:class:`~edofproj.compensation.unet.ConvBlock` scales from ``1/(2s)`` down), fed with ``s x s``-patch embeddings
-  (stride-``s`` convolutions) of ``I`` and of the capture ``I*`` and a 1x1 embedding of ``D``; ``W`` (1x1) maps them to pixel
-  values.
+* ``f``: the features of a U-Net whose finest scale is ``1/s``: there, the features are
+  ``s x s``-patch embeddings (stride-``s`` convolutions) of ``I`` and of the capture ``I*`` plus a
+  1x1 embedding of ``D``, fused by a 1x1 convolution with the upsampled coarser features; the
+  :class:`~edofproj.compensation.unet.ConvBlock` scales start at ``1/(2s)``. ``W`` (1x1) maps
+  ``f`` to pixel values.
 * ``S_s``: places each block's ``s^2 C`` values at full resolution (a pixel shuffle, fused with
   the sum so that the full-resolution image is written once).
 
-``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``W``, ``H - 1`` start at zero, so an untrained network is the identity
-``projector_input = I`` (up to FFT round-off). Images of any size are padded on the bottom and
+``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``W`` and ``H - 1`` start at zero, so an
+untrained network is the identity ``projector_input = I`` (up to FFT round-off). Images of any size are padded on the bottom and
 right (replicate) to a multiple of ``s`` at full resolution and of ``2**(S-1)`` at ``1/s``
 resolution, and the output is cropped back. The output is not clamped: the caller clamps to the
 projector's range. The only full-resolution operations are three stride-``s`` convolutions and
@@ -46,7 +47,7 @@ from torch.nn import functional as F
 
 from ..errors import EdofprojError
 from .radial_filter import RadialFourierFilter
-from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, ConvBlock, _downsampling, _upsampling
+from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, ConvBlock, _downsampling, _upsampling, unet_body
 
 
 #: The local filter's stored weights are ``L / LOCAL_GAIN_SCALE``: an optimizer step of size ``lr``
@@ -115,7 +116,7 @@ class MultirateCompensationNet(nn.Module):
 
     def __init__(
         self,
-        widths: Sequence[int] = (16, 24, 32, 48),
+        widths: Sequence[int] = (16, 16, 24, 32),
         block: int = 4,
         filter_bins: int = 48,
         filter_margin_blocks: int = 16,
@@ -243,16 +244,7 @@ class MultirateCompensationNet(nn.Module):
     def _unet(self, x: torch.Tensor) -> torch.Tensor:
         """The U-Net body at ``1/s`` resolution (input padded to a multiple of ``2**(S-1)``, output cropped)."""
         height, width = x.shape[-2], x.shape[-1]
-        x = _pad_bottom_right(x, self.lowres_multiple)
-        skips = []
-        for scale, block in enumerate(self.encoder):
-            if scale > 0:
-                x = self.down[scale - 1](x)
-            x = block(x)
-            skips.append(x)
-        x = skips.pop()
-        for up, block in zip(self.up, self.decoder):
-            x = block(torch.cat([up(x), skips.pop()], dim=1))
+        x = unet_body(_pad_bottom_right(x, self.lowres_multiple), self.encoder, self.down, self.up, self.decoder)
         return x[..., :height, :width]
 
 

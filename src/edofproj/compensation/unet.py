@@ -119,6 +119,22 @@ def _upsampling(in_channels: int, out_channels: int, mode: str) -> nn.Module:
     )
 
 
+def unet_body(x: torch.Tensor, encoder, down, up, decoder) -> torch.Tensor:
+    """The U-Net pass: ``encoder[k]`` at scale ``k`` (after ``down[k-1]`` for ``k > 0``), then,
+    coarsest first, ``decoder[j](concat(up[j](x), skip))`` with the encoder's output of that scale
+    as ``skip``. Returns the finest scale's features."""
+    skips = []
+    for scale, block in enumerate(encoder):
+        if scale > 0:
+            x = down[scale - 1](x)
+        x = block(x)
+        skips.append(x)
+    x = skips.pop()
+    for upsample, block in zip(up, decoder):
+        x = block(torch.cat([upsample(x), skips.pop()], dim=1))
+    return x
+
+
 class CompensationUNet(nn.Module):
     """U-Net compensation ``projector_input = target + f(concat(target, captured))``.
 
@@ -232,16 +248,7 @@ class CompensationUNet(nn.Module):
         if self.space_to_depth > 1:
             x = F.pixel_unshuffle(x, self.space_to_depth)
 
-        skips = []
-        for scale, block in enumerate(self.encoder):
-            if scale > 0:
-                x = self.down[scale - 1](x)
-            x = block(x)
-            skips.append(x)
-        x = skips.pop()
-        for up, block in zip(self.up, self.decoder):
-            x = block(torch.cat([up(x), skips.pop()], dim=1))
-        residual = self.head(x)
+        residual = self.head(unet_body(x, self.encoder, self.down, self.up, self.decoder))
         if self.space_to_depth > 1:
             residual = F.pixel_shuffle(residual, self.space_to_depth)
         residual = residual[..., :height, :width]
