@@ -73,12 +73,24 @@ def test_bench_cli_times_every_method_and_backend(tmp_path, capsys, restore_thre
     assert all(float(r["median_ms"]) > 0 for r in rows)
 
 
+def test_bench_cli_times_the_multirate_network(capsys, restore_threads):
+    """An untrained multi-rate network runs on contiguous frames (it reads them with strided convolutions)."""
+    code = main(["bench", "--sizes", "24x40", "--repeats", "1", "--warmup", "0", "--methods", "unet",
+                 "--architecture", "multirate", "--widths", "4,8", "--space-to-depth", "4",
+                 "--prefilter-bins", "8", "--device", "cpu", "--threads", "1"])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "| multirate | torch | cpu |" in captured.out
+    assert "skipping multirate/onnxruntime" in captured.err
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--sizes", "256"], "HEIGHTxWIDTH"),
     (["--methods", "wiener,magic"], "unknown method 'magic'"),
     (["--widths", "huge"], "unknown U-Net width preset"),
     (["--run", "somewhere", "--widths", "fast"], "exclude each other"),
     (["--window", "4", "--methods", "wiener"], "odd"),
+    (["--architecture", "multirate", "--prefilter-bins", "48"], "--space-to-depth >= 2"),
 ])
 def test_bench_cli_errors_are_one_line(argv, message, capsys):
     assert main(["bench", "--repeats", "1", "--warmup", "0", "--sizes", "16x16", *argv]) == 2

@@ -111,6 +111,10 @@ def run(args) -> int:
         raise EdofprojError("--widths/--architecture/--space-to-depth/--prefilter-bins and --run exclude each other "
                             "(a run has its own network)")
 
+    if args.architecture == "multirate" and (args.space_to_depth < 2 or args.prefilter_bins < 2):
+        raise EdofprojError("--architecture multirate needs --space-to-depth >= 2 (block size) and "
+                            "--prefilter-bins >= 2 (filter nodes), e.g. --space-to-depth 4 --prefilter-bins 48")
+
     cfg = Config()
     net = None
     net_label = "unet"
