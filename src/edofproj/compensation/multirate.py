@@ -227,12 +227,13 @@ class MultirateCompensationNet(nn.Module):
         padded_pixels = _pad_one_block(block_pixels.contiguous(memory_format=lowres)).view(b, c, s * s, hb + 2, wb + 2)
         padded_correction = _pad_one_block(correction)
         shared = self.head(features)
-        per_colour = [
-            shared[:, i * s * s: (i + 1) * s * s]
-            + LOCAL_GAIN_SCALE * self.local_filter[i](padded_pixels[:, i])
-            + self.correction_to_pixels[i](padded_correction[:, i: i + 1])
-            for i in range(c)
-        ]
+        per_colour = []
+        for i in range(c):
+            local = self.local_filter[i]
+            values = F.conv2d(padded_pixels[:, i], LOCAL_GAIN_SCALE * local.weight)  # scale the taps, not the image
+            values += self.correction_to_pixels[i](padded_correction[:, i: i + 1])
+            values += shared[:, i * s * s: (i + 1) * s * s]
+            per_colour.append(values)
         if torch.is_grad_enabled() or torch.jit.is_tracing():
             output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * s * s, hb, wb), s)
         else:  # inference: each colour plane written straight into the output (no stacked copy)
