@@ -47,7 +47,7 @@ from torch.nn import functional as F
 
 from ..errors import EdofprojError
 from .radial_filter import RadialFourierFilter
-from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, ConvBlock, _downsampling, _upsampling, unet_body
+from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, unet_body, unet_layers
 
 
 #: The local filter's stored weights are ``L / LOCAL_GAIN_SCALE``: an optimizer step of size ``lr``
@@ -169,17 +169,10 @@ class MultirateCompensationNet(nn.Module):
         # decoder fuses them with the upsampled coarser features by a 1x1 convolution. (3x3 blocks
         # there cost a fifth of the frame time and did not change the validation SSIM: 0.9845 with,
         # 0.9839 without; configs/realtime.yaml.)
-        self.encoder = nn.ModuleList([nn.Identity()])
-        self.down = nn.ModuleList()
-        for coarse, fine in zip(widths[1:], widths[:-1]):
-            self.down.append(_downsampling(fine, downsampling, leaky_slope))
-            self.encoder.append(ConvBlock(fine, coarse, leaky_slope))
-        self.up = nn.ModuleList()
-        self.decoder = nn.ModuleList()
-        for scale in reversed(range(len(widths) - 1)):
-            self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
-            self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope) if scale else
-                                nn.Sequential(nn.Conv2d(2 * widths[0], widths[0], 1), nn.LeakyReLU(leaky_slope)))
+        self.encoder, self.down, self.up, self.decoder = unet_layers(
+            nn.Identity(), widths, downsampling, upsampling, leaky_slope,
+            finest_decoder=lambda: nn.Sequential(nn.Conv2d(2 * widths[0], widths[0], 1), nn.LeakyReLU(leaky_slope)),
+        )
         self.head = nn.Conv2d(widths[0], c * s * s, 1)  # W: pixel values, colour-major channels
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)

@@ -33,7 +33,7 @@ caller clamps to the projector's ``[0, 1]`` range before projecting.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import torch
 from torch import nn
@@ -119,6 +119,29 @@ def _upsampling(in_channels: int, out_channels: int, mode: str) -> nn.Module:
     )
 
 
+def unet_layers(first: nn.Module, widths: Sequence[int], downsampling: str, upsampling: str,
+                leaky_slope: float, finest_decoder: Callable[[], nn.Module] | None = None):
+    """``(encoder, down, up, decoder)`` module lists of a U-Net with ``len(widths)`` scales.
+
+    ``encoder[0] = first`` works at the finest scale; ``encoder[k]`` is a :class:`ConvBlock`
+    after ``down[k-1]``. The decoder, coarsest first, upsamples scale ``k+1`` to scale ``k``
+    (``up``), concatenates the skip and applies a :class:`ConvBlock` (``decoder``), or
+    ``finest_decoder()`` at the finest scale when given (built in place, so that parameters are
+    initialized in the same order either way). Run them with :func:`unet_body`."""
+    encoder, down = nn.ModuleList([first]), nn.ModuleList()
+    for coarse, fine in zip(widths[1:], widths[:-1]):
+        down.append(_downsampling(fine, downsampling, leaky_slope))
+        encoder.append(ConvBlock(fine, coarse, leaky_slope))
+    up, decoder = nn.ModuleList(), nn.ModuleList()
+    for scale in reversed(range(len(widths) - 1)):
+        up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
+        if scale == 0 and finest_decoder is not None:
+            decoder.append(finest_decoder())
+        else:
+            decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
+    return encoder, down, up, decoder
+
+
 def unet_body(x: torch.Tensor, encoder, down, up, decoder) -> torch.Tensor:
     """The U-Net pass: ``encoder[k]`` at scale ``k`` (after ``down[k-1]`` for ``k > 0``), then,
     coarsest first, ``decoder[j](concat(up[j](x), skip))`` with the encoder's output of that scale
@@ -200,17 +223,9 @@ class CompensationUNet(nn.Module):
         self.prefilter = RadialFourierFilter(out_channels, int(prefilter_bins)) if prefilter_bins else None
         unet_inputs = in_channels + (out_channels if self.prefilter is not None else 0)
 
-        self.encoder = nn.ModuleList([ConvBlock(unet_inputs * block, widths[0], leaky_slope)])
-        self.down = nn.ModuleList()
-        for coarse, fine in zip(widths[1:], widths[:-1]):
-            self.down.append(_downsampling(fine, downsampling, leaky_slope))
-            self.encoder.append(ConvBlock(fine, coarse, leaky_slope))
-        # Decoder, coarsest first: upsample scale s+1 to scale s, concatenate the skip, block.
-        self.up = nn.ModuleList()
-        self.decoder = nn.ModuleList()
-        for scale in reversed(range(len(widths) - 1)):
-            self.up.append(_upsampling(widths[scale + 1], widths[scale], upsampling))
-            self.decoder.append(ConvBlock(2 * widths[scale], widths[scale], leaky_slope))
+        self.encoder, self.down, self.up, self.decoder = unet_layers(
+            ConvBlock(unet_inputs * block, widths[0], leaky_slope), widths, downsampling, upsampling, leaky_slope
+        )
         self.head = nn.Conv2d(widths[0], out_channels * block, 1)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
