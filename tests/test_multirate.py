@@ -10,10 +10,10 @@ from torch.nn import functional as F
 
 from edofproj.commands.export import export_network
 from edofproj.compensation.multirate import (
-    LOCAL_GAIN_SCALE,
     MultirateCompensationNet,
     add_block_pixels,
     bilinear_block_weights,
+    polyphase_taps,
     unshuffle_weight,
 )
 from edofproj.config import Config, ConfigError, NetConfig
@@ -36,6 +36,7 @@ def trained_looking(net, seed=0):
         net.head.weight.normal_(0, 0.2)
         net.head.bias.normal_(0, 0.05)
         net.prefilter.gain.normal_(0, 0.1)
+        net.linear_gain.weight.normal_(0, 0.1)
         for local, upsampling in zip(net.local_filter, net.correction_to_pixels):
             local.weight.normal_(0, 0.05)
             upsampling.weight.add_(0.05 * torch.randn_like(upsampling.weight))
@@ -89,33 +90,43 @@ def test_fused_block_sum_equals_pixel_shuffle():
                                rtol=0, atol=0)
 
 
-def test_local_filter_is_a_shift_invariant_filter_when_its_taps_say_so():
-    """Loading the polyphase taps of a full-resolution 3x3 kernel (one per colour) into L
-    reproduces that convolution exactly away from the image border (where L replicates whole
-    blocks, not pixels): the local path can represent any small filter, colour by colour."""
-    s = 4
-    laplacian = torch.tensor([[0.0, -0.5, 0.0], [-0.5, 3.0, -0.5], [0.0, -0.5, 0.0]])
-    kernels = [laplacian, 0.5 * laplacian + 0.5 * torch.eye(3).flip(0), torch.full((3, 3), 1 / 9)]
-    net = MultirateCompensationNet(SMALL, block=s)
-    identity_tap = torch.eye(s * s).reshape(s * s, s * s, 1, 1) * F.pad(torch.ones(1, 1), (1, 1, 1, 1))
+@pytest.mark.parametrize("block, radius", [(4, 4), (4, 1), (3, 3), (2, 2)])
+def test_linear_path_started_from_kernels_is_their_full_resolution_convolution(block, radius):
+    """``initialize_linear_path`` loads the polyphase taps of one convolution kernel per colour
+    into L: the untrained network then equals that convolution of the replicate-padded image,
+    border included (the blocks' border is made of replicated pixels), against F.conv2d."""
+    torch.manual_seed(block + radius)
+    kernels = torch.randn(3, 2 * radius + 1, 2 * radius + 1, dtype=torch.float64)
+    net = MultirateCompensationNet(SMALL, block=block).eval()
+    net.initialize_linear_path(kernels)
+    target, captured = images(6 * block, 9 * block, batch=2)
     with torch.no_grad():
-        for local, kernel in zip(net.local_filter, kernels):
-            weight = torch.zeros(s, s, s, s, 3, 3)  # (out py, out px, in py, in px, block dy, block dx)
-            for py in range(s):
-                for px in range(s):
-                    for ky in range(3):
-                        for kx in range(3):
-                            y, x = py + ky - 1, px + kx - 1  # input pixel, relative to the block's origin
-                            weight[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
-            # the output already holds I itself: L adds the kernel minus the identity
-            local.weight.copy_((weight.reshape(s * s, s * s, 3, 3) - identity_tap) / LOCAL_GAIN_SCALE)
-    target, captured = images(16, 24)
-    with torch.no_grad():
-        out = net(target, captured)
-    reference = F.conv2d(F.pad(target, (1, 1, 1, 1), mode="replicate"), torch.stack(kernels)[:, None], groups=3)
-    inner = (..., slice(1, -1), slice(1, -1))
-    torch.testing.assert_close(out[inner], reference[inner], rtol=0, atol=1e-5)
+        out = net(target, captured).double()
+    r = radius
+    reference = F.conv2d(F.pad(target.double(), (r, r, r, r), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3)
+    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
     assert (out - target).abs().max() > 0.1
+
+
+def test_polyphase_taps_refuse_a_kernel_wider_than_the_blocks_reach():
+    assert polyphase_taps(torch.ones(9, 9), 4).shape == (16, 16, 3, 3)
+    for kernel in (torch.ones(11, 11), torch.ones(4, 4), torch.ones(3, 5)):
+        with pytest.raises(EdofprojError, match="polyphase kernel"):
+            polyphase_taps(kernel, 4)
+    with pytest.raises(EdofprojError, match="kernels"):
+        MultirateCompensationNet(SMALL).initialize_linear_path(torch.ones(2, 3, 3))
+
+
+def test_linear_gain_scales_the_whole_linear_correction():
+    """``(1 + g)`` multiplies ``L U + B D``: a constant gain g = 1 doubles what the linear path adds."""
+    net = MultirateCompensationNet(SMALL).eval()
+    net.initialize_linear_path(torch.tensor([[0.0, -0.25, 0.0], [-0.25, 2.0, -0.25], [0.0, -0.25, 0.0]]).expand(3, 3, 3))
+    target, captured = images(24, 32)
+    with torch.no_grad():
+        before = net(target, captured) - target
+        net.linear_gain.bias.fill_(1.0)
+        after = net(target, captured) - target
+    torch.testing.assert_close(after, 2 * before, rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("size", [(37, 53), (6, 130)])
@@ -161,10 +172,10 @@ def test_channels_last_and_batch_give_the_same_output():
 def test_zero_initialized_network_learns_and_gradients_reach_every_part():
     torch.manual_seed(0)
     net = MultirateCompensationNet(SMALL)
-    optimizer = torch.optim.Adam(net.parameters(), lr=3e-3)
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
     target, captured = images(32, 32, batch=2)
     losses = []
-    for _ in range(40):
+    for _ in range(60):
         optimizer.zero_grad()
         loss = torch.mean((net(target, captured) - (1.2 * target + 0.1)) ** 2)
         loss.backward()
@@ -172,7 +183,7 @@ def test_zero_initialized_network_learns_and_gradients_reach_every_part():
         losses.append(loss.item())
     assert losses[-1] < 0.1 * losses[0]
     for name in ("local_filter.0.weight", "local_filter.2.weight", "head.weight", "prefilter.gain",
-                 "correction_to_pixels.1.weight", "embed_target.weight"):
+                 "correction_to_pixels.1.weight", "embed_target.weight", "linear_gain.weight"):
         assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
 
 

@@ -198,6 +198,15 @@ def test_learning_rate_decays_exponentially_to_the_final_fraction():
     assert lrs[-1] == pytest.approx(1e-3 * 0.99 ** 150)
 
 
+def test_warm_up_rises_linearly_then_joins_the_decay():
+    schedule = exponential_decay(100, 0.5, warmup_steps=10)
+    assert schedule(0) == pytest.approx(0.1)
+    assert schedule(4) == pytest.approx(0.5 * 0.5 ** 0.04)
+    assert schedule(9) == pytest.approx(0.5 ** 0.09)
+    assert schedule(50) == pytest.approx(0.5 ** 0.5)
+    assert exponential_decay(100, 0.5)(0) == 1.0
+
+
 def test_gradient_clipping_limits_the_norm_and_reports_it():
     p = torch.nn.Parameter(torch.zeros(4))
     p.grad = torch.tensor([3.0, 4.0, 0.0, 0.0])

@@ -196,6 +196,10 @@ class NetConfig:
     ``architecture: multirate`` is the real-time network of
     :mod:`edofproj.compensation.multirate`: ``space_to_depth`` (>= 2) is its block size,
     and ``prefilter_bins`` (>= 2) the nodes of its low-resolution Fourier filter.
+    ``init_nsr``: when a multirate network is trained for a fixed DOE, its local linear filter
+    starts as the depth-ensemble Wiener filter of the DOE's training PSFs with this
+    noise-to-signal ratio (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`);
+    0 starts it at zero (the identity).
     """
 
     widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -206,8 +210,11 @@ class NetConfig:
     padding_mode: str = "replicate"
     space_to_depth: int = 1
     prefilter_bins: int = 0
+    init_nsr: float = 0.01
 
     def validate(self) -> None:
+        if not (math.isfinite(self.init_nsr) and self.init_nsr >= 0):
+            raise ConfigError(f"net.init_nsr={self.init_nsr} must be a finite number >= 0 (0: no Wiener start)")
         if self.space_to_depth < 1:
             raise ConfigError(f"net.space_to_depth={self.space_to_depth} must be >= 1")
         if self.prefilter_bins != 0 and self.prefilter_bins < 2:
@@ -320,7 +327,8 @@ class TrainConfig:
     ``defocus``, uniform in ``1/z``, i.e. in defocus, which puts half the draws of 300-800 mm
     below 436 mm where the blur grows fastest), and updates the DOE (Adam, ``lr_optics``) and the network
     (Adam, ``lr_net``). Both learning rates decay exponentially to ``lr_final_fraction`` of
-    their start over ``steps`` (the paper: x0.99 per iteration for 150 iterations);
+    their start over ``steps`` (the paper: x0.99 per iteration for 150 iterations), after a
+    linear warm-up over the first ``warmup_steps`` (0: none);
     gradients of the DOE and of the network are each clipped to the norm ``grad_clip``
     (0: no clipping). ``train_doe``/``train_net`` freeze either part; a fixed DOE's PSFs are
     precomputed at ``psf_table_depths`` depths (uniform in 1/z) and interpolated.
@@ -336,6 +344,7 @@ class TrainConfig:
     lr_optics: float = 1e-3
     lr_net: float = 1e-3
     lr_final_fraction: float = 0.99 ** 150
+    warmup_steps: int = 0
     grad_clip: float = 1.0
     seed: int = 0
     checkpoint_every: int = 50
@@ -359,6 +368,8 @@ class TrainConfig:
             raise ConfigError("train.lr_optics and train.lr_net must be >= 0")
         if not (0.0 < self.lr_final_fraction <= 1.0):
             raise ConfigError("train.lr_final_fraction must be in (0, 1]")
+        if self.warmup_steps < 0:
+            raise ConfigError(f"train.warmup_steps={self.warmup_steps} must be >= 0")
         if self.grad_clip < 0:
             raise ConfigError("train.grad_clip must be >= 0 (0 disables clipping)")
         if self.noise_sigma < 0:

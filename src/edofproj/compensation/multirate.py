@@ -97,6 +97,29 @@ def add_block_pixels(image: torch.Tensor, blocks: torch.Tensor, block: int,
     return (pixels + values).reshape(b, c, height, width)
 
 
+def polyphase_taps(kernel: torch.Tensor, block: int) -> torch.Tensor:
+    """``(s^2, s^2, 3, 3)`` weights of a 3x3 convolution over neighbouring ``s x s`` blocks that
+    equals the full-resolution cross-correlation ``J(y) = sum_u k(u) I(y + u)`` with the odd
+    ``(2r + 1)^2`` kernel ``k`` (``r <= s``: each output pixel sees at least ``s`` pixels on
+    every side through its block's neighbours). Output channel ``s py + px`` is pixel
+    ``(py, px)`` of the block, input channel ``s qy + qx`` pixel ``(qy, qx)`` of a neighbour."""
+    kernel = torch.as_tensor(kernel, dtype=torch.float64)
+    s = int(block)
+    size = kernel.shape[-1]
+    if kernel.dim() != 2 or kernel.shape[0] != size or size % 2 == 0 or size > 2 * s + 1:
+        raise EdofprojError(f"a polyphase kernel must be square, odd and at most {2 * s + 1} px for "
+                            f"{s}x{s} blocks, got {tuple(kernel.shape)}")
+    r = size // 2
+    taps = torch.zeros(s, s, s, s, 3, 3, dtype=torch.float64)  # (out py, out px, in qy, in qx, dy, dx)
+    for py in range(s):
+        for px in range(s):
+            for ky in range(size):
+                for kx in range(size):
+                    y, x = py + ky - r, px + kx - r  # input pixel relative to the block's origin
+                    taps[py, px, y % s, x % s, y // s + 1, x // s + 1] += kernel[ky, kx]
+    return taps.reshape(s * s, s * s, 3, 3)
+
+
 class MultirateCompensationNet(nn.Module):
     """``projector_input = I + S_s(L U + B D + W f)`` (module docstring).
 
@@ -143,8 +166,8 @@ class MultirateCompensationNet(nn.Module):
         self.lowres_multiple = 2 ** (len(widths) - 1)
 
         # U and P of every colour plane (colours ride in the batch dimension).
-        self.register_buffer("unshuffle_weight", unshuffle_weight(s), persistent=False)
-        self.register_buffer("mean_weight", torch.full((1, s * s, 1, 1), 1.0 / (s * s)), persistent=False)
+        self.register_buffer("block_weight", torch.cat([unshuffle_weight(s), torch.full((1, 1, s, s), 1.0 / (s * s))]),
+                             persistent=False)
         self.prefilter = RadialFourierFilter(c, int(filter_bins), margin_px=int(filter_margin_blocks))
         # L (zero at start) and B (bilinear at start), one of each per colour: the PSFs, and so
         # the inverse filters, differ between colours. (One dense convolution per colour: grouped
@@ -176,6 +199,10 @@ class MultirateCompensationNet(nn.Module):
         self.head = nn.Conv2d(widths[0], c * s * s, 1)  # W: pixel values, colour-major channels
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
+        # g: the strength of the linear correction per colour and block (zero at start)
+        self.linear_gain = nn.Conv2d(widths[0], c, 1)
+        nn.init.zeros_(self.linear_gain.weight)
+        nn.init.zeros_(self.linear_gain.bias)
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
@@ -190,6 +217,21 @@ class MultirateCompensationNet(nn.Module):
             upsampling=net_cfg.upsampling,
         )
 
+    def initialize_linear_path(self, kernels) -> None:
+        """Start ``L`` as a known linear compensation: ``I + L U`` equals the full-resolution
+        convolution ``kernels (C, 2r+1, 2r+1)`` (``r <= s``; e.g. the depth-ensemble Wiener kernel,
+        :func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel`) away from the border,
+        while ``H = 1`` (so ``D = 0``). Training starts from a deconvolution instead of the identity."""
+        kernels = torch.as_tensor(kernels, dtype=torch.float64)
+        if kernels.dim() != 3 or kernels.shape[0] != self.channels:
+            raise EdofprojError(f"initialize_linear_path needs ({self.channels}, K, K) kernels, got {tuple(kernels.shape)}")
+        s = self.block
+        identity = polyphase_taps(F.pad(torch.ones(1, 1), (s, s, s, s)), s)
+        with torch.no_grad():
+            for local, kernel in zip(self.local_filter, kernels):
+                taps = polyphase_taps(kernel.flip(-2, -1), s) - identity  # convolution -> correlation
+                local.weight.copy_((taps / LOCAL_GAIN_SCALE).to(local.weight.dtype))
+
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
         """``I + S_s(L U + B D + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
         if not torch.jit.is_tracing() and (
@@ -201,39 +243,53 @@ class MultirateCompensationNet(nn.Module):
             )
         height, width = target.shape[-2], target.shape[-1]
         s, c = self.block, self.channels
+        n = s * s
         lowres = torch.channels_last
         full_target = _pad_bottom_right(target, s)
         full_captured = _pad_bottom_right(captured, s)
 
         b, hb, wb = full_target.shape[0], full_target.shape[-2] // s, full_target.shape[-1] // s
         planes = full_target.contiguous().view(b * c, 1, full_target.shape[-2], full_target.shape[-1])
-        block_pixels = F.conv2d(planes, self.unshuffle_weight.contiguous(), stride=s)  # U, (B C, s^2, H/s, W/s)
-        means = F.conv2d(block_pixels, self.mean_weight).view(b, c, hb, wb)  # P
+        # U of every block and of a one-block border (pixels replicated), and P as channel s^2
+        blocks = F.conv2d(F.pad(planes, (s, s, s, s), mode="replicate"),
+                          self.block_weight.contiguous(memory_format=lowres), stride=s)  # (B C, s^2 + 1, hb + 2, wb + 2)
+        blocks = blocks.contiguous(memory_format=lowres)
+        means = blocks[:, n, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
         correction = (self.prefilter(means) - means).contiguous()  # D
+        # channel s^2 becomes P + D = H P (D replicated over the border blocks)
+        blocks[:, n].add_(_pad_one_block(correction).view(b * c, hb + 2, wb + 2))
 
         features = self.activation(
             _full_resolution_conv(self.embed_target, full_target) + _full_resolution_conv(self.embed_captured, full_captured)
             + self.embed_correction(correction)
         )
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
-        # one block of replicate padding for the 3x3 convolutions over neighbouring blocks
-        padded_pixels = _pad_one_block(block_pixels.contiguous(memory_format=lowres)).view(b, c, s * s, hb + 2, wb + 2)
-        padded_correction = _pad_one_block(correction)
         shared = self.head(features)
+        gain = self.linear_gain(features)
+        inference = not (torch.is_grad_enabled() or torch.jit.is_tracing())
         per_colour = []
+        colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
         for i in range(c):
-            local = self.local_filter[i]
-            values = F.conv2d(padded_pixels[:, i], LOCAL_GAIN_SCALE * local.weight)  # scale the taps, not the image
-            values += self.correction_to_pixels[i](padded_correction[:, i: i + 1])
-            values += shared[:, i * s * s: (i + 1) * s * s]
+            values = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
+            values = values.mul_(1 + gain[:, i: i + 1]) if inference else values * (1 + gain[:, i: i + 1])
+            values = values.add_(shared[:, i * n: (i + 1) * n]) if inference else values + shared[:, i * n: (i + 1) * n]
             per_colour.append(values)
-        if torch.is_grad_enabled() or torch.jit.is_tracing():
-            output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * s * s, hb, wb), s)
-        else:  # inference: each colour plane written straight into the output (no stacked copy)
+        if not inference:
+            output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * n, hb, wb), s)
+        else:  # each colour plane written straight into the output (no stacked copy)
             output = torch.empty(full_target.shape, dtype=full_target.dtype, device=full_target.device)
             for i, values in enumerate(per_colour):
                 add_block_pixels(full_target[:, i: i + 1], values, s, out=output[:, i: i + 1])
         return output[..., :height, :width]
+
+    def _linear_weight(self, colour: int) -> torch.Tensor:
+        """``(s^2, s^2 + 1, 3, 3)``: ``L U + B D`` as one convolution of the ``s^2`` pixels and ``H P``
+        of each block and its 8 neighbours: ``B D = B (H P) - B P``, and ``B P`` is linear in the
+        pixels (``P`` is their mean), so it joins ``L`` on them."""
+        n = self.block * self.block
+        local = LOCAL_GAIN_SCALE * self.local_filter[colour].weight  # scale the taps, not the image
+        to_pixels = self.correction_to_pixels[colour].weight  # (s^2, 1, 3, 3)
+        return torch.cat([local - to_pixels / n, to_pixels], dim=1)
 
     def _unet(self, x: torch.Tensor) -> torch.Tensor:
         """The U-Net body at ``1/s`` resolution (input padded to a multiple of ``2**(S-1)``, output cropped)."""

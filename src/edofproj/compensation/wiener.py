@@ -114,6 +114,41 @@ def wiener_filter(otf: np.ndarray, nsr: float) -> np.ndarray:
     return np.conj(otf) / (np.abs(otf) ** 2 + checked_nsr(nsr))
 
 
+def depth_ensemble_wiener_kernel(psfs, nsr: float, radius: int, grid: int = 128) -> np.ndarray:
+    """The best *fixed* linear compensation for a screen at an unknown depth, as a small kernel.
+
+    For PSFs ``p_z`` at depths drawn uniformly from ``psfs`` ``(N, C, K, K)`` (e.g. a table uniform
+    in 1/z), the filter that minimizes the expected ``E_z |H_z G I - I|^2 + NSR |G I|^2`` is
+
+        G(k) = sum_z conj(H_z(k)) / (sum_z |H_z(k)|^2 + N NSR)
+
+    (with one PSF, the Wiener filter; ``H_z`` with the haze, :func:`optical_transfer_function`).
+    Its convolution kernel ``g = F^-1[G]`` (computed on a ``grid x grid`` frame) is cut to
+    ``(2 radius + 1)^2`` taps around the centre, and the DC gain the cut tail carried,
+    ``G(0) - sum(cut)``, is added back spread by a normalized Gaussian (sigma = radius / 2), so
+    that flat areas keep the brightness ``G(0)``. Returns float64 ``(C, 2 radius + 1, 2 radius + 1)``
+    convolution kernels (apply as ``x = g * I``; flip both axes for a cross-correlation).
+    """
+    psfs = np.asarray(psfs, dtype=np.float64)
+    if psfs.ndim == 3:
+        psfs = psfs[None]
+    if psfs.ndim != 4 or psfs.shape[0] < 1:
+        raise EdofprojError(f"PSFs must be (N, C, K, K), got shape {psfs.shape}")
+    radius = int(radius)
+    if radius < 0 or 2 * radius + 1 > grid:
+        raise EdofprojError(f"kernel radius {radius} must be >= 0 and fit in the {grid}-px grid")
+    otfs = np.stack([optical_transfer_function(p, grid, grid) for p in psfs])  # (N, C, grid, grid/2+1)
+    gain = np.conj(otfs).sum(0) / ((np.abs(otfs) ** 2).sum(0) + len(psfs) * checked_nsr(nsr))
+    kernel = np.fft.fftshift(np.fft.irfft2(gain, s=(grid, grid)), axes=(-2, -1))
+    centre = grid // 2
+    cut = kernel[:, centre - radius: centre + radius + 1, centre - radius: centre + radius + 1].copy()
+    yy, xx = np.mgrid[-radius: radius + 1, -radius: radius + 1]
+    spread = np.exp(-(yy ** 2 + xx ** 2) / (2 * max(radius / 2, 0.5) ** 2))
+    spread /= spread.sum()
+    cut += (gain[:, 0, 0].real - cut.sum(axis=(-2, -1)))[:, None, None] * spread
+    return cut
+
+
 # --------------------------------------------------------------------------- NumPy / SciPy
 
 

@@ -88,9 +88,27 @@ def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.M
     return DepthPSFTable.simulate(simulator, doe, z_min, z_max, cfg.train.psf_table_depths)
 
 
-def exponential_decay(total_steps: int, final_fraction: float):
-    """``t -> f^(t / T)``: the learning-rate multiplier after ``t`` of ``T`` steps."""
-    return lambda t: final_fraction ** (t / total_steps)
+def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> None:
+    """A network with a linear path (``initialize_linear_path``, the multirate network) trained for
+    a *fixed* DOE starts that path as the depth-ensemble Wiener filter of the DOE's PSF table
+    (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans. A resumed run
+    then loads its checkpoint over this start."""
+    if cfg.net.init_nsr <= 0 or not isinstance(psf_source, DepthPSFTable) or not hasattr(net, "initialize_linear_path"):
+        return
+    from ..compensation.wiener import depth_ensemble_wiener_kernel
+
+    kernels = depth_ensemble_wiener_kernel(psf_source.psf.detach().cpu().numpy(), cfg.net.init_nsr,
+                                           radius=cfg.net.space_to_depth)
+    net.initialize_linear_path(kernels)
+
+
+def exponential_decay(total_steps: int, final_fraction: float, warmup_steps: int = 0):
+    """``t -> min(1, (t + 1) / W) f^(t / T)``: the learning-rate multiplier after ``t`` of ``T``
+    steps, with a linear warm-up over the first ``W`` steps (none for ``W = 0``). The warm-up keeps
+    Adam's first steps (about ``lr`` per parameter whatever the gradient) from undoing a network
+    that starts as a good compensation (``start_from_wiener``)."""
+    warmup = max(int(warmup_steps), 0)
+    return lambda t: min(1.0, (t + 1) / warmup if warmup else 1.0) * final_fraction ** (t / total_steps)
 
 
 def loss_terms(loss_fn, cfg: Config, projected: torch.Tensor,
@@ -145,6 +163,7 @@ class _Session:
             for p in self.net.parameters():
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
+        start_from_wiener(cfg, self.net, psf_source)
         self.model = EndToEndProjector(psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture)
 
         self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
@@ -159,7 +178,7 @@ class _Session:
                                 "and train.train_net=false")
         self.optimizer = torch.optim.Adam(groups)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, exponential_decay(cfg.train.steps, cfg.train.lr_final_fraction))
+            self.optimizer, exponential_decay(cfg.train.steps, cfg.train.lr_final_fraction, cfg.train.warmup_steps))
         self.loss_fn = build_loss(cfg.loss)
         if hasattr(self.loss_fn, "to"):
             self.loss_fn = self.loss_fn.to(device)
