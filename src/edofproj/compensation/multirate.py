@@ -8,19 +8,27 @@ a CPU: a Fourier filter of the whole frame costs as much as Wiener deconvolution
 every full-resolution layer of a 3-channel image is memory-bound. This network works on
 ``s x s`` pixel blocks (``s`` = 4 by default) and splits the work by frequency:
 
-    projector_input = I + S_s( L U + B D + W f )
+    projector_input = I + S_s( (1 + g) (L U + B D) + W f )
 
-* ``U``: the ``s^2`` pixels of each block of the target ``I``, per colour (a pixel unshuffle,
-  done as one stride-``s`` convolution of each colour plane); ``P`` their block means.
+* ``U``: the ``s^2`` pixels of each block of the target ``I``, per colour, for every block and a
+  one-block border of replicated pixels (one stride-``s`` convolution of each padded colour
+  plane, which also gives ``P``, the block means).
 * ``D = F^-1[H(rho) F[P]] - P``: the wide, low-frequency part of the inverse filter, a learned
   rotationally symmetric Fourier filter
   (:class:`~edofproj.compensation.radial_filter.RadialFourierFilter`) applied to ``P``, i.e. to
   ``s^2`` times fewer samples than a full-resolution FFT.
 * ``L``: the local linear part, per colour a 3x3 convolution over neighbouring blocks from the
   ``s^2`` pixels to the ``s^2`` pixels: every output pixel is a learned linear combination of
-  the pixels within ``s`` to ``2s - 1`` pixels of it (a polyphase form of a ``3s x 3s`` filter).
+  the pixels within ``s`` to ``2s - 1`` pixels of it (a polyphase form of a ``3s x 3s`` filter,
+  :func:`polyphase_taps`).
 * ``B``: returns ``D`` to the pixels, per colour a 3x3 convolution over neighbouring blocks that
-  starts as bilinear interpolation between block centres (and stays learnable).
+  starts as bilinear interpolation between block centres (and stays learnable). ``L U + B D``
+  runs as *one* convolution of ``[U, H P]`` (``B D = B (H P) - B P``, and ``B P`` is linear in
+  ``U``).
+* ``g``: the strength of that linear correction per colour and block, a 1x1 map of ``f``. The
+  inverse filter of a DOE changes with the screen depth (for the demo's DOE, the centre tap of
+  the red Wiener kernel is about 4 at 300-700 mm and 0.9 at 800 mm); ``g`` lets the depth seen
+  in the capture scale it.
 * ``f``: the features of a U-Net whose finest scale is ``1/s``: there, the features are
   ``s x s``-patch embeddings (stride-``s`` convolutions) of ``I`` and of the capture ``I*`` plus a
   1x1 embedding of ``D``, fused by a 1x1 convolution with the upsampled coarser features; the
@@ -29,12 +37,17 @@ every full-resolution layer of a 3-channel image is memory-bound. This network w
 * ``S_s``: places each block's ``s^2 C`` values at full resolution (a pixel shuffle, fused with
   the sum so that the full-resolution image is written once).
 
-``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``W`` and ``H - 1`` start at zero, so an
-untrained network is the identity ``projector_input = I`` (up to FFT round-off). Images of any size are padded on the bottom and
-right (replicate) to a multiple of ``s`` at full resolution and of ``2**(S-1)`` at ``1/s``
-resolution, and the output is cropped back. The output is not clamped: the caller clamps to the
-projector's range. The only full-resolution operations are three stride-``s`` convolutions and
-the final sum; ``edofproj bench`` measures the whole.
+``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``g``, ``W`` and ``H - 1`` start at zero, so
+an untrained network is the identity ``projector_input = I`` (up to FFT round-off). For a fixed
+DOE, training starts ``L`` instead as the depth-ensemble Wiener filter of its PSFs
+(:meth:`MultirateCompensationNet.initialize_linear_path`,
+:func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel`): the best fixed linear
+compensation over the depth range, which the network then makes depth-adaptive and
+range-aware. Images of any size are padded on the bottom and right (replicate) to a multiple of
+``s`` at full resolution and of ``2**(S-1)`` at ``1/s`` resolution, and the output is cropped
+back. The output is not clamped: the caller clamps to the projector's range. The only
+full-resolution operations are three stride-``s`` convolutions, one replicate padding and the
+final sum; ``edofproj bench`` measures the whole.
 """
 
 from __future__ import annotations
