@@ -227,7 +227,48 @@ def test_config_builds_the_network_and_refuses_bad_values():
         NetConfig(architecture="multirate", space_to_depth=1, prefilter_bins=24).validate()
     with pytest.raises(ConfigError, match="prefilter_bins >= 2"):
         NetConfig(architecture="multirate", space_to_depth=4, prefilter_bins=0).validate()
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ConfigError, match="init_nsr"):
+            NetConfig(architecture="multirate", space_to_depth=4, prefilter_bins=24, init_nsr=bad).validate()
     with pytest.raises(EdofprojError, match="block=1"):
         MultirateCompensationNet(SMALL, block=1)
     with pytest.raises(EdofprojError, match="same shape"):
         MultirateCompensationNet(SMALL)(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 9))
+
+
+def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
+    """``start_from_wiener`` loads the cut ensemble Wiener kernel of a PSF table into L (the
+    untrained network then equals that convolution), and leaves the network alone for a DOE
+    being trained (no table), for ``init_nsr = 0`` and for networks without a linear path."""
+    from edofproj.compensation.unet import CompensationUNet
+    from edofproj.compensation.wiener import depth_ensemble_wiener_kernel
+    from edofproj.training.psf_table import DepthPSFTable
+    from edofproj.training.trainer import start_from_wiener
+
+    psf = torch.zeros(3, 3, 9, 9)
+    for i, sigma in enumerate((0.6, 0.9, 1.2)):  # blur growing with depth, like defocus
+        r2 = (torch.arange(9.0) - 4)[:, None] ** 2 + (torch.arange(9.0) - 4)[None] ** 2
+        psf[i] = torch.exp(-r2 / (2 * sigma ** 2)) / torch.exp(-r2 / (2 * sigma ** 2)).sum()
+    table = DepthPSFTable(psf, 1 / np.linspace(1 / 0.8, 1 / 0.3, 3))
+    cfg = Config()
+    cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.01)
+    net = build_net(cfg).eval()
+    start_from_wiener(cfg, net, table)
+    kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psf.numpy(), 0.01, radius=4))
+    target, captured = images(24, 32)
+    with torch.no_grad():
+        out = net(target, captured).double()
+    reference = F.conv2d(F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3)
+    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
+
+    for untouched_cfg, source in ((cfg, torch.nn.Identity()), (Config(), table)):
+        if source is table:
+            untouched_cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4,
+                                          prefilter_bins=8, init_nsr=0.0)
+        fresh = build_net(untouched_cfg)
+        start_from_wiener(untouched_cfg, fresh, source)
+        assert all(local.weight.abs().max() == 0 for local in fresh.local_filter)
+    unet = CompensationUNet([4, 8])
+    before = [p.clone() for p in unet.parameters()]
+    start_from_wiener(cfg, unet, table)
+    assert all(torch.equal(a, b) for a, b in zip(before, unet.parameters()))
