@@ -179,8 +179,7 @@ class MultirateCompensationNet(nn.Module):
         self.lowres_multiple = 2 ** (len(widths) - 1)
 
         # U and P of every colour plane (colours ride in the batch dimension).
-        self.register_buffer("block_weight", torch.cat([unshuffle_weight(s), torch.full((1, 1, s, s), 1.0 / (s * s))]),
-                             persistent=False)
+        self.register_buffer("unshuffle_weight", unshuffle_weight(s), persistent=False)
         self.prefilter = RadialFourierFilter(c, int(filter_bins), margin_px=int(filter_margin_blocks))
         # L (zero at start) and B (bilinear at start), one of each per colour: the PSFs, and so
         # the inverse filters, differ between colours. (One dense convolution per colour: grouped
@@ -264,18 +263,21 @@ class MultirateCompensationNet(nn.Module):
         b, hb, wb = full_target.shape[0], full_target.shape[-2] // s, full_target.shape[-1] // s
         planes = full_target.contiguous().view(b * c, 1, full_target.shape[-2], full_target.shape[-1])
         # U of every block and of a one-block border (pixels replicated), and P as channel s^2
-        blocks = F.conv2d(F.pad(planes, (s, s, s, s), mode="replicate"),
-                          self.block_weight.contiguous(memory_format=lowres), stride=s)  # (B C, s^2 + 1, hb + 2, wb + 2)
-        blocks = blocks.contiguous(memory_format=lowres)
+        pixels = F.conv2d(F.pad(planes, (s, s, s, s), mode="replicate"), self.unshuffle_weight, stride=s)
+        # (B C, s^2 + 1, hb + 2, wb + 2), channels-last for the convolutions over blocks (one
+        # 17-channel convolution would do the same, but oneDNN runs it several times slower)
+        blocks = torch.empty((b * c, n + 1, hb + 2, wb + 2), dtype=pixels.dtype, device=pixels.device,
+                             memory_format=lowres)
+        blocks[:, :n] = pixels
+        blocks[:, n:] = pixels.mean(dim=1, keepdim=True)
         means = blocks[:, n, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
         correction = (self.prefilter(means) - means).contiguous()  # D
         # channel s^2 becomes P + D = H P (D replicated over the border blocks)
         blocks[:, n].add_(_pad_one_block(correction).view(b * c, hb + 2, wb + 2))
 
-        features = self.activation(
-            _full_resolution_conv(self.embed_target, full_target) + _full_resolution_conv(self.embed_captured, full_captured)
-            + self.embed_correction(correction)
-        )
+        features = _full_resolution_conv(self.embed_target, full_target)
+        features = features + _full_resolution_conv(self.embed_captured, full_captured) + self.embed_correction(correction)
+        features = self.activation(features)
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
         shared = self.head(features)
         gain = self.linear_gain(features)
@@ -284,8 +286,7 @@ class MultirateCompensationNet(nn.Module):
         colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
         for i in range(c):
             values = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
-            values = values.mul_(1 + gain[:, i: i + 1]) if inference else values * (1 + gain[:, i: i + 1])
-            values = values.add_(shared[:, i * n: (i + 1) * n]) if inference else values + shared[:, i * n: (i + 1) * n]
+            values = torch.addcmul(shared[:, i * n: (i + 1) * n], values, 1 + gain[:, i: i + 1])  # one pass
             per_colour.append(values)
         if not inference:
             output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * n, hb, wb), s)
