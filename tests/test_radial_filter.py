@@ -82,3 +82,12 @@ def test_network_description_names_the_prefilter():
 
     assert describe_network(load_config("cpu").net) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
     assert describe_network(load_config("paper").net) == "U-Net 32-256 (7 scales)"
+
+
+def test_radial_frequency_grid_equals_fftfreq_bit_for_bit():
+    """The grid is built from arange (ONNX has no fftfreq) and must not change any result."""
+    from edofproj.compensation.radial_filter import radial_frequency
+
+    for height, width in ((1, 1), (7, 12), (150, 200), (182, 232), (320, 320), (664, 864), (1088, 2080)):
+        expected = torch.sqrt(torch.fft.fftfreq(height)[:, None] ** 2 + torch.fft.rfftfreq(width)[None, :] ** 2)
+        assert torch.equal(radial_frequency(height, width), expected), (height, width)

@@ -152,17 +152,28 @@ def run(args) -> int:
                 cases.append(timing.network_torch_case(network, label, device))
                 if args.no_onnx:
                     continue
-                if getattr(network, "prefilter", None) is not None:
-                    print(f"edofproj: note: {label} has a Fourier pre-filter, which ONNX export cannot hold: "
-                          f"skipping {label}/onnxruntime", file=sys.stderr)
-                    continue
                 if not timing.onnx_available(device):
                     print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",
                           file=sys.stderr)
                     continue
-                if index not in onnx_files:
-                    from .export import export_network
+                from .export import _require_onnx, export_network, fixed_size_onnx
 
+                if fixed_size_onnx(network):  # a Fourier filter: one export per frame size
+                    try:
+                        _require_onnx(fourier=True)
+                    except EdofprojError as missing:
+                        print(f"edofproj: note: {missing}: skipping {label}/onnxruntime", file=sys.stderr)
+                        continue
+
+                    def path_for(height: int, width: int, network=network, index=index) -> Path:
+                        path = Path(tmp) / f"net{index}-{height}x{width}.onnx"
+                        if not path.exists():
+                            export_network(network, path, "onnx", height, width)
+                        return path
+
+                    cases.append(timing.network_onnx_case(path_for, label, device, args.threads))
+                    continue
+                if index not in onnx_files:
                     onnx_files[index] = Path(tmp) / f"net{index}.onnx"
                     export_network(network, onnx_files[index], "onnx", *sizes[0])
                 cases.append(timing.network_onnx_case(str(onnx_files[index]), label, device, args.threads))

@@ -43,9 +43,14 @@ GAIN_SCALE = 10.0
 
 
 def radial_frequency(height: int, width: int, device=None) -> torch.Tensor:
-    """``rho = sqrt(fy^2 + fx^2)`` in cycles per pixel on the ``rfft2`` grid ``(height, width // 2 + 1)``."""
-    fy = torch.fft.fftfreq(height, device=device)
-    fx = torch.fft.rfftfreq(width, device=device)
+    """``rho = sqrt(fy^2 + fx^2)`` in cycles per pixel on the ``rfft2`` grid ``(height, width // 2 + 1)``.
+
+    The frequencies are built from ``arange`` exactly as :func:`torch.fft.fftfreq` and
+    :func:`torch.fft.rfftfreq` build them (``k * (1 / n)``, bit for bit), so that ONNX export
+    (which has no ``fftfreq``) can hold the filter."""
+    k = torch.arange(height, device=device, dtype=torch.float32)
+    fy = torch.where(k < (height + 1) // 2, k, k - height) * (1.0 / height)
+    fx = torch.arange(width // 2 + 1, device=device, dtype=torch.float32) * (1.0 / width)
     return torch.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2)
 
 

@@ -180,17 +180,23 @@ def onnx_providers(device: str) -> list[str]:
     return ["CUDAExecutionProvider", "CPUExecutionProvider"]
 
 
-def network_onnx_case(onnx_path: str, method: str, device: str = "cpu",
-                      threads: int | None = None) -> Case:
-    """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime."""
+def network_onnx_case(onnx_path, method: str, device: str = "cpu", threads: int | None = None) -> Case:
+    """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime. ``onnx_path``:
+    one file for every frame size, or ``path_for(height, width)`` for exports made for one frame
+    size (networks with a Fourier filter, :func:`edofproj.commands.export.fixed_size_onnx`)."""
     import onnxruntime
 
     options = onnxruntime.SessionOptions()
     if threads:
         options.intra_op_num_threads = int(threads)
-    session = onnxruntime.InferenceSession(str(onnx_path), options, providers=onnx_providers(device))
+
+    def session_for(path):
+        return onnxruntime.InferenceSession(str(path), options, providers=onnx_providers(device))
+
+    shared = None if callable(onnx_path) else session_for(onnx_path)
 
     def build(height: int, width: int) -> FrameFunction:
+        session = shared if shared is not None else session_for(onnx_path(height, width))
         feed = {
             "target": _random_frame(height, width, "cpu", 0).numpy(),
             "captured": _random_frame(height, width, "cpu", 1).numpy(),
