@@ -199,13 +199,6 @@ def test_torchscript_export_matches_pytorch_at_two_sizes(tmp_path):
         torch.testing.assert_close(loaded(target, captured), net(target, captured), rtol=0, atol=1e-5)
 
 
-def test_onnx_export_is_refused_in_one_line(tmp_path):
-    pytest.importorskip("onnx")
-    with pytest.raises(EdofprojError, match="use --format torchscript"):
-        export_network(MultirateCompensationNet(SMALL), tmp_path / "net.onnx", "onnx")
-    assert not (tmp_path / "net.onnx").exists()
-
-
 @pytest.mark.parametrize("upsampling", ["transpose", "bilinear"])
 def test_unet_follows_the_configured_upsampling_and_skips_blocks_at_the_finest_scale(upsampling):
     net = MultirateCompensationNet([4, 6, 8], upsampling=upsampling)
