@@ -134,7 +134,7 @@ def polyphase_taps(kernel: torch.Tensor, block: int) -> torch.Tensor:
 
 
 class MultirateCompensationNet(nn.Module):
-    """``projector_input = I + S_s(L U + B D + W f)`` (module docstring).
+    """``projector_input = I + S_s((1 + g)(L U + B D) + W f)`` (module docstring).
 
     Args:
         widths: channels of each U-Net scale at ``1/block`` resolution, finest first.
@@ -231,9 +231,11 @@ class MultirateCompensationNet(nn.Module):
 
     def initialize_linear_path(self, kernels) -> None:
         """Start ``L`` as a known linear compensation: ``I + L U`` equals the full-resolution
-        convolution ``kernels (C, 2r+1, 2r+1)`` (``r <= s``; e.g. the depth-ensemble Wiener kernel,
-        :func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel`) away from the border,
-        while ``H = 1`` (so ``D = 0``). Training starts from a deconvolution instead of the identity."""
+        convolution with ``kernels (C, 2r+1, 2r+1)`` of the replicate-padded image (``r <= s``; e.g.
+        the depth-ensemble Wiener kernel,
+        :func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel`), border included, while
+        ``H = 1`` (so ``D = 0``) and ``g = 0``. Training then starts from a deconvolution instead of
+        the identity."""
         kernels = torch.as_tensor(kernels, dtype=torch.float64)
         if kernels.dim() != 3 or kernels.shape[0] != self.channels:
             raise EdofprojError(f"initialize_linear_path needs ({self.channels}, K, K) kernels, got {tuple(kernels.shape)}")
@@ -245,7 +247,7 @@ class MultirateCompensationNet(nn.Module):
                 local.weight.copy_((taps / LOCAL_GAIN_SCALE).to(local.weight.dtype))
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
-        """``I + S_s(L U + B D + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
+        """``I + S_s((1 + g)(L U + B D) + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
         if not torch.jit.is_tracing() and (
             target.dim() != 4 or captured.shape != target.shape or target.shape[1] != self.channels
         ):
