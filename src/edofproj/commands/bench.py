@@ -156,11 +156,11 @@ def run(args) -> int:
                     print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",
                           file=sys.stderr)
                     continue
-                from .export import _require_onnx, export_network, fixed_size_onnx
+                from .export import export_network, fixed_size_onnx, require_onnx
 
                 if fixed_size_onnx(network):  # a Fourier filter: one export per frame size
                     try:
-                        _require_onnx(fourier=True)
+                        require_onnx(fourier=True)
                     except EdofprojError as missing:
                         print(f"edofproj: note: {missing}: skipping {label}/onnxruntime", file=sys.stderr)
                         continue

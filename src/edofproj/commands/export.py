@@ -39,7 +39,7 @@ OUTPUT_NAME = "projector_input"
 DEFAULT_FILE_NAMES = {"onnx": "net.onnx", "torchscript": "net.torchscript.pt"}
 
 
-def _require_onnx(fourier: bool = False) -> None:
+def require_onnx(fourier: bool = False) -> None:
     try:
         import onnx  # noqa: F401
         import onnxruntime  # noqa: F401
@@ -53,14 +53,10 @@ def _require_onnx(fourier: bool = False) -> None:
                                 "the onnxscript package: pip install onnxscript") from None
 
 
-def has_fourier_filter(net: torch.nn.Module) -> bool:
-    """Whether ``net`` holds a radial Fourier filter (exported for one frame size, module docstring)."""
-    return getattr(net, "prefilter", None) is not None
-
-
 def fixed_size_onnx(net: torch.nn.Module) -> bool:
-    """Whether an ONNX export of ``net`` is for one frame size only (module docstring)."""
-    return has_fourier_filter(net)
+    """Whether an ONNX export of ``net`` is for one frame size only: it holds a radial Fourier
+    filter (module docstring)."""
+    return getattr(net, "prefilter", None) is not None
 
 
 def verification_sizes(height: int, width: int, fixed_size: bool = False) -> list[tuple[int, int]]:
@@ -160,7 +156,7 @@ def export_network(net: torch.nn.Module, path: str | Path, format: str = "onnx",
     if height < 1 or width < 1:
         raise EdofprojError(f"export size {height}x{width} must be positive")
     if format == "onnx":
-        _require_onnx(fourier=has_fourier_filter(net))
+        require_onnx(fourier=fixed_size_onnx(net))
     fixed_size = format == "onnx" and fixed_size_onnx(net)
     net = copy.deepcopy(net).cpu().float().eval()
     worst = float("nan")
@@ -206,7 +202,7 @@ def run(args) -> int:
     if not last_checkpoint_path(run_dir).is_file():
         raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(run_dir)}): train it first")
     if args.format == "onnx":
-        _require_onnx()
+        require_onnx()
     out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
     trained = load_run(run_dir)
     worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)
