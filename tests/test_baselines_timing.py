@@ -44,7 +44,7 @@ def test_sizes_table_and_csv():
                Timing("wiener", "scipy", "cpu", 16, 8, 2.5, 3)]
     table = format_table(timings).splitlines()
     assert table[0] == "| method | backend | device | 8x8 (ms) | 16x8 (ms) |"
-    assert table[2] == "| wiener | scipy | cpu | 1.2 | 2.5 |"
+    assert table[2] == "| wiener | scipy | cpu | 1.25 | 2.50 |"  # two decimals below 10 ms
     assert table[3] == "| unet | torch | cpu | 10.0 | n/a |"
     rows = list(csv.DictReader(timings_csv(timings).splitlines()))
     assert [(r["method"], r["height"], float(r["median_ms"])) for r in rows] == [

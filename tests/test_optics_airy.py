@@ -10,6 +10,8 @@ from scipy.special import j0, j1
 
 from edofproj.optics.radial_engine import RadialPSFEngine
 
+from devices import DEVICES
+
 LAMBDA = 550e-9
 
 
@@ -25,14 +27,15 @@ def airy_fraction_per_px2(rho_px, geometry, lam=LAMBDA):
     return out
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module", params=DEVICES)
 def in_focus(request):
+    """The in-focus PSF computed on the CPU and, when there is one, on a CUDA GPU."""
     from edofproj.optics.geometry import ProjectorGeometry
 
     g = ProjectorGeometry()
-    engine = RadialPSFEngine(g, [LAMBDA], window=9, pupil_samples=512)
-    intensity = engine.radial_intensity(None, [g.focus_distance_m])[0, 0].numpy()
-    psf = engine.psf(None, [g.focus_distance_m])[0, 0].numpy()
+    engine = RadialPSFEngine(g, [LAMBDA], window=9, pupil_samples=512, device=request.param)
+    intensity = engine.radial_intensity(None, [g.focus_distance_m])[0, 0].cpu().numpy()
+    psf = engine.psf(None, [g.focus_distance_m])[0, 0].cpu().numpy()
     return g, engine, intensity, psf
 
 

@@ -7,12 +7,14 @@ import os
 import subprocess
 import sys
 
+import pytest
 import torch
 
 from edofproj.config import Config, apply_overrides, dump_config
 from edofproj.training.checkpoint import load_checkpoint
 from edofproj.training.trainer import train
 
+from devices import DEVICES
 from tiny_training import TINY_TRAINING
 
 
@@ -54,3 +56,27 @@ def test_two_process_run_matches_the_single_process_run(tmp_path):
         losses_ddp = [float(line.split(",")[1]) for line in a.readlines()[1:]]
         losses_single = [float(line.split(",")[1]) for line in b.readlines()[1:]]
     torch.testing.assert_close(torch.tensor(losses_ddp), torch.tensor(losses_single), rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_torchrun_with_one_process_joins_the_group_and_equals_the_plain_run(tmp_path, device):
+    """``torchrun --nproc_per_node=1``: the process joins a group of one (gloo on the CPU, NCCL on a
+    GPU), trains through DistributedDataParallel, and ends where a plain run ends."""
+    cfg = tiny_config(f"train.device={device}")
+    config_file = tmp_path / "tiny.yaml"
+    config_file.write_text(dump_config(cfg))
+    env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
+    env["OMP_NUM_THREADS"] = "1"
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=1",
+               "-m", "edofproj.cli", "train", "--config", str(config_file), "--out", str(tmp_path / "group"), "--quiet"]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+    train(cfg, tmp_path / "plain", progress=False)
+    group = load_checkpoint(tmp_path / "group" / "checkpoints" / "last.pt")
+    plain = load_checkpoint(tmp_path / "plain" / "checkpoints" / "last.pt")
+    assert group["process_group"] == ("nccl" if device == "cuda" else "gloo")
+    assert plain["process_group"] == "none"
+    for part in ("net", "doe"):
+        for key, value in plain[part].items():
+            torch.testing.assert_close(group[part][key], value, rtol=0, atol=1e-6)

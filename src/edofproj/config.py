@@ -315,6 +315,7 @@ class DataConfig:
 
 
 DEPTH_SPACINGS = ("depth", "defocus")
+MIXED_PRECISION = ("none", "bf16")
 
 
 @dataclass
@@ -335,6 +336,9 @@ class TrainConfig:
     The camera that observes ``I*`` adds Gaussian noise ``noise_sigma`` and, with
     ``quantize_capture``, rounds to 8 bits. ``threads``: torch CPU threads (0: torch's
     default). ``device``: ``auto`` (a CUDA GPU when available), ``cpu`` or ``cuda``.
+    ``mixed_precision``: ``none`` (float32 throughout) or ``bf16``: the compensation network's
+    convolutions run under bfloat16 autocast, while the PSF simulation, image formation, every
+    FFT (the network's Fourier filter included) and the loss stay in float32 or float64.
     Checkpoints every ``checkpoint_every`` steps; the newest ``keep_checkpoints`` step files
     are kept (0: all).
     """
@@ -358,6 +362,7 @@ class TrainConfig:
     quantize_capture: bool = False
     threads: int = 0
     device: str = "auto"
+    mixed_precision: str = "none"
 
     def validate(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1:
@@ -384,6 +389,8 @@ class TrainConfig:
             raise ConfigError("train.threads must be >= 0 (0: torch's default)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ConfigError(_unknown_choice("train.device", self.device, ("auto", "cpu", "cuda")))
+        if self.mixed_precision not in MIXED_PRECISION:
+            raise ConfigError(_unknown_choice("train.mixed_precision", self.mixed_precision, MIXED_PRECISION))
 
 
 @dataclass

@@ -5,7 +5,8 @@ Methods: ``wiener`` (non-blind Wiener with a cached filter: SciPy FFT and PyTorc
 ``onlineprodeb`` (the baseline re-implementation, PyTorch and ONNX Runtime) and ``cls``
 (box-constrained least squares, 100 iterations, PyTorch). The network is the one of
 ``--run`` (trained weights) or an untrained one of ``--widths``: the cost does not depend on
-the weights. Each case runs on the CPU, and on CUDA when available. The median over
+the weights. Each case runs on the CPU, and on CUDA when available (timed with CUDA events,
+and each PyTorch case also replayed as a CUDA graph, ``torch+graph``). The median over
 ``--repeats`` timed frames after ``--warmup`` frames is reported.
 """
 
@@ -88,6 +89,8 @@ def register(subparsers) -> None:
     p.add_argument("--nsr", type=float, default=1e-3, help="Wiener noise-to-signal ratio (does not change the time)")
     p.add_argument("--cls-iterations", type=int, default=100, help="iterations of the constrained solver")
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime cases")
+    p.add_argument("--no-cuda-graphs", action="store_true",
+                   help="on CUDA, do not also time each PyTorch case replayed as a CUDA graph (torch+graph)")
     p.add_argument("--csv", default=None, help="also write the timings as CSV")
     p.set_defaults(func=run)
 
@@ -179,6 +182,9 @@ def run(args) -> int:
                 cases.append(timing.network_onnx_case(str(onnx_files[index]), label, device, args.threads))
             if "cls" in methods:
                 cases.append(timing.cls_torch_case(psf, args.cls_iterations, device))
+        if not args.no_cuda_graphs:
+            cases += [timing.cuda_graph_case(case) for case in cases
+                      if case.device.startswith("cuda") and case.backend == "torch"]
 
         def progress(t: timing.Timing) -> None:
             print(f"  {t.method}/{t.backend}/{t.device} {t.height}x{t.width}: {t.median_ms:.1f} ms",
@@ -187,8 +193,10 @@ def run(args) -> int:
         results = timing.time_cases(cases, sizes, args.repeats, args.warmup, progress)
 
     threads = args.threads or torch.get_num_threads()
-    print(f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}, "
-          f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame)")
+    gpu = f", GPU {torch.cuda.get_device_name()}" if any(t.device.startswith("cuda") for t in results) else ""
+    print(f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}{gpu}, "
+          f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame; "
+          f"CUDA: CUDA events)")
     print(timing.format_table(results))
     if args.csv:
         write_text_atomic(args.csv, timing.timings_csv(results))

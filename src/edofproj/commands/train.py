@@ -68,5 +68,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"{out}: steps {result.start_step} -> {result.step} of {cfg.train.steps}, "
                   f"loss {result.loss:.5g}, {result.seconds:.0f} s of training")
+            if result.peak_gpu_memory_bytes is not None:
+                print(f"{out}: peak GPU memory {result.peak_gpu_memory_bytes / 2**30:.2f} GiB (PyTorch allocations)")
     return 0
 

@@ -29,6 +29,7 @@ parameters apply to images of any size.
 from __future__ import annotations
 
 import math
+from contextlib import nullcontext
 
 import torch
 from torch import nn
@@ -62,6 +63,14 @@ def hat_interpolation(nodes: torch.Tensor, rho: torch.Tensor) -> torch.Tensor:
     lower = position.floor().long().clamp(max=count - 2)
     weight = position - lower
     return nodes[:, lower] * (1 - weight) + nodes[:, lower + 1] * weight
+
+
+def _autocast_on(tensor: torch.Tensor) -> bool:
+    """Whether autocast is active for ``tensor``'s device type."""
+    try:
+        return bool(torch.is_autocast_enabled(tensor.device.type))
+    except TypeError:  # torch < 2.4: no device argument
+        return bool(torch.is_autocast_enabled() if tensor.is_cuda else torch.is_autocast_cpu_enabled())
 
 
 class RadialFourierFilter(nn.Module):
@@ -108,7 +117,13 @@ class RadialFourierFilter(nn.Module):
         ph, pw = padded.shape[-2:]
         # In an ONNX export the FFTs become DFT nodes, which ONNX Runtime rounds far worse than
         # pocketfft in single precision (1e-3 after the demo's network at 600x800): they run in double.
+        # Under bf16/fp16 autocast the FFTs still run in float32 (cuFFT has no bf16 transform, and a
+        # half-precision inverse filter would lose the small gains at high frequencies).
         work = padded.double() if torch.onnx.is_in_onnx_export() else padded
-        spectrum = torch.fft.rfft2(work) * self.transfer_function(ph, pw).to(work.dtype)
-        filtered = torch.fft.irfft2(spectrum, s=(ph, pw)).to(image.dtype)
+        if work.dtype in (torch.bfloat16, torch.float16):
+            work = work.float()
+        full_precision = torch.autocast(work.device.type, enabled=False) if _autocast_on(work) else nullcontext()
+        with full_precision:
+            spectrum = torch.fft.rfft2(work) * self.transfer_function(ph, pw).to(work.dtype)
+            filtered = torch.fft.irfft2(spectrum, s=(ph, pw)).to(image.dtype)
         return filtered[..., m: m + height, m: m + width]

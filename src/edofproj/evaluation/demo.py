@@ -138,7 +138,7 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     run_design = evaluation.designs.get("run")
     focus_m = evaluation.cfg.optics.focus_mm * 1e-3
     by_name = {m.name: m for m in evaluation.methods}
-    psf = run_design.psf([focus_m])[0].numpy() if run_design is not None else None
+    psf = run_design.psf([focus_m])[0].cpu().numpy() if run_design is not None else None
     if "doe+wiener" in by_name and psf is not None:
         cases.append(timing.wiener_scipy_case(psf, evaluation.nsr.get("run", 1e-3), workers=torch.get_num_threads()))
     for name in (OURS, "lens+onlineprodeb"):

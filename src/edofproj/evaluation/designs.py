@@ -32,11 +32,13 @@ def _depth_key(depth_m: float) -> int:
 class OpticalDesign:
     """One design (``doe``, None for the bare lens) simulated with the optics of ``cfg``.
 
-    ``design.psf(depths_m)`` -> float32 tensor ``(n, 3, K, K)``; ``design.bank(depths_m)`` ->
-    a :class:`~edofproj.optics.psf_bank.PSFBank` (for the PSF figures).
+    ``design.psf(depths_m)`` -> float32 tensor ``(n, 3, K, K)`` on ``device`` (simulated on the
+    CPU in the run's precision, then moved); ``design.bank(depths_m)`` -> a
+    :class:`~edofproj.optics.psf_bank.PSFBank` on the CPU (for the PSF figures).
     """
 
-    def __init__(self, key: str, label: str, doe, cfg) -> None:
+    def __init__(self, key: str, label: str, doe, cfg, device: str | torch.device = "cpu") -> None:
+        self.device = torch.device(device)
         self.key = key
         self.label = label
         self.doe = doe
@@ -57,10 +59,10 @@ class OpticalDesign:
                 warnings.filterwarnings("ignore", message="the geometric blur disk")
                 simulated = self._simulator(self.doe, np.array(missing) * DEPTH_KEY_RESOLUTION_M)
             for key, psf in zip(missing, simulated.float()):
-                self._cache[key] = psf
+                self._cache[key] = psf.to(self.device)
         return torch.stack([self._cache[_depth_key(z)] for z in depths])
 
     def bank(self, depths_m) -> PSFBank:
         depths = np.atleast_1d(np.asarray(depths_m, dtype=float))
-        return PSFBank(psf=self.psf(depths), depths_m=depths,
+        return PSFBank(psf=self.psf(depths).cpu(), depths_m=depths,
                        pixel_pitch_m=self._simulator.geometry.pixel_pitch_m(depths), description=self.description)

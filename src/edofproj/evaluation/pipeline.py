@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
 
 from ..compensation.unet import describe_network
 from ..config import apply_overrides, to_dict
@@ -120,9 +121,10 @@ def _check_baseline(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | No
 class MethodBuilder:
     """Builds :class:`PreparedMethod` objects, sharing designs and tuned NSRs between methods."""
 
-    def __init__(self, run, cfg, baselines_dir: Path, explicit: bool) -> None:
+    def __init__(self, run, cfg, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu") -> None:
         from ..doe import build_doe
 
+        self.device = torch.device(device)
         self.run = run
         self.cfg = cfg
         self.baselines_dir = baselines_dir
@@ -136,7 +138,7 @@ class MethodBuilder:
 
     def design(self, key: str, label: str, doe) -> OpticalDesign:
         if key not in self.designs:
-            self.designs[key] = OpticalDesign(key, label, doe, self.cfg)
+            self.designs[key] = OpticalDesign(key, label, doe, self.cfg, self.device)
         return self.designs[key]
 
     def lens(self) -> OpticalDesign:
@@ -149,7 +151,7 @@ class MethodBuilder:
         if design.key not in self.nsr:
             if self._train_images is None:
                 self._train_images = training_crops(self.cfg, self.cfg.evaluation.wiener_tuning_images,
-                                                    seed=self.cfg.train.seed)
+                                                    seed=self.cfg.train.seed).to(self.device)
             self.nsr[design.key], _ = tune_nsr(design, self._train_images, self.cfg)
         return self.nsr[design.key]
 
@@ -200,7 +202,7 @@ class MethodBuilder:
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
         else:
             source = baseline if baseline is not None else self.run
-            compensate = NetworkCompensation(source.net)
+            compensate = NetworkCompensation(source.net.to(self.device))
             loss = source.cfg.loss
             perceptual = f" + {loss.beta:g} (1 - {loss.perceptual.upper()})" if loss.beta > 0 and loss.perceptual != "none" else ""
             detail = (f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
@@ -223,8 +225,11 @@ def score_range_mm(cfg) -> tuple[float, float]:
 def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_dir: str | Path | None = None,
                  depths_mm: Sequence[float] | None = None, methods: Sequence[str] | None = None,
                  baselines_dir: str | Path | None = None, overrides: Sequence[str] = (),
-                 progress: StageProgress | None = None) -> Evaluation:
-    """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run)."""
+                 progress: StageProgress | None = None, device: str | torch.device = "cpu") -> Evaluation:
+    """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run).
+
+    ``device``: where the images, PSFs and networks are run (``cpu`` or ``cuda``); the PSFs are
+    simulated on the CPU, and the tables do not depend on the device beyond float32 rounding."""
     import time
 
     from ..training.runs import load_run
@@ -249,7 +254,7 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent,
-                            explicit=bool(methods))
+                            explicit=bool(methods), device=device)
     prepared = []
     for spec in specs:
         method = builder.build(spec)
@@ -261,7 +266,7 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     for note in builder.notes:
         progress.note(note)
 
-    perceptual = load_perceptual_metrics(cfg.loss.weights_dir)
+    perceptual = {name: metric.to(device) for name, metric in load_perceptual_metrics(cfg.loss.weights_dir).items()}
     from .sweep import PERCEPTUAL_COLUMNS
 
     missing = [c for c in PERCEPTUAL_COLUMNS if c not in perceptual]
@@ -269,12 +274,12 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     units = len(prepared) * len(images)
     progress.start("flat-screen sweep", units * len(depths),
                    detail=f"{len(prepared)} methods x {len(depths)} depths x {len(images)} images")
-    table = flat_screen_sweep(prepared, images, depths, perceptual, progress.advance)
+    table = flat_screen_sweep(prepared, images, depths, perceptual, progress.advance, device)
     progress.finish()
     progress.start("tilted screen", units)
-    tilted, tilted_examples = tilted_screen_sweep(prepared, images, cfg, perceptual, progress.advance)
+    tilted, tilted_examples = tilted_screen_sweep(prepared, images, cfg, perceptual, progress.advance, device)
     comparison_depths = [float(z) for z in cfg.evaluation.comparison_depths_mm]
-    comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual)
+    comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual, device)
     progress.finish()
 
     evaluation = Evaluation(out_dir=out, run=run, cfg=cfg, methods=prepared, designs=builder.designs,

@@ -104,10 +104,11 @@ def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
 
 
 def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depths_mm: Sequence[float],
-                      perceptual: dict, progress: Progress | None = None) -> MetricsTable:
-    """Score every method on every image at every depth (rows: method, depth_mm, image)."""
+                      perceptual: dict, progress: Progress | None = None, device: str | torch.device = "cpu") -> MetricsTable:
+    """Score every method on every image at every depth (rows: method, depth_mm, image); the images
+    are moved to ``device``, where the methods' networks and PSFs must be."""
     table = MetricsTable(("method", "depth_mm", "image"), metric_columns(perceptual))
-    batches = image_batches(images)
+    batches = [(names, target.to(device)) for names, target in image_batches(images)]
     with torch.inference_mode():
         for depth_mm in depths_mm:
             for names, target in batches:
@@ -122,10 +123,11 @@ def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depth
     return table
 
 
-def example_displays(methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict) -> dict:
+def example_displays(methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict,
+                     device: str | torch.device = "cpu") -> dict:
     """``{(depth_mm, method name): (display (H, W, 3) array, scores)}`` for the comparison figure."""
     examples = {}
-    target = image.unsqueeze(0)
+    target = image.unsqueeze(0).to(device)
     with torch.inference_mode():
         for depth_mm in depths_mm:
             for method, display in flat_screen_displays(methods, target, depth_mm):
@@ -164,7 +166,8 @@ class TiltedScreen:
 
 
 def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg, perceptual: dict,
-                        progress: Progress | None = None) -> tuple[MetricsTable, dict]:
+                        progress: Progress | None = None,
+                        device: str | torch.device = "cpu") -> tuple[MetricsTable, dict]:
     """Score every method on the tilted screen. Returns the table (rows: method, near_mm,
     far_mm, image) and the displays of the first image ``{method name: (array, scores)}``."""
     table = MetricsTable(("method", "near_mm", "far_mm", "image"), metric_columns(perceptual))
@@ -173,6 +176,7 @@ def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg
     first = images[0][0]
     with torch.inference_mode():
         for names, target in image_batches(images):
+            target = target.to(device)
             size = tuple(target.shape[-2:])
             screen = screens.setdefault(size, TiltedScreen(cfg, *size))
             for method, display in screen.displays(methods, target):

@@ -5,7 +5,13 @@ A *case* is one way of compensating a 3-channel frame: a method (``wiener``, ``u
 device (``cpu``, ``cuda``). :func:`time_cases` builds each case's frame function for each
 frame size, calls it ``warmup`` times (caches such as the Wiener filter for that size are
 filled then, as they would be for a video), then ``repeats`` times, and reports the median
-in milliseconds. CUDA work is synchronized before the clock is read.
+in milliseconds. On the CPU each call is timed by the wall clock; on CUDA by a pair of CUDA
+events recorded around it on the current stream (the GPU's own clock, read after the events
+complete), so launch overhead counts but no host synchronization does.
+
+On CUDA a case can also be replayed as a CUDA graph (:func:`cuda_graph_case`, backend
+``<backend>+graph``): the frame's kernels are captured once after warm-up and each frame is one
+``graph.replay()``, which removes the per-kernel launch cost of the host.
 
 Inputs are random images: the cost of these methods does not depend on the content.
 """
@@ -54,7 +60,8 @@ class Timing:
 
 def measure_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2,
                synchronize: Callable[[], None] | None = None) -> list[float]:
-    """Milliseconds of each of ``repeats`` calls of ``frame`` after ``warmup`` untimed calls."""
+    """Wall-clock milliseconds of each of ``repeats`` calls of ``frame`` after ``warmup`` untimed
+    calls (``synchronize`` is called after each, e.g. to wait for a device)."""
     if repeats < 1 or warmup < 0:
         raise EdofprojError(f"repeats={repeats} must be >= 1 and warmup={warmup} >= 0")
     sync = synchronize or (lambda: None)
@@ -70,8 +77,28 @@ def measure_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2,
     return times
 
 
-def _synchronizer(device: str) -> Callable[[], None] | None:
-    return torch.cuda.synchronize if device.startswith("cuda") else None
+def measure_cuda_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2) -> list[float]:
+    """Milliseconds of each of ``repeats`` calls of ``frame`` between two CUDA events on the current
+    stream, after ``warmup`` untimed calls (module docstring)."""
+    if repeats < 1 or warmup < 0:
+        raise EdofprojError(f"repeats={repeats} must be >= 1 and warmup={warmup} >= 0")
+    for _ in range(warmup):
+        frame()
+    torch.cuda.synchronize()
+    events = [(torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)) for _ in range(repeats)]
+    for start, end in events:
+        start.record()
+        frame()
+        end.record()
+    torch.cuda.synchronize()
+    return [start.elapsed_time(end) for start, end in events]
+
+
+def _measure(case: "Case", frame: FrameFunction, repeats: int, warmup: int) -> list[float]:
+    if case.device.startswith("cuda") and case.backend != "onnxruntime":
+        return measure_cuda_ms(frame, repeats, warmup)
+    synchronize = torch.cuda.synchronize if case.device.startswith("cuda") else None
+    return measure_ms(frame, repeats, warmup, synchronize)
 
 
 def time_cases(cases: Iterable[Case], sizes: Sequence[tuple[int, int]], repeats: int = 10,
@@ -81,7 +108,7 @@ def time_cases(cases: Iterable[Case], sizes: Sequence[tuple[int, int]], repeats:
     for case in cases:
         for height, width in sizes:
             frame = case.build(height, width)
-            times = measure_ms(frame, repeats, warmup, _synchronizer(case.device))
+            times = _measure(case, frame, repeats, warmup)
             timing = Timing(case.method, case.backend, case.device, height, width,
                             statistics.median(times), repeats)
             results.append(timing)
@@ -160,6 +187,29 @@ def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu",
     return Case(method, "torch", device, build)
 
 
+def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
+    """``case`` replayed as a CUDA graph: its frame function is run ``warmup`` times on a side stream
+    (filling caches such as the Wiener filter), captured once, and each frame is a replay writing
+    the same output buffer. Only for torch cases on CUDA whose frame has no host synchronization."""
+    if not case.device.startswith("cuda") or case.backend != "torch":
+        raise EdofprojError(f"a CUDA graph needs a torch case on CUDA, not {case.backend} on {case.device}")
+
+    def build(height: int, width: int) -> FrameFunction:
+        frame = case.build(height, width)
+        stream = torch.cuda.Stream()
+        stream.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(stream):
+            for _ in range(max(int(warmup), 1)):
+                frame()
+        torch.cuda.current_stream().wait_stream(stream)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            frame()
+        return graph.replay
+
+    return Case(case.method, f"{case.backend}+graph", case.device, build)
+
+
 def onnx_available(device: str) -> bool:
     """Whether ONNX Runtime is installed and can run on ``device`` (``cpu`` or ``cuda``)."""
     try:
@@ -236,9 +286,14 @@ def format_table(timings: Sequence[Timing]) -> str:
     header = ["method", "backend", "device"] + [f"{h}x{w} (ms)" for h, w in sizes]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
-        cells = [f"{value[row + size]:.1f}" if row + size in value else "n/a" for size in sizes]
+        cells = [_milliseconds(value[row + size]) if row + size in value else "n/a" for size in sizes]
         lines.append("| " + " | ".join(list(row) + cells) + " |")
     return "\n".join(lines)
+
+
+def _milliseconds(ms: float) -> str:
+    """One decimal, two below 10 ms (GPU timings)."""
+    return f"{ms:.2f}" if ms < 10 else f"{ms:.1f}"
 
 
 def timings_csv(timings: Sequence[Timing]) -> str:

@@ -11,6 +11,10 @@ of all parameters (DOE and network alike) over the processes after each backward
 
 which equals the gradient of the mean loss over the global batch of B samples. Every rank
 then takes the same optimizer step, so the replicas stay identical. Only rank 0 writes files.
+
+A process started by ``torchrun`` joins the group even when it is alone
+(``--nproc_per_node=1``): the collective path (NCCL on one GPU) then runs as it would on
+several, and its result must equal that of a plain single-process run.
 """
 
 from __future__ import annotations
@@ -32,10 +36,19 @@ class ProcessGroup:
     world_size: int = 1
     local_rank: int = 0
     device: torch.device = torch.device("cpu")
+    joined: bool = False
 
     @property
     def distributed(self) -> bool:
-        return self.world_size > 1
+        """Whether this process is in a process group (launched by ``torchrun``, even alone)."""
+        return self.joined or self.world_size > 1
+
+    @property
+    def backend(self) -> str:
+        """``nccl``, ``gloo`` or ``none`` (a plain single process)."""
+        if not self.distributed:
+            return "none"
+        return "nccl" if self.device.type == "cuda" else "gloo"
 
     @property
     def is_main(self) -> bool:
@@ -53,12 +66,13 @@ def _env_int(name: str) -> int | None:
         raise EdofprojError(f"environment variable {name}={value!r} must be an integer") from None
 
 
-def choose_device(requested: str, local_rank: int = 0) -> torch.device:
-    """``auto`` (CUDA GPU ``local_rank`` when available, else CPU), ``cpu`` or ``cuda``."""
+def choose_device(requested: str, local_rank: int = 0, option: str = "train.device") -> torch.device:
+    """``auto`` (CUDA GPU ``local_rank`` when available, else CPU), ``cpu`` or ``cuda``; ``option``
+    names the setting in the error raised when CUDA is asked for but absent."""
     if requested == "cpu":
         return torch.device("cpu")
     if requested == "cuda" and not torch.cuda.is_available():
-        raise EdofprojError("train.device=cuda but no CUDA GPU is available (use cpu or auto)")
+        raise EdofprojError(f"{option}=cuda but no CUDA GPU is available to PyTorch (use cpu or auto)")
     if torch.cuda.is_available():
         return torch.device("cuda", local_rank % torch.cuda.device_count())
     return torch.device("cpu")
@@ -67,13 +81,15 @@ def choose_device(requested: str, local_rank: int = 0) -> torch.device:
 def setup_process_group(device: str = "auto") -> ProcessGroup:
     """Join the process group described by ``RANK``/``WORLD_SIZE``/``LOCAL_RANK`` (if set).
 
-    Without those variables (a plain ``edofproj train``) this is a single process, rank 0.
+    Without those variables (a plain ``edofproj train``) this is a single process, rank 0 that
+    joins no group. With them (``torchrun``) the process joins the group, even as its only member.
     """
+    launched = "WORLD_SIZE" in os.environ and "RANK" in os.environ
     world_size = _env_int("WORLD_SIZE") or 1
     rank = _env_int("RANK") or 0
     local_rank = _env_int("LOCAL_RANK") or 0
     chosen = choose_device(device, local_rank)
-    if world_size == 1:
+    if not launched:
         return ProcessGroup(0, 1, 0, chosen)
     if not dist.is_available():
         raise EdofprojError("this PyTorch build has no torch.distributed support")
@@ -87,7 +103,7 @@ def setup_process_group(device: str = "auto") -> ProcessGroup:
             first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise EdofprojError(f"cannot join the {backend} process group as rank {rank} of {world_size} "
                                 f"(start data-parallel runs with torchrun): {first_line}") from None
-    return ProcessGroup(rank, world_size, local_rank, chosen)
+    return ProcessGroup(rank, world_size, local_rank, chosen, joined=True)
 
 
 def teardown_process_group(group: ProcessGroup) -> None:

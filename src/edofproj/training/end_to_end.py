@@ -13,6 +13,10 @@ The loss ``L(Î*, I)`` (Eq. 12) is taken by the caller. Everything is differenti
 respect to the network and, through ``P`` (the PSF simulator with the straight-through
 quantizer), the DOE's parameters.
 
+With ``mixed_precision="bf16"`` the network runs under bfloat16 autocast (its convolutions in
+bf16, its Fourier filter in float32) and its output is returned to float32; the PSFs, both
+projections and the camera stay in float32.
+
 PSFs come from a *PSF source*, a module ``source(depths_m) -> (B, C, K, K)``:
 :class:`SimulatedPSF` (the DOE simulated every step, one call for the whole batch) or a
 :class:`~edofproj.training.psf_table.DepthPSFTable` (a fixed DOE, precomputed).
@@ -53,17 +57,22 @@ class EndToEndProjector(nn.Module):
     """PSF source + compensation network + image formation, as one module (one DDP wrapper)."""
 
     def __init__(self, psf_source: nn.Module, net: nn.Module, noise_sigma: float = 0.0,
-                 quantize_capture: bool = False) -> None:
+                 quantize_capture: bool = False, mixed_precision: str = "none") -> None:
         super().__init__()
+        if mixed_precision not in ("none", "bf16"):
+            raise ValueError(f"mixed_precision={mixed_precision!r} is not one of none, bf16")
         self.psf_source = psf_source
         self.net = net
         self.noise_sigma = float(noise_sigma)
         self.quantize_capture = bool(quantize_capture)
+        self.mixed_precision = mixed_precision
 
     def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> Projections:
         """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``."""
         psf = self.psf_source(depths_m).to(target.device)
         captured = camera_capture(project(target, psf), noise, self.noise_sigma, self.quantize_capture)
-        compensated = self.net(target, captured)
+        with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
+            compensated = self.net(target, captured)
+        compensated = compensated.float()
         projected = project(compensated.clamp(0.0, 1.0), psf)
         return Projections(captured, compensated, projected)

@@ -58,13 +58,15 @@ FIGURE_DEPTHS = 6
 
 @dataclass
 class TrainingResult:
-    """What a call of :func:`train` did: steps ``start_step -> step``, the last loss, total seconds."""
+    """What a call of :func:`train` did: steps ``start_step -> step``, the last loss, total seconds,
+    and on a CUDA device the peak GPU memory PyTorch allocated in this session (bytes; None on the CPU)."""
 
     run_dir: Path
     start_step: int
     step: int
     loss: float
     seconds: float
+    peak_gpu_memory_bytes: int | None = None
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -164,7 +166,8 @@ class _Session:
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
         start_from_wiener(cfg, self.net, psf_source)
-        self.model = EndToEndProjector(psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture)
+        self.model = EndToEndProjector(psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture,
+                                       cfg.train.mixed_precision)
 
         self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
         self.net_params = [p for p in self.net.parameters() if p.requires_grad]
@@ -210,6 +213,7 @@ class _Session:
             "scheduler": self.scheduler.state_dict(),
             "rng": capture_rng_state(),
             "world_size": self.group.world_size,
+            "process_group": self.group.backend,
             "config": to_dict(self.cfg),
             "sampling": "per-sample generators seeded by (train.seed, step, global index, stream)",
         }
@@ -376,4 +380,5 @@ def _train(cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, pro
     if group.is_main:
         session.write_figures()
     barrier(group)
-    return TrainingResult(run_dir, start, session.step, loss, session.elapsed)
+    peak = torch.cuda.max_memory_allocated(group.device) if group.device.type == "cuda" else None
+    return TrainingResult(run_dir, start, session.step, loss, session.elapsed, peak)
