@@ -21,8 +21,8 @@ from pathlib import Path
 
 import torch
 
-from edofproj.commands.bench import disk_psf
-from edofproj.commands.export import export_network
+from edofproj.evaluation.timing import disk_psf
+from edofproj.compensation.export import export_network
 from edofproj.compensation.onlineprodeb import OnlineProDebNet
 from edofproj.compensation.unet import CompensationUNet, width_preset
 from edofproj.evaluation import timing

@@ -8,7 +8,7 @@ network / Wiener, whose median is the figure to compare with 1.
 
 Methods: Wiener deconvolution with a cached filter (SciPy FFT and PyTorch FFT, 33x33 PSF; the
 same cases as ``edofproj bench``) and the compensation network of ``--run`` (or, without
-``--run``, an untrained network of ``configs/realtime.yaml``: the cost does not depend on the
+``--run``, an untrained network of ``the realtime preset``: the cost does not depend on the
 weights).
 
     .venv/bin/python benchmarks/bench_realtime.py --run runs/realtime [--sizes 600x800] [--rounds 200]
@@ -24,10 +24,11 @@ from pathlib import Path
 
 import torch
 
-from edofproj.commands.bench import disk_psf
+from edofproj.evaluation.timing import disk_psf
 from edofproj.config import load_config
 from edofproj.evaluation import timing
-from edofproj.training.runs import build_net, load_run
+from edofproj.compensation.registry import build_network
+from edofproj.runs import load_run
 
 PRESET = Path(__file__).resolve().parents[1] / "configs" / "realtime.yaml"
 
@@ -63,7 +64,7 @@ def main() -> int:
         net, label, window = trained.net, trained.cfg.net.architecture, trained.cfg.psf.window
     else:
         cfg = load_config(str(PRESET))
-        net, label, window = build_net(cfg), f"{cfg.net.architecture} (untrained)", cfg.psf.window
+        net, label, window = build_network(cfg.net), f"{cfg.net.architecture} (untrained)", cfg.psf.window
     psf = disk_psf(window)
     cases = {
         "wiener/scipy": timing.wiener_scipy_case(psf, workers=args.threads),

@@ -36,7 +36,7 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
 
     from edofproj.config import load_config
     from edofproj.training import losses
-    from edofproj.training.run_log import read_log
+    from edofproj.runs.log import read_log
     from edofproj.training.trainer import train
 
     notes = []

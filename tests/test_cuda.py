@@ -205,7 +205,7 @@ def _losses(run_dir) -> np.ndarray:
 
 
 def test_a_cuda_training_run_follows_the_cpu_run(tmp_path, float32_matmul):
-    from edofproj.training.checkpoint import load_checkpoint
+    from edofproj.runs.checkpoint import load_checkpoint
 
     gpu = _train(tmp_path, "cuda", "train.device=cuda")
     _train(tmp_path, "cpu", "train.device=cpu")
@@ -225,7 +225,7 @@ def test_a_cuda_training_run_follows_the_cpu_run(tmp_path, float32_matmul):
 
 
 def test_a_cuda_run_resumes_where_it_stopped(tmp_path):
-    from edofproj.training.checkpoint import load_checkpoint
+    from edofproj.runs.checkpoint import load_checkpoint
 
     _train(tmp_path, "straight", "train.device=cuda")
     _train(tmp_path, "chunked", "train.device=cuda", stop_after=2)
@@ -239,7 +239,7 @@ def test_a_cuda_run_resumes_where_it_stopped(tmp_path):
 
 
 def test_a_cuda_trained_run_loads_and_compensates_on_the_cpu(tmp_path, float32_matmul):
-    from edofproj.training.runs import load_run
+    from edofproj.runs import load_run
 
     _train(tmp_path, "cuda", "train.device=cuda")
     run = load_run(tmp_path / "cuda")
@@ -253,7 +253,7 @@ def test_a_cuda_trained_run_loads_and_compensates_on_the_cpu(tmp_path, float32_m
 
 
 def test_bf16_mixed_precision_trains_close_to_float32(tmp_path):
-    full = _train(tmp_path, "fp32", "train.device=cuda", "net.prefilter_bins=8")
+    _train(tmp_path, "fp32", "train.device=cuda", "net.prefilter_bins=8")
     mixed = _train(tmp_path, "bf16", "train.device=cuda", "net.prefilter_bins=8", "train.mixed_precision=bf16")
     assert np.isfinite(mixed.loss)
     np.testing.assert_allclose(_losses(tmp_path / "bf16"), _losses(tmp_path / "fp32"), rtol=0.02)

@@ -9,7 +9,7 @@ import scipy.stats
 import torch
 
 from edofproj.errors import EdofprojError
-from edofproj.training.data import (dead_leaves_image, dead_leaves_labels, disks_per_covering_layer,
+from edofproj.data import (dead_leaves_image, dead_leaves_labels, disks_per_covering_layer,
                                     natural_color_palette, paint_front_most, sample_dead_leaves_disks)
 
 

@@ -11,7 +11,7 @@ import torch
 from edofproj.config import DataConfig
 from edofproj.errors import EdofprojError
 from edofproj.imaging.image_io import write_image
-from edofproj.training.data import (BUILTIN_PHOTOS, FolderSource, PhotoSource, build_test_images,
+from edofproj.data import (BUILTIN_PHOTOS, FolderSource, PhotoSource, build_test_images,
                                     build_training_source, builtin_split, find_image_files, fit_to_size,
                                     folder_split, load_builtin_photo, split_names)
 
@@ -156,7 +156,7 @@ def test_crop_larger_than_every_image_is_a_user_error():
 
 def test_dead_leaves_fraction_mixes_each_sample_and_is_validated():
     from edofproj.config import ConfigError
-    from edofproj.training.data import MixedSource, build_training_source
+    from edofproj.data import MixedSource, build_training_source
 
     class Constant:
         crop = 8

@@ -167,7 +167,7 @@ def test_compensate_with_a_capture_file(runs, tmp_path):
 
 def test_score_range_defaults_to_the_training_range_and_is_validated():
     from edofproj.config import ConfigError
-    from edofproj.evaluation.pipeline import score_range_mm
+    from edofproj.evaluation.methods import score_range_mm
 
     assert score_range_mm(load_config(None, ["psf.depth_min_mm=275"])) == (275.0, 800.0)
     assert score_range_mm(load_config(None, ["psf.depth_min_mm=275", "evaluation.score_range_mm=[300,800]"])) == (300.0, 800.0)

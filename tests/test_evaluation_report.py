@@ -13,7 +13,7 @@ from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, method_
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.evaluation.schedule import ParallelTrainer, TrainingJob
+from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.evaluation.summary import format_text_table, range_table
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from edofproj.cli import main
-from edofproj.commands.export import export_network
+from edofproj.compensation.export import export_network
 from edofproj.compensation.onlineprodeb import OnlineProDebNet
 from edofproj.compensation.unet import CompensationUNet
 from edofproj.errors import EdofprojError
@@ -94,7 +94,7 @@ def test_fourier_filter_networks_export_to_torchscript_and_to_fixed_size_onnx(tm
 def test_fourier_filter_onnx_export_names_the_missing_package(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "onnxscript", None)
     net = CompensationUNet([4, 8], prefilter_bins=8).eval()
-    with pytest.raises(EdofprojError, match="pip install onnxscript"):
+    with pytest.raises(EdofprojError, match=r"needs onnxscript .*edofproj\[export\]"):
         export_network(net, tmp_path / "net.onnx", "onnx", height=32, width=40)
     assert not (tmp_path / "net.onnx").exists()
 
@@ -124,7 +124,7 @@ def test_failed_verification_writes_nothing(tmp_path):
 
 def test_missing_onnx_names_the_packages(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "onnxruntime", None)
-    with pytest.raises(EdofprojError, match="pip install onnx onnxruntime"):
+    with pytest.raises(EdofprojError, match=r"needs onnx.*edofproj\[export\]"):
         export_network(small_unet(), tmp_path / "net.onnx", "onnx")
     assert list(tmp_path.iterdir()) == []
 
@@ -133,8 +133,9 @@ def test_missing_onnx_names_the_packages(tmp_path, monkeypatch):
 def trained_run(tmp_path):
     """A run directory as the trainer writes it: config.yaml + checkpoints/last.pt."""
     from edofproj.config import Config
-    from edofproj.training.checkpoint import save_checkpoint
-    from edofproj.training.runs import CHECKPOINT_DIR, build_net, write_run_config
+    from edofproj.runs.checkpoint import save_checkpoint
+    from edofproj.compensation.registry import build_network
+    from edofproj.runs import CHECKPOINT_DIR, write_run_config
 
     cfg = Config()
     cfg.doe.kind = "lens"
@@ -142,7 +143,7 @@ def trained_run(tmp_path):
     run_dir = tmp_path / "run"
     write_run_config(run_dir, cfg.validate())
     torch.manual_seed(3)
-    net = build_net(cfg)
+    net = build_network(cfg.net)
     torch.nn.init.normal_(net.head.weight, std=0.3)
     save_checkpoint(run_dir / CHECKPOINT_DIR, {"step": 5, "net": net.state_dict(), "doe": {}})
     return run_dir, net.eval()

@@ -19,7 +19,7 @@ from edofproj.fabrication.tolerance import (FabricatedPSF, ToleranceSettings, en
 from edofproj.optics.psf_bank import simulator_from_config
 
 torch.set_num_threads(1)
-pytestmark = pytest.mark.filterwarnings("ignore:the geometric blur disk")  # 3x3 windows on purpose
+pytestmark = pytest.mark.filterwarnings("ignore::edofproj.errors.BlurExceedsWindowWarning")  # 3x3 windows on purpose
 
 PUPIL = 256  # 128 rings of 27.3 um
 SMALL = [f"psf.pupil_samples={PUPIL}", "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620",

@@ -5,12 +5,12 @@ import torch
 
 from edofproj.config import Config, apply_overrides
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.metrics import ssim
+from edofproj.metrics import ssim
 from edofproj.imaging.projection import project
 from edofproj.optics.psf_bank import simulator_from_config
-from edofproj.training.data import build_test_images
+from edofproj.data import build_test_images
 from edofproj.training.finetune import MeasuredPSFTable, finetune
-from edofproj.training.runs import load_run
+from edofproj.runs import load_run
 from edofproj.training.trainer import train
 
 TINY = [

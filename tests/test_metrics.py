@@ -9,7 +9,7 @@ from skimage.measure import block_reduce
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.metrics import (
+from edofproj.metrics import (
     MS_SSIM_WEIGHTS,
     ms_ssim,
     ms_ssim_scales,

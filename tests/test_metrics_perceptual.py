@@ -8,7 +8,7 @@ from skimage import data
 from torch.nn import functional as F
 
 from edofproj.errors import EdofprojError
-from edofproj.evaluation import metrics
+from edofproj import metrics
 from edofproj.perceptual import (
     DISTS,
     LPIPS,

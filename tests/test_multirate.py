@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch.nn import functional as F
 
-from edofproj.commands.export import export_network
+from edofproj.compensation.export import export_network
 from edofproj.compensation.multirate import (
     MultirateCompensationNet,
     add_block_pixels,
@@ -18,7 +18,7 @@ from edofproj.compensation.multirate import (
 )
 from edofproj.config import Config, ConfigError, NetConfig
 from edofproj.errors import EdofprojError
-from edofproj.training.runs import build_net
+from edofproj.compensation.registry import build_network
 
 SMALL = [4, 6, 8]
 
@@ -213,7 +213,7 @@ def test_config_builds_the_network_and_refuses_bad_values():
     cfg = Config()
     cfg.net = NetConfig(architecture="multirate", widths=[8, 12, 16], space_to_depth=4, prefilter_bins=24)
     cfg.net.validate()
-    net = build_net(cfg)
+    net = build_network(cfg.net)
     assert isinstance(net, MultirateCompensationNet)
     assert net.block == 4 and net.widths == [8, 12, 16] and net.prefilter.gain.shape == (3, 24)
     with pytest.raises(ConfigError, match="space_to_depth >= 2"):
@@ -245,7 +245,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     table = DepthPSFTable(psf, 1 / np.linspace(1 / 0.8, 1 / 0.3, 3))
     cfg = Config()
     cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.01)
-    net = build_net(cfg).eval()
+    net = build_network(cfg.net).eval()
     start_from_wiener(cfg, net, table)
     kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psf.numpy(), 0.01, radius=4))
     target, captured = images(24, 32)
@@ -258,7 +258,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
         if source is table:
             untouched_cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4,
                                           prefilter_bins=8, init_nsr=0.0)
-        fresh = build_net(untouched_cfg)
+        fresh = build_network(untouched_cfg.net)
         start_from_wiener(untouched_cfg, fresh, source)
         assert all(local.weight.abs().max() == 0 for local in fresh.local_filter)
     unet = CompensationUNet([4, 8])

@@ -6,16 +6,16 @@ import numpy as np
 import torch
 
 from edofproj.config import Config, apply_overrides
-from edofproj.evaluation.metrics import ssim
+from edofproj.metrics import ssim
 from edofproj.imaging.projection import project
 from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.procams.calibration import calibrate, calibration_files
 from edofproj.procams.patterns import PatternSpec, build_pattern_set
 from edofproj.procams.psf_estimation import bernoulli_files, measure_psf
 from edofproj.procams.virtual import VirtualProCams
-from edofproj.training.data import build_test_images
+from edofproj.data import build_test_images
 from edofproj.training.finetune import finetune
-from edofproj.training.runs import load_run
+from edofproj.runs import load_run
 from edofproj.training.trainer import train
 
 WINDOW = 21

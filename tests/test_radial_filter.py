@@ -78,7 +78,7 @@ def test_inference_cache_follows_parameter_updates():
 
 
 def test_network_description_names_the_prefilter():
-    from edofproj.compensation.unet import describe_network
+    from edofproj.compensation.registry import describe_network
 
     assert describe_network(load_config("cpu").net) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
     assert describe_network(load_config("paper").net) == "U-Net 32-256 (7 scales)"

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from edofproj.config import Config, apply_overrides, dump_config
-from edofproj.training.checkpoint import load_checkpoint
+from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.training.trainer import train
 
 from devices import DEVICES

@@ -14,10 +14,13 @@ from edofproj.config import Config, apply_overrides, dump_config, load_config, t
 from edofproj.doe import load_doe
 from edofproj.errors import EdofprojError
 from edofproj.training import losses
-from edofproj.training.checkpoint import load_checkpoint
-from edofproj.training.run_log import COLUMNS
-from edofproj.training.runs import build_net, build_run_doe
-from edofproj.training.trainer import load_run, seed_everything, train
+from edofproj.training import trainer as trainer_module
+from edofproj.runs.checkpoint import load_checkpoint
+from edofproj.runs.log import COLUMNS
+from edofproj.compensation.registry import build_network
+from edofproj.doe import build_run_doe
+from edofproj.runs import load_run
+from edofproj.training.trainer import seed_everything, train
 
 from tiny_training import TINY_TRAINING
 
@@ -169,7 +172,7 @@ def test_non_finite_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path, monk
         loss.terms = terms
         return loss
 
-    monkeypatch.setattr(losses, "build_loss", build_poisoned_loss)
+    monkeypatch.setattr(trainer_module, "build_loss", build_poisoned_loss)
     with pytest.raises(EdofprojError, match="loss became nan at step 5; the last good checkpoint is step 4") as info:
         train(tiny_config(), tmp_path / "nan", progress=False)
     assert "\n" not in str(info.value)
@@ -185,7 +188,7 @@ def test_lens_baseline_trains_only_the_network(tmp_path):
     assert [g["name"] for g in checkpoint["optimizer"]["param_groups"]] == ["net"]
     seed_everything(cfg.train.seed)
     build_run_doe(cfg)
-    initial = build_net(cfg).state_dict()
+    initial = build_network(cfg.net).state_dict()
     assert any(not torch.equal(initial[k], checkpoint["net"][k]) for k in initial)
     assert load_run(tmp_path / "lens").doe.name == "lens"
 
@@ -197,7 +200,7 @@ def test_frozen_network_trains_only_the_doe_and_fixed_everything_is_refused(tmp_
     assert [g["name"] for g in checkpoint["optimizer"]["param_groups"]] == ["doe"]
     seed_everything(cfg.train.seed)
     build_run_doe(cfg)
-    initial = build_net(cfg).state_dict()
+    initial = build_network(cfg.net).state_dict()
     assert all(torch.equal(initial[k], checkpoint["net"][k]) for k in initial)
     with pytest.raises(EdofprojError, match="nothing to train"):
         train(tiny_config("doe.kind=lens", "train.train_net=false"), tmp_path / "none", progress=False)
@@ -233,5 +236,5 @@ def test_onlineprodeb_baseline_trains_with_the_same_loop(tmp_path):
     assert type(run.net).__name__ == "OnlineProDebNet"
     seed_everything(cfg.train.seed)
     build_run_doe(cfg)
-    initial = build_net(cfg).state_dict()
+    initial = build_network(cfg.net).state_dict()
     assert any(not torch.equal(initial[k], v) for k, v in run.net.state_dict().items())

@@ -13,7 +13,8 @@ from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.training.camera import camera_capture, quantize_8bit_ste
 from edofproj.training.end_to_end import EndToEndProjector, SimulatedPSF
 from edofproj.training.psf_table import DepthPSFTable
-from edofproj.training.runs import build_net, build_run_doe
+from edofproj.compensation.registry import build_network
+from edofproj.doe import build_run_doe
 from edofproj.training.sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from edofproj.training.trainer import _clip, exponential_decay, loss_terms
 from edofproj.training.losses import build_loss
@@ -100,7 +101,7 @@ def tiny():
 
 def test_each_sample_is_rendered_with_the_psf_of_its_own_depth(tiny):
     cfg, doe, sim = tiny
-    net = build_net(cfg)  # untrained: the identity
+    net = build_network(cfg.net)  # untrained: the identity
     model = EndToEndProjector(SimulatedPSF(doe, sim), net)
     images = torch.rand(2, 3, 24, 24, generator=torch.Generator().manual_seed(1))
     depths = np.array([0.35, 0.8])
@@ -134,7 +135,7 @@ def test_projector_emits_only_light_in_unit_range(tiny):
 
 def test_loss_gradient_reaches_the_doe_and_the_net(tiny):
     cfg, doe, sim = tiny
-    net = build_net(cfg)
+    net = build_network(cfg.net)
     model = EndToEndProjector(SimulatedPSF(doe, sim), net)
     images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(3))
     out = model(images, [0.4, 0.7])

@@ -31,8 +31,8 @@ import torch
 
 from edofproj.config import load_config
 from edofproj.imaging.image_io import write_image
-from edofproj.training.data import builtin_split, fit_to_size, load_builtin_photo, to_unit_float
-from edofproj.training.run_log import read_log
+from edofproj.data import builtin_split, fit_to_size, load_builtin_photo, to_unit_float
+from edofproj.runs.log import read_log
 from edofproj.training.trainer import train
 
 

@@ -266,7 +266,7 @@ class DataConfig:
     """Training images: ``builtin`` photographs, ``dead-leaves``, or an image ``folder``.
 
     Held-out test images: a deterministic ``test_fraction`` of the built-in photographs or of
-    ``folder`` (see :mod:`edofproj.training.data`), or all of ``test_folder`` when given
+    ``folder`` (see :mod:`edofproj.data`), or all of ``test_folder`` when given
     (then ``folder`` is used for training in full). ``max_test_images``: 0 keeps all.
     Dead leaves: disk radii with density ~ r^-3 between the two radii (pixels);
     ``dead_leaves_fraction`` > 0 mixes that share of dead-leaves images into a photo source.
@@ -635,18 +635,24 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
     return from_dict(Config, data).validate()
 
 
-PRESET_DIR = Path(__file__).resolve().parents[2] / "configs"
+#: The presets ship inside the package (``edofproj/presets/*.yaml``), so any install finds them.
+PRESET_DIR = Path(__file__).resolve().parent / "presets"
+
+
+def preset_names() -> list[str]:
+    """The names of the shipped presets (``cpu``, ``paper``, ``realtime``)."""
+    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
 
 
 def resolve_config_path(name_or_path: str) -> Path:
-    """A config file path, or the name of a preset in ``configs/`` (``cpu``, ``paper``)."""
+    """A config file path, or the name of a shipped preset (:func:`preset_names`)."""
     path = Path(name_or_path)
     if path.is_file():
         return path
     preset = PRESET_DIR / f"{name_or_path}.yaml"
     if preset.is_file():
         return preset
-    presets = sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
+    presets = preset_names()
     raise ConfigError(
         f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})"
     )

@@ -18,6 +18,10 @@ class SamplingError(EdofprojError):
     """A simulation grid that cannot resolve the optics; the message names what to change."""
 
 
+class BlurExceedsWindowWarning(UserWarning):
+    """The geometric blur disk is wider than the PSF window: light outside it becomes haze."""
+
+
 def require(condition: bool, message: str, error: type = EdofprojError) -> None:
     """Raise ``error(message)`` unless ``condition`` holds."""
     if not condition:

@@ -17,43 +17,16 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
+from ..compensation.registry import network_from_widths
+from ..evaluation.timing import disk_psf
 from ._common import parse_name_list
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
 DEFAULT_SIZES = "256x256,600x800,768x1024"
-
-
-def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray:
-    """A defocus-like PSF (C, K, K): a uniform disk filling the window, summing to ``energy``."""
-    if window < 1 or window % 2 == 0:
-        raise EdofprojError(f"--window={window} must be odd and >= 1")
-    radius = window // 2
-    y, x = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-    disk = (x ** 2 + y ** 2 <= radius ** 2 + 0.5).astype(np.float64)
-    return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
-
-
-def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0,
-                        architecture: str = "unet") -> torch.nn.Module:
-    """An untrained network of a named width preset or comma-separated channel counts:
-    :class:`CompensationUNet` or, for ``architecture="multirate"``, :class:`MultirateCompensationNet`
-    (``space_to_depth`` is then its block size, ``prefilter_bins`` its filter's nodes)."""
-    from ..compensation.unet import CompensationUNet, width_preset
-
-    if spec.replace(",", "").replace(" ", "").isdigit():
-        widths = [int(w) for w in spec.split(",")]
-    else:
-        widths = width_preset(spec)
-    if architecture == "multirate":
-        from ..compensation.multirate import MultirateCompensationNet
-
-        return MultirateCompensationNet(widths, block=space_to_depth, filter_bins=prefilter_bins)
-    return CompensationUNet(widths, space_to_depth=space_to_depth, prefilter_bins=prefilter_bins)
 
 
 def devices(requested: str) -> list[str]:
@@ -123,7 +96,7 @@ def run(args) -> int:
     net_label = "unet"
     if "unet" in methods:
         if args.run:
-            from ..training.runs import last_checkpoint_path, load_run
+            from ..runs import last_checkpoint_path, load_run
 
             if not last_checkpoint_path(args.run).is_file():
                 raise EdofprojError(f"run '{args.run}' has no checkpoint ({last_checkpoint_path(args.run)}): train it first")
@@ -159,7 +132,7 @@ def run(args) -> int:
                     print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",
                           file=sys.stderr)
                     continue
-                from .export import export_network, fixed_size_onnx, require_onnx
+                from ..compensation.export import export_network, fixed_size_onnx, require_onnx
 
                 if fixed_size_onnx(network):  # a Fourier filter: one export per frame size
                     try:

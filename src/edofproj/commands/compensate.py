@@ -41,7 +41,7 @@ def run(args) -> int:
     from ..evaluation.pipeline import require_trained_run
     from ..imaging.image_io import check_output_path, read_image, write_image
     from ..imaging.projection import project
-    from ..training.runs import load_run
+    from ..runs import load_run
 
     if args.preview is not None and args.depth_mm is None:
         raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")

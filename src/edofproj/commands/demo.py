@@ -6,7 +6,7 @@ Trains the ``cpu`` preset jointly (DOE + U-Net, ``doe_net/``) and the same U-Net
 (``lens_net/``), plus the axicon, cubic-plate and OnlineProDeb baselines when they fit the
 budget (15 minutes; ``--quick``: a 2-minute smoke run), evaluates every method on the held-out
 photographs and writes ``report.html`` (self-contained), ``report.md`` with ``figures/``,
-``summary.md`` and ``metrics.csv`` into ``--out``. See :mod:`edofproj.evaluation.demo`.
+``summary.md`` and ``metrics.csv`` into ``--out``. See :mod:`edofproj.application.demo`.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..evaluation.demo import demo_finished_message, run_demo
+    from ..application.demo import demo_finished_message, run_demo
     from ..evaluation.progress import StageProgress
 
     methods = parse_name_list(args.methods) if args.methods is not None else None

@@ -3,6 +3,8 @@ profiles, and their height profiles."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ..errors import EdofprojError
 from ._common import add_config_options, config_from_args
 from .psf import add_optics_options, depths_from_args, psf_overrides
@@ -23,9 +25,9 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..doe import build_doe
+    from ..doe import DOE_CHOICES, build_doe
     from ..evaluation.psf_plots import plot_psf_comparison
-    from ..optics.psf_bank import simulator_from_config
+    from ..optics.psf_bank import design_engine, simulator_from_config
 
     cfg = config_from_args(args, psf_overrides(args))
     specs = list(args.doe) or ["lens", cfg.doe.kind]
@@ -39,8 +41,9 @@ def run(args) -> int:
     panels = []
     for spec in specs:
         doe = build_doe(cfg, spec)
-        sim = simulator_from_config(cfg, engine="radial" if doe.radially_symmetric else "2d")
-        panels.append((spec if spec in ("lens",) else doe.name, doe, sim.bank(doe, depths_m)))
+        sim = simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))
+        label = spec if spec in DOE_CHOICES else Path(spec.rstrip("/")).stem  # a file or run: its name
+        panels.append((label, doe, sim.bank(doe, depths_m)))
     plot_psf_comparison(panels, args.out)
     print(f"wrote {args.out}")
     return 0

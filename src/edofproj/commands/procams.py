@@ -135,11 +135,11 @@ def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
     import torch
 
     from ..doe import build_doe
+    from ..optics.psf_bank import design_engine
 
     doe = build_doe(cfg, args.doe)
-    engine = cfg.psf.engine if doe.radially_symmetric else "2d"
     with torch.no_grad():
-        return simulator_from_config(cfg, engine=engine)(doe, np.array([depth_m]))[0].double().numpy()
+        return simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))(doe, np.array([depth_m]))[0].double().numpy()
 
 
 def run_simulate(args) -> int:

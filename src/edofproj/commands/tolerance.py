@@ -71,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
         import torch
 
         from ..fabrication.tolerance import compensated_ssim_evaluator
-        from ..training.data import build_test_images
-        from ..training.runs import load_run
+        from ..data import build_test_images
+        from ..runs import load_run
 
         trained = load_run(design.run_dir)
         images = torch.stack([img for _, img in build_test_images(cfg.data, size=128)[:args.ssim_images]])

@@ -4,7 +4,7 @@
     torchrun --nproc_per_node=2 -m edofproj.cli train --config cpu --out runs/cpu_ddp
 
 Writes ``config.yaml``, ``train_log.csv``, ``checkpoints/``, ``doe.npz`` and ``figures/`` into
-``--out`` (see :mod:`edofproj.training.runs`). ``--resume`` continues a run exactly from its
+``--out`` (see :mod:`edofproj.runs`). ``--resume`` continues a run exactly from its
 last checkpoint; without ``--config`` it uses the run's own ``config.yaml``.
 """
 
@@ -45,7 +45,7 @@ def _positive_int(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..training.runs import saved_config
+    from ..runs import saved_config
     from ..training.trainer import train
 
     overrides = list(args.overrides or [])

@@ -67,7 +67,7 @@ from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, unet_body, unet_layers
 #: moves a tap of ``L`` by up to ``LOCAL_GAIN_SCALE * lr``, so the taps of an inverse filter (a
 #: centre gain of a few units) are reached in a short training run at the network's learning
 #: rate (as :data:`~edofproj.compensation.radial_filter.GAIN_SCALE` does for ``H``). Chosen on the
-#: validation split (``configs/realtime.yaml``): 10 trains well, 30 diverged.
+#: validation split (``the realtime preset``): 10 trains well, 30 diverged.
 LOCAL_GAIN_SCALE = 10.0
 
 
@@ -203,7 +203,7 @@ class MultirateCompensationNet(nn.Module):
         # The finest scale (1/s) has no 3x3 convolutions: its features are the embeddings, and the
         # decoder fuses them with the upsampled coarser features by a 1x1 convolution. (3x3 blocks
         # there cost a fifth of the frame time and did not change the validation SSIM: 0.9845 with,
-        # 0.9839 without; configs/realtime.yaml.)
+        # 0.9839 without; the realtime preset.)
         self.encoder, self.down, self.up, self.decoder = unet_layers(
             nn.Identity(), widths, downsampling, upsampling, leaky_slope,
             finest_decoder=lambda: nn.Sequential(nn.Conv2d(2 * widths[0], widths[0], 1), nn.LeakyReLU(leaky_slope)),

@@ -57,24 +57,6 @@ UPSAMPLING_MODES = ("transpose", "bilinear")
 PADDING_MODES = ("replicate", "reflect")
 
 
-def describe_network(net_cfg) -> str:
-    """One line naming a :class:`~edofproj.config.NetConfig`'s network, e.g. ``U-Net 16-128 (4 scales)
-    + radial pre-filter (48 nodes)``."""
-    widths = [int(w) for w in net_cfg.widths]
-    if net_cfg.architecture == "multirate":
-        s = net_cfg.space_to_depth
-        return (f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
-                f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)")
-    if net_cfg.architecture != "unet":
-        return net_cfg.architecture
-    text = f"U-Net {min(widths)}-{max(widths)} ({len(widths)} scales)"
-    if net_cfg.space_to_depth > 1:
-        text += f" on {net_cfg.space_to_depth}x{net_cfg.space_to_depth} pixel blocks"
-    if net_cfg.prefilter_bins:
-        text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
-    return text
-
-
 def width_preset(name: str) -> list[int]:
     """The channel widths of preset ``name`` (a key of :data:`UNET_WIDTH_PRESETS`)."""
     if name not in UNET_WIDTH_PRESETS:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..errors import EdofprojError
 from .base import DOE
+from .design_rules import apply_design_rules
 from .designs import Axicon, CubicPhasePlate, LensOnly, Multifocal
 from .mlp import FreeRadialDOE, RadialMLPDOE
 from .storage import load_doe
@@ -67,3 +68,12 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
     if kind == "file":
         return load_doe(resolve_doe_file(doe_cfg.path))
     raise EdofprojError(f"unknown DOE kind '{kind}' (known: {', '.join(DOE_CHOICES)}, or a file)")
+
+
+def build_run_doe(cfg) -> DOE:
+    """The configured DOE of a training run, with the design-for-manufacture rules applied when
+    ``doe.min_feature_um > 0`` (:func:`edofproj.doe.design_rules.apply_design_rules`)."""
+    doe = build_doe(cfg)
+    if cfg.doe.min_feature_um > 0:
+        doe = apply_design_rules(doe, cfg)
+    return doe

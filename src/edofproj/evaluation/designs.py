@@ -19,7 +19,8 @@ import warnings
 import numpy as np
 import torch
 
-from ..optics.psf_bank import PSFBank, simulator_from_config
+from ..errors import BlurExceedsWindowWarning
+from ..optics.psf_bank import PSFBank, design_engine, simulator_from_config
 
 #: Depths closer than this (metres) share one cache entry.
 DEPTH_KEY_RESOLUTION_M = 1e-6
@@ -42,7 +43,7 @@ class OpticalDesign:
         self.key = key
         self.label = label
         self.doe = doe
-        self.engine = "radial" if doe is None or doe.radially_symmetric else "2d"
+        self.engine = design_engine(doe, cfg.psf.engine)
         self._simulator = simulator_from_config(cfg, engine=self.engine)
         self._cache: dict[int, torch.Tensor] = {}
 
@@ -56,7 +57,7 @@ class OpticalDesign:
         missing = sorted({_depth_key(z) for z in depths} - set(self._cache))
         if missing:
             with torch.no_grad(), warnings.catch_warnings():
-                warnings.filterwarnings("ignore", message="the geometric blur disk")
+                warnings.simplefilter("ignore", BlurExceedsWindowWarning)
                 simulated = self._simulator(self.doe, np.array(missing) * DEPTH_KEY_RESOLUTION_M)
             for key, psf in zip(missing, simulated.float()):
                 self._cache[key] = psf.to(self.device)

@@ -9,7 +9,7 @@
 * :func:`plot_training_curves` -- the training loss of every run, one line each.
 
 The PSF figure is :func:`edofproj.evaluation.psf_plots.plot_psf_comparison` and the DOE profile
-:func:`edofproj.training.figures.plot_doe_profile`.
+:func:`edofproj.runs.figures.plot_doe_profile`.
 """
 
 from __future__ import annotations

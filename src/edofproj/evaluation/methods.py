@@ -173,11 +173,20 @@ class PreparedMethod:
 
 def training_crops(cfg, count: int, seed: int = 0) -> torch.Tensor:
     """``count`` training crops ``(count, 3, crop, crop)`` of the run's training source (never test images)."""
-    from ..training.data import build_training_source
+    from ..data import build_training_source
 
     source = build_training_source(cfg.data, cfg.train.seed)
     generator = torch.Generator().manual_seed(int(seed))
     return source.sample(int(count), cfg.data.crop, generator)
+
+
+def score_range_mm(cfg) -> tuple[float, float]:
+    """Depths (mm) over which means and worst depths are taken: ``evaluation.score_range_mm``, or
+    the training range when that is empty."""
+    if cfg.evaluation.score_range_mm:
+        near, far = cfg.evaluation.score_range_mm
+        return float(near), float(far)
+    return float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm)
 
 
 def tune_nsr(design, train_images: torch.Tensor, cfg) -> tuple[float, dict[float, float]]:
@@ -186,8 +195,7 @@ def tune_nsr(design, train_images: torch.Tensor, cfg) -> tuple[float, dict[float
     ``evaluation.wiener_tuning_depths`` depths of the scored range."""
     from ..compensation.wiener import tune_wiener_nsr
     from ..imaging.projection import project
-    from .metrics import ssim
-    from .pipeline import score_range_mm
+    from ..metrics import ssim
 
     near_mm, far_mm = score_range_mm(cfg)
     depths_m = np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3

@@ -26,12 +26,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..compensation.unet import describe_network
+from ..compensation.registry import describe_network
 from ..config import apply_overrides, to_dict
 from ..errors import EdofprojError
 from .designs import OpticalDesign
 from .methods import (ConstrainedCompensation, MethodSpec, NetworkCompensation, PreparedMethod, WienerCompensation,
-                      no_compensation, select_methods, training_crops, tune_nsr)
+                      no_compensation, score_range_mm, select_methods, training_crops, tune_nsr)
 from .progress import StageProgress
 from .results import MetricsTable
 
@@ -49,7 +49,7 @@ class Evaluation:
     """Everything an evaluation measured and wrote."""
 
     out_dir: Path
-    run: object                                  # edofproj.training.runs.TrainedRun
+    run: object                                  # edofproj.runs.TrainedRun
     cfg: object                                  # the run's config with the evaluation overrides
     methods: list[PreparedMethod]
     designs: dict[str, OpticalDesign]
@@ -75,7 +75,7 @@ class Evaluation:
 
 def require_trained_run(run_dir: str | Path) -> Path:
     """The run directory, or a one-line error when it is missing or has no checkpoint."""
-    from ..training.runs import CONFIG_NAME, last_checkpoint_path
+    from ..runs import CONFIG_NAME, last_checkpoint_path
 
     path = Path(run_dir)
     if not path.is_dir():
@@ -157,7 +157,7 @@ class MethodBuilder:
 
     def baseline(self, spec: MethodSpec):
         """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
-        from ..training.runs import last_checkpoint_path, load_run
+        from ..runs import last_checkpoint_path, load_run
 
         path = self.baselines_dir / spec.run_dir
         if not last_checkpoint_path(path).is_file():
@@ -213,15 +213,6 @@ class MethodBuilder:
 # --------------------------------------------------------------------------- evaluation
 
 
-def score_range_mm(cfg) -> tuple[float, float]:
-    """Depths (mm) over which means and worst depths are taken: ``evaluation.score_range_mm``, or
-    the training range when that is empty."""
-    if cfg.evaluation.score_range_mm:
-        near, far = cfg.evaluation.score_range_mm
-        return float(near), float(far)
-    return float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm)
-
-
 def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_dir: str | Path | None = None,
                  depths_mm: Sequence[float] | None = None, methods: Sequence[str] | None = None,
                  baselines_dir: str | Path | None = None, overrides: Sequence[str] = (),
@@ -232,8 +223,8 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     simulated on the CPU, and the tables do not depend on the device beyond float32 rounding."""
     import time
 
-    from ..training.runs import load_run
-    from .images import evaluation_images
+    from ..runs import load_run
+    from ..data import evaluation_images
     from .sweep import example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
 
     clock = time.perf_counter()
@@ -312,8 +303,8 @@ def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
 
 def write_figures(ev: Evaluation) -> None:
     """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
-    from ..training.figures import plot_doe_profile
-    from ..training.run_log import read_log
+    from ..runs.figures import plot_doe_profile
+    from ..runs.log import read_log
     from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
     from .psf_plots import plot_psf_comparison
 

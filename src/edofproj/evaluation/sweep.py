@@ -18,7 +18,7 @@ one PSF: they get ``p_c``, the PSF at the depth of the screen's middle column
 (``1/z_c = (1/near + 1/far) / 2``) -- a spatially invariant deconvolution, which is what those
 methods can do on a screen whose blur varies across the image.
 
-Scores per image: PSNR, SSIM, MS-SSIM (:mod:`edofproj.evaluation.metrics`) and the perceptual
+Scores per image: PSNR, SSIM, MS-SSIM (:mod:`edofproj.metrics`) and the perceptual
 metrics whose weights are present (LPIPS with AlexNet, DISTS).
 """
 
@@ -33,7 +33,7 @@ import torch
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.projection import project
 from ..imaging.screens import tilted_plane_depth_map
-from . import metrics
+from .. import metrics
 from .results import BASE_METRICS, MetricsTable
 
 Progress = Callable[[int], None]

@@ -121,6 +121,16 @@ def time_cases(cases: Iterable[Case], sizes: Sequence[tuple[int, int]], repeats:
 # --------------------------------------------------------------------------- cases
 
 
+def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray:
+    """A defocus-like PSF (C, K, K): a uniform disk filling the window, summing to ``energy``."""
+    if window < 1 or window % 2 == 0:
+        raise EdofprojError(f"--window={window} must be odd and >= 1")
+    radius = window // 2
+    y, x = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    disk = (x ** 2 + y ** 2 <= radius ** 2 + 0.5).astype(np.float64)
+    return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
+
+
 def _random_frame(height: int, width: int, device: str, seed: int = 0) -> torch.Tensor:
     generator = torch.Generator().manual_seed(seed)
     return torch.rand(1, 3, height, width, generator=generator).to(device)
@@ -233,7 +243,7 @@ def onnx_providers(device: str) -> list[str]:
 def network_onnx_case(onnx_path, method: str, device: str = "cpu", threads: int | None = None) -> Case:
     """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime. ``onnx_path``:
     one file for every frame size, or ``path_for(height, width)`` for exports made for one frame
-    size (networks with a Fourier filter, :func:`edofproj.commands.export.fixed_size_onnx`)."""
+    size (networks with a Fourier filter, :func:`edofproj.compensation.export.fixed_size_onnx`)."""
     import onnxruntime
 
     options = onnxruntime.SessionOptions()

@@ -32,7 +32,7 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from ..errors import EdofprojError
+from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..optics.psf_bank import simulator_from_config
 from .masks import decompose
 from .perturbation import FabricatedDOE2D, FabricatedRadialDOE, FabricationErrors
@@ -115,14 +115,14 @@ class FabricatedPSF:
             sim.engine = radial_engine_on_edges(self.sim.engine, doe.edges_m())
         with torch.no_grad(), warnings.catch_warnings():
             # the haze outside the 3x3 box is irrelevant to the concentration
-            warnings.filterwarnings("ignore", message="the geometric blur disk")
+            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
             return sim(doe, depths_m)
 
 
 def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "radial") -> SSIMEvaluator:
     """``evaluate_ssim(doe, depths_m)``: mean SSIM over ``images`` (B, 3, H, W) of
     ``project(clamp(net(I, project(I, P_z))), P_z)`` against ``I``, for each depth ``z``."""
-    from ..evaluation.metrics import ssim
+    from ..metrics import ssim
     from ..imaging.projection import project
 
     psf_of = FabricatedPSF(cfg, engine, window=cfg.psf.window)

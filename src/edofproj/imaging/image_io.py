@@ -26,6 +26,9 @@ from ..fileio import write_bytes_atomic
 WRITE_BITS = {".png": (8, 16), ".tif": (8, 16), ".tiff": (8, 16), ".jpg": (8,), ".jpeg": (8,), ".bmp": (8,)}
 """Output extensions and the bit depths each supports."""
 
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+"""Extensions of the image files the tools read (training folders, ``--images DIR``, captures)."""
+
 JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
 
 

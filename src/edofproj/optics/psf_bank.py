@@ -136,6 +136,15 @@ class PSFSimulator:
                        description=description or (doe.describe() if doe is not None else "lens"))
 
 
+def design_engine(doe, configured: str = "radial") -> str:
+    """The propagation engine that simulates ``doe``: the configured one (``psf.engine``) for the
+    bare lens (``None``) and radially symmetric designs, the 2-D engine for any other design
+    (the radial engine cannot represent it)."""
+    if doe is None or doe.radially_symmetric:
+        return configured
+    return "2d"
+
+
 def simulator_from_config(cfg, wavelength_nm: float | None = None, engine: str | None = None,
                           window: int | None = None, device=None) -> PSFSimulator:
     """A :class:`PSFSimulator` for a :class:`~edofproj.config.Config`."""

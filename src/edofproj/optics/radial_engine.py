@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from scipy.special import j0, j1
 
-from ..errors import EdofprojError, SamplingError
+from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
 
@@ -95,7 +95,7 @@ def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: i
         warnings.warn(
             f"the geometric blur disk ({blur[worst]:.1f} px at {depths_m[worst] * 1e3:.0f} mm) is wider than "
             f"the {window}-px window: the light outside is counted as haze; increase the window to keep it",
-            stacklevel=3,
+            BlurExceedsWindowWarning, stacklevel=3,
         )
 
 

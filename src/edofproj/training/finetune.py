@@ -31,9 +31,9 @@ from torch import nn
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from ..optics.psf_bank import PSFBank
-from .checkpoint import save_checkpoint
+from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
-from .runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
+from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from .trainer import loss_terms, seed_everything
 
@@ -123,7 +123,7 @@ def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = No
                               psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3))
     seed_everything(cfg.train.seed)
 
-    from .data import build_training_source
+    from ..data import build_training_source
     from .losses import build_loss
 
     net = trained.net

@@ -6,7 +6,7 @@ both ``(B, 3, H, W)`` in ``[0, 1]``. The perceptual term ``D`` (``loss.perceptua
 * ``dists`` - DISTS (the paper's choice; needs the VGG16 ImageNet weights, see
   :mod:`edofproj.perceptual.weights`),
 * ``ms-ssim`` - ``1 - MS-SSIM`` (weight-free; fewer scales on small crops, see
-  :func:`edofproj.evaluation.metrics.ms_ssim`),
+  :func:`edofproj.metrics.ms_ssim`),
 * ``ssim`` - ``1 - SSIM``,
 * ``none`` - no perceptual term.
 
@@ -22,7 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
-from ..evaluation.metrics import ms_ssim, ssim
+from ..metrics import ms_ssim, ssim
 from ..perceptual import DISTS
 
 PERCEPTUAL_TERMS = ("dists", "ms-ssim", "ssim", "none")

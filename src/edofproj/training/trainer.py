@@ -37,19 +37,23 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..compensation.registry import build_network
 from ..config import Config, to_dict
-from ..doe import save_doe
-from ..errors import EdofprojError
-from ..optics.psf_bank import simulator_from_config
+from ..data import build_training_source
+from ..doe import build_run_doe, save_doe
+from ..errors import BlurExceedsWindowWarning, EdofprojError
+from ..optics.psf_bank import design_engine, simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
-from .checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
+from ..runs import (CHECKPOINT_DIR, DOE_NAME, FIGURES_DIR, check_new_run_dir, check_resume_config,
+                    last_checkpoint_path, write_run_config)
+from ..runs.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
+from ..runs.figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
+from ..runs.log import TrainingLog, read_log
 from .distributed import (ProcessGroup, average_across_processes, barrier, replica_max_difference,
                           setup_process_group, teardown_process_group)
 from .end_to_end import EndToEndProjector, SimulatedPSF
+from .losses import build_loss
 from .psf_table import DepthPSFTable
-from .run_log import TrainingLog, read_log
-from .runs import (CHECKPOINT_DIR, DOE_NAME, FIGURES_DIR, TrainedRun, build_net, build_run_doe,  # noqa: F401
-                   check_new_run_dir, check_resume_config, last_checkpoint_path, load_run, write_run_config)
 from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 
 #: Depths shown in ``figures/psf_depths.png``.
@@ -79,8 +83,7 @@ def doe_is_trained(cfg: Config, doe: nn.Module) -> bool:
 
 def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.Module:
     """A :class:`SimulatedPSF` for a DOE being optimized, a :class:`DepthPSFTable` for a fixed one."""
-    engine = cfg.psf.engine if doe.radially_symmetric else "2d"
-    simulator = simulator_from_config(cfg, engine=engine, device=device)
+    simulator = simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine), device=device)
     z_min, z_max = cfg.psf.depth_min_mm * 1e-3, cfg.psf.depth_max_mm * 1e-3
     warn_if_blur_exceeds_window(simulator.geometry, np.array([z_min, z_max]), simulator.window)
     if trained:
@@ -155,12 +158,9 @@ class _Session:
         device = group.device
         seed_everything(cfg.train.seed)
 
-        from .data import build_training_source
-        from .losses import build_loss
-
         self.doe = build_run_doe(cfg).to(device)
         self.doe_trained = doe_is_trained(cfg, self.doe)
-        self.net = build_net(cfg).to(device)
+        self.net = build_network(cfg.net).to(device)
         if not cfg.train.train_net:
             for p in self.net.parameters():
                 p.requires_grad_(False)
@@ -264,7 +264,7 @@ class _Session:
 
         self.model.train()
         with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="the geometric blur disk")  # warned once at the start
+            warnings.simplefilter("ignore", BlurExceedsWindowWarning)  # warned once at the start
             out = self.wrapped(images, depths, noise)
         loss, mse, perceptual = loss_terms(self.loss_fn, cfg, out.projected, images)
         logged = average_across_processes(torch.stack([loss.detach(), mse, perceptual]).float().cpu(), self.group)
@@ -292,15 +292,13 @@ class _Session:
 
     # -- end-of-session files ------------------------------------------------------
     def write_figures(self) -> None:
-        from .figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
-
         figures = self.run_dir / FIGURES_DIR
         figures.mkdir(parents=True, exist_ok=True)
         plot_loss_curve(read_log(self.run_dir / "train_log.csv"), figures / "loss.png")
         plot_doe_profile(self.doe, figures / "doe_profile.png", samples=self.cfg.psf.pupil_samples)
         depths = np.linspace(self.cfg.psf.depth_min_mm, self.cfg.psf.depth_max_mm, FIGURE_DEPTHS) * 1e-3
         with torch.no_grad(), warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="the geometric blur disk")
+            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
             psf = self.model.psf_source(depths)
         plot_psfs_across_depth(psf, depths, figures / "psf_depths.png")
 

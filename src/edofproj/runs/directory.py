@@ -17,7 +17,8 @@ from pathlib import Path
 from torch import nn
 
 from ..config import Config, dump_config, load_config, to_dict
-from ..doe import DOE, build_doe, load_doe
+from ..compensation.registry import build_network
+from ..doe import DOE, build_run_doe, load_doe
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from .checkpoint import LAST_NAME, load_checkpoint
@@ -30,32 +31,6 @@ FIGURES_DIR = "figures"
 #: Keys that may change when a run is resumed (they do not change what is computed so far).
 RESUMABLE_KEYS = ("train.steps", "train.checkpoint_every", "train.keep_checkpoints", "train.threads",
                   "train.device", "name")
-
-
-def build_net(cfg: Config) -> nn.Module:
-    """The compensation network of ``cfg.net`` (``net(target, captured) -> projector input``)."""
-    if cfg.net.architecture == "onlineprodeb":
-        from ..compensation.onlineprodeb import OnlineProDebNet
-
-        return OnlineProDebNet.from_preset("default", leaky_slope=cfg.net.leaky_slope)
-    if cfg.net.architecture == "multirate":
-        from ..compensation.multirate import MultirateCompensationNet
-
-        return MultirateCompensationNet.from_config(cfg.net)
-    from ..compensation.unet import CompensationUNet
-
-    return CompensationUNet.from_config(cfg.net)
-
-
-def build_run_doe(cfg: Config) -> DOE:
-    """The configured DOE, with the design-for-manufacture rules applied when
-    ``doe.min_feature_um > 0`` (:func:`edofproj.fabrication.design_rules.apply_design_rules`)."""
-    doe = build_doe(cfg)
-    if cfg.doe.min_feature_um > 0:
-        from ..fabrication.design_rules import apply_design_rules
-
-        doe = apply_design_rules(doe, cfg)
-    return doe
 
 
 def last_checkpoint_path(run_dir: str | Path) -> Path:
@@ -136,7 +111,7 @@ def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
     cfg = saved_config(run_dir)
     checkpoint = load_checkpoint(last_checkpoint_path(run_dir), map_location=map_location)
-    net = build_net(cfg)
+    net = build_network(cfg.net)
     try:
         net.load_state_dict(checkpoint["net"])
     except RuntimeError as exc:

@@ -25,10 +25,10 @@ from typing import Sequence
 
 from ..config import load_config
 from ..errors import EdofprojError
-from .bars import Bar, ssim_bars, wall_time_bar
-from .methods import METHOD_NAMES, OURS, method_spec
-from .progress import StageProgress, format_duration
-from .report import Heading, Paragraph, Table
+from ..evaluation.bars import Bar, ssim_bars, wall_time_bar
+from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
+from ..evaluation.progress import StageProgress, format_duration
+from ..evaluation.report import Heading, Paragraph, Table
 from .schedule import ParallelTrainer, TrainingJob
 
 OURS_RUN_DIR = "doe_net"
@@ -132,7 +132,7 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     """Milliseconds per compensated 3-channel frame of the evaluated methods (median)."""
     import torch
 
-    from . import timing
+    from ..evaluation import timing
 
     cases = []
     run_design = evaluation.designs.get("run")
@@ -188,8 +188,8 @@ def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods:
     """Run the demo into ``out`` (module docstring); returns what it measured and wrote."""
     import torch
 
-    from .pipeline import evaluate_run
-    from .writeup import bars_section, write_documents
+    from ..evaluation.pipeline import evaluate_run
+    from ..evaluation.writeup import bars_section, write_documents
 
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
@@ -248,7 +248,7 @@ def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods:
 
 
 def demo_finished_message(result: DemoResult) -> str:
-    from .summary import format_text_table, range_table
+    from ..evaluation.summary import format_text_table, range_table
 
     lines = [format_text_table(range_table(result.evaluation.table, result.evaluation.range_mm, ["ssim", "psnr"])), ""]
     lines += [f"bar ({b.key}) {b.verdict}: {b.statement} -- {b.measured}" for b in result.bars]

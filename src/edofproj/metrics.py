@@ -25,10 +25,10 @@ from typing import Optional
 import torch
 from torch.nn import functional as F
 
-from ..errors import EdofprojError
-from ..perceptual import DISTS, LPIPS, PerceptualWeightsMissing
-from ..perceptual.lpips import LPIPS_BACKBONES
-from ..perceptual.weights import backbone_weights_path, metric_weights_path
+from .errors import EdofprojError
+from .perceptual import DISTS, LPIPS, PerceptualWeightsMissing
+from .perceptual.lpips import LPIPS_BACKBONES
+from .perceptual.weights import backbone_weights_path, metric_weights_path
 
 __all__ = [
     "MS_SSIM_WEIGHTS",

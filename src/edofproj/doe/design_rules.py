@@ -22,7 +22,7 @@ import math
 
 import torch
 
-from ..doe.base import RadialDOE, require_resolved_feature
+from .base import RadialDOE, require_resolved_feature
 from ..errors import EdofprojError
 
 

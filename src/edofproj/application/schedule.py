@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import EdofprojError
-from .progress import StageProgress, format_duration
+from ..evaluation.progress import StageProgress, format_duration
 
 POLL_S = 1.0
 

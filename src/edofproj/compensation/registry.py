@@ -1,0 +1,94 @@
+"""The compensation networks by architecture name: one table that builds, describes and lists them.
+
+Every network maps ``net(target, captured) -> projector input`` (unclamped, same size as the
+target). ``net.architecture`` in a config names one of :data:`NETWORKS`:
+
+* ``unet`` -- :class:`~edofproj.compensation.unet.CompensationUNet` (the paper's U-Net; with
+  ``net.prefilter_bins > 0`` a learned radial Fourier pre-filter in front of it);
+* ``multirate`` -- :class:`~edofproj.compensation.multirate.MultirateCompensationNet` (the
+  real-time network; ``net.space_to_depth`` is its block size, ``net.prefilter_bins`` its filter nodes);
+* ``onlineprodeb`` -- :class:`~edofproj.compensation.onlineprodeb.OnlineProDebNet` (the baseline
+  re-implementation, its default preset; ``net.widths`` unused).
+
+:func:`build_network` builds a config's network, :func:`describe_network` names it in one line
+(reports, ``bench``), :func:`network_from_widths` builds an untrained one from a width spec
+(``bench --widths``).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+from torch import nn
+
+from ..errors import EdofprojError
+from .multirate import MultirateCompensationNet
+from .onlineprodeb import OnlineProDebNet
+from .unet import CompensationUNet, width_preset
+
+
+def _describe_unet(net_cfg) -> str:
+    widths = [int(w) for w in net_cfg.widths]
+    text = f"U-Net {min(widths)}-{max(widths)} ({len(widths)} scales)"
+    if net_cfg.space_to_depth > 1:
+        text += f" on {net_cfg.space_to_depth}x{net_cfg.space_to_depth} pixel blocks"
+    if net_cfg.prefilter_bins:
+        text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
+    return text
+
+
+def _describe_multirate(net_cfg) -> str:
+    widths = [int(w) for w in net_cfg.widths]
+    s = net_cfg.space_to_depth
+    return (f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
+            f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)")
+
+
+class Architecture(NamedTuple):
+    """A network class, how a config builds it, and how it is named in one line."""
+
+    network: type
+    build: Callable[[object], nn.Module]
+    describe: Callable[[object], str]
+
+
+NETWORKS: dict[str, Architecture] = {
+    "unet": Architecture(CompensationUNet, CompensationUNet.from_config, _describe_unet),
+    "multirate": Architecture(MultirateCompensationNet, MultirateCompensationNet.from_config, _describe_multirate),
+    "onlineprodeb": Architecture(
+        OnlineProDebNet, lambda net_cfg: OnlineProDebNet.from_preset("default", leaky_slope=net_cfg.leaky_slope),
+        lambda net_cfg: "onlineprodeb"),
+}
+
+
+def _architecture(name: str) -> Architecture:
+    if name not in NETWORKS:
+        raise EdofprojError(f"unknown network architecture '{name}' (known: {', '.join(NETWORKS)})")
+    return NETWORKS[name]
+
+
+def build_network(net_cfg) -> nn.Module:
+    """The compensation network of a :class:`~edofproj.config.NetConfig`."""
+    return _architecture(net_cfg.architecture).build(net_cfg)
+
+
+def describe_network(net_cfg) -> str:
+    """One line naming a :class:`~edofproj.config.NetConfig`'s network, e.g. ``U-Net 16-128 (4 scales)
+    + radial pre-filter (48 nodes)``."""
+    return _architecture(net_cfg.architecture).describe(net_cfg)
+
+
+def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0,
+                        architecture: str = "unet") -> nn.Module:
+    """An untrained network of a named width preset or comma-separated channel counts:
+    :class:`CompensationUNet` or, for ``architecture="multirate"``, :class:`MultirateCompensationNet`
+    (``space_to_depth`` is then its block size, ``prefilter_bins`` its filter's nodes)."""
+    if spec.replace(",", "").replace(" ", "").isdigit():
+        widths = [int(w) for w in spec.split(",")]
+    else:
+        widths = width_preset(spec)
+    if architecture == "multirate":
+        return MultirateCompensationNet(widths, block=space_to_depth, filter_bins=prefilter_bins)
+    if architecture != "unet":
+        raise EdofprojError(f"--architecture {architecture}: only unet and multirate are built from widths")
+    return CompensationUNet(widths, space_to_depth=space_to_depth, prefilter_bins=prefilter_bins)
