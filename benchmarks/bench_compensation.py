@@ -21,11 +21,11 @@ from pathlib import Path
 
 import torch
 
-from edofproj.evaluation.timing import disk_psf
 from edofproj.compensation.export import export_network
 from edofproj.compensation.onlineprodeb import OnlineProDebNet
 from edofproj.compensation.unet import CompensationUNet, width_preset
 from edofproj.evaluation import timing
+from edofproj.evaluation.timing import disk_psf
 from edofproj.fileio import write_text_atomic
 
 PAPER_SIZES = [(256, 256), (600, 800), (768, 1024)]
@@ -70,12 +70,16 @@ def main() -> int:
                         export_network(net, path, "onnx", 256, 256)
                     full.append(timing.network_onnx_case(str(path), f"unet-{preset}", device, args.threads))
             results += timing.time_cases(full, PAPER_SIZES, args.repeats, args.warmup, progress)
-            small = [timing.network_torch_case(OnlineProDebNet.from_preset("default"), "onlineprodeb", device),
-                     timing.cls_torch_case(psf, 100, device)]
+            small = [
+                timing.network_torch_case(OnlineProDebNet.from_preset("default"), "onlineprodeb", device),
+                timing.cls_torch_case(psf, 100, device),
+            ]
             results += timing.time_cases(small, PAPER_SIZES[:1], args.repeats, args.warmup, progress)
 
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), PSF window {args.window}, "
-          f"median of {args.repeats} frames (ms per 3-channel frame)")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), PSF window {args.window}, "
+        f"median of {args.repeats} frames (ms per 3-channel frame)"
+    )
     print(timing.format_table(results))
     print()
     print(PAPER_TABLE_1)

@@ -64,8 +64,16 @@ def run_engine(name: str, n_depths: int, samples: int, window: int, dtype: str) 
     (out * weights).sum().backward()
     forward_backward = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return dict(engine=name, depths=len(depths), build_s=build, forward_s=forward, forward_backward_s=forward_backward,
-                peak_mb=peak_mb, psf=psf.double().numpy().tolist(), depth_index=[int(np.argmin(abs(DEPTHS_M - d))) for d in depths])
+    return dict(
+        engine=name,
+        depths=len(depths),
+        build_s=build,
+        forward_s=forward,
+        forward_backward_s=forward_backward,
+        peak_mb=peak_mb,
+        psf=psf.double().numpy().tolist(),
+        depth_index=[int(np.argmin(abs(DEPTHS_M - d))) for d in depths],
+    )
 
 
 def main() -> None:
@@ -85,26 +93,45 @@ def main() -> None:
 
     results = {}
     for name, n in (("radial", 21), ("2d", args.fourier_depths)):
-        cmd = [sys.executable, __file__, "--child", name, str(n), "--samples", str(args.samples), "--window",
-               str(args.window), "--dtype", args.dtype, "--threads", str(args.threads)]
+        cmd = [
+            sys.executable,
+            __file__,
+            "--child",
+            name,
+            str(n),
+            "--samples",
+            str(args.samples),
+            "--window",
+            str(args.window),
+            "--dtype",
+            args.dtype,
+            "--threads",
+            str(args.threads),
+        ]
         proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
         results[name] = json.loads(proc.stdout.strip().splitlines()[-1])
 
     radial, fourier = results["radial"], results["2d"]
     scale = 21 / fourier["depths"]
-    print(f"PSF bank: 21 depths x {len(WAVELENGTHS_M)} wavelengths, {args.samples} pupil samples, window "
-          f"{args.window} px, {args.dtype}, {args.threads} threads, torch {torch.__version__}")
+    print(
+        f"PSF bank: 21 depths x {len(WAVELENGTHS_M)} wavelengths, {args.samples} pupil samples, window "
+        f"{args.window} px, {args.dtype}, {args.threads} threads, torch {torch.__version__}"
+    )
     print(f"{'engine':<8} {'build s':>8} {'forward s':>10} {'fwd+bwd s':>10} {'peak MB':>8}")
     for r in (radial, fourier):
         s = 21 / r["depths"]
         note = f"  (measured on {r['depths']} depths, x{s:.1f} extrapolated)" if s > 1 else ""
-        print(f"{r['engine']:<8} {r['build_s']:8.2f} {r['forward_s'] * s:10.2f} {r['forward_backward_s'] * s:10.2f} "
-              f"{r['peak_mb']:8.0f}{note}")
+        print(
+            f"{r['engine']:<8} {r['build_s']:8.2f} {r['forward_s'] * s:10.2f} {r['forward_backward_s'] * s:10.2f} "
+            f"{r['peak_mb']:8.0f}{note}"
+        )
     a = np.asarray(radial["psf"])[fourier["depth_index"]]
     b = np.asarray(fourier["psf"])
     l1 = np.abs(a - b).sum(axis=(-1, -2))
-    print(f"speed-up radial vs 2-D: forward {fourier['forward_s'] * scale / radial['forward_s']:.0f}x, "
-          f"fwd+bwd {fourier['forward_backward_s'] * scale / radial['forward_backward_s']:.0f}x")
+    print(
+        f"speed-up radial vs 2-D: forward {fourier['forward_s'] * scale / radial['forward_s']:.0f}x, "
+        f"fwd+bwd {fourier['forward_backward_s'] * scale / radial['forward_backward_s']:.0f}x"
+    )
     print(f"L1 difference (fraction of pupil energy) over {l1.size} PSFs: max {l1.max():.4f}, mean {l1.mean():.4f}")
 
 

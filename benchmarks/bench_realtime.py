@@ -8,7 +8,7 @@ network / Wiener, whose median is the figure to compare with 1.
 
 Methods: Wiener deconvolution with a cached filter (SciPy FFT and PyTorch FFT, 33x33 PSF; the
 same cases as ``edofproj bench``) and the compensation network of ``--run`` (or, without
-``--run``, an untrained network of ``the realtime preset``: the cost does not depend on the
+``--run``, an untrained network of the ``realtime`` preset: the cost does not depend on the
 weights).
 
     .venv/bin/python benchmarks/bench_realtime.py --run runs/realtime [--sizes 600x800] [--rounds 200]
@@ -20,17 +20,14 @@ import argparse
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import torch
 
-from edofproj.evaluation.timing import disk_psf
+from edofproj.compensation.registry import build_network
 from edofproj.config import load_config
 from edofproj.evaluation import timing
-from edofproj.compensation.registry import build_network
+from edofproj.evaluation.timing import disk_psf
 from edofproj.runs import load_run
-
-PRESET = Path(__file__).resolve().parents[1] / "configs" / "realtime.yaml"
 
 
 def interleaved_ms(frames: dict, rounds: int, warmup: int) -> dict[str, list[float]]:
@@ -63,7 +60,7 @@ def main() -> int:
         trained = load_run(args.run)
         net, label, window = trained.net, trained.cfg.net.architecture, trained.cfg.psf.window
     else:
-        cfg = load_config(str(PRESET))
+        cfg = load_config("realtime")
         net, label, window = build_network(cfg.net), f"{cfg.net.architecture} (untrained)", cfg.psf.window
     psf = disk_psf(window)
     cases = {
@@ -72,8 +69,10 @@ def main() -> int:
         f"{label}/torch": timing.network_torch_case(net, label),
     }
     network = f"{label}/torch"
-    print(f"torch {torch.__version__}, {args.threads} thread(s), {args.rounds} interleaved rounds, "
-          f"ms per 3-channel frame (median; P10-P90)")
+    print(
+        f"torch {torch.__version__}, {args.threads} thread(s), {args.rounds} interleaved rounds, "
+        f"ms per 3-channel frame (median; P10-P90)"
+    )
     for height, width in timing.parse_sizes(args.sizes):
         frames = {name: case.build(height, width) for name, case in cases.items()}
         times = interleaved_ms(frames, args.rounds, args.warmup)
@@ -84,8 +83,10 @@ def main() -> int:
         for reference in ("wiener/scipy", "wiener/torch"):
             ratios = [n / r for n, r in zip(times[network], times[reference])]
             faster = sum(ratio <= 1 for ratio in ratios) / len(ratios)
-            print(f"  {network} / {reference}: median ratio {statistics.median(ratios):.2f} "
-                  f"(network at least as fast in {100 * faster:.0f} % of rounds)")
+            print(
+                f"  {network} / {reference}: median ratio {statistics.median(ratios):.2f} "
+                f"(network at least as fast in {100 * faster:.0f} % of rounds)"
+            )
     return 0
 
 

@@ -35,8 +35,8 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
     import torch
 
     from edofproj.config import load_config
-    from edofproj.training import losses
     from edofproj.runs.log import read_log
+    from edofproj.training import losses
     from edofproj.training.trainer import train
 
     notes = []
@@ -73,9 +73,15 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
     per_step = np.diff(seconds) if len(seconds) > 1 else seconds
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
     return {
-        "preset": preset, "crop": cfg.data.crop, "batch": cfg.train.batch_size, "steps": steps,
-        "threads": torch.get_num_threads(), "first_step_s": float(seconds[0]),
-        "seconds_per_step": float(np.median(per_step)), "session_s": total, "peak_rss_mib": peak_mib,
+        "preset": preset,
+        "crop": cfg.data.crop,
+        "batch": cfg.train.batch_size,
+        "steps": steps,
+        "threads": torch.get_num_threads(),
+        "first_step_s": float(seconds[0]),
+        "seconds_per_step": float(np.median(per_step)),
+        "session_s": total,
+        "peak_rss_mib": peak_mib,
         "notes": notes,
     }
 
@@ -90,18 +96,25 @@ def main(argv=None) -> int:
     if args.worker:
         print(json.dumps(run_preset(args.worker, args.steps, args.threads)))
         return 0
-    print(f"{'preset':8s} {'crop':>5s} {'batch':>5s} {'threads':>7s} {'first step s':>12s} "
-          f"{'s/step':>8s} {'peak RSS MiB':>12s}")
+    print(
+        f"{'preset':8s} {'crop':>5s} {'batch':>5s} {'threads':>7s} {'first step s':>12s} "
+        f"{'s/step':>8s} {'peak RSS MiB':>12s}"
+    )
     for preset in args.presets:
         steps = args.steps or DEFAULT_STEPS.get(preset, 4)
-        done = subprocess.run([sys.executable, __file__, "--worker", preset, "--steps", str(steps),
-                               "--threads", str(args.threads)], capture_output=True, text=True)
+        done = subprocess.run(
+            [sys.executable, __file__, "--worker", preset, "--steps", str(steps), "--threads", str(args.threads)],
+            capture_output=True,
+            text=True,
+        )
         if done.returncode != 0:
             print(f"{preset:8s} failed: {done.stderr.strip().splitlines()[-1] if done.stderr.strip() else '?'}")
             continue
         r = json.loads(done.stdout.strip().splitlines()[-1])
-        print(f"{r['preset']:8s} {r['crop']:5d} {r['batch']:5d} {r['threads']:7d} {r['first_step_s']:12.2f} "
-              f"{r['seconds_per_step']:8.2f} {r['peak_rss_mib']:12.0f}")
+        print(
+            f"{r['preset']:8s} {r['crop']:5d} {r['batch']:5d} {r['threads']:7d} {r['first_step_s']:12.2f} "
+            f"{r['seconds_per_step']:8.2f} {r['peak_rss_mib']:12.0f}"
+        )
         for note in r["notes"]:
             print(f"{'':8s} note: {note}")
     return 0

@@ -60,10 +60,16 @@ def onnx_session(net: CompensationUNet, folder: Path, threads: int):
     axes = {0: "batch", 2: "height", 3: "width"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(net.eval().to(memory_format=torch.contiguous_format), frame(64, 64), str(path),
-                          opset_version=17, dynamo=False, input_names=["target", "captured"],
-                          output_names=["projector_input"],
-                          dynamic_axes={"target": axes, "captured": axes, "projector_input": axes})
+        torch.onnx.export(
+            net.eval().to(memory_format=torch.contiguous_format),
+            frame(64, 64),
+            str(path),
+            opset_version=17,
+            dynamo=False,
+            input_names=["target", "captured"],
+            output_names=["projector_input"],
+            dynamic_axes={"target": axes, "captured": axes, "projector_input": axes},
+        )
     options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
@@ -80,7 +86,7 @@ def time_wiener(height: int, width: int, threads: int, warmup: int, repeats: int
     from edofproj.compensation.wiener import WienerCompensator
 
     radius = 16
-    y, x = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    y, x = np.mgrid[-radius : radius + 1, -radius : radius + 1]
     disk = (x**2 + y**2 <= radius**2).astype(np.float64)
     psf = np.repeat((0.95 * disk / disk.sum())[None], 3, axis=0)
     wiener = WienerCompensator(psf, nsr=1e-2, workers=threads)
@@ -90,12 +96,13 @@ def time_wiener(height: int, width: int, threads: int, warmup: int, repeats: int
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--presets", default=",".join(UNET_WIDTH_PRESETS),
-                        help="comma-separated preset names (default: all)")
-    parser.add_argument("--sizes", default=",".join(f"{h}x{w}" for h, w in SIZES),
-                        help="comma-separated HxW frame sizes")
-    parser.add_argument("--threads", type=int, default=2,
-                        help="intra-op threads (PyTorch, ONNX Runtime, SciPy FFT)")
+    parser.add_argument(
+        "--presets", default=",".join(UNET_WIDTH_PRESETS), help="comma-separated preset names (default: all)"
+    )
+    parser.add_argument(
+        "--sizes", default=",".join(f"{h}x{w}" for h, w in SIZES), help="comma-separated HxW frame sizes"
+    )
+    parser.add_argument("--threads", type=int, default=2, help="intra-op threads (PyTorch, ONNX Runtime, SciPy FFT)")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-onnx", action="store_true", help="skip ONNX Runtime")
@@ -117,14 +124,22 @@ def main() -> None:
         net = CompensationUNet(widths)
         count = sum(p.numel() for p in net.parameters())
         times = [time_pytorch(net, h, w, args.warmup, args.repeats) for h, w in sizes]
-        print(f"| U-Net {name}, PyTorch channels_last | {widths} | {count:,} | "
-              + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
+        print(
+            f"| U-Net {name}, PyTorch channels_last | {widths} | {count:,} | "
+            + " | ".join(f"{t:.1f}" for t in times)
+            + " |",
+            flush=True,
+        )
         if not args.no_onnx:
             with tempfile.TemporaryDirectory() as folder:
                 session = onnx_session(CompensationUNet(widths), Path(folder), args.threads)
                 times = [time_onnx(session, h, w, args.warmup, args.repeats) for h, w in sizes]
-            print(f"| U-Net {name}, ONNX Runtime | {widths} | {count:,} | "
-                  + " | ".join(f"{t:.1f}" for t in times) + " |", flush=True)
+            print(
+                f"| U-Net {name}, ONNX Runtime | {widths} | {count:,} | "
+                + " | ".join(f"{t:.1f}" for t in times)
+                + " |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

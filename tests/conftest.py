@@ -1,4 +1,3 @@
-
 import pytest
 import torch
 
@@ -12,7 +11,9 @@ torch.set_num_threads(1)
 def geometry():
     from edofproj.optics.geometry import ProjectorGeometry
 
-    return ProjectorGeometry(aperture_diameter_m=7e-3, focus_distance_m=0.5, throw_ratio=1.5, width_px=800, height_px=600)
+    return ProjectorGeometry(
+        aperture_diameter_m=7e-3, focus_distance_m=0.5, throw_ratio=1.5, width_px=800, height_px=600
+    )
 
 
 @pytest.fixture(params=DEVICES)
@@ -29,3 +30,16 @@ def float32_matmul():
     torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
     yield
     torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = saved
+
+
+@pytest.fixture
+def tiny_config():
+    """``tiny_config(*overrides, kind="training")``: one of the tiny configurations of
+    :mod:`tiny_configs` (``training``, ``evaluation``, ``lens-finetune``) plus overrides."""
+    from edofproj.config import Config, apply_overrides
+    from tiny_configs import TINY
+
+    def make(*overrides: str, kind: str = "training"):
+        return apply_overrides(Config(), TINY[kind] + list(overrides))
+
+    return make

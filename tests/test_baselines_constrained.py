@@ -18,7 +18,7 @@ def cross_psf(energy: float = 0.9) -> torch.Tensor:
 
 def gaussian_psf(sigma: float, window: int, energy: float = 0.95) -> torch.Tensor:
     r = torch.arange(window, dtype=torch.float64) - window // 2
-    g = torch.exp(-(r[:, None] ** 2 + r[None] ** 2) / (2 * sigma ** 2))
+    g = torch.exp(-(r[:, None] ** 2 + r[None] ** 2) / (2 * sigma**2))
     return (energy * g / g.sum()).expand(1, 3, window, window).clone()
 
 
@@ -65,8 +65,9 @@ def test_objective_decreases_and_iterates_stay_in_the_box(truth, method):
         seen.append(k)
         assert float(x.min()) >= 0.0 and float(x.max()) <= 1.0
 
-    x, objective = box_constrained_deconvolution(target, psf, iterations=40, method=method,
-                                                 return_objective=True, callback=check)
+    x, objective = box_constrained_deconvolution(
+        target, psf, iterations=40, method=method, return_objective=True, callback=check
+    )
     assert seen == list(range(1, 41))
     assert objective.shape == (41, 2)
     steps = objective[1:] - objective[:-1]

@@ -40,15 +40,21 @@ def test_sizes_table_and_csv():
     for bad in ("600", "axb", "0x5", ""):
         with pytest.raises(EdofprojError):
             parse_sizes(bad)
-    timings = [Timing("wiener", "scipy", "cpu", 8, 8, 1.25, 3), Timing("unet", "torch", "cpu", 8, 8, 10.0, 3),
-               Timing("wiener", "scipy", "cpu", 16, 8, 2.5, 3)]
+    timings = [
+        Timing("wiener", "scipy", "cpu", 8, 8, 1.25, 3),
+        Timing("unet", "torch", "cpu", 8, 8, 10.0, 3),
+        Timing("wiener", "scipy", "cpu", 16, 8, 2.5, 3),
+    ]
     table = format_table(timings).splitlines()
     assert table[0] == "| method | backend | device | 8x8 (ms) | 16x8 (ms) |"
     assert table[2] == "| wiener | scipy | cpu | 1.25 | 2.50 |"  # two decimals below 10 ms
     assert table[3] == "| unet | torch | cpu | 10.0 | n/a |"
     rows = list(csv.DictReader(timings_csv(timings).splitlines()))
     assert [(r["method"], r["height"], float(r["median_ms"])) for r in rows] == [
-        ("wiener", "8", 1.25), ("unet", "8", 10.0), ("wiener", "16", 2.5)]
+        ("wiener", "8", 1.25),
+        ("unet", "8", 10.0),
+        ("wiener", "16", 2.5),
+    ]
 
 
 @pytest.fixture
@@ -60,16 +66,44 @@ def restore_threads():
 
 def test_bench_cli_times_every_method_and_backend(tmp_path, capsys, restore_threads):
     out = tmp_path / "bench.csv"
-    code = main(["bench", "--sizes", "24x40", "--repeats", "1", "--warmup", "0", "--widths", "4,8",
-                 "--methods", "wiener,unet,onlineprodeb,cls", "--cls-iterations", "2", "--window", "5",
-                 "--device", "cpu", "--threads", "1", "--csv", str(out)])
+    code = main(
+        [
+            "bench",
+            "--sizes",
+            "24x40",
+            "--repeats",
+            "1",
+            "--warmup",
+            "0",
+            "--widths",
+            "4,8",
+            "--methods",
+            "wiener,unet,onlineprodeb,cls",
+            "--cls-iterations",
+            "2",
+            "--window",
+            "5",
+            "--device",
+            "cpu",
+            "--threads",
+            "1",
+            "--csv",
+            str(out),
+        ]
+    )
     assert code == 0
     printed = capsys.readouterr().out
     assert "| method | backend | device | 24x40 (ms) |" in printed
     rows = list(csv.DictReader(out.read_text().splitlines()))
     assert {(r["method"], r["backend"]) for r in rows} == {
-        ("wiener", "scipy"), ("wiener", "torch"), ("unet", "torch"), ("unet", "onnxruntime"),
-        ("onlineprodeb", "torch"), ("onlineprodeb", "onnxruntime"), ("cls", "torch")}
+        ("wiener", "scipy"),
+        ("wiener", "torch"),
+        ("unet", "torch"),
+        ("unet", "onnxruntime"),
+        ("onlineprodeb", "torch"),
+        ("onlineprodeb", "onnxruntime"),
+        ("cls", "torch"),
+    }
     assert all(float(r["median_ms"]) > 0 for r in rows)
 
 
@@ -78,9 +112,31 @@ def test_bench_cli_times_the_multirate_network(capsys, restore_threads):
     convolutions); its ONNX export holds the Fourier filter for one frame size, so each size gets
     its own export."""
     pytest.importorskip("onnxscript")
-    code = main(["bench", "--sizes", "24x40,20x28", "--repeats", "1", "--warmup", "0", "--methods", "unet",
-                 "--architecture", "multirate", "--widths", "4,8", "--space-to-depth", "4",
-                 "--prefilter-bins", "8", "--device", "cpu", "--threads", "1"])
+    code = main(
+        [
+            "bench",
+            "--sizes",
+            "24x40,20x28",
+            "--repeats",
+            "1",
+            "--warmup",
+            "0",
+            "--methods",
+            "unet",
+            "--architecture",
+            "multirate",
+            "--widths",
+            "4,8",
+            "--space-to-depth",
+            "4",
+            "--prefilter-bins",
+            "8",
+            "--device",
+            "cpu",
+            "--threads",
+            "1",
+        ]
+    )
     assert code == 0
     captured = capsys.readouterr()
     assert "| multirate | torch | cpu |" in captured.out
@@ -88,14 +144,17 @@ def test_bench_cli_times_the_multirate_network(capsys, restore_threads):
     assert "multirate/onnxruntime/cpu 20x28" in captured.err
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--sizes", "256"], "HEIGHTxWIDTH"),
-    (["--methods", "wiener,magic"], "unknown method 'magic'"),
-    (["--widths", "huge"], "unknown U-Net width preset"),
-    (["--run", "somewhere", "--widths", "fast"], "exclude each other"),
-    (["--window", "4", "--methods", "wiener"], "odd"),
-    (["--architecture", "multirate", "--prefilter-bins", "48"], "--space-to-depth >= 2"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--sizes", "256"], "HEIGHTxWIDTH"),
+        (["--methods", "wiener,magic"], "unknown method 'magic'"),
+        (["--widths", "huge"], "unknown U-Net width preset"),
+        (["--run", "somewhere", "--widths", "fast"], "exclude each other"),
+        (["--window", "4", "--methods", "wiener"], "odd"),
+        (["--architecture", "multirate", "--prefilter-bins", "48"], "--space-to-depth >= 2"),
+    ],
+)
 def test_bench_cli_errors_are_one_line(argv, message, capsys):
     assert main(["bench", "--repeats", "1", "--warmup", "0", "--sizes", "16x16", *argv]) == 2
     err = capsys.readouterr().err

@@ -99,7 +99,7 @@ def test_per_sample_psfs_match_one_by_one():
     batch = torch.rand(2, 3, 24, 30, generator=torch.Generator().manual_seed(0))
     both = wiener_deconvolve(batch, psfs, 1e-3)
     for i in range(2):
-        assert torch.allclose(both[i], wiener_deconvolve(batch[i:i + 1], psfs[i], 1e-3)[0], atol=1e-6)
+        assert torch.allclose(both[i], wiener_deconvolve(batch[i : i + 1], psfs[i], 1e-3)[0], atol=1e-6)
 
 
 def test_tuned_nsr_is_the_best_candidate_and_beats_no_compensation():
@@ -109,7 +109,7 @@ def test_tuned_nsr_is_the_best_candidate_and_beats_no_compensation():
     photo = resize(data.astronaut()[100:356, 150:406], (64, 64), anti_aliasing=True)
     train = torch.tensor(photo, dtype=torch.float32).permute(2, 0, 1)[None]
     y, x = np.mgrid[-2:3, -2:3]
-    disk = (x ** 2 + y ** 2 <= 4).astype(np.float64)
+    disk = (x**2 + y**2 <= 4).astype(np.float64)
     psf = torch.tensor(np.repeat((0.95 * disk / disk.sum())[None], 3, axis=0), dtype=torch.float32)
     candidates = np.logspace(-5, -1, 9)
     best, scores = tune_wiener_nsr(train, psf, project, candidates)
@@ -119,8 +119,9 @@ def test_tuned_nsr_is_the_best_candidate_and_beats_no_compensation():
     # Clipping to [0, 1] limits what any compensation can do; Wiener measured +0.74 dB here.
     assert scores[best] > uncompensated + 0.5
     # A callable metric with the same ordering (one image: -MSE is monotone in PSNR) picks the same NSR.
-    best_mse, _ = tune_wiener_nsr(train, psf, project, candidates,
-                                  metric=lambda p, t: -((p - t) ** 2).flatten(1).mean(1))
+    best_mse, _ = tune_wiener_nsr(
+        train, psf, project, candidates, metric=lambda p, t: -((p - t) ** 2).flatten(1).mean(1)
+    )
     assert best_mse == best
 
 
@@ -138,8 +139,9 @@ def test_user_errors_are_one_line():
 def test_one_channel_psf_applies_to_every_channel():
     psf = torch.tensor(cross_psf()[:1], dtype=torch.float32)  # (1, K, K)
     batch = torch.rand(2, 3, 20, 24, generator=torch.Generator().manual_seed(3))
-    assert torch.allclose(wiener_deconvolve(batch, psf[None], 1e-3),
-                          wiener_deconvolve(batch, psf.expand(3, 5, 5), 1e-3), atol=1e-6)
+    assert torch.allclose(
+        wiener_deconvolve(batch, psf[None], 1e-3), wiener_deconvolve(batch, psf.expand(3, 5, 5), 1e-3), atol=1e-6
+    )
 
 
 def test_depth_ensemble_wiener_kernel_inverts_a_blur_without_spectral_zeros():

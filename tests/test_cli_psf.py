@@ -6,6 +6,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
+
 
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "edofproj.cli", *args], capture_output=True, text=True)
@@ -13,8 +15,23 @@ def run_cli(*args):
 
 def test_psf_file_contract(tmp_path):
     out = tmp_path / "psf.npz"
-    res = run_cli("psf", "--doe", "lens", "--depth-mm", "300,500", "--depth-mm", "700:800:100", "--window", "15",
-                  "--set", "psf.pupil_samples=512", "--set", "spectrum.wavelength_step_nm=100", "--out", str(out))
+    res = run_cli(
+        "psf",
+        "--doe",
+        "lens",
+        "--depth-mm",
+        "300,500",
+        "--depth-mm",
+        "700:800:100",
+        "--window",
+        "15",
+        "--set",
+        "psf.pupil_samples=512",
+        "--set",
+        "spectrum.wavelength_step_nm=100",
+        "--out",
+        str(out),
+    )
     assert res.returncode == 0, res.stderr
     data = np.load(out)
     psf = data["psf"]
@@ -29,22 +46,38 @@ def test_psf_file_contract(tmp_path):
 
 def test_monochromatic_psf_has_one_channel(tmp_path):
     out = tmp_path / "psf.npz"
-    res = run_cli("psf", "--doe", "lens", "--depth-mm", "500", "--wavelength-nm", "550", "--window", "9",
-                  "--set", "psf.pupil_samples=256", "--out", str(out))
+    res = run_cli(
+        "psf",
+        "--doe",
+        "lens",
+        "--depth-mm",
+        "500",
+        "--wavelength-nm",
+        "550",
+        "--window",
+        "9",
+        "--set",
+        "psf.pupil_samples=256",
+        "--out",
+        str(out),
+    )
     assert res.returncode == 0, res.stderr
     assert np.load(out)["psf"].shape == (1, 1, 9, 9)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--aperture-mm", "0"], "aperture_mm"),
-    (["--depth-mm", "-5"], "positive"),
-    (["--window", "8"], "odd"),
-    (["--window", "1"], "odd"),
-    (["--wavelength-nm", "1200"], "350-1000"),
-    (["--set", "optics.focus_m=3"], "did you mean"),
-    (["--doe", "nonexistent.npz"], "neither a design"),
-    (["--set", "spectrum.spd_csv=/nonexistent.csv"], "cannot read SPD file"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--aperture-mm", "0"], "aperture_mm"),
+        (["--depth-mm", "-5"], "positive"),
+        (["--window", "8"], "odd"),
+        (["--window", "1"], "odd"),
+        (["--wavelength-nm", "1200"], "350-1000"),
+        (["--set", "optics.focus_m=3"], "did you mean"),
+        (["--doe", "nonexistent.npz"], "neither a design"),
+        (["--set", "spectrum.spd_csv=/nonexistent.csv"], "cannot read SPD file"),
+    ],
+)
 def test_bad_input_one_line_exit_2_no_output(tmp_path, args, message):
     out = tmp_path / "psf.npz"
     depth = [] if "--depth-mm" in args else ["--depth-mm", "500"]

@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 import torch
 
+from devices import cuda_only
 from edofproj.config import Config, apply_overrides, load_config
 from edofproj.doe import build_doe
 from edofproj.imaging.depth_layers import layer_depths_m, render_depth_map
 from edofproj.imaging.projection import project
 from edofproj.imaging.screens import tilted_plane_depth_map
 from edofproj.optics.psf_bank import simulator_from_config
-
-from devices import cuda_only
-from tiny_training import TINY_TRAINING
+from tiny_configs import TINY_EVALUATION, TINY_TRAINING
 
 pytestmark = cuda_only
 
@@ -95,8 +94,9 @@ def test_projection_and_depth_layers_agree_with_the_cpu():
     layers = layer_depths_m(0.5, 0.8, 3)
     layer_psf = _random_psf(generator, batch=3)
     tilted = render_depth_map(image.cuda(), depth_map, layer_psf.cuda(), layers=layers)
-    torch.testing.assert_close(tilted.cpu(), render_depth_map(image, depth_map, layer_psf, layers=layers),
-                               rtol=0, atol=2e-6)
+    torch.testing.assert_close(
+        tilted.cpu(), render_depth_map(image, depth_map, layer_psf, layers=layers), rtol=0, atol=2e-6
+    )
 
 
 def test_wiener_and_constrained_least_squares_agree_with_the_cpu():
@@ -106,13 +106,15 @@ def test_wiener_and_constrained_least_squares_agree_with_the_cpu():
     generator = torch.Generator().manual_seed(1)
     image = torch.rand(1, 3, 48, 64, generator=generator)
     psf = _random_psf(generator, batch=1)
-    torch.testing.assert_close(wiener_deconvolve(image.cuda(), psf.cuda(), 1e-2).cpu(),
-                               wiener_deconvolve(image, psf, 1e-2), rtol=0, atol=1e-5)
+    torch.testing.assert_close(
+        wiener_deconvolve(image.cuda(), psf.cuda(), 1e-2).cpu(), wiener_deconvolve(image, psf, 1e-2), rtol=0, atol=1e-5
+    )
     cached = TorchWienerCompensator(psf[0].numpy(), 1e-2)
     torch.testing.assert_close(cached(image.cuda()).cpu(), cached(image), rtol=0, atol=1e-5)
     cls_gpu = box_constrained_deconvolution(image.cuda(), psf.cuda(), iterations=20)
-    torch.testing.assert_close(cls_gpu.cpu(), box_constrained_deconvolution(image, psf, iterations=20),
-                               rtol=0, atol=1e-4)
+    torch.testing.assert_close(
+        cls_gpu.cpu(), box_constrained_deconvolution(image, psf, iterations=20), rtol=0, atol=1e-4
+    )
 
 
 # ----------------------------------------------------------------------------- networks
@@ -137,7 +139,9 @@ def _randomized(factory, seed: int = 0) -> torch.nn.Module:
     net = factory()
     with torch.no_grad():
         for p in net.parameters():
-            p.copy_(0.2 * torch.randn_like(p) / max(1.0, p[0].numel() ** 0.5) if p.dim() > 1 else 0.05 * torch.randn_like(p))
+            p.copy_(
+                0.2 * torch.randn_like(p) / max(1.0, p[0].numel() ** 0.5) if p.dim() > 1 else 0.05 * torch.randn_like(p)
+            )
     return net
 
 
@@ -151,7 +155,7 @@ def test_networks_forward_and_backward_agree_with_the_cpu(name, float32_matmul):
     for device in ("cpu", "cuda"):
         net = _randomized(factory).to(device)
         out = net(target.to(device), captured.to(device))
-        (out ** 2).mean().backward()
+        (out**2).mean().backward()
         outputs[device] = out.detach()
         grads[device] = torch.cat([p.grad.reshape(-1) for p in net.parameters() if p.grad is not None])
     residual = outputs["cpu"] - target
@@ -277,15 +281,7 @@ def test_bf16_autocast_runs_the_fourier_filter_in_float32():
 # ----------------------------------------------------------------------------- evaluation
 
 
-EVALUATION = [
-    "psf.pupil_samples=384", "psf.window=15", "doe.mlp_frequencies=4", "doe.mlp_hidden=8",
-    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
-    "net.widths=[4,8]", "net.prefilter_bins=8", "data.crop=32", "train.steps=2", "train.batch_size=1",
-    "train.psf_table_depths=4", "train.checkpoint_every=2", "train.device=cpu",
-    "evaluation.image_size=[48,64]", "evaluation.depths_mm=[300,500]", "evaluation.comparison_depths_mm=[320]",
-    "evaluation.cls_iterations=5", "evaluation.wiener_tuning_images=2", "evaluation.wiener_tuning_depths=2",
-    "imaging.depth_layers=2", "data.max_test_images=2",
-]
+EVALUATION = TINY_EVALUATION + ["net.prefilter_bins=8", "train.device=cpu"]
 
 
 def test_evaluation_on_cuda_scores_as_on_the_cpu(tmp_path, float32_matmul):

@@ -8,21 +8,27 @@ import scipy.integrate
 import scipy.stats
 import torch
 
+from edofproj.data import (
+    dead_leaves_image,
+    dead_leaves_labels,
+    disks_per_covering_layer,
+    natural_color_palette,
+    paint_front_most,
+    sample_dead_leaves_disks,
+)
 from edofproj.errors import EdofprojError
-from edofproj.data import (dead_leaves_image, dead_leaves_labels, disks_per_covering_layer,
-                                    natural_color_palette, paint_front_most, sample_dead_leaves_disks)
 
 
 def radius_density(r, rmin, rmax):
     """The stationary model's radius density p(r) = 2 r^-3 / (rmin^-2 - rmax^-2)."""
-    return 2 * r ** -3.0 / (rmin ** -2 - rmax ** -2)
+    return 2 * r**-3.0 / (rmin**-2 - rmax**-2)
 
 
 def test_disks_touching_the_image_follow_p_r_times_box_area():
     # a disk of radius r can reach the image iff its centre lies in a box of area (W-1+2r)(H-1+2r)
     rmin, rmax, height, width = 1.0, 40.0, 30, 50
     radii, cx, cy = sample_dead_leaves_disks(20000, height, width, rmin, rmax, torch.Generator().manual_seed(0))
-    weight = lambda r: radius_density(r, rmin, rmax) * (width - 1 + 2 * r) * (height - 1 + 2 * r)
+    weight = lambda r: radius_density(r, rmin, rmax) * (width - 1 + 2 * r) * (height - 1 + 2 * r)  # noqa: E731
     total = scipy.integrate.quad(weight, rmin, rmax, limit=200)[0]
     cdf = np.vectorize(lambda r: scipy.integrate.quad(weight, rmin, min(max(r, rmin), rmax), limit=200)[0] / total)
     assert scipy.stats.kstest(radii, cdf).pvalue > 1e-3
@@ -59,10 +65,13 @@ def test_paint_front_most_covers_exactly_the_pixel_centres_inside_each_disk():
 
 def same_leaf_probability(d, rmin, rmax):
     """Matheron: P(two points at distance d see the same leaf) = E|D ∩ D+d| / E|D ∪ D+d|."""
+
     def lens(r):
         return 2 * r * r * math.acos(d / (2 * r)) - d / 2 * math.sqrt(4 * r * r - d * d)
 
-    overlap = scipy.integrate.quad(lambda r: lens(r) * radius_density(r, rmin, rmax), max(rmin, d / 2), rmax, limit=200)[0]
+    overlap = scipy.integrate.quad(
+        lambda r: lens(r) * radius_density(r, rmin, rmax), max(rmin, d / 2), rmax, limit=200
+    )[0]
     area = math.pi * scipy.integrate.quad(lambda r: r * r * radius_density(r, rmin, rmax), rmin, rmax)[0]
     return overlap / (2 * area - overlap)
 
@@ -74,8 +83,14 @@ def test_two_point_statistics_match_matheron_formula():
     for _ in range(16):
         labels = dead_leaves_labels(size, size, rmin, rmax, generator)
         assert labels.max() < np.iinfo(np.int64).max  # every pixel is covered
-        estimates.append([np.mean(np.concatenate([(labels[:, d:] == labels[:, :-d]).ravel(),
-                                                  (labels[d:] == labels[:-d]).ravel()])) for d in distances])
+        estimates.append(
+            [
+                np.mean(
+                    np.concatenate([(labels[:, d:] == labels[:, :-d]).ravel(), (labels[d:] == labels[:-d]).ravel()])
+                )
+                for d in distances
+            ]
+        )
     measured = np.mean(estimates, axis=0)
     expected = [same_leaf_probability(d, rmin, rmax) for d in distances]
     np.testing.assert_allclose(measured, expected, atol=0.04)

@@ -9,11 +9,21 @@ import pytest
 import torch
 
 from edofproj.config import DataConfig
+from edofproj.data import (
+    BUILTIN_PHOTOS,
+    FolderSource,
+    PhotoSource,
+    build_test_images,
+    build_training_source,
+    builtin_split,
+    find_image_files,
+    fit_to_size,
+    folder_split,
+    load_builtin_photo,
+    split_names,
+)
 from edofproj.errors import EdofprojError
 from edofproj.imaging.image_io import write_image
-from edofproj.data import (BUILTIN_PHOTOS, FolderSource, PhotoSource, build_test_images,
-                                    build_training_source, builtin_split, find_image_files, fit_to_size,
-                                    folder_split, load_builtin_photo, split_names)
 
 
 def coordinate_image(height, width):
@@ -168,7 +178,9 @@ def test_dead_leaves_fraction_mixes_each_sample_and_is_validated():
             return torch.full((batch_size, 3, crop or self.crop, crop or self.crop), self.value)
 
     def fraction_of_leaves(fraction, n=400):
-        batch = MixedSource(Constant(0.0), Constant(1.0), fraction).sample(n, generator=torch.Generator().manual_seed(5))
+        batch = MixedSource(Constant(0.0), Constant(1.0), fraction).sample(
+            n, generator=torch.Generator().manual_seed(5)
+        )
         return batch[:, 0, 0, 0].mean().item()
 
     assert fraction_of_leaves(0.0) == 0.0

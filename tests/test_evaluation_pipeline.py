@@ -12,17 +12,12 @@ from edofproj.config import load_config
 from edofproj.evaluation.results import BASE_METRICS
 from edofproj.evaluation.sweep import PERCEPTUAL_COLUMNS, load_perceptual_metrics
 from edofproj.imaging.image_io import read_image, write_image
+from tiny_configs import TINY_EVALUATION
+
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 #: A tiny but physically valid setup: 384 pupil samples resolve the defocus phase at 300 mm.
-TINY = [
-    "psf.pupil_samples=384", "psf.window=15", "doe.mlp_frequencies=4", "doe.mlp_hidden=8",
-    "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620", "spectrum.wavelength_step_nm=80",
-    "net.widths=[4,8]", "data.crop=32", "train.steps=2", "train.batch_size=1", "train.psf_table_depths=4",
-    "train.checkpoint_every=2", "train.threads=1",
-    "evaluation.image_size=[48,64]", "evaluation.depths_mm=[300,500]", "evaluation.comparison_depths_mm=[320]",
-    "evaluation.cls_iterations=5", "evaluation.wiener_tuning_images=2", "evaluation.wiener_tuning_depths=2",
-    "imaging.depth_layers=2", "data.max_test_images=2",
-]
+TINY = TINY_EVALUATION
 METHODS = "lens,lens+wiener,lens+cls,lens+net,doe,doe+wiener,doe+net"
 
 
@@ -53,8 +48,15 @@ def read_rows(path):
 def test_evaluate_writes_every_file(evaluated):
     for name in ("metrics.csv", "tilted_metrics.csv", "summary.md", "report.md", "report.html"):
         assert (evaluated / name).is_file(), name
-    for name in ("eval_ssim_vs_depth.png", "eval_psnr_vs_depth.png", "eval_comparison.png", "eval_tilted.png",
-                 "eval_psf_lens_vs_doe.png", "eval_doe_profile.png", "eval_training_curves.png"):
+    for name in (
+        "eval_ssim_vs_depth.png",
+        "eval_psnr_vs_depth.png",
+        "eval_comparison.png",
+        "eval_tilted.png",
+        "eval_psf_lens_vs_doe.png",
+        "eval_doe_profile.png",
+        "eval_training_curves.png",
+    ):
         assert (evaluated / "figures" / name).stat().st_size > 1000, name
     html = (evaluated / "report.html").read_text()
     assert "data:image/png;base64," in html and 'src="figures/' not in html
@@ -98,8 +100,22 @@ def test_known_psf_compensation_beats_no_compensation_at_300_mm(evaluated):
 
 def test_summary_mentions_skipped_and_unavailable(runs, tmp_path):
     out = tmp_path / "ev"
-    assert main(["evaluate", str(runs / "doe_net"), "--methods", "lens,doe+net", "--out", str(out), "--quiet",
-                 "--depths-mm", "300"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                str(runs / "doe_net"),
+                "--methods",
+                "lens,doe+net",
+                "--out",
+                str(out),
+                "--quiet",
+                "--depths-mm",
+                "300",
+            ]
+        )
+        == 0
+    )
     summary = (out / "summary.md").read_text()
     assert "Not evaluated:" in summary and "cubic+net" in summary
     if not load_perceptual_metrics():
@@ -139,8 +155,18 @@ def test_evaluate_refuses_to_change_the_trained_config(runs, capsys):
 def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
     write_image(tmp_path / "target.png", torch.rand(3, 40, 50))
     write_image(tmp_path / "capture.png", torch.rand(3, 38, 50))
-    code = main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"),
-                 "--capture", str(tmp_path / "capture.png"), "--out", str(tmp_path / "out.png")])
+    code = main(
+        [
+            "compensate",
+            str(runs / "doe_net"),
+            "--image",
+            str(tmp_path / "target.png"),
+            "--capture",
+            str(tmp_path / "capture.png"),
+            "--out",
+            str(tmp_path / "out.png"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1
     assert "40x50" in err and "38x50" in err
@@ -150,8 +176,23 @@ def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
 def test_compensate_any_size_with_simulated_capture(runs, tmp_path):
     target = torch.rand(3, 37, 53)
     write_image(tmp_path / "target.png", target)
-    assert main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"), "--depth-mm", "350",
-                 "--out", str(tmp_path / "proj.png"), "--preview", str(tmp_path / "shown.png")]) == 0
+    assert (
+        main(
+            [
+                "compensate",
+                str(runs / "doe_net"),
+                "--image",
+                str(tmp_path / "target.png"),
+                "--depth-mm",
+                "350",
+                "--out",
+                str(tmp_path / "proj.png"),
+                "--preview",
+                str(tmp_path / "shown.png"),
+            ]
+        )
+        == 0
+    )
     projector_input = read_image(tmp_path / "proj.png")
     assert projector_input.shape == (3, 37, 53)
     assert read_image(tmp_path / "shown.png").shape == (3, 37, 53)
@@ -160,8 +201,23 @@ def test_compensate_any_size_with_simulated_capture(runs, tmp_path):
 def test_compensate_with_a_capture_file(runs, tmp_path):
     write_image(tmp_path / "target.png", torch.rand(3, 24, 30))
     write_image(tmp_path / "capture.png", torch.rand(3, 24, 30))
-    assert main(["compensate", str(runs / "doe_net"), "--image", str(tmp_path / "target.png"),
-                 "--capture", str(tmp_path / "capture.png"), "--out", str(tmp_path / "proj.png"), "--bits", "16"]) == 0
+    assert (
+        main(
+            [
+                "compensate",
+                str(runs / "doe_net"),
+                "--image",
+                str(tmp_path / "target.png"),
+                "--capture",
+                str(tmp_path / "capture.png"),
+                "--out",
+                str(tmp_path / "proj.png"),
+                "--bits",
+                "16",
+            ]
+        )
+        == 0
+    )
     assert read_image(tmp_path / "proj.png").shape == (3, 24, 30)
 
 
@@ -170,7 +226,10 @@ def test_score_range_defaults_to_the_training_range_and_is_validated():
     from edofproj.evaluation.methods import score_range_mm
 
     assert score_range_mm(load_config(None, ["psf.depth_min_mm=275"])) == (275.0, 800.0)
-    assert score_range_mm(load_config(None, ["psf.depth_min_mm=275", "evaluation.score_range_mm=[300,800]"])) == (300.0, 800.0)
+    assert score_range_mm(load_config(None, ["psf.depth_min_mm=275", "evaluation.score_range_mm=[300,800]"])) == (
+        300.0,
+        800.0,
+    )
     with pytest.raises(ConfigError, match="score_range_mm"):
         load_config(None, ["evaluation.score_range_mm=[800,300]"])
     with pytest.raises(ConfigError, match="wiener_tuning_metric"):

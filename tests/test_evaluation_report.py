@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.bars import ssim_bars, wall_time_bar
 from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, method_spec, select_methods
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.evaluation.summary import format_text_table, range_table
 
 
@@ -23,8 +23,9 @@ def table_from(ssim_by_method: dict[str, dict[float, float]]) -> MetricsTable:
     for method, per_depth in ssim_by_method.items():
         for depth, value in per_depth.items():
             for image, offset in (("a", -0.01), ("b", 0.01)):
-                table.add(method=method, depth_mm=depth, image=image, psnr=20 + 10 * value, ssim=value + offset,
-                          ms_ssim=value)
+                table.add(
+                    method=method, depth_mm=depth, image=image, psnr=20 + 10 * value, ssim=value + offset, ms_ssim=value
+                )
     return table
 
 
@@ -53,16 +54,21 @@ def test_csv_round_trip(tmp_path):
 
 
 def test_bars_pass_when_ours_wins_mean_and_worst():
-    table = table_from({"lens": {300.0: 0.5, 500.0: 0.99, 800.0: 0.7},
-                        "lens+cls": {300.0: 0.6, 500.0: 0.99, 800.0: 0.8},
-                        "doe+net": {300.0: 0.85, 500.0: 0.95, 800.0: 0.9}})
+    table = table_from(
+        {
+            "lens": {300.0: 0.5, 500.0: 0.99, 800.0: 0.7},
+            "lens+cls": {300.0: 0.6, 500.0: 0.99, 800.0: 0.8},
+            "doe+net": {300.0: 0.85, 500.0: 0.95, 800.0: 0.9},
+        }
+    )
     a, b = ssim_bars(table, (300, 800))
     assert a.passed and b.passed and a.verdict == "PASS"
 
 
 def test_bars_fail_plainly_when_a_baseline_wins():
-    table = table_from({"lens+cls": {300.0: 0.7, 500.0: 0.99, 800.0: 0.9},
-                        "doe+net": {300.0: 0.8, 500.0: 0.9, 800.0: 0.85}})
+    table = table_from(
+        {"lens+cls": {300.0: 0.7, 500.0: 0.99, 800.0: 0.9}, "doe+net": {300.0: 0.8, 500.0: 0.9, 800.0: 0.85}}
+    )
     a, b = ssim_bars(table, (300, 800))
     assert a.passed is False and a.verdict == "FAIL" and "lens+cls" in a.measured
     assert b.passed is True  # ours is worst at 0.8 > 0.7
@@ -85,8 +91,18 @@ def test_range_table_marks_the_best_value_in_bold():
 
 
 def test_method_registry():
-    assert METHOD_NAMES == ("lens", "lens+wiener", "lens+cls", "lens+net", "lens+onlineprodeb", "doe", "doe+wiener",
-                            "doe+net", "cubic+net", "axicon+net")
+    assert METHOD_NAMES == (
+        "lens",
+        "lens+wiener",
+        "lens+cls",
+        "lens+net",
+        "lens+onlineprodeb",
+        "doe",
+        "doe+wiener",
+        "doe+net",
+        "cubic+net",
+        "axicon+net",
+    )
     assert set(BASELINE_RUN_DIRS) == {"lens+net", "lens+onlineprodeb", "cubic+net", "axicon+net"}
     assert [s.name for s in select_methods(["doe+net", "lens"])] == ["lens", "doe+net"]  # canonical order
     with pytest.raises(EdofprojError, match="known: lens, lens\\+wiener"):
@@ -107,8 +123,14 @@ def test_html_is_self_contained_and_markdown_links_files(tmp_path):
     (tmp_path / "figures").mkdir()
     figure = tiny_png(tmp_path / "figures" / "f.png")
     report = Report("T <1>")
-    report.extend([Heading("Section"), Paragraph("a **bold** & <tag> PASS"), Table(["m", "x"], [["a", "1.0"]]),
-                   Figure(figure, "caption")])
+    report.extend(
+        [
+            Heading("Section"),
+            Paragraph("a **bold** & <tag> PASS"),
+            Table(["m", "x"], [["a", "1.0"]]),
+            Figure(figure, "caption"),
+        ]
+    )
     report.write(tmp_path / "r.md", tmp_path / "r.html")
     html = (tmp_path / "r.html").read_text()
     assert "data:image/png;base64," in html and "figures/f.png" not in html
@@ -118,17 +140,28 @@ def test_html_is_self_contained_and_markdown_links_files(tmp_path):
 
 
 def test_format_duration():
-    assert format_duration(75) == "01:15" and format_duration(3725) == "1:02:05" and format_duration(math.nan) == "--:--"
+    assert (
+        format_duration(75) == "01:15" and format_duration(3725) == "1:02:05" and format_duration(math.nan) == "--:--"
+    )
 
 
 def test_scheduler_skips_optional_jobs_that_cannot_fit(tmp_path):
     progress = StageProgress("test", enabled=False)
-    jobs = [TrainingJob("doe+net", tmp_path / "a", [], steps=100, required=True),
-            TrainingJob("axicon+net", tmp_path / "b", [], steps=100, required=False, relative_cost=1.0, setup_s=5),
-            TrainingJob("lens+onlineprodeb", tmp_path / "c", [], steps=100, required=False, relative_cost=7.0)]
+    jobs = [
+        TrainingJob("doe+net", tmp_path / "a", [], steps=100, required=True),
+        TrainingJob("axicon+net", tmp_path / "b", [], steps=100, required=False, relative_cost=1.0, setup_s=5),
+        TrainingJob("lens+onlineprodeb", tmp_path / "c", [], steps=100, required=False, relative_cost=7.0),
+    ]
     # 0.6 s/step: axicon needs 65 s, OnlineProDeb 435 s; 100 s are left
-    trainer = ParallelTrainer(jobs, "cpu", tmp_path / "logs", workers=2, deadline=time.perf_counter() + 100,
-                              progress=progress, default_rate_s=0.6)
+    trainer = ParallelTrainer(
+        jobs,
+        "cpu",
+        tmp_path / "logs",
+        workers=2,
+        deadline=time.perf_counter() + 100,
+        progress=progress,
+        default_rate_s=0.6,
+    )
     assert trainer.next_job() is jobs[0]
     jobs[0].status = "running"
     assert trainer.next_job() is jobs[1]

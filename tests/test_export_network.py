@@ -132,10 +132,10 @@ def test_missing_onnx_names_the_packages(tmp_path, monkeypatch):
 @pytest.fixture
 def trained_run(tmp_path):
     """A run directory as the trainer writes it: config.yaml + checkpoints/last.pt."""
-    from edofproj.config import Config
-    from edofproj.runs.checkpoint import save_checkpoint
     from edofproj.compensation.registry import build_network
+    from edofproj.config import Config
     from edofproj.runs import CHECKPOINT_DIR, write_run_config
+    from edofproj.runs.checkpoint import save_checkpoint
 
     cfg = Config()
     cfg.doe.kind = "lens"
@@ -160,8 +160,23 @@ def test_cli_exports_a_run(trained_run, capsys):
     with torch.no_grad():
         assert np.abs(out - net(target, captured).numpy()).max() < 1e-4
     out_file = run_dir / "exported" / "net.pt"
-    assert main(["export", str(run_dir), "--format", "torchscript", "--out", str(out_file),
-                 "--height", "32", "--width", "32"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                str(run_dir),
+                "--format",
+                "torchscript",
+                "--out",
+                str(out_file),
+                "--height",
+                "32",
+                "--width",
+                "32",
+            ]
+        )
+        == 0
+    )
     assert out_file.is_file()
 
 

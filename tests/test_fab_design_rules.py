@@ -8,9 +8,9 @@ import torch
 
 from edofproj.config import Config, apply_overrides
 from edofproj.doe import build_doe, save_doe
+from edofproj.doe.design_rules import MinimumFeatureRadialDOE, apply_design_rules
 from edofproj.doe.mlp import FreeRadialDOE, RadialMLPDOE
 from edofproj.errors import EdofprojError, SamplingError
-from edofproj.doe.design_rules import MinimumFeatureRadialDOE, apply_design_rules
 from edofproj.fabrication.export import export_doe
 from edofproj.fabrication.profile import RadialProfile
 from edofproj.fabrication.report import CriticalDimensionError

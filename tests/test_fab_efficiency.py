@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 
 from edofproj.config import Config
-from edofproj.fabrication.efficiency import (channel_efficiency, continuous_efficiency, efficiency_spectrum,
-                                             fine_spectrum, multilevel_efficiency, phase_depth_ratio)
+from edofproj.fabrication.efficiency import (
+    channel_efficiency,
+    continuous_efficiency,
+    efficiency_spectrum,
+    fine_spectrum,
+    multilevel_efficiency,
+    phase_depth_ratio,
+)
 
 
 def staircase_order_efficiency(levels, alpha, order=1, samples_per_step=2000):
@@ -33,7 +39,8 @@ def test_formula_matches_direct_fourier_coefficient(levels, alpha):
 def test_other_orders_match_direct_fourier_coefficient():
     for order in (0, -1, 2):
         assert multilevel_efficiency(8, 0.8, order) == pytest.approx(
-            staircase_order_efficiency(8, 0.8, order), abs=1e-6)
+            staircase_order_efficiency(8, 0.8, order), abs=1e-6
+        )
 
 
 def test_continuous_limit():

@@ -102,8 +102,14 @@ def test_report_contents(design, tmp_path):
     assert report["passes_critical_dimension"] is False
     md = (tmp_path / "out" / "fab_report.md").read_text()
     assert "FAILS" in md and "98.7 %" in md
-    for name in ("masks.gds", "height_map.png", "profile.csv", "efficiency.png", "mask_0_etch_75nm.png",
-                 "mask_3_etch_598nm.png"):
+    for name in (
+        "masks.gds",
+        "height_map.png",
+        "profile.csv",
+        "efficiency.png",
+        "mask_0_etch_75nm.png",
+        "mask_3_etch_598nm.png",
+    ):
         assert (tmp_path / "out" / name).is_file()
 
 
@@ -139,22 +145,33 @@ def test_previous_export_is_replaced_and_foreign_directories_refused(design, tmp
 def test_cli_success_and_strict(design, tmp_path, capsys):
     assert main(["export-doe", str(design), "--out", str(tmp_path / "ok")]) == 0
     assert "passes the 1 um critical dimension" in capsys.readouterr().out
-    assert main(["export-doe", str(design), "--out", str(tmp_path / "strict"), "--strict",
-                 "--critical-dimension-um", "60"]) == 3
+    assert (
+        main(
+            ["export-doe", str(design), "--out", str(tmp_path / "strict"), "--strict", "--critical-dimension-um", "60"]
+        )
+        == 3
+    )
     err = capsys.readouterr().err.strip()
     assert err.startswith("edofproj: error: ") and "below the critical dimension 60 um" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "strict").exists()
-    assert main(["export-doe", str(design), "--out", str(tmp_path / "strict"), "--strict",
-                 "--critical-dimension-um", "50"]) == 0
+    assert (
+        main(
+            ["export-doe", str(design), "--out", str(tmp_path / "strict"), "--strict", "--critical-dimension-um", "50"]
+        )
+        == 0
+    )
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--levels", "12"], "levels=12 is not a power of two"),
-    (["--critical-dimension-um", "0"], "must be > 0"),
-    (["--critical-dimension-um", "-1"], "must be > 0"),
-    (["--set", "fabrication.critical_dimension_um=0"], "critical_dimension_um=0"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--levels", "12"], "levels=12 is not a power of two"),
+        (["--critical-dimension-um", "0"], "must be > 0"),
+        (["--critical-dimension-um", "-1"], "must be > 0"),
+        (["--set", "fabrication.critical_dimension_um=0"], "critical_dimension_um=0"),
+    ],
+)
 def test_cli_bad_options(design, tmp_path, capsys, extra, message):
     assert main(["export-doe", str(design), "--out", str(tmp_path / "out")] + extra) == 2
     err = capsys.readouterr().err.strip()

@@ -15,8 +15,9 @@ R = 3.5e-3
 
 def random_profile(levels=16, rings=64, seed=0):
     level = np.random.default_rng(seed).integers(0, levels, rings)
-    return RadialProfile(np.linspace(0, R, rings + 1), level, levels, h2pi_m=1195.9e-9, aperture_radius_m=R,
-                         design_wavelength_m=550e-9)
+    return RadialProfile(
+        np.linspace(0, R, rings + 1), level, levels, h2pi_m=1195.9e-9, aperture_radius_m=R, design_wavelength_m=550e-9
+    )
 
 
 def tabulated(doe, tmp_path, samples=256):

@@ -14,16 +14,19 @@ from edofproj.fabrication.masks import decompose, top_surface_m
 from edofproj.fabrication.perturbation import FabricatedDOE2D, FabricatedRadialDOE, FabricationErrors
 from edofproj.fabrication.profile import RadialProfile
 from edofproj.fabrication.ring_engine import radial_engine_on_edges, split_ring_edges
-from edofproj.fabrication.tolerance import (FabricatedPSF, ToleranceSettings, energy_concentration,
-                                            run_tolerance)
+from edofproj.fabrication.tolerance import FabricatedPSF, ToleranceSettings, energy_concentration, run_tolerance
 from edofproj.optics.psf_bank import simulator_from_config
 
 torch.set_num_threads(1)
 pytestmark = pytest.mark.filterwarnings("ignore::edofproj.errors.BlurExceedsWindowWarning")  # 3x3 windows on purpose
 
 PUPIL = 256  # 128 rings of 27.3 um
-SMALL = [f"psf.pupil_samples={PUPIL}", "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620",
-         "spectrum.wavelength_step_nm=80"]
+SMALL = [
+    f"psf.pupil_samples={PUPIL}",
+    "spectrum.wavelength_min_nm=460",
+    "spectrum.wavelength_max_nm=620",
+    "spectrum.wavelength_step_nm=80",
+]
 DEPTHS_M = np.array([0.35, 0.5, 0.6])
 
 
@@ -55,8 +58,9 @@ def test_as_fabricated_heights(design):
     shift[2, 0] = 3e-6
     moved = FabricatedRadialDOE(profile, masks, FabricationErrors(np.ones(4), shift, np.zeros(2)))
     inner_edges = masks[2].annuli_m[masks[2].annuli_m > 0]
-    expected = np.unique(np.concatenate([m.annuli_m.reshape(-1) for i, m in enumerate(masks) if i != 2]
-                                        + [inner_edges + 3e-6]))
+    expected = np.unique(
+        np.concatenate([m.annuli_m.reshape(-1) for i, m in enumerate(masks) if i != 2] + [inner_edges + 3e-6])
+    )
     expected = expected[(expected > 0) & (expected < profile.aperture_radius_m)]
     np.testing.assert_allclose(moved.edges_m(), expected)
 
@@ -100,8 +104,9 @@ def test_energy_concentration_box():
 
 def test_nominal_and_error_free_trials(design, small_cfg):
     profile = RadialProfile.from_file(design)
-    result = run_tolerance(profile, small_cfg, ToleranceSettings(trials=2, etch_error_pct=0, misalignment_um=0),
-                           DEPTHS_M)
+    result = run_tolerance(
+        profile, small_cfg, ToleranceSettings(trials=2, etch_error_pct=0, misalignment_um=0), DEPTHS_M
+    )
     plain = simulator_from_config(small_cfg, window=3)(load_doe(design), DEPTHS_M)
     np.testing.assert_allclose(result.nominal, energy_concentration(plain).mean(dim=1).numpy(), atol=1e-12)
     np.testing.assert_allclose(result.trials, np.stack([result.nominal] * 2), atol=1e-12)
@@ -130,8 +135,9 @@ def test_2d_engine_agrees_with_the_radial_engine_on_the_nominal_design(design, s
     profile = RadialProfile.from_file(design)
     settings = ToleranceSettings(trials=1, etch_error_pct=0, misalignment_um=0, engine="2d")
     two_d = run_tolerance(profile, small_cfg, settings, DEPTHS_M)
-    radial = run_tolerance(profile, small_cfg, ToleranceSettings(trials=1, etch_error_pct=0, misalignment_um=0),
-                           DEPTHS_M)
+    radial = run_tolerance(
+        profile, small_cfg, ToleranceSettings(trials=1, etch_error_pct=0, misalignment_um=0), DEPTHS_M
+    )
     np.testing.assert_allclose(two_d.nominal, radial.nominal, atol=3e-3)
     # a decentred DOE is no longer radially symmetric
     masks = decompose(profile)

@@ -4,21 +4,19 @@ import pytest
 import torch
 
 from edofproj.config import Config, apply_overrides
-from edofproj.errors import EdofprojError
-from edofproj.metrics import ssim
-from edofproj.imaging.projection import project
-from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.data import build_test_images
-from edofproj.training.finetune import MeasuredPSFTable, finetune
+from edofproj.errors import EdofprojError
+from edofproj.imaging.projection import project
+from edofproj.metrics import ssim
+from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.runs import load_run
+from edofproj.training.finetune import MeasuredPSFTable, finetune
 from edofproj.training.trainer import train
+from tiny_configs import TINY_LENS_FINETUNE
 
-TINY = [
-    "doe.kind=lens", "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620",
-    "spectrum.wavelength_step_nm=80", "psf.pupil_samples=512", "psf.window=15", "psf.depth_min_mm=450",
-    "psf.depth_max_mm=550", "net.widths=[8,16,16]", "data.crop=48", "train.batch_size=2", "train.threads=1",
-    "train.steps=4", "train.checkpoint_every=4", "train.psf_table_depths=4",
-]
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
+
+TINY = TINY_LENS_FINETUNE
 
 
 def test_measured_table_interpolates_linearly_in_inverse_depth():
@@ -50,13 +48,15 @@ def test_finetuning_on_measured_psfs_improves_compensation(tmp_path):
         scores = []
         with torch.no_grad():
             for i, z in enumerate([0.3, 0.35, 0.4]):
-                psf = bank.psf[i:i + 1].float()
+                psf = bank.psf[i : i + 1].float()
                 captured = project(images, psf)
                 scores.append(ssim(project(net(images, captured).clamp(0, 1), psf), images).mean())
         return float(torch.stack(scores).mean())
 
     before = mean_ssim(load_run(run_dir).net)
-    result = finetune(run_dir, [tmp_path / "measured.npz"], tmp_path / "tuned", steps=120, lr=3e-3, batch_size=4, progress=False)
+    result = finetune(
+        run_dir, [tmp_path / "measured.npz"], tmp_path / "tuned", steps=120, lr=3e-3, batch_size=4, progress=False
+    )
     after = mean_ssim(load_run(result.run_dir).net)
     assert result.depth_range_m == pytest.approx((0.3, 0.4))
     print(f"SSIM before {before:.4f} after {after:.4f}")

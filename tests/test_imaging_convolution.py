@@ -15,8 +15,9 @@ def test_matches_scipy_fftconvolve_same(hw, k):
     image = rng.random((2, 3, *hw))
     psf = rng.random((1, 3, k, k))
     out = convolve_same(torch.from_numpy(image), torch.from_numpy(psf)).numpy()
-    expected = np.stack([[scipy.signal.fftconvolve(image[b, c], psf[0, c], mode="same") for c in range(3)]
-                         for b in range(2)])
+    expected = np.stack(
+        [[scipy.signal.fftconvolve(image[b, c], psf[0, c], mode="same") for c in range(3)] for b in range(2)]
+    )
     assert out.shape == image.shape
     np.testing.assert_allclose(out, expected, atol=1e-12)
 
@@ -26,7 +27,7 @@ def test_even_and_rectangular_kernels_put_pixel_k_half_on_the_source():
     rng = np.random.default_rng(1)
     image, kernel = rng.random((20, 23)), rng.random((4, 7))
     full = scipy.signal.convolve2d(image, kernel, mode="full")
-    expected = full[2: 2 + 20, 3: 3 + 23]
+    expected = full[2 : 2 + 20, 3 : 3 + 23]
     out = convolve_same(torch.from_numpy(image), torch.from_numpy(kernel)).numpy()
     np.testing.assert_allclose(out, expected, atol=1e-12)
 
@@ -46,9 +47,11 @@ def test_per_sample_and_shared_channel_psfs_broadcast():
     per_sample = torch.from_numpy(rng.random((3, 3, 5, 5)))
     out = convolve_same(image, per_sample)
     for b in range(3):
-        np.testing.assert_allclose(out[b].numpy(), convolve_same(image[b:b + 1], per_sample[b:b + 1])[0].numpy())
+        np.testing.assert_allclose(out[b].numpy(), convolve_same(image[b : b + 1], per_sample[b : b + 1])[0].numpy())
     grey = torch.from_numpy(rng.random((1, 1, 5, 5)))
-    np.testing.assert_allclose(convolve_same(image, grey).numpy(), convolve_same(image, grey.expand(1, 3, 5, 5)).numpy())
+    np.testing.assert_allclose(
+        convolve_same(image, grey).numpy(), convolve_same(image, grey.expand(1, 3, 5, 5)).numpy()
+    )
 
 
 def test_mismatched_batches_raise_a_one_line_error():

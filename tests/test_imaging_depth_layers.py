@@ -6,14 +6,14 @@ import scipy.signal
 import torch
 
 from edofproj.errors import EdofprojError
-from edofproj.imaging.depth_layers import (bank_layers, layer_depths_m, layer_weights, render_depth_map)
+from edofproj.imaging.depth_layers import bank_layers, layer_depths_m, layer_weights, render_depth_map
 from edofproj.imaging.projection import project
 from edofproj.optics.psf_bank import PSFBank
 
 
 def gaussian_psfs(depths_m, k=11, focus_m=0.5, kept=0.9):
     """Synthetic PSFs: Gaussians whose width grows with |1/z - 1/v| and that keep ``kept`` of the energy."""
-    y, x = np.mgrid[-(k // 2): k // 2 + 1, -(k // 2): k // 2 + 1]
+    y, x = np.mgrid[-(k // 2) : k // 2 + 1, -(k // 2) : k // 2 + 1]
     psfs = []
     for z in np.atleast_1d(depths_m):
         sigma = 0.4 + 2.0 * abs(1 / z - 1 / focus_m)
@@ -99,8 +99,11 @@ def test_per_sample_depth_maps():
 
 
 def test_bank_layers_bracket_the_map():
-    bank = PSFBank(psf=gaussian_psfs([0.3, 0.4, 0.5, 0.6, 0.8]).float(), depths_m=np.array([0.3, 0.4, 0.5, 0.6, 0.8]),
-                   pixel_pitch_m=np.ones(5))
+    bank = PSFBank(
+        psf=gaussian_psfs([0.3, 0.4, 0.5, 0.6, 0.8]).float(),
+        depths_m=np.array([0.3, 0.4, 0.5, 0.6, 0.8]),
+        pixel_pitch_m=np.ones(5),
+    )
     depths, psf = bank_layers(bank, np.array([[0.45, 0.55]]))
     assert depths.tolist() == [0.4, 0.5, 0.6]
     assert torch.equal(psf, bank.psf[1:4])
@@ -110,11 +113,14 @@ def test_bank_layers_bracket_the_map():
         bank_layers(bank, np.array([[0.25, 0.5]]))
 
 
-@pytest.mark.parametrize("depth, message", [
-    (np.full((5, 6), 0.5), "shape \\(5, 6\\) but the image is \\(8, 8\\)"),
-    (np.full((8, 8), -1.0), "positive and finite"),
-    (np.full((8, 8), np.nan), "positive and finite"),
-])
+@pytest.mark.parametrize(
+    "depth, message",
+    [
+        (np.full((5, 6), 0.5), "shape \\(5, 6\\) but the image is \\(8, 8\\)"),
+        (np.full((8, 8), -1.0), "positive and finite"),
+        (np.full((8, 8), np.nan), "positive and finite"),
+    ],
+)
 def test_bad_depth_maps_raise(depth, message):
     with pytest.raises(EdofprojError, match=message):
         render_depth_map(torch.rand(1, 3, 8, 8), depth, gaussian_psfs)
@@ -122,4 +128,6 @@ def test_bad_depth_maps_raise(depth, message):
 
 def test_too_few_psfs_raise():
     with pytest.raises(EdofprojError, match="expected 3 PSFs"):
-        render_depth_map(torch.rand(1, 3, 8, 8), np.full((8, 8), 0.5), gaussian_psfs([0.3, 0.5]), layers=[0.3, 0.5, 0.8])
+        render_depth_map(
+            torch.rand(1, 3, 8, 8), np.full((8, 8), 0.5), gaussian_psfs([0.3, 0.5]), layers=[0.3, 0.5, 0.8]
+        )

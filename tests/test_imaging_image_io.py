@@ -40,7 +40,7 @@ def test_values_outside_0_1_are_clamped_and_nan_refused(tmp_path):
 
 
 def test_grey_becomes_three_equal_channels_and_alpha_is_dropped(tmp_path):
-    grey = (np.arange(20, dtype=np.uint16).reshape(4, 5) * 3000)
+    grey = np.arange(20, dtype=np.uint16).reshape(4, 5) * 3000
     cv2.imwrite(str(tmp_path / "g16.png"), grey)
     image = read_image(tmp_path / "g16.png")
     assert image.shape == (3, 4, 5)

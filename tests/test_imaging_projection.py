@@ -64,7 +64,7 @@ def test_per_sample_psfs():
     image = torch.rand(2, 3, 12, 12, dtype=torch.float64)
     out = project(image, psfs)
     for b in range(2):
-        np.testing.assert_allclose(out[b].numpy(), project(image[b:b + 1], psfs[b:b + 1])[0].numpy())
+        np.testing.assert_allclose(out[b].numpy(), project(image[b : b + 1], psfs[b : b + 1])[0].numpy())
 
 
 def test_gradient_reaches_image_and_psf():
@@ -74,11 +74,14 @@ def test_gradient_reaches_image_and_psf():
     assert image.grad.abs().sum() > 0 and psf.grad.abs().sum() > 0
 
 
-@pytest.mark.parametrize("image_shape, psf_shape, message", [
-    ((3, 8, 8), (1, 3, 3, 3), "must be \\(B, C, H, W\\)"),
-    ((2, 3, 8, 8), (3, 3, 3, 3), "does not fit"),
-    ((1, 3, 8, 8), (1, 3, 3, 5), "K, K"),
-])
+@pytest.mark.parametrize(
+    "image_shape, psf_shape, message",
+    [
+        ((3, 8, 8), (1, 3, 3, 3), "must be \\(B, C, H, W\\)"),
+        ((2, 3, 8, 8), (3, 3, 3, 3), "does not fit"),
+        ((1, 3, 8, 8), (1, 3, 3, 5), "K, K"),
+    ],
+)
 def test_bad_shapes_raise_one_line_errors(image_shape, psf_shape, message):
     with pytest.raises(EdofprojError, match=message):
         project(torch.rand(image_shape), torch.rand(psf_shape))

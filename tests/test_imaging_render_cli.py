@@ -21,8 +21,11 @@ def image_file(tmp_path):
 
 
 def save_bank(path, psf, depths_m):
-    PSFBank(psf=torch.as_tensor(psf, dtype=torch.float32), depths_m=np.asarray(depths_m, float),
-            pixel_pitch_m=np.asarray(depths_m, float) / 1200).save(path)
+    PSFBank(
+        psf=torch.as_tensor(psf, dtype=torch.float32),
+        depths_m=np.asarray(depths_m, float),
+        pixel_pitch_m=np.asarray(depths_m, float) / 1200,
+    ).save(path)
     return path
 
 
@@ -44,14 +47,17 @@ def test_flat_render_equals_scipy_blur_plus_haze(tmp_path, image_file, capsys):
     psf = np.stack([np.stack([g / g.sum() * e for e in (0.9, 0.8, 0.7)]), np.stack([g / g.sum()] * 3)])
     bank = save_bank(tmp_path / "bank.npz", psf, [0.4, 0.6])
     out = tmp_path / "out.png"
-    code, stdout, _ = run(["render", "--image", image_file, "--out", out, "--psf", bank, "--depth-index", 0,
-                           "--bits", 16], capsys)
+    code, stdout, _ = run(
+        ["render", "--image", image_file, "--out", out, "--psf", bank, "--depth-index", 0, "--bits", 16], capsys
+    )
     assert code == 0 and "400.0 mm" in stdout
     source = read_image(image_file).double().numpy()
     result = read_image(out).numpy()
     assert result.shape == (3, H, W)
     for c in range(3):
-        expected = scipy.signal.fftconvolve(source[c], psf[0, c], mode="same") + (1 - psf[0, c].sum()) * source[c].mean()
+        expected = (
+            scipy.signal.fftconvolve(source[c], psf[0, c], mode="same") + (1 - psf[0, c].sum()) * source[c].mean()
+        )
         np.testing.assert_allclose(result[c], expected, atol=2e-5)
 
 
@@ -68,8 +74,26 @@ def test_tilted_plane_blends_the_bank_layers_in_inverse_depth(tmp_path, capsys):
     depths, energies = np.array([0.4, 0.5, 0.7]), np.array([0.5, 1.0, 0.7])
     bank = impulse_bank(tmp_path / "b.npz", energies, depths)
     out = tmp_path / "tilt.png"
-    code, stdout, _ = run(["render", "--image", grey, "--out", out, "--psf", bank, "--tilt-deg", 20,
-                           "--near-mm", 400, "--far-mm", 700, "--bits", 16], capsys)
+    code, stdout, _ = run(
+        [
+            "render",
+            "--image",
+            grey,
+            "--out",
+            out,
+            "--psf",
+            bank,
+            "--tilt-deg",
+            20,
+            "--near-mm",
+            400,
+            "--far-mm",
+            700,
+            "--bits",
+            16,
+        ],
+        capsys,
+    )
     assert code == 0
     # independent expectation: column c sees 1/z = 1/near + c/(W-1) (1/far - 1/near); a pixel keeps
     # 0.6 * e(z) with e interpolated linearly in 1/z, and the lost light (1 - e) * 0.6 returns as uniform haze
@@ -82,8 +106,14 @@ def test_tilted_plane_blends_the_bank_layers_in_inverse_depth(tmp_path, capsys):
 def test_doe_lens_in_focus_is_nearly_sharp_and_defocus_blurs(tmp_path, image_file, capsys):
     common = ["--set", "psf.pupil_samples=256", "--set", "psf.window=15", "--set", "spectrum.wavelength_step_nm=100"]
     sharp, blurred = tmp_path / "sharp.png", tmp_path / "blur.png"
-    assert run(["render", "--image", image_file, "--out", sharp, "--doe", "lens", "--depth-mm", 500, *common], capsys)[0] == 0
-    assert run(["render", "--image", image_file, "--out", blurred, "--doe", "lens", "--depth-mm", 420, *common], capsys)[0] == 0
+    assert (
+        run(["render", "--image", image_file, "--out", sharp, "--doe", "lens", "--depth-mm", 500, *common], capsys)[0]
+        == 0
+    )
+    assert (
+        run(["render", "--image", image_file, "--out", blurred, "--doe", "lens", "--depth-mm", 420, *common], capsys)[0]
+        == 0
+    )
     source = read_image(image_file)
     err_sharp = (read_image(sharp) - source)[:, 7:-7, 7:-7].abs().mean()
     err_blur = (read_image(blurred) - source)[:, 7:-7, 7:-7].abs().mean()
@@ -91,16 +121,19 @@ def test_doe_lens_in_focus_is_nearly_sharp_and_defocus_blurs(tmp_path, image_fil
     assert err_sharp < 0.05 < err_blur
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--depth-index", 3], "--depth-index 3 is out of range"),
-    ([], "holds 2 depths; choose one with --depth-index"),
-    (["--depth-map", "WRONG_SHAPE"], "has shape (5, 5), expected the image's (H, W) = (24, 40)"),
-    (["--depth-map", "NEGATIVE"], "positive finite depths in mm"),
-    (["--depth-map", "OUTSIDE"], "spans 300.0-300.0 mm but the PSFs cover 400.0-600.0 mm"),
-    (["--depth-mm", 500], "--depth-mm goes with --doe"),
-    (["--far-mm", 500], "--far-mm needs --tilt-deg"),
-    (["--tilt-deg", 10, "--near-mm", -5], "--near-mm must be a positive depth"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--depth-index", 3], "--depth-index 3 is out of range"),
+        ([], "holds 2 depths; choose one with --depth-index"),
+        (["--depth-map", "WRONG_SHAPE"], "has shape (5, 5), expected the image's (H, W) = (24, 40)"),
+        (["--depth-map", "NEGATIVE"], "positive finite depths in mm"),
+        (["--depth-map", "OUTSIDE"], "spans 300.0-300.0 mm but the PSFs cover 400.0-600.0 mm"),
+        (["--depth-mm", 500], "--depth-mm goes with --doe"),
+        (["--far-mm", 500], "--far-mm needs --tilt-deg"),
+        (["--tilt-deg", 10, "--near-mm", -5], "--near-mm must be a positive depth"),
+    ],
+)
 def test_bad_input_exits_2_with_one_line_and_no_output(tmp_path, image_file, capsys, extra, message):
     bank = impulse_bank(tmp_path / "b.npz", [1.0, 1.0], [0.4, 0.6])
     maps = {"WRONG_SHAPE": np.full((5, 5), 500.0), "NEGATIVE": np.full((H, W), -1.0), "OUTSIDE": np.full((H, W), 300.0)}

@@ -17,7 +17,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "src" / "edofproj"
 
 #: Layers, lowest first: each entry is a layer's top-level modules and packages of ``edofproj``.
 LAYERS = [
-    {"errors", "fileio", "config", "presets"},   # foundation
+    {"errors", "fileio", "config", "presets"},  # foundation
     {"optics"},
     {"doe"},
     {"imaging"},
@@ -62,7 +62,9 @@ def imported_modules(path: Path) -> set[str]:
             for alias in node.names:
                 candidate = f"{target}.{alias.name}"
                 relative = Path(*candidate.split("."))
-                is_module = (SOURCE.parent / relative).with_suffix(".py").is_file() or (SOURCE.parent / relative).is_dir()
+                is_module = (SOURCE.parent / relative).with_suffix(".py").is_file() or (
+                    SOURCE.parent / relative
+                ).is_dir()
                 found.add(candidate if is_module else target)
     found.discard(name)
     return found
@@ -86,8 +88,9 @@ def test_every_module_has_a_layer():
 
 
 def test_no_import_goes_up_a_layer():
-    upward = [f"{a} -> {b}" for a, targets in import_graph().items() for b in sorted(targets)
-              if layer_of(b) > layer_of(a)]
+    upward = [
+        f"{a} -> {b}" for a, targets in import_graph().items() for b in sorted(targets) if layer_of(b) > layer_of(a)
+    ]
     assert not upward, "imports that go up a layer:\n" + "\n".join(upward)
 
 
@@ -103,7 +106,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
             if target not in graph:
                 continue
             if state.get(target) == 1:
-                return stack[stack.index(target):] + [target]
+                return stack[stack.index(target) :] + [target]
             if target not in state:
                 cycle = visit(target)
                 if cycle:
@@ -129,9 +132,12 @@ def test_no_circular_imports():
     assert cycle is None, "circular import: " + " -> ".join(cycle)
 
 
-@pytest.mark.parametrize("graph,expected", [
-    ({"a": {"b"}, "b": {"c"}, "c": set()}, None),
-    ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, ["a", "b", "c", "a"]),
-])
+@pytest.mark.parametrize(
+    "graph,expected",
+    [
+        ({"a": {"b"}, "b": {"c"}, "c": set()}, None),
+        ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, ["a", "b", "c", "a"]),
+    ],
+)
 def test_the_cycle_finder_finds_cycles(graph, expected):
     assert find_cycle(graph) == expected

@@ -11,13 +11,25 @@ from edofproj.errors import EdofprojError
 from edofproj.perceptual import PerceptualWeightsMissing
 from edofproj.training.losses import CompensationLoss, build_loss
 
-VGG16_CONVS = [(0, 64, 3), (2, 64, 64), (5, 128, 64), (7, 128, 128), (10, 256, 128),
-               (12, 256, 256), (14, 256, 256), (17, 512, 256), (19, 512, 512), (21, 512, 512),
-               (24, 512, 512), (26, 512, 512), (28, 512, 512)]
+VGG16_CONVS = [
+    (0, 64, 3),
+    (2, 64, 64),
+    (5, 128, 64),
+    (7, 128, 128),
+    (10, 256, 128),
+    (12, 256, 256),
+    (14, 256, 256),
+    (17, 512, 256),
+    (19, 512, 512),
+    (21, 512, 512),
+    (24, 512, 512),
+    (26, 512, 512),
+    (28, 512, 512),
+]
 
 
 def photo_pair(size=128, noise=0.1, seed=0):
-    image = data.chelsea()[:size, 100:100 + size] / 255.0
+    image = data.chelsea()[:size, 100 : 100 + size] / 255.0
     rng = np.random.default_rng(seed)
     distorted = np.clip(image + noise * rng.standard_normal(image.shape), 0, 1)
     to_tensor = lambda a: torch.tensor(a, dtype=torch.float32).permute(2, 0, 1)[None]  # noqa: E731
@@ -41,8 +53,15 @@ def test_ssim_term_matches_skimage():
     loss = build_loss(LossConfig(alpha=1.0, beta=0.5, perceptual="ssim"))
     terms = loss.terms(pred, target)
     hwc = lambda t: t[0].permute(1, 2, 0).double().numpy()  # noqa: E731
-    reference = structural_similarity(hwc(pred), hwc(target), channel_axis=2, data_range=1.0,
-                                      gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
+    reference = structural_similarity(
+        hwc(pred),
+        hwc(target),
+        channel_axis=2,
+        data_range=1.0,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+    )
     mse = float(((hwc(pred) - hwc(target)) ** 2).mean())
     assert terms["perceptual"].item() == pytest.approx(1 - reference, abs=1e-4)
     assert terms["mse"].item() == pytest.approx(mse, rel=1e-5)

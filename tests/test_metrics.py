@@ -20,7 +20,7 @@ from edofproj.metrics import (
 
 def photo_pair(height, width, noise=0.08, seed=0, dtype=torch.float64):
     """A crop of skimage's astronaut and a noisy, slightly darkened copy, (1, 3, H, W)."""
-    image = data.astronaut()[60:60 + height, 120:120 + width] / 255.0
+    image = data.astronaut()[60 : 60 + height, 120 : 120 + width] / 255.0
     rng = np.random.default_rng(seed)
     distorted = np.clip(0.9 * image + noise * rng.standard_normal(image.shape), 0, 1)
     as_tensor = lambda a: torch.tensor(a, dtype=dtype).permute(2, 0, 1)[None]  # noqa: E731
@@ -33,8 +33,13 @@ def hwc(tensor):
 
 def skimage_ssim(pred, target):
     return structural_similarity(
-        hwc(pred), hwc(target), channel_axis=2, data_range=1.0,
-        gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+        hwc(pred),
+        hwc(target),
+        channel_axis=2,
+        data_range=1.0,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
     )
 
 
@@ -116,9 +121,7 @@ def test_ms_ssim_matches_independent_computation(size):
 def test_reference_single_scale_is_skimage_ssim():
     """The reference above is itself checked: with one scale it is skimage's SSIM."""
     pred, target = photo_pair(40, 50)
-    assert reference_ms_ssim(hwc(pred), hwc(target), 1) == pytest.approx(
-        skimage_ssim(pred, target), abs=1e-10
-    )
+    assert reference_ms_ssim(hwc(pred), hwc(target), 1) == pytest.approx(skimage_ssim(pred, target), abs=1e-10)
 
 
 def test_ms_ssim_identity_ordering_and_gradient():

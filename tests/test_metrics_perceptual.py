@@ -7,8 +7,8 @@ from scipy.ndimage import correlate
 from skimage import data
 from torch.nn import functional as F
 
-from edofproj.errors import EdofprojError
 from edofproj import metrics
+from edofproj.errors import EdofprojError
 from edofproj.perceptual import (
     DISTS,
     LPIPS,
@@ -21,9 +21,21 @@ from edofproj.perceptual import (
 from edofproj.perceptual import weights as weight_files
 
 # torchvision.models.vgg16().features: (index, out, in) of each 3x3 convolution
-VGG16_CONVS = [(0, 64, 3), (2, 64, 64), (5, 128, 64), (7, 128, 128), (10, 256, 128),
-               (12, 256, 256), (14, 256, 256), (17, 512, 256), (19, 512, 512), (21, 512, 512),
-               (24, 512, 512), (26, 512, 512), (28, 512, 512)]
+VGG16_CONVS = [
+    (0, 64, 3),
+    (2, 64, 64),
+    (5, 128, 64),
+    (7, 128, 128),
+    (10, 256, 128),
+    (12, 256, 256),
+    (14, 256, 256),
+    (17, 512, 256),
+    (19, 512, 512),
+    (21, 512, 512),
+    (24, 512, 512),
+    (26, 512, 512),
+    (28, 512, 512),
+]
 # torchvision.models.alexnet().features: (index, out, in, kernel)
 ALEXNET_CONVS = [(0, 64, 3, 11), (3, 192, 64, 5), (6, 384, 192, 3), (8, 256, 384, 3), (10, 256, 256, 3)]
 
@@ -59,7 +71,7 @@ def empty_hub(tmp_path, monkeypatch):
 
 
 def photo(size=32):
-    image = data.astronaut()[40:40 + 2 * size:2, 100:100 + 2 * size:2] / 255.0
+    image = data.astronaut()[40 : 40 + 2 * size : 2, 100 : 100 + 2 * size : 2] / 255.0
     return torch.tensor(image, dtype=torch.float32).permute(2, 0, 1)[None]
 
 
@@ -158,9 +170,7 @@ def test_dists_and_lpips_load_from_weights_dir(weights_dir, empty_hub):
         batch = torch.cat([noisy(image, s) for s in (0.02, 0.1, 0.3)])
         values = lpips(batch, image.expand(3, -1, -1, -1)).tolist()
         assert all(a < b for a, b in zip(values, values[1:])), (net, values)
-    assert metrics.available_perceptual_metrics(weights_dir) == {
-        "dists": True, "lpips-alex": True, "lpips-vgg": True
-    }
+    assert metrics.available_perceptual_metrics(weights_dir) == {"dists": True, "lpips-alex": True, "lpips-vgg": True}
 
 
 def test_lpips_uses_the_published_linear_weights(weights_dir, empty_hub):
@@ -180,9 +190,7 @@ def test_missing_backbone_weights_name_the_file_and_how_to_get_it(empty_hub):
     with pytest.raises(PerceptualWeightsMissing, match="alexnet-owt-7be5be79.pth"):
         metrics.lpips("alex")
     assert isinstance(info.value, EdofprojError)
-    assert metrics.available_perceptual_metrics() == {
-        "dists": False, "lpips-alex": False, "lpips-vgg": False
-    }
+    assert metrics.available_perceptual_metrics() == {"dists": False, "lpips-alex": False, "lpips-vgg": False}
 
 
 def test_missing_torchmetrics_data_is_reported(weights_dir, monkeypatch):
@@ -212,8 +220,7 @@ def test_real_dists_ranks_blur_levels():
     assert all(a < b for a, b in zip(values, values[1:])) and 0 < values[0] < values[-1] < 1
 
 
-@pytest.mark.skipif(not REAL["lpips-alex"],
-                    reason="torchvision's alexnet-owt-7be5be79.pth is not in the hub cache")
+@pytest.mark.skipif(not REAL["lpips-alex"], reason="torchvision's alexnet-owt-7be5be79.pth is not in the hub cache")
 def test_real_lpips_ranks_noise_levels():
     lpips = metrics.lpips("alex")
     image = photo(128)

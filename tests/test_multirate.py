@@ -16,17 +16,16 @@ from edofproj.compensation.multirate import (
     polyphase_taps,
     unshuffle_weight,
 )
+from edofproj.compensation.registry import build_network
 from edofproj.config import Config, ConfigError, NetConfig
 from edofproj.errors import EdofprojError
-from edofproj.compensation.registry import build_network
 
 SMALL = [4, 6, 8]
 
 
 def images(height, width, batch=1, seed=0):
     gen = torch.Generator().manual_seed(seed)
-    return (torch.rand(batch, 3, height, width, generator=gen),
-            torch.rand(batch, 3, height, width, generator=gen))
+    return (torch.rand(batch, 3, height, width, generator=gen), torch.rand(batch, 3, height, width, generator=gen))
 
 
 def trained_looking(net, seed=0):
@@ -61,8 +60,9 @@ def test_bilinear_block_weights_interpolate_a_ramp_exactly(block):
     torch.testing.assert_close(weights.sum(dim=(-2, -1)), torch.ones(block, block))
     net = MultirateCompensationNet(SMALL, block=block)
     hb, wb = 9, 11
-    yy, xx = torch.meshgrid(torch.arange(hb * block, dtype=torch.float64),
-                            torch.arange(wb * block, dtype=torch.float64), indexing="ij")
+    yy, xx = torch.meshgrid(
+        torch.arange(hb * block, dtype=torch.float64), torch.arange(wb * block, dtype=torch.float64), indexing="ij"
+    )
     ramp = (0.3 * yy - 0.7 * xx + 2.0).float()[None, None]
     means = F.avg_pool2d(ramp, block)
     with torch.no_grad():
@@ -74,8 +74,9 @@ def test_bilinear_block_weights_interpolate_a_ramp_exactly(block):
 
 def test_unshuffle_convolution_equals_pixel_unshuffle():
     image = torch.rand(2, 1, 12, 20)
-    torch.testing.assert_close(F.conv2d(image, unshuffle_weight(4), stride=4), F.pixel_unshuffle(image, 4),
-                               rtol=0, atol=0)
+    torch.testing.assert_close(
+        F.conv2d(image, unshuffle_weight(4), stride=4), F.pixel_unshuffle(image, 4), rtol=0, atol=0
+    )
 
 
 def test_fused_block_sum_equals_pixel_shuffle():
@@ -86,8 +87,9 @@ def test_fused_block_sum_equals_pixel_shuffle():
     reference = image + F.pixel_shuffle(blocks, s)
     torch.testing.assert_close(add_block_pixels(image, blocks, s), reference, rtol=0, atol=0)
     last = torch.channels_last
-    torch.testing.assert_close(add_block_pixels(image, blocks.contiguous(memory_format=last), s), reference,
-                               rtol=0, atol=0)
+    torch.testing.assert_close(
+        add_block_pixels(image, blocks.contiguous(memory_format=last), s), reference, rtol=0, atol=0
+    )
 
 
 @pytest.mark.parametrize("block, radius", [(4, 4), (4, 1), (3, 3), (2, 2)])
@@ -103,7 +105,9 @@ def test_linear_path_started_from_kernels_is_their_full_resolution_convolution(b
     with torch.no_grad():
         out = net(target, captured).double()
     r = radius
-    reference = F.conv2d(F.pad(target.double(), (r, r, r, r), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3)
+    reference = F.conv2d(
+        F.pad(target.double(), (r, r, r, r), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
+    )
     torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
     assert (out - target).abs().max() > 0.1
 
@@ -120,7 +124,9 @@ def test_polyphase_taps_refuse_a_kernel_wider_than_the_blocks_reach():
 def test_linear_gain_scales_the_whole_linear_correction():
     """``(1 + g)`` multiplies ``L U + B D``: a constant gain g = 1 doubles what the linear path adds."""
     net = MultirateCompensationNet(SMALL).eval()
-    net.initialize_linear_path(torch.tensor([[0.0, -0.25, 0.0], [-0.25, 2.0, -0.25], [0.0, -0.25, 0.0]]).expand(3, 3, 3))
+    net.initialize_linear_path(
+        torch.tensor([[0.0, -0.25, 0.0], [-0.25, 2.0, -0.25], [0.0, -0.25, 0.0]]).expand(3, 3, 3)
+    )
     target, captured = images(24, 32)
     with torch.no_grad():
         before = net(target, captured) - target
@@ -163,8 +169,9 @@ def test_channels_last_and_batch_give_the_same_output():
         reference = net(target, captured)
         single = net(target[1:], captured[1:])
         net_cl = net.to(memory_format=torch.channels_last)
-        out = net_cl(target.contiguous(memory_format=torch.channels_last),
-                     captured.contiguous(memory_format=torch.channels_last))
+        out = net_cl(
+            target.contiguous(memory_format=torch.channels_last), captured.contiguous(memory_format=torch.channels_last)
+        )
     torch.testing.assert_close(out, reference, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(single, reference[1:], rtol=1e-5, atol=1e-5)
 
@@ -182,8 +189,15 @@ def test_zero_initialized_network_learns_and_gradients_reach_every_part():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < 0.1 * losses[0]
-    for name in ("local_filter.0.weight", "local_filter.2.weight", "head.weight", "prefilter.gain",
-                 "correction_to_pixels.1.weight", "embed_target.weight", "linear_gain.weight"):
+    for name in (
+        "local_filter.0.weight",
+        "local_filter.2.weight",
+        "head.weight",
+        "prefilter.gain",
+        "correction_to_pixels.1.weight",
+        "embed_target.weight",
+        "linear_gain.weight",
+    ):
         assert dict(net.named_parameters())[name].grad.abs().sum() > 0, name
 
 
@@ -241,7 +255,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     psf = torch.zeros(3, 3, 9, 9)
     for i, sigma in enumerate((0.6, 0.9, 1.2)):  # blur growing with depth, like defocus
         r2 = (torch.arange(9.0) - 4)[:, None] ** 2 + (torch.arange(9.0) - 4)[None] ** 2
-        psf[i] = torch.exp(-r2 / (2 * sigma ** 2)) / torch.exp(-r2 / (2 * sigma ** 2)).sum()
+        psf[i] = torch.exp(-r2 / (2 * sigma**2)) / torch.exp(-r2 / (2 * sigma**2)).sum()
     table = DepthPSFTable(psf, 1 / np.linspace(1 / 0.8, 1 / 0.3, 3))
     cfg = Config()
     cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.01)
@@ -251,13 +265,16 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     target, captured = images(24, 32)
     with torch.no_grad():
         out = net(target, captured).double()
-    reference = F.conv2d(F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3)
+    reference = F.conv2d(
+        F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
+    )
     torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
 
     for untouched_cfg, source in ((cfg, torch.nn.Identity()), (Config(), table)):
         if source is table:
-            untouched_cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4,
-                                          prefilter_bins=8, init_nsr=0.0)
+            untouched_cfg.net = NetConfig(
+                architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.0
+            )
         fresh = build_network(untouched_cfg.net)
         start_from_wiener(untouched_cfg, fresh, source)
         assert all(local.weight.abs().max() == 0 for local in fresh.local_filter)

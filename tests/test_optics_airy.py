@@ -8,9 +8,8 @@ from scipy import integrate
 from scipy.optimize import brentq
 from scipy.special import j0, j1
 
-from edofproj.optics.radial_engine import RadialPSFEngine
-
 from devices import DEVICES
+from edofproj.optics.radial_engine import RadialPSFEngine
 
 LAMBDA = 550e-9
 
@@ -53,7 +52,7 @@ def test_first_dark_ring_at_1_22_lambda_z_over_d(in_focus):
     window = (rho_m > 0.8 * expected) & (rho_m < 1.2 * expected)
     i = np.argmin(np.where(window, intensity, np.inf))
     # parabolic refinement of the minimum through three samples
-    y0, y1, y2 = intensity[i - 1:i + 2]
+    y0, y1, y2 = intensity[i - 1 : i + 2]
     h = rho_m[i + 1] - rho_m[i]
     found = rho_m[i] + 0.5 * h * (y0 - y2) / (y0 - 2 * y1 + y2)
     assert found == pytest.approx(expected, rel=5e-3)  # 1.22 is itself 1.2197 rounded
@@ -78,7 +77,12 @@ def test_centre_pixel_energy_matches_the_integrated_airy_pattern(in_focus):
     disk = 1 - j0(k * 0.5) ** 2 - j1(k * 0.5) ** 2
     corner, _ = integrate.dblquad(
         lambda y, x: airy_fraction_per_px2(np.array([math.hypot(x, y)]), g)[0] if math.hypot(x, y) > 0.5 else 0.0,
-        0, 0.5, 0, 0.5, epsabs=1e-12)
+        0,
+        0.5,
+        0,
+        0.5,
+        epsabs=1e-12,
+    )
     expected = disk + 4 * corner
     assert expected == pytest.approx(0.9653, abs=1e-4)  # the figure quoted in DESIGN.md
     assert psf[4, 4] == pytest.approx(expected, abs=3e-4)
@@ -93,7 +97,12 @@ def test_energy_in_window_plus_lost_energy_is_one(in_focus):
     # corners of the window outside the inscribed disk (one quadrant, x4), closed-form integrand
     corner, _ = integrate.dblquad(
         lambda y, x: airy_fraction_per_px2(np.array([math.hypot(x, y)]), g)[0] if math.hypot(x, y) > half else 0.0,
-        0, half, lambda x: math.sqrt(max(half**2 - x**2, 0.0)), half, epsabs=1e-10)
+        0,
+        half,
+        lambda x: math.sqrt(max(half**2 - x**2, 0.0)),
+        half,
+        epsabs=1e-10,
+    )
     lost = outside_disk - 4 * corner
     assert psf.sum() + lost == pytest.approx(1.0, abs=1e-3)
 
@@ -103,8 +112,11 @@ def test_defocus_blur_diameter_is_geometric(geometry, depth_m):
     engine = RadialPSFEngine(geometry, [LAMBDA], window=31, pupil_samples=1024)
     intensity = engine.radial_intensity(None, [depth_m])[0, 0].numpy()
     rho = engine.rho_px
-    expected_px = geometry.aperture_diameter_m * abs(1 - depth_m / geometry.focus_distance_m) / float(
-        geometry.pixel_pitch_m(depth_m))
+    expected_px = (
+        geometry.aperture_diameter_m
+        * abs(1 - depth_m / geometry.focus_distance_m)
+        / float(geometry.pixel_pitch_m(depth_m))
+    )
     # a uniform disk of radius a holds the energy fraction (rho / a)^2 within rho: the
     # radius holding half the energy is a / sqrt(2)
     from scipy.integrate import cumulative_trapezoid

@@ -21,15 +21,73 @@ WINDOW = "21"
 def session(tmp_path_factory):
     root = tmp_path_factory.mktemp("procams")
     patterns, captures, calib, psf = root / "patterns", root / "captures", root / "calib.npz", root / "psf.npz"
-    assert main(["procams", "patterns", "--width", "128", "--height", "96", "--out", str(patterns),
-                 "--dots", "6x8", "--color-levels", "3"]) == 0
-    assert main(["procams", "simulate", "--patterns", str(patterns), "--out", str(captures), "--depth-mm", "350",
-                 "--doe", "lens", "--window", WINDOW, "--seed", "1"]) == 0
-    assert main(["procams", "calibrate", "--patterns", str(patterns), "--captures", str(captures),
-                 "--out", str(calib)]) == 0
-    assert main(["procams", "estimate-psf", "--patterns", str(patterns), "--captures", str(captures),
-                 "--calib", str(calib), "--out", str(psf), "--window", WINDOW, "--patch", "40",
-                 "--patch-psfs", str(root / "patches.npz")]) == 0
+    assert (
+        main(
+            [
+                "procams",
+                "patterns",
+                "--width",
+                "128",
+                "--height",
+                "96",
+                "--out",
+                str(patterns),
+                "--dots",
+                "6x8",
+                "--color-levels",
+                "3",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "procams",
+                "simulate",
+                "--patterns",
+                str(patterns),
+                "--out",
+                str(captures),
+                "--depth-mm",
+                "350",
+                "--doe",
+                "lens",
+                "--window",
+                WINDOW,
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(["procams", "calibrate", "--patterns", str(patterns), "--captures", str(captures), "--out", str(calib)])
+        == 0
+    )
+    assert (
+        main(
+            [
+                "procams",
+                "estimate-psf",
+                "--patterns",
+                str(patterns),
+                "--captures",
+                str(captures),
+                "--calib",
+                str(calib),
+                "--out",
+                str(psf),
+                "--window",
+                WINDOW,
+                "--patch",
+                "40",
+                "--patch-psfs",
+                str(root / "patches.npz"),
+            ]
+        )
+        == 0
+    )
     return root
 
 
@@ -81,8 +139,19 @@ def test_calibration_file_holds_matrix_table_and_map(session):
 
 def test_missing_captures_are_named(session, tmp_path, capsys):
     captures = linked_copy(session / "captures", tmp_path / "c", drop=("color_003.png", "color_010.png"))
-    message = run_error(capsys, ["procams", "calibrate", "--patterns", str(session / "patterns"),
-                                 "--captures", str(captures), "--out", str(tmp_path / "calib.npz")])
+    message = run_error(
+        capsys,
+        [
+            "procams",
+            "calibrate",
+            "--patterns",
+            str(session / "patterns"),
+            "--captures",
+            str(captures),
+            "--out",
+            str(tmp_path / "calib.npz"),
+        ],
+    )
     assert "lacks 2 of" in message and "color_003.png, color_010.png" in message
     assert not (tmp_path / "calib.npz").exists()
 
@@ -90,9 +159,23 @@ def test_missing_captures_are_named(session, tmp_path, capsys):
 def test_wrong_capture_size_says_expected_and_got(session, tmp_path, capsys):
     small = np.zeros((300, 400, 3), np.uint8)
     captures = linked_copy(session / "captures", tmp_path / "c", replace={"bernoulli_02.png": small})
-    message = run_error(capsys, ["procams", "estimate-psf", "--patterns", str(session / "patterns"),
-                                 "--captures", str(captures), "--calib", str(session / "calib.npz"),
-                                 "--out", str(tmp_path / "psf.npz"), "--window", WINDOW])
+    message = run_error(
+        capsys,
+        [
+            "procams",
+            "estimate-psf",
+            "--patterns",
+            str(session / "patterns"),
+            "--captures",
+            str(captures),
+            "--calib",
+            str(session / "calib.npz"),
+            "--out",
+            str(tmp_path / "psf.npz"),
+            "--window",
+            WINDOW,
+        ],
+    )
     assert "'bernoulli_02.png' is 400x300 pixels, expected 512x384" in message
     assert not (tmp_path / "psf.npz").exists()
 
@@ -102,8 +185,19 @@ def test_a_dot_grid_that_cannot_be_found_says_how_many_dots(session, tmp_path, c
     captures = linked_copy(session / "captures", tmp_path / "c", replace={"dots.png": black})
     previous = tmp_path / "calib.npz"
     previous.write_bytes(b"an earlier calibration")
-    message = run_error(capsys, ["procams", "calibrate", "--patterns", str(session / "patterns"),
-                                 "--captures", str(captures), "--out", str(previous)])
+    message = run_error(
+        capsys,
+        [
+            "procams",
+            "calibrate",
+            "--patterns",
+            str(session / "patterns"),
+            "--captures",
+            str(captures),
+            "--out",
+            str(previous),
+        ],
+    )
     assert "found 0 dots in the dot-grid capture, expected 6x8 = 48" in message
     assert previous.read_bytes() == b"an earlier calibration"  # nothing overwritten on failure
 
@@ -113,29 +207,93 @@ def test_saturated_captures_are_warned_about(session, tmp_path):
     overexposed = np.clip(white * 1.6, 0, 255).astype(np.uint8)
     captures = linked_copy(session / "captures", tmp_path / "c", replace={"white.png": overexposed})
     with pytest.warns(UserWarning, match=r"'white.png': \d+\.\d % of its pixels\); saturated light"):
-        assert main(["procams", "calibrate", "--patterns", str(session / "patterns"), "--captures", str(captures),
-                     "--out", str(tmp_path / "calib.npz")]) == 0
+        assert (
+            main(
+                [
+                    "procams",
+                    "calibrate",
+                    "--patterns",
+                    str(session / "patterns"),
+                    "--captures",
+                    str(captures),
+                    "--out",
+                    str(tmp_path / "calib.npz"),
+                ]
+            )
+            == 0
+        )
 
 
 def test_depth_must_be_known(session, tmp_path, capsys):
     captures = linked_copy(session / "captures", tmp_path / "c", drop=("captures.json",))
-    message = run_error(capsys, ["procams", "estimate-psf", "--patterns", str(session / "patterns"),
-                                 "--captures", str(captures), "--calib", str(session / "calib.npz"),
-                                 "--out", str(tmp_path / "psf.npz"), "--window", WINDOW])
+    message = run_error(
+        capsys,
+        [
+            "procams",
+            "estimate-psf",
+            "--patterns",
+            str(session / "patterns"),
+            "--captures",
+            str(captures),
+            "--calib",
+            str(session / "calib.npz"),
+            "--out",
+            str(tmp_path / "psf.npz"),
+            "--window",
+            WINDOW,
+        ],
+    )
     assert "give --depth-mm" in message
 
 
 def test_other_bad_input(session, tmp_path, capsys):
     patterns = str(session / "patterns")
     assert "exists and is not empty" in run_error(
-        capsys, ["procams", "patterns", "--width", "64", "--height", "48", "--dots", "4x4", "--out", patterns])
+        capsys, ["procams", "patterns", "--width", "64", "--height", "48", "--dots", "4x4", "--out", patterns]
+    )
     assert "window=20 must be odd" in run_error(
-        capsys, ["procams", "estimate-psf", "--patterns", patterns, "--captures", str(session / "captures"),
-                 "--calib", str(session / "calib.npz"), "--out", str(tmp_path / "p.npz"), "--window", "20"])
+        capsys,
+        [
+            "procams",
+            "estimate-psf",
+            "--patterns",
+            patterns,
+            "--captures",
+            str(session / "captures"),
+            "--calib",
+            str(session / "calib.npz"),
+            "--out",
+            str(tmp_path / "p.npz"),
+            "--window",
+            "20",
+        ],
+    )
     assert "not a calibration file" in run_error(
-        capsys, ["procams", "estimate-psf", "--patterns", patterns, "--captures", str(session / "captures"),
-                 "--calib", str(session / "psf.npz"), "--out", str(tmp_path / "p.npz")])
+        capsys,
+        [
+            "procams",
+            "estimate-psf",
+            "--patterns",
+            patterns,
+            "--captures",
+            str(session / "captures"),
+            "--calib",
+            str(session / "psf.npz"),
+            "--out",
+            str(tmp_path / "p.npz"),
+        ],
+    )
     assert "has no manifest.json" in run_error(
-        capsys, ["procams", "calibrate", "--patterns", str(tmp_path), "--captures", str(session / "captures"),
-                 "--out", str(tmp_path / "c.npz")])
+        capsys,
+        [
+            "procams",
+            "calibrate",
+            "--patterns",
+            str(tmp_path),
+            "--captures",
+            str(session / "captures"),
+            "--out",
+            str(tmp_path / "c.npz"),
+        ],
+    )
     assert not any(tmp_path.glob("*.npz"))

@@ -22,8 +22,9 @@ def captured(inputs):
 
 
 def synthetic_calibration(levels=6, neighbours=6):
-    primaries = {name: field(captured(color)) for name, color in
-                 (("red", (1, 0, 0)), ("green", (0, 1, 0)), ("blue", (0, 0, 1)))}
+    primaries = {
+        name: field(captured(color)) for name, color in (("red", (1, 0, 0)), ("green", (0, 1, 0)), ("blue", (0, 0, 1)))
+    }
     samples = [(tuple(c), field(captured(c))) for c in color_sample_values(levels)]
     return calibrate_color(primaries, field(BLACK), samples, neighbours=neighbours)
 
@@ -54,11 +55,11 @@ def test_local_linear_weights_reproduce_affine_maps_and_samples():
 
 def test_response_and_its_inverse_are_recovered():
     calibration = synthetic_calibration(levels=6)
-    np.testing.assert_allclose(calibration.sample_outputs, calibration.sample_inputs ** GAMMA, atol=1e-12)
+    np.testing.assert_allclose(calibration.sample_outputs, calibration.sample_inputs**GAMMA, atol=1e-12)
     corners = np.array([[0, 0, 0], [1, 0, 1], [0, 1, 0], [1, 1, 1]], float)
     np.testing.assert_allclose(calibration.input_to_output(corners), corners, atol=1e-12)
     queries = np.random.default_rng(2).uniform(0, 1, (2000, 3))
-    truth = queries ** GAMMA
+    truth = queries**GAMMA
     assert np.abs(calibration.input_to_output(queries) - truth).mean() < 0.015  # measured 0.009 (6 levels)
     bright = queries.min(axis=1) > 0.2  # away from black, where u = o^(1/gamma) is steep
     # measured 0.025: the samples are an uneven grid in output space, so the neighbours are lopsided

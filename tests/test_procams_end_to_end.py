@@ -100,9 +100,11 @@ def test_camera_map_is_recovered(lens_session, patterns):
     true_x, true_y = rig.true_camera_map()
     camera_map = calibration.camera_map
     error_px = np.hypot(camera_map.map_x - true_x, camera_map.map_y - true_y) / rig.camera_pixels_per_projector_pixel()
-    assert np.sqrt(np.mean(error_px ** 2)) < 0.05
+    assert np.sqrt(np.mean(error_px**2)) < 0.05
     dots = patterns[0].one("dots").dots
-    inside = error_px[int(dots[:, 1].min()):int(dots[:, 1].max()) + 1, int(dots[:, 0].min()):int(dots[:, 0].max()) + 1]
+    inside = error_px[
+        int(dots[:, 1].min()) : int(dots[:, 1].max()) + 1, int(dots[:, 0].min()) : int(dots[:, 0].max()) + 1
+    ]
     assert inside.max() < 0.1
 
 

@@ -3,29 +3,28 @@ network trained for another depth range, and the compensated projections with th
 get better on held-out images."""
 
 import numpy as np
+import pytest
 import torch
 
 from edofproj.config import Config, apply_overrides
-from edofproj.metrics import ssim
+from edofproj.data import build_test_images
 from edofproj.imaging.projection import project
+from edofproj.metrics import ssim
 from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.procams.calibration import calibrate, calibration_files
 from edofproj.procams.patterns import PatternSpec, build_pattern_set
 from edofproj.procams.psf_estimation import bernoulli_files, measure_psf
 from edofproj.procams.virtual import VirtualProCams
-from edofproj.data import build_test_images
-from edofproj.training.finetune import finetune
 from edofproj.runs import load_run
+from edofproj.training.finetune import finetune
 from edofproj.training.trainer import train
+from tiny_configs import TINY_LENS_FINETUNE
+
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 WINDOW = 21
 DEPTHS_M = (0.3, 0.37)
-TINY = [
-    "doe.kind=lens", "spectrum.wavelength_min_nm=460", "spectrum.wavelength_max_nm=620",
-    "spectrum.wavelength_step_nm=80", "psf.pupil_samples=512", f"psf.window={WINDOW}", "psf.depth_min_mm=450",
-    "psf.depth_max_mm=550", "net.widths=[8,16,16]", "data.crop=48", "train.batch_size=2", "train.threads=1",
-    "train.steps=4", "train.checkpoint_every=4", "train.psf_table_depths=4",
-]
+TINY = TINY_LENS_FINETUNE + [f"psf.window={WINDOW}"]
 
 
 def test_psfs_measured_through_the_virtual_procams_improve_the_network(tmp_path):
@@ -53,7 +52,7 @@ def test_psfs_measured_through_the_virtual_procams_improve_the_network(tmp_path)
         with torch.no_grad():
             scores = []
             for i in range(len(DEPTHS_M)):
-                psf = true.psf[i:i + 1].float()
+                psf = true.psf[i : i + 1].float()
                 scores.append(ssim(project(net(held_out, project(held_out, psf)).clamp(0, 1), psf), held_out).mean())
         return float(torch.stack(scores).mean())
 

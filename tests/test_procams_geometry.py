@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from edofproj.errors import EdofprojError
-from edofproj.procams.geometry import (apply_homography, calibrate_geometry, detect_dots, fit_camera_map,
-                                       match_grid)
+from edofproj.procams.geometry import apply_homography, calibrate_geometry, detect_dots, fit_camera_map, match_grid
 from edofproj.procams.patterns import dot_grid_centers
 
 CAMERA_HW = (150, 200)
@@ -17,10 +16,10 @@ HOMOGRAPHY = np.array([[1.45, 0.08, 18.0], [-0.05, 1.5, 14.0], [1e-4, -2e-4, 1.0
 def blob_image(centres, shape=CAMERA_HW, sigma=1.8, lopsided=False):
     """Gaussian blobs at sub-pixel ``centres`` (u, v). ``lopsided``: instead a bright core 1.5 px to
     the left and a faint lobe 6 px to the right, weights 4 : 1, so the intensity centroid stays put."""
-    v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
 
     def gaussian(cu, cv):
-        return np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * sigma ** 2))
+        return np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * sigma**2))
 
     image = np.zeros(shape)
     for cu, cv in centres:
@@ -62,16 +61,17 @@ def test_dense_map_follows_homography_and_distortion():
     def camera_of(points):  # homography + a smooth barrel distortion about the camera centre
         centre = np.array([100.0, 75.0])
         d = apply_homography(HOMOGRAPHY, points) - centre
-        return centre + d * (1 - 0.03 * (d ** 2).sum(axis=1, keepdims=True) / 100 ** 2)
+        return centre + d * (1 - 0.03 * (d**2).sum(axis=1, keepdims=True) / 100**2)
 
     camera_map = fit_camera_map(dots, camera_of(dots), (60, 80), CAMERA_HW)
     y, x = np.mgrid[0:60, 0:80]
     truth = camera_of(np.c_[x.ravel(), y.ravel()].astype(float))
     error = np.hypot(camera_map.map_x.ravel() - truth[:, 0], camera_map.map_y.ravel() - truth[:, 1])
     assert camera_map.homography_residual_px().max() > 0.3  # the distortion is really there
-    inside_grid = ((y >= dots[:, 1].min()) & (y <= dots[:, 1].max()) & (x >= dots[:, 0].min())
-                   & (x <= dots[:, 0].max())).ravel()
-    assert np.sqrt(np.mean(error ** 2)) < 0.03
+    inside_grid = (
+        (y >= dots[:, 1].min()) & (y <= dots[:, 1].max()) & (x >= dots[:, 0].min()) & (x <= dots[:, 0].max())
+    ).ravel()
+    assert np.sqrt(np.mean(error**2)) < 0.03
     assert error[inside_grid].max() < 0.05 and error.max() < 0.3  # extrapolated towards the corners
 
 

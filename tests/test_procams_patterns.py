@@ -5,19 +5,20 @@ import pytest
 
 from edofproj.errors import EdofprojError
 from edofproj.procams.capture_io import read_rgb
-from edofproj.procams.patterns import (PatternManifest, PatternSpec, build_pattern_set, color_sample_values,
-                                       parse_grid)
+from edofproj.procams.patterns import PatternManifest, PatternSpec, build_pattern_set, color_sample_values, parse_grid
 
 
 @pytest.fixture(scope="module")
 def pattern_set():
-    return build_pattern_set(PatternSpec(width=80, height=48, bernoulli_count=3, dot_grid=(3, 5), color_levels=3, seed=7))
+    return build_pattern_set(
+        PatternSpec(width=80, height=48, bernoulli_count=3, dot_grid=(3, 5), color_levels=3, seed=7)
+    )
 
 
 def test_roles_and_counts(pattern_set):
     manifest, images = pattern_set
     assert len(manifest.with_role("bernoulli")) == 3
-    assert len(manifest.with_role("color_sample")) == 3 ** 3
+    assert len(manifest.with_role("color_sample")) == 3**3
     assert [manifest.primary(n).file for n in ("red", "green", "blue")] == ["red.png", "green.png", "blue.png"]
     assert manifest.one("white").color == (1.0, 1.0, 1.0) and manifest.one("black").color == (0.0, 0.0, 0.0)
     assert set(images) == {e.file for e in manifest.entries}
@@ -54,7 +55,7 @@ def test_dots_are_centred_on_the_listed_centres(pattern_set):
     r = dots.radius_px
     counts = []
     for x, y in dots.dots.astype(int):
-        window = image[y - r - 1:y + r + 2, x - r - 1:x + r + 2]
+        window = image[y - r - 1 : y + r + 2, x - r - 1 : x + r + 2]
         rows, cols = np.nonzero(window)
         assert rows.mean() - (r + 1) == 0 and cols.mean() - (r + 1) == 0
         counts.append(rows.size)
@@ -80,16 +81,40 @@ def test_cli_writes_files_that_match_the_manifest(tmp_path):
     from edofproj.cli import main
 
     out = tmp_path / "patterns"
-    assert main(["procams", "patterns", "--width", "80", "--height", "48", "--out", str(out), "--dots", "3x5",
-                 "--color-levels", "2", "--bernoulli", "2", "--seed", "7"]) == 0
+    assert (
+        main(
+            [
+                "procams",
+                "patterns",
+                "--width",
+                "80",
+                "--height",
+                "48",
+                "--out",
+                str(out),
+                "--dots",
+                "3x5",
+                "--color-levels",
+                "2",
+                "--bernoulli",
+                "2",
+                "--seed",
+                "7",
+            ]
+        )
+        == 0
+    )
     manifest = PatternManifest.load(out)
     assert (manifest.width, manifest.height) == (80, 48)
-    _, images = build_pattern_set(PatternSpec(width=80, height=48, bernoulli_count=2, dot_grid=(3, 5),
-                                              color_levels=2, seed=7))
+    _, images = build_pattern_set(
+        PatternSpec(width=80, height=48, bernoulli_count=2, dot_grid=(3, 5), color_levels=2, seed=7)
+    )
     for entry in manifest.entries:
         np.testing.assert_array_equal(read_rgb(out / entry.file), images[entry.file])
-    np.testing.assert_array_equal(manifest.one("dots").dots, build_pattern_set(
-        PatternSpec(width=80, height=48, dot_grid=(3, 5)))[0].one("dots").dots)
+    np.testing.assert_array_equal(
+        manifest.one("dots").dots,
+        build_pattern_set(PatternSpec(width=80, height=48, dot_grid=(3, 5)))[0].one("dots").dots,
+    )
 
 
 def test_bad_specs_raise_one_line():

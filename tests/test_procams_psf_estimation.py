@@ -23,8 +23,8 @@ def lopsided_psf(energy=0.8, blur=0.8):
 
 
 def disc_psf(radius, energy=1.0):
-    y, x = np.mgrid[-C:C + 1, -C:C + 1]
-    disc = gaussian_filter((x ** 2 + y ** 2 <= radius ** 2).astype(float), 0.5)
+    y, x = np.mgrid[-C : C + 1, -C : C + 1]
+    disc = gaussian_filter((x**2 + y**2 <= radius**2).astype(float), 0.5)
     return np.repeat((disc * energy / disc.sum())[None], 3, axis=0)
 
 

@@ -20,7 +20,7 @@ HW = (40, 56)
 def box_psf(size, energy=0.9):
     psf = np.zeros((3, 7, 7))
     lo = 3 - size // 2
-    psf[:, lo:lo + size, lo:lo + size] = energy / size ** 2
+    psf[:, lo : lo + size, lo : lo + size] = energy / size**2
     return psf
 
 
@@ -64,7 +64,7 @@ def test_camera_sees_the_mixed_colour_with_the_stated_noise():
     assert capture.shape == rig.camera_hw + (3,)
     np.testing.assert_array_equal(capture * 255, np.round(capture * 255))  # 8-bit
     u, v = rig.projector_points_to_camera(np.array([HW[1] / 2]), np.array([HW[0] / 2]))
-    centre = capture[int(v[0]) - 10:int(v[0]) + 10, int(u[0]) - 10:int(u[0]) + 10].reshape(-1, 3)
+    centre = capture[int(v[0]) - 10 : int(v[0]) + 10, int(u[0]) - 10 : int(u[0]) + 10].reshape(-1, 3)
     expected = rig.effective_mixing_matrix.sum(axis=1) + rig.black_capture_level  # white = black + M_eff 1
     np.testing.assert_allclose(centre.mean(axis=0), expected, atol=0.003)
     np.testing.assert_allclose(centre.std(axis=0), 0.01, rtol=0.15)
@@ -72,8 +72,9 @@ def test_camera_sees_the_mixed_colour_with_the_stated_noise():
 
 
 def test_simulate_writes_captures_and_ground_truth(tmp_path):
-    manifest, images = build_pattern_set(PatternSpec(width=HW[1], height=HW[0], bernoulli_count=1, dot_grid=(2, 3),
-                                                     color_levels=2))
+    manifest, images = build_pattern_set(
+        PatternSpec(width=HW[1], height=HW[0], bernoulli_count=1, dot_grid=(2, 3), color_levels=2)
+    )
     patterns = tmp_path / "patterns"
     patterns.mkdir()
     from edofproj.procams.capture_io import write_rgb_png

@@ -10,12 +10,13 @@ import sys
 import pytest
 import torch
 
+from devices import DEVICES
 from edofproj.config import Config, apply_overrides, dump_config
 from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.training.trainer import train
+from tiny_configs import TINY_TRAINING
 
-from devices import DEVICES
-from tiny_training import TINY_TRAINING
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 
 TINY = TINY_TRAINING + ["train.batch_size=4", "train.steps=3", "train.checkpoint_every=3", "train.noise_sigma=0.01"]
@@ -25,15 +26,33 @@ def tiny_config(*extra: str) -> Config:
     return apply_overrides(Config(), TINY + list(extra))
 
 
-def test_two_process_run_matches_the_single_process_run(tmp_path):
-    cfg = tiny_config()
+def torchrun(cfg: Config, tmp_path, processes: int, out: str) -> subprocess.CompletedProcess:
+    """``torchrun --standalone --nproc_per_node=processes edofproj train`` of ``cfg`` into ``tmp_path/out``."""
     config_file = tmp_path / "tiny.yaml"
     config_file.write_text(dump_config(cfg))
     env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
     env["OMP_NUM_THREADS"] = "1"
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-               "-m", "edofproj.cli", "train", "--config", str(config_file), "--out", str(tmp_path / "ddp"), "--quiet"]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    command = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        f"--nproc_per_node={processes}",
+        "-m",
+        "edofproj.cli",
+        "train",
+        "--config",
+        str(config_file),
+        "--out",
+        str(tmp_path / out),
+        "--quiet",
+    ]
+    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_two_process_run_matches_the_single_process_run(tmp_path):
+    cfg = tiny_config()
+    done = torchrun(cfg, tmp_path, 2, "ddp")
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.count("steps 0 -> 3 of 3") == 1  # only rank 0 reports (and writes)
 
@@ -63,13 +82,7 @@ def test_torchrun_with_one_process_joins_the_group_and_equals_the_plain_run(tmp_
     """``torchrun --nproc_per_node=1``: the process joins a group of one (gloo on the CPU, NCCL on a
     GPU), trains through DistributedDataParallel, and ends where a plain run ends."""
     cfg = tiny_config(f"train.device={device}")
-    config_file = tmp_path / "tiny.yaml"
-    config_file.write_text(dump_config(cfg))
-    env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
-    env["OMP_NUM_THREADS"] = "1"
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=1",
-               "-m", "edofproj.cli", "train", "--config", str(config_file), "--out", str(tmp_path / "group"), "--quiet"]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    done = torchrun(cfg, tmp_path, 1, "group")
     assert done.returncode == 0, done.stderr[-2000:]
 
     train(cfg, tmp_path / "plain", progress=False)

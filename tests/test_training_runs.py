@@ -10,22 +10,28 @@ import pytest
 import torch
 
 from edofproj.cli import main
+from edofproj.compensation.registry import build_network
 from edofproj.config import Config, apply_overrides, dump_config, load_config, to_dict
-from edofproj.doe import load_doe
+from edofproj.doe import build_run_doe, load_doe
 from edofproj.errors import EdofprojError
-from edofproj.training import losses
-from edofproj.training import trainer as trainer_module
+from edofproj.runs import load_run
 from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.runs.log import COLUMNS
-from edofproj.compensation.registry import build_network
-from edofproj.doe import build_run_doe
-from edofproj.runs import load_run
+from edofproj.training import losses
+from edofproj.training import trainer as trainer_module
 from edofproj.training.trainer import seed_everything, train
+from tiny_configs import TINY_TRAINING
 
-from tiny_training import TINY_TRAINING
+pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 
-TINY = TINY_TRAINING + ["train.batch_size=2", "train.steps=8", "train.checkpoint_every=2", "train.keep_checkpoints=2", "train.psf_table_depths=16"]
+TINY = TINY_TRAINING + [
+    "train.batch_size=2",
+    "train.steps=8",
+    "train.checkpoint_every=2",
+    "train.keep_checkpoints=2",
+    "train.psf_table_depths=16",
+]
 
 
 def tiny_config(*extra: str) -> Config:
@@ -85,8 +91,10 @@ def test_resume_after_a_crash_drops_the_log_rows_past_the_checkpoint(straight_ru
     rows_a, rows_b = _log_rows(straight_dir), _log_rows(crashed)
     assert [r["step"] for r in rows_b] == [str(s) for s in range(1, 9)]
     assert [r["loss"] for r in rows_a] == [r["loss"] for r in rows_b]
-    _assert_same_state(load_checkpoint(straight_dir / "checkpoints" / "last.pt")["net"],
-                       load_checkpoint(crashed / "checkpoints" / "last.pt")["net"])
+    _assert_same_state(
+        load_checkpoint(straight_dir / "checkpoints" / "last.pt")["net"],
+        load_checkpoint(crashed / "checkpoints" / "last.pt")["net"],
+    )
 
 
 def test_a_different_seed_trains_differently(straight_run, tmp_path):

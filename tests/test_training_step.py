@@ -6,21 +6,19 @@ import numpy as np
 import pytest
 import torch
 
+from edofproj.compensation.registry import build_network
 from edofproj.config import Config, apply_overrides
+from edofproj.doe import build_run_doe
 from edofproj.errors import EdofprojError
 from edofproj.imaging.projection import project
 from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.training.camera import camera_capture, quantize_8bit_ste
 from edofproj.training.end_to_end import EndToEndProjector, SimulatedPSF
+from edofproj.training.losses import build_loss
 from edofproj.training.psf_table import DepthPSFTable
-from edofproj.compensation.registry import build_network
-from edofproj.doe import build_run_doe
 from edofproj.training.sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from edofproj.training.trainer import _clip, exponential_decay, loss_terms
-from edofproj.training.losses import build_loss
-
-from tiny_training import TINY_TRAINING
-
+from tiny_configs import TINY_TRAINING
 
 TINY = TINY_TRAINING + ["train.batch_size=4"]
 
@@ -109,10 +107,11 @@ def test_each_sample_is_rendered_with_the_psf_of_its_own_depth(tiny):
         out = model(images, depths)
         for i, z in enumerate(depths):
             psf = sim(doe, [z]).float()
-            expected = project(images[i:i + 1], psf)
-            torch.testing.assert_close(out.captured[i:i + 1], expected, rtol=0, atol=1e-6)
-            torch.testing.assert_close(out.projected[i:i + 1], project(out.compensated[i:i + 1].clamp(0, 1), psf),
-                                       rtol=0, atol=1e-6)
+            expected = project(images[i : i + 1], psf)
+            torch.testing.assert_close(out.captured[i : i + 1], expected, rtol=0, atol=1e-6)
+            torch.testing.assert_close(
+                out.projected[i : i + 1], project(out.compensated[i : i + 1].clamp(0, 1), psf), rtol=0, atol=1e-6
+            )
         swapped = model(images, depths[::-1].copy())
     assert (swapped.captured - out.captured).abs().max() > 1e-3  # the depth matters
 
@@ -189,22 +188,22 @@ def test_camera_noise_has_the_configured_strength_and_8bit_levels():
 def test_learning_rate_decays_exponentially_to_the_final_fraction():
     param = torch.nn.Parameter(torch.zeros(1))
     opt = torch.optim.Adam([param], lr=1e-3)
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, exponential_decay(150, 0.99 ** 150))
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, exponential_decay(150, 0.99**150))
     lrs = []
     for _ in range(150):
         opt.step()
         sched.step()
         lrs.append(opt.param_groups[0]["lr"])
     assert lrs[0] == pytest.approx(1e-3 * 0.99)
-    assert lrs[-1] == pytest.approx(1e-3 * 0.99 ** 150)
+    assert lrs[-1] == pytest.approx(1e-3 * 0.99**150)
 
 
 def test_warm_up_rises_linearly_then_joins_the_decay():
     schedule = exponential_decay(100, 0.5, warmup_steps=10)
     assert schedule(0) == pytest.approx(0.1)
-    assert schedule(4) == pytest.approx(0.5 * 0.5 ** 0.04)
-    assert schedule(9) == pytest.approx(0.5 ** 0.09)
-    assert schedule(50) == pytest.approx(0.5 ** 0.5)
+    assert schedule(4) == pytest.approx(0.5 * 0.5**0.04)
+    assert schedule(9) == pytest.approx(0.5**0.09)
+    assert schedule(50) == pytest.approx(0.5**0.5)
     assert exponential_decay(100, 0.5)(0) == 1.0
 
 

@@ -16,8 +16,7 @@ SMALL = [4, 8, 8, 16, 16, 16, 16]  # 7 scales, few channels: fast tests
 
 def images(height, width, batch=1, seed=0):
     gen = torch.Generator().manual_seed(seed)
-    return (torch.rand(batch, 3, height, width, generator=gen),
-            torch.rand(batch, 3, height, width, generator=gen))
+    return (torch.rand(batch, 3, height, width, generator=gen), torch.rand(batch, 3, height, width, generator=gen))
 
 
 def trained_looking(net, seed=0):
@@ -28,8 +27,7 @@ def trained_looking(net, seed=0):
     return net.eval()
 
 
-def expected_parameter_count(widths, in_channels=6, out_channels=3, downsampling="conv",
-                             upsampling="transpose"):
+def expected_parameter_count(widths, in_channels=6, out_channels=3, downsampling="conv", upsampling="transpose"):
     """Closed form: k*k*c_in*c_out + c_out per convolution."""
     conv = lambda k, c_in, c_out: k * k * c_in * c_out + c_out  # noqa: E731
     block = lambda c_in, c_out: conv(3, c_in, c_out) + conv(3, c_out, c_out)  # noqa: E731
@@ -118,8 +116,9 @@ def test_channels_last_gives_the_same_output():
     with torch.no_grad():
         reference = net(target, captured)
         net_cl = net.to(memory_format=torch.channels_last)
-        out = net_cl(target.contiguous(memory_format=torch.channels_last),
-                     captured.contiguous(memory_format=torch.channels_last))
+        out = net_cl(
+            target.contiguous(memory_format=torch.channels_last), captured.contiguous(memory_format=torch.channels_last)
+        )
     torch.testing.assert_close(out, reference, rtol=1e-5, atol=1e-5)
 
 
@@ -130,9 +129,16 @@ def test_onnx_export_opset17_with_dynamic_size():
     axes = {0: "batch", 2: "height", 3: "width"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(net, images(64, 64), buffer, opset_version=17, dynamo=False,
-                          input_names=["target", "captured"], output_names=["projector_input"],
-                          dynamic_axes={"target": axes, "captured": axes, "projector_input": axes})
+        torch.onnx.export(
+            net,
+            images(64, 64),
+            buffer,
+            opset_version=17,
+            dynamo=False,
+            input_names=["target", "captured"],
+            output_names=["projector_input"],
+            dynamic_axes={"target": axes, "captured": axes, "projector_input": axes},
+        )
     session = onnxruntime.InferenceSession(buffer.getvalue(), providers=["CPUExecutionProvider"])
     for size in [(64, 64), (45, 77)]:
         target, captured = images(*size, batch=2, seed=3)

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from edofproj.config import load_config
-from edofproj.imaging.image_io import write_image
 from edofproj.data import builtin_split, fit_to_size, load_builtin_photo, to_unit_float
+from edofproj.imaging.image_io import write_image
 from edofproj.runs.log import read_log
 from edofproj.training.trainer import train
 
@@ -62,9 +62,16 @@ def run(args) -> int:
     losses = {}
     for precision in args.precisions.split(","):
         overrides = [
-            "data.source=folder", f"data.folder={images}", "data.test_fraction=0.3", f"data.crop={args.crop}",
-            f"loss.perceptual={args.perceptual}", f"train.steps={args.steps}", f"train.checkpoint_every={args.steps}",
-            f"train.device={args.device}", f"train.mixed_precision={precision}", f"psf.pupil_samples={args.pupil_samples}",
+            "data.source=folder",
+            f"data.folder={images}",
+            "data.test_fraction=0.3",
+            f"data.crop={args.crop}",
+            f"loss.perceptual={args.perceptual}",
+            f"train.steps={args.steps}",
+            f"train.checkpoint_every={args.steps}",
+            f"train.device={args.device}",
+            f"train.mixed_precision={precision}",
+            f"psf.pupil_samples={args.pupil_samples}",
         ]
         cfg = load_config("paper", overrides)
         if args.device == "cuda":
@@ -72,13 +79,22 @@ def run(args) -> int:
         result = train(cfg, out / f"run_{precision}", progress=False)
         log = read_log(out / f"run_{precision}" / "train_log.csv")
         seconds = [float(r["seconds"]) for r in log]
-        steps = np.diff(seconds)[args.skip:]
+        steps = np.diff(seconds)[args.skip :]
         losses[precision] = np.array([float(r["loss"]) for r in log])
-        rows.append((precision, statistics.median(steps), float(np.percentile(steps, 90)),
-                     (result.peak_gpu_memory_bytes or 0) / 2**30, float(losses[precision][-10:].mean())))
+        rows.append(
+            (
+                precision,
+                statistics.median(steps),
+                float(np.percentile(steps, 90)),
+                (result.peak_gpu_memory_bytes or 0) / 2**30,
+                float(losses[precision][-10:].mean()),
+            )
+        )
     where = torch.cuda.get_device_name() if args.device == "cuda" else "the CPU"
-    print(f"\npaper scale on {where} (torch {torch.__version__}): crop {args.crop}, "
-          f"batch 1, {args.pupil_samples} pupil samples, 11 wavelengths, {args.steps} steps (first {args.skip} skipped)")
+    print(
+        f"\npaper scale on {where} (torch {torch.__version__}): crop {args.crop}, "
+        f"batch 1, {args.pupil_samples} pupil samples, 11 wavelengths, {args.steps} steps (first {args.skip} skipped)"
+    )
     print("| precision | s/step (median) | s/step (p90) | peak GPU memory (GiB) | mean loss, last 10 steps |")
     print("|---|---:|---:|---:|---:|")
     for precision, median, p90, peak, loss in rows:
@@ -86,8 +102,10 @@ def run(args) -> int:
     if "none" in losses and "bf16" in losses:
         fp32, bf16 = losses["none"], losses["bf16"]
         speedup = rows[0][1] / rows[1][1] if rows[0][0] == "none" else rows[1][1] / rows[0][1]
-        print(f"bf16 speed-up {speedup:.2f}x; per-step loss relative difference: median "
-              f"{np.median(np.abs(bf16 - fp32) / fp32):.2e}, max {np.max(np.abs(bf16 - fp32) / fp32):.2e}")
+        print(
+            f"bf16 speed-up {speedup:.2f}x; per-step loss relative difference: median "
+            f"{np.median(np.abs(bf16 - fp32) / fp32):.2e}, max {np.max(np.abs(bf16 - fp32) / fp32):.2e}"
+        )
     return 0
 
 

@@ -27,12 +27,16 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"edofproj: error: {message} (see '{self.prog} --help')\n")
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+def _one_line_warning(
+    message: Warning | str, category: type[Warning], filename: str, lineno: int, line: str | None = None
+) -> str:
     return f"edofproj: warning: {message}\n"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(prog="edofproj", description="Extended-depth-of-field projectors with learned diffractive optics.")
+    parser = OneLineParser(
+        prog="edofproj", description="Extended-depth-of-field projectors with learned diffractive optics."
+    )
     parser.add_argument("--version", action="version", version=f"edofproj {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True

@@ -126,9 +126,7 @@ class DOEConfig:
         if self.levels < 2:
             raise ConfigError(f"doe.levels={self.levels} must be >= 2")
         if not (350.0 <= self.design_wavelength_nm <= 1000.0):
-            raise ConfigError(
-                f"doe.design_wavelength_nm={self.design_wavelength_nm} is outside 350-1000 nm"
-            )
+            raise ConfigError(f"doe.design_wavelength_nm={self.design_wavelength_nm} is outside 350-1000 nm")
         if self.mlp_frequencies < 0 or self.mlp_hidden < 1 or self.mlp_layers < 1:
             raise ConfigError("doe.mlp_frequencies must be >= 0, doe.mlp_hidden and doe.mlp_layers >= 1")
         if not (0 < self.axicon_near_mm < self.axicon_far_mm):
@@ -224,9 +222,7 @@ class NetConfig:
             or any(isinstance(w, bool) or not isinstance(w, (int, float)) for w in self.widths)
             or any(int(w) != w or w < 1 for w in self.widths)
         ):
-            raise ConfigError(
-                f"net.widths={self.widths} needs at least two positive integer channel counts"
-            )
+            raise ConfigError(f"net.widths={self.widths} needs at least two positive integer channel counts")
         if not (0.0 <= self.leaky_slope < 1.0):
             raise ConfigError(f"net.leaky_slope={self.leaky_slope} must be in [0, 1)")
         for key, choices in (
@@ -299,15 +295,19 @@ class DataConfig:
         if not (0.0 <= self.dead_leaves_fraction <= 1.0):
             raise ConfigError(f"data.dead_leaves_fraction={self.dead_leaves_fraction} must be in [0, 1]")
         if self.dead_leaves_fraction > 0 and self.source == "dead-leaves":
-            raise ConfigError("data.dead_leaves_fraction mixes dead leaves into photographs: use it with "
-                              "data.source=builtin or folder")
+            raise ConfigError(
+                "data.dead_leaves_fraction mixes dead leaves into photographs: use it with "
+                "data.source=builtin or folder"
+            )
         _positive(self, "dead_leaves_min_radius_px", "data.dead_leaves_min_radius_px")
         if not (self.dead_leaves_min_radius_px >= 0.5):
             raise ConfigError(
                 f"data.dead_leaves_min_radius_px={self.dead_leaves_min_radius_px} must be >= 0.5 (smaller disks cover no pixel)"
             )
-        if not (math.isfinite(self.dead_leaves_max_radius_px)
-                and self.dead_leaves_max_radius_px >= self.dead_leaves_min_radius_px):
+        if not (
+            math.isfinite(self.dead_leaves_max_radius_px)
+            and self.dead_leaves_max_radius_px >= self.dead_leaves_min_radius_px
+        ):
             raise ConfigError(
                 f"data.dead_leaves_max_radius_px={self.dead_leaves_max_radius_px} must be >= "
                 f"data.dead_leaves_min_radius_px={self.dead_leaves_min_radius_px}"
@@ -347,7 +347,7 @@ class TrainConfig:
     batch_size: int = 4
     lr_optics: float = 1e-3
     lr_net: float = 1e-3
-    lr_final_fraction: float = 0.99 ** 150
+    lr_final_fraction: float = 0.99**150
     warmup_steps: int = 0
     grad_clip: float = 1.0
     seed: int = 0
@@ -413,8 +413,21 @@ class EvaluationConfig:
     """
 
     depths_mm: list = field(
-        default_factory=lambda: [250.0, 300.0, 350.0, 400.0, 450.0, 500.0, 550.0, 600.0,
-                                 650.0, 700.0, 750.0, 800.0, 900.0]
+        default_factory=lambda: [
+            250.0,
+            300.0,
+            350.0,
+            400.0,
+            450.0,
+            500.0,
+            550.0,
+            600.0,
+            650.0,
+            700.0,
+            750.0,
+            800.0,
+            900.0,
+        ]
     )
     comparison_depths_mm: list = field(default_factory=lambda: [320.0, 630.0, 800.0])
     tilt_deg: float = 50.0
@@ -429,15 +442,21 @@ class EvaluationConfig:
 
     def validate(self) -> None:
         if self.wiener_tuning_metric not in ("ssim", "psnr"):
-            raise ConfigError(_unknown_choice("evaluation.wiener_tuning_metric", self.wiener_tuning_metric,
-                                              ("ssim", "psnr")))
+            raise ConfigError(
+                _unknown_choice("evaluation.wiener_tuning_metric", self.wiener_tuning_metric, ("ssim", "psnr"))
+            )
         if self.score_range_mm and (
-                len(self.score_range_mm) != 2
-                or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d)
-                       for d in self.score_range_mm)
-                or not 0 < self.score_range_mm[0] < self.score_range_mm[1]):
-            raise ConfigError(f"evaluation.score_range_mm={self.score_range_mm} must be [near, far] with "
-                              "0 < near < far (mm), or [] (the training range)")
+            len(self.score_range_mm) != 2
+            or any(
+                isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d)
+                for d in self.score_range_mm
+            )
+            or not 0 < self.score_range_mm[0] < self.score_range_mm[1]
+        ):
+            raise ConfigError(
+                f"evaluation.score_range_mm={self.score_range_mm} must be [near, far] with "
+                "0 < near < far (mm), or [] (the training range)"
+            )
         if not self.depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.depths_mm):
             raise ConfigError("evaluation.depths_mm needs one or more positive depths")
         if not self.comparison_depths_mm or any(not (math.isfinite(d) and d > 0) for d in self.comparison_depths_mm):
@@ -445,9 +464,12 @@ class EvaluationConfig:
         if not (math.isfinite(self.tilt_deg) and 0 < abs(self.tilt_deg) < 90):
             raise ConfigError(f"evaluation.tilt_deg={self.tilt_deg} must be between 0 and 90 degrees (exclusive)")
         _positive(self, "tilt_span_mm", "evaluation.tilt_span_mm")
-        if self.image_size and (len(self.image_size) != 2 or any(
-                isinstance(s, bool) or not isinstance(s, (int, float)) or int(s) != s or s < 16
-                for s in self.image_size)):
+        if self.image_size and (
+            len(self.image_size) != 2
+            or any(
+                isinstance(s, bool) or not isinstance(s, (int, float)) or int(s) != s or s < 16 for s in self.image_size
+            )
+        ):
             raise ConfigError(
                 f"evaluation.image_size={self.image_size} must be [height, width] with integers >= 16, or [] (native)"
             )
@@ -481,13 +503,9 @@ class FabricationConfig:
 
     def validate(self) -> None:
         if not (math.isfinite(self.critical_dimension_um) and self.critical_dimension_um > 0):
-            raise ConfigError(
-                f"fabrication.critical_dimension_um={self.critical_dimension_um} must be > 0"
-            )
+            raise ConfigError(f"fabrication.critical_dimension_um={self.critical_dimension_um} must be > 0")
         if not (0.001 <= self.arc_tolerance_um <= 1.0):
-            raise ConfigError(
-                f"fabrication.arc_tolerance_um={self.arc_tolerance_um} must be in 0.001-1 um"
-            )
+            raise ConfigError(f"fabrication.arc_tolerance_um={self.arc_tolerance_um} must be in 0.001-1 um")
         for name in ("etch_error_pct", "misalignment_um", "decentre_um"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -549,7 +567,7 @@ def _coerce(value: Any, annotation: Any, label: str) -> Any:
             return None
         inner = [a for a in args if a is not type(None)]
         return _coerce(value, inner[0], label)
-    if dataclasses.is_dataclass(annotation):
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
         if not isinstance(value, dict):
             raise ConfigError(f"{label} must be a mapping of keys, got {value!r}")
         return from_dict(annotation, value, prefix=label + ".")
@@ -595,9 +613,7 @@ def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
         if key not in names:
             hint = difflib.get_close_matches(str(key), names, n=1)
             did_you_mean = f"; did you mean '{prefix}{hint[0]}'?" if hint else ""
-            raise ConfigError(
-                f"unknown config key '{prefix}{key}'{did_you_mean} (known: {', '.join(names)})"
-            )
+            raise ConfigError(f"unknown config key '{prefix}{key}'{did_you_mean} (known: {', '.join(names)})")
         kwargs[key] = _coerce(value, hints[key], prefix + key)
     return cls(**kwargs)
 
@@ -621,7 +637,7 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
                 known = list(node) if isinstance(node, dict) else []
                 hint = difflib.get_close_matches(key, known, n=1)
                 did_you_mean = f"; did you mean '{hint[0]}'?" if hint else ""
-                raise ConfigError(f"unknown config key '{'.'.join(keys[:depth + 1])}'{did_you_mean}")
+                raise ConfigError(f"unknown config key '{'.'.join(keys[: depth + 1])}'{did_you_mean}")
             node = node[key]
         if not isinstance(node, dict) or keys[-1] not in node:
             known = list(node) if isinstance(node, dict) else []
@@ -653,9 +669,7 @@ def resolve_config_path(name_or_path: str) -> Path:
     if preset.is_file():
         return preset
     presets = preset_names()
-    raise ConfigError(
-        f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})"
-    )
+    raise ConfigError(f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})")
 
 
 def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -> Config:

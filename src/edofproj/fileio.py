@@ -25,7 +25,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(
-        prefix=f".{target.name}.", suffix=suffix if suffix is not None else (target.suffix or ".tmp"),
+        prefix=f".{target.name}.",
+        suffix=suffix if suffix is not None else (target.suffix or ".tmp"),
         dir=target.parent,
     )
     os.close(fd)

@@ -74,8 +74,9 @@ def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return 10 * torch.log10(1.0 / mse)
 
 
-def gaussian_window(sigma: float = SSIM_SIGMA, truncate: float = SSIM_TRUNCATE,
-                    dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+def gaussian_window(
+    sigma: float = SSIM_SIGMA, truncate: float = SSIM_TRUNCATE, dtype: torch.dtype = torch.float32, device=None
+) -> torch.Tensor:
     """1-D Gaussian ``exp(-x^2 / (2 sigma^2))`` for ``|x| <= int(truncate sigma + 0.5)``, sum 1
     (the window of ``scipy.ndimage.gaussian_filter``)."""
     radius = int(truncate * sigma + 0.5)
@@ -93,9 +94,7 @@ def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels)
 
 
-def _ssim_and_contrast_structure(
-    pred: torch.Tensor, target: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean SSIM and mean contrast-structure term per image, both ``(B,)``.
 
     With local Gaussian-weighted means ``mu``, variances ``sigma^2`` and covariance
@@ -155,9 +154,7 @@ def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     _check_pair(pred, target, "ms_ssim")
     scales = ms_ssim_scales(pred.shape[-2], pred.shape[-1])
     if scales == 0:
-        raise EdofprojError(
-            f"MS-SSIM needs images of at least 11x11 pixels, got {pred.shape[-2]}x{pred.shape[-1]}"
-        )
+        raise EdofprojError(f"MS-SSIM needs images of at least 11x11 pixels, got {pred.shape[-2]}x{pred.shape[-1]}")
     weights = torch.tensor(MS_SSIM_WEIGHTS[:scales], dtype=pred.dtype, device=pred.device)
     weights = weights / weights.sum()
     result = pred.new_ones(pred.shape[0])
@@ -193,11 +190,9 @@ def perceptual_metric(name: str, weights_dir: Optional[PathLike] = None) -> DIST
     """Metric object by name: one of :data:`PERCEPTUAL_METRICS`."""
     if name == "dists":
         return dists(weights_dir)
-    if name.startswith("lpips-") and name[len("lpips-"):] in LPIPS_BACKBONES:
-        return lpips(name[len("lpips-"):], weights_dir)
-    raise EdofprojError(
-        f"unknown perceptual metric '{name}' (allowed: {', '.join(PERCEPTUAL_METRICS)})"
-    )
+    if name.startswith("lpips-") and name[len("lpips-") :] in LPIPS_BACKBONES:
+        return lpips(name[len("lpips-") :], weights_dir)
+    raise EdofprojError(f"unknown perceptual metric '{name}' (allowed: {', '.join(PERCEPTUAL_METRICS)})")
 
 
 def available_perceptual_metrics(weights_dir: Optional[PathLike] = None) -> dict[str, bool]:

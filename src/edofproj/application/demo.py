@@ -18,10 +18,11 @@ into a smoke run of about two minutes; its numbers are not meant to be judged.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 from ..config import load_config
 from ..errors import EdofprojError
@@ -30,6 +31,9 @@ from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
 from ..evaluation.progress import StageProgress, format_duration
 from ..evaluation.report import Heading, Paragraph, Table
 from .schedule import ParallelTrainer, TrainingJob
+
+if TYPE_CHECKING:
+    from ..evaluation.pipeline import Evaluation
 
 OURS_RUN_DIR = "doe_net"
 LOG_DIR = "logs"
@@ -49,17 +53,35 @@ class DemoSettings:
 
 
 FULL = DemoSettings(
-    name="full", budget_s=15 * 60,
+    name="full",
+    budget_s=15 * 60,
     overrides=("train.checkpoint_every=100",),
-    evaluation_estimate_s=130.0, timing_sizes=((256, 256), (600, 800)), timing_repeats=3, cubic_table_depths=24,
+    evaluation_estimate_s=130.0,
+    timing_sizes=((256, 256), (600, 800)),
+    timing_repeats=3,
+    cubic_table_depths=24,
 )
 QUICK = DemoSettings(
-    name="quick", budget_s=2 * 60,
-    overrides=("train.steps=12", "train.batch_size=2", "data.crop=64", "train.checkpoint_every=12",
-               "train.psf_table_depths=16", "evaluation.image_size=[96,128]",
-               "data.max_test_images=2", "evaluation.depths_mm=[300,500,800]", "evaluation.cls_iterations=30",
-               "evaluation.wiener_tuning_images=4", "evaluation.wiener_tuning_depths=3", "imaging.depth_layers=4"),
-    evaluation_estimate_s=35.0, timing_sizes=((128, 128),), timing_repeats=2, cubic_table_depths=8,
+    name="quick",
+    budget_s=2 * 60,
+    overrides=(
+        "train.steps=12",
+        "train.batch_size=2",
+        "data.crop=64",
+        "train.checkpoint_every=12",
+        "train.psf_table_depths=16",
+        "evaluation.image_size=[96,128]",
+        "data.max_test_images=2",
+        "evaluation.depths_mm=[300,500,800]",
+        "evaluation.cls_iterations=30",
+        "evaluation.wiener_tuning_images=4",
+        "evaluation.wiener_tuning_depths=3",
+        "imaging.depth_layers=4",
+    ),
+    evaluation_estimate_s=35.0,
+    timing_sizes=((128, 128),),
+    timing_repeats=2,
+    cubic_table_depths=8,
 )
 
 #: Training cost per step relative to ``lens+net`` (a U-Net with a precomputed PSF table), and
@@ -87,8 +109,9 @@ def cubic_evaluation_depths(cfg) -> int:
     return len(depths) + cfg.imaging.depth_layers + 1
 
 
-def demo_jobs(out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | None,
-              user_overrides: Sequence[str]) -> list[TrainingJob]:
+def demo_jobs(
+    out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | None, user_overrides: Sequence[str]
+) -> list[TrainingJob]:
     """The training runs of a demo: ours and lens+net required, the others optional (or required
     when named in ``methods``). The cubic plate's cost includes its PSF table and the 2-D PSFs
     its evaluation will need."""
@@ -99,7 +122,9 @@ def demo_jobs(out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | N
 
     def add(method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0) -> None:
         cost, setup = JOB_COSTS[method]
-        jobs.append(TrainingJob(method, out / run_dir, common + list(extra), steps, required, cost, setup + setup_extra))
+        jobs.append(
+            TrainingJob(method, out / run_dir, common + list(extra), steps, required, cost, setup + setup_extra)
+        )
 
     add(OURS, OURS_RUN_DIR, [], True)
     baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
@@ -113,6 +138,8 @@ def demo_jobs(out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | N
         if method == "cubic+net":
             extra.append(f"train.psf_table_depths={settings.cubic_table_depths}")
             setup_extra = CUBIC_SECONDS_PER_DEPTH * (settings.cubic_table_depths + cubic_evaluation_depths(cfg))
+        if spec.run_dir is None:
+            raise EdofprojError(f"method {method} has no separate run to train")
         add(method, spec.run_dir, extra, required, setup_extra)
     return jobs
 
@@ -122,10 +149,21 @@ def jobs_table(jobs: Sequence[TrainingJob]) -> Table:
     for job in jobs:
         done = job.steps_done()
         seconds = job.training_seconds()
-        rows.append([job.method, job.run_dir.name, f"{min(done, job.steps)}/{job.steps}",
-                     f"{seconds:.0f}" if done else "-", job.status, job.note])
-    return Table(["method", "run", "steps", "training s", "status", "note"], rows,
-                 "Training runs (two one-thread processes in parallel)")
+        rows.append(
+            [
+                job.method,
+                job.run_dir.name,
+                f"{min(done, job.steps)}/{job.steps}",
+                f"{seconds:.0f}" if done else "-",
+                job.status,
+                job.note,
+            ]
+        )
+    return Table(
+        ["method", "run", "steps", "training s", "status", "note"],
+        rows,
+        "Training runs (two one-thread processes in parallel)",
+    )
 
 
 def timing_rows(evaluation, settings: DemoSettings) -> list:
@@ -157,12 +195,17 @@ def timing_section(results, threads: int) -> list:
     sizes = list(dict.fromkeys((t.height, t.width) for t in results))
     methods = list(dict.fromkeys((t.method, t.backend) for t in results))
     value = {(t.method, t.backend, t.height, t.width): t.median_ms for t in results}
-    rows = [[m, b] + [f"{value[(m, b, h, w)]:.1f}" if (m, b, h, w) in value else "-" for h, w in sizes]
-            for m, b in methods]
-    return [Heading("Timing"),
-            Paragraph(f"Median milliseconds per compensated 3-channel frame on this CPU ({threads} thread(s)); "
-                      "the paper's Table 1 was measured on a V100 GPU. CLS: 1 frame at the smallest size."),
-            Table(["method", "backend"] + [f"{h}x{w}" for h, w in sizes], rows)]
+    rows = [
+        [m, b] + [f"{value[(m, b, h, w)]:.1f}" if (m, b, h, w) in value else "-" for h, w in sizes] for m, b in methods
+    ]
+    return [
+        Heading("Timing"),
+        Paragraph(
+            f"Median milliseconds per compensated 3-channel frame on this CPU ({threads} thread(s)); "
+            "the paper's Table 1 was measured on a V100 GPU. CLS: 1 frame at the smallest size."
+        ),
+        Table(["method", "backend"] + [f"{h}x{w}" for h, w in sizes], rows),
+    ]
 
 
 def _check_out(out: Path) -> None:
@@ -175,16 +218,24 @@ def _check_out(out: Path) -> None:
 @dataclass
 class DemoResult:
     out: Path
-    evaluation: object
+    evaluation: Evaluation
     bars: list[Bar]
     jobs: list[TrainingJob]
     wall_s: float
     report_html: Path
 
 
-def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods: Sequence[str] | None = None,
-             overrides: Sequence[str] = (), workers: int = 2, budget_s: float | None = None,
-             timing: bool = True, progress: StageProgress | None = None) -> DemoResult:
+def run_demo(
+    out: str | Path,
+    quick: bool = False,
+    config: str = "cpu",
+    methods: Sequence[str] | None = None,
+    overrides: Sequence[str] = (),
+    workers: int = 2,
+    budget_s: float | None = None,
+    timing: bool = True,
+    progress: StageProgress | None = None,
+) -> DemoResult:
     """Run the demo into ``out`` (module docstring); returns what it measured and wrote."""
     import torch
 
@@ -218,8 +269,9 @@ def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods:
     progress.note("stage 2/4 evaluation")
     trained = {j.method for j in jobs if j.status == "done"}
     eval_methods = [m for m in (methods or METHOD_NAMES) if not method_spec(m).needs_separate_run or m in trained]
-    evaluation = evaluate_run(out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out,
-                              progress=progress)
+    evaluation = evaluate_run(
+        out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out, progress=progress
+    )
     for job in jobs:
         if job.status != "done":
             evaluation.notes.append(f"{job.method} not evaluated: {job.note or job.status}")
@@ -234,15 +286,24 @@ def run_demo(out: str | Path, quick: bool = False, config: str = "cpu", methods:
     bars = ssim_bars(evaluation.table, evaluation.range_mm)
     wall_s = time.perf_counter() - clock
     bars.append(wall_time_bar(wall_s, budget))
-    preface = [Heading("Demo"),
-               Paragraph(f"`edofproj demo{' --quick' if quick else ''}`: preset '{config}', {cfg.train.steps} training "
-                         f"steps per run, built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
-                         f"up to the report, budget {format_duration(budget)}."
-                         + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged."
-                            if quick else "")),
-               jobs_table(jobs)] + bars_section(bars)
-    paths = write_documents(evaluation, title="edofproj demo report", preface=preface,
-                            extra=timing_section(timings, torch.get_num_threads()))
+    if quick:  # a smoke run measures the claims on tiny images and few steps: it judges nothing
+        bars = [dataclasses.replace(bar, judged=False) for bar in bars]
+    preface = [
+        Heading("Demo"),
+        Paragraph(
+            f"`edofproj demo{' --quick' if quick else ''}`: preset '{config}', {cfg.train.steps} training "
+            f"steps per run, built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
+            f"up to the report, budget {format_duration(budget)}."
+            + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
+        ),
+        jobs_table(jobs),
+    ] + bars_section(bars)
+    paths = write_documents(
+        evaluation,
+        title="edofproj demo report",
+        preface=preface,
+        extra=timing_section(timings, torch.get_num_threads()),
+    )
     progress.finish()
     return DemoResult(out, evaluation, bars, jobs, time.perf_counter() - clock, paths["report_html"])
 
@@ -251,8 +312,10 @@ def demo_finished_message(result: DemoResult) -> str:
     from ..evaluation.summary import format_text_table, range_table
 
     lines = [format_text_table(range_table(result.evaluation.table, result.evaluation.range_mm, ["ssim", "psnr"])), ""]
-    lines += [f"bar ({b.key}) {b.verdict}: {b.statement} -- {b.measured}" for b in result.bars]
-    lines += ["", f"report: {result.report_html}", f"(markdown: {result.report_html.with_suffix('.md')}; "
-                                                   f"total {format_duration(result.wall_s)})"]
+    lines += [f"claim ({b.key}) {b.verdict}: {b.statement} -- {b.measured}" for b in result.bars]
+    lines += [
+        "",
+        f"report: {result.report_html}",
+        f"(markdown: {result.report_html.with_suffix('.md')}; total {format_duration(result.wall_s)})",
+    ]
     return "\n".join(lines)
-

@@ -69,15 +69,35 @@ class TrainingJob:
 
 def train_command(config: str, job: TrainingJob) -> list[str]:
     sets = [item for override in ["train.threads=1"] + list(job.overrides) for item in ("--set", override)]
-    return [sys.executable, "-m", "edofproj.cli", "train", "--config", config, "--out", str(job.run_dir),
-            "--steps", str(job.steps), "--quiet"] + sets
+    return [
+        sys.executable,
+        "-m",
+        "edofproj.cli",
+        "train",
+        "--config",
+        config,
+        "--out",
+        str(job.run_dir),
+        "--steps",
+        str(job.steps),
+        "--quiet",
+    ] + sets
 
 
 class ParallelTrainer:
     """Runs :class:`TrainingJob` s as ``workers`` parallel processes before ``deadline`` (module docstring)."""
 
-    def __init__(self, jobs: Sequence[TrainingJob], config: str, log_dir: Path, workers: int, deadline: float,
-                 progress: StageProgress, default_rate_s: float = 0.6, later_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        jobs: Sequence[TrainingJob],
+        config: str,
+        log_dir: Path,
+        workers: int,
+        deadline: float,
+        progress: StageProgress,
+        default_rate_s: float = 0.6,
+        later_s: float = 0.0,
+    ) -> None:
         self.jobs = list(jobs)
         self.config = config
         self.log_dir = Path(log_dir)
@@ -120,6 +140,8 @@ class ParallelTrainer:
         job.status, job.started = "running", time.perf_counter()
 
     def poll(self, job: TrainingJob) -> None:
+        if job.process is None:
+            raise RuntimeError(f"{job.run_dir.name}: polled before its training process was started")
         code = job.process.poll()
         if code is None:
             return
@@ -131,13 +153,20 @@ class ParallelTrainer:
         job.note = f"training failed (exit {code}): {self.last_log_line(job)}"
         if job.required:
             self.stop_all()
-            raise EdofprojError(f"training the {job.method} run failed: {self.last_log_line(job)} "
-                                f"(log: {self.log_dir / (job.run_dir.name + '.log')})")
+            raise EdofprojError(
+                f"training the {job.method} run failed: {self.last_log_line(job)} "
+                f"(log: {self.log_dir / (job.run_dir.name + '.log')})"
+            )
 
     def last_log_line(self, job: TrainingJob) -> str:
         try:
-            lines = [line for line in (self.log_dir / f"{job.run_dir.name}.log").read_text(
-                encoding="utf-8", errors="replace").splitlines() if line.strip()]
+            lines = [
+                line
+                for line in (self.log_dir / f"{job.run_dir.name}.log")
+                .read_text(encoding="utf-8", errors="replace")
+                .splitlines()
+                if line.strip()
+            ]
         except OSError:
             return "no log"
         return lines[-1].strip() if lines else "no output"
@@ -165,8 +194,10 @@ class ParallelTrainer:
             if time.perf_counter() + predicted <= self.deadline:
                 return job
             job.status = "skipped"
-            job.note = (f"not trained: predicted {format_duration(predicted)} (min:s) for {job.steps} steps "
-                        f"would end after the time budget")
+            job.note = (
+                f"not trained: predicted {format_duration(predicted)} (min:s) for {job.steps} steps "
+                f"would end after the time budget"
+            )
             self.progress.note(f"{job.method}: {job.note}")
         return None
 
@@ -195,8 +226,9 @@ class ParallelTrainer:
         active = [j for j in self.jobs if j.status in ("running", "done", "pending")]
         done = sum(min(j.steps_done(), j.steps) for j in active)
         total = sum(j.steps for j in active)
-        detail = ", ".join(f"{j.method} {min(j.steps_done(), j.steps)}/{j.steps}" for j in self.jobs
-                           if j.status in ("running", "done"))
+        detail = ", ".join(
+            f"{j.method} {min(j.steps_done(), j.steps)}/{j.steps}" for j in self.jobs if j.status in ("running", "done")
+        )
         eta = self.eta_s()
         self.progress.later_s = self.later_s
         self.progress.set(done, detail=detail, total=max(total, 1), eta_s=eta)

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import torch
 
-from ..errors import EdofprojError
-from ..fileio import write_text_atomic
 from ..compensation.registry import network_from_widths
+from ..errors import EdofprojError
 from ..evaluation.timing import disk_psf
+from ..fileio import write_text_atomic
 from ._common import parse_name_list
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
@@ -38,32 +38,55 @@ def devices(requested: str) -> list[str]:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("bench", help="time the compensation methods per frame (paper Table 1)",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "bench", help="time the compensation methods per frame (paper Table 1)", description=__doc__.split("\n")[0]
+    )
     p.add_argument("--sizes", default=DEFAULT_SIZES, help=f"frame sizes HxW, comma-separated (default {DEFAULT_SIZES})")
     p.add_argument("--repeats", type=int, default=10, help="timed frames per case and size (median reported)")
     p.add_argument("--warmup", type=int, default=2, help="untimed frames before timing")
     p.add_argument("--run", default=None, help="time the trained network of this run directory")
-    p.add_argument("--widths", default=None,
-                   help="U-Net width preset (default, fast, paper) or channel counts, e.g. 8,16,32 (without --run)")
-    p.add_argument("--space-to-depth", type=int, default=1,
-                   help="run the untrained U-Net of --widths on s x s pixel blocks (without --run)")
-    p.add_argument("--prefilter-bins", type=int, default=0,
-                   help="add the radial Fourier pre-filter to the untrained U-Net of --widths (without --run)")
-    p.add_argument("--architecture", choices=("unet", "multirate"), default="unet",
-                   help="untrained network of --widths: the U-Net, or the multi-rate real-time network "
-                        "(needs --space-to-depth >= 2 and --prefilter-bins >= 2)")
-    p.add_argument("--methods", default="wiener,unet",
-                   help=f"comma-separated subset of {', '.join(METHODS)} (default: wiener,unet)")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
-                   help="auto: the CPU, and CUDA when available")
+    p.add_argument(
+        "--widths",
+        default=None,
+        help="U-Net width preset (default, fast, paper) or channel counts, e.g. 8,16,32 (without --run)",
+    )
+    p.add_argument(
+        "--space-to-depth",
+        type=int,
+        default=1,
+        help="run the untrained U-Net of --widths on s x s pixel blocks (without --run)",
+    )
+    p.add_argument(
+        "--prefilter-bins",
+        type=int,
+        default=0,
+        help="add the radial Fourier pre-filter to the untrained U-Net of --widths (without --run)",
+    )
+    p.add_argument(
+        "--architecture",
+        choices=("unet", "multirate"),
+        default="unet",
+        help="untrained network of --widths: the U-Net, or the multi-rate real-time network "
+        "(needs --space-to-depth >= 2 and --prefilter-bins >= 2)",
+    )
+    p.add_argument(
+        "--methods",
+        default="wiener,unet",
+        help=f"comma-separated subset of {', '.join(METHODS)} (default: wiener,unet)",
+    )
+    p.add_argument(
+        "--device", choices=("auto", "cpu", "cuda"), default="auto", help="auto: the CPU, and CUDA when available"
+    )
     p.add_argument("--threads", type=int, default=None, help="CPU threads for PyTorch, SciPy and ONNX Runtime")
     p.add_argument("--window", type=int, default=None, help="PSF window K for Wiener/CLS (default: config psf.window)")
     p.add_argument("--nsr", type=float, default=1e-3, help="Wiener noise-to-signal ratio (does not change the time)")
     p.add_argument("--cls-iterations", type=int, default=100, help="iterations of the constrained solver")
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime cases")
-    p.add_argument("--no-cuda-graphs", action="store_true",
-                   help="on CUDA, do not also time each PyTorch case replayed as a CUDA graph (torch+graph)")
+    p.add_argument(
+        "--no-cuda-graphs",
+        action="store_true",
+        help="on CUDA, do not also time each PyTorch case replayed as a CUDA graph (torch+graph)",
+    )
     p.add_argument("--csv", default=None, help="also write the timings as CSV")
     p.set_defaults(func=run)
 
@@ -76,7 +99,9 @@ def run(args) -> int:
     methods = parse_name_list(args.methods)
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
-        raise EdofprojError(f"--methods: unknown method '{unknown[0] if unknown else ''}' (known: {', '.join(METHODS)})")
+        raise EdofprojError(
+            f"--methods: unknown method '{unknown[0] if unknown else ''}' (known: {', '.join(METHODS)})"
+        )
     if args.repeats < 1 or args.warmup < 0:
         raise EdofprojError("--repeats must be >= 1 and --warmup >= 0")
     if args.threads is not None:
@@ -84,12 +109,16 @@ def run(args) -> int:
             raise EdofprojError("--threads must be >= 1")
         torch.set_num_threads(args.threads)
     if args.run and (args.widths or args.space_to_depth != 1 or args.prefilter_bins or args.architecture != "unet"):
-        raise EdofprojError("--widths/--architecture/--space-to-depth/--prefilter-bins and --run exclude each other "
-                            "(a run has its own network)")
+        raise EdofprojError(
+            "--widths/--architecture/--space-to-depth/--prefilter-bins and --run exclude each other "
+            "(a run has its own network)"
+        )
 
     if args.architecture == "multirate" and (args.space_to_depth < 2 or args.prefilter_bins < 2):
-        raise EdofprojError("--architecture multirate needs --space-to-depth >= 2 (block size) and "
-                            "--prefilter-bins >= 2 (filter nodes), e.g. --space-to-depth 4 --prefilter-bins 48")
+        raise EdofprojError(
+            "--architecture multirate needs --space-to-depth >= 2 (block size) and "
+            "--prefilter-bins >= 2 (filter nodes), e.g. --space-to-depth 4 --prefilter-bins 48"
+        )
 
     cfg = Config()
     net = None
@@ -99,12 +128,15 @@ def run(args) -> int:
             from ..runs import last_checkpoint_path, load_run
 
             if not last_checkpoint_path(args.run).is_file():
-                raise EdofprojError(f"run '{args.run}' has no checkpoint ({last_checkpoint_path(args.run)}): train it first")
+                raise EdofprojError(
+                    f"run '{args.run}' has no checkpoint ({last_checkpoint_path(args.run)}): train it first"
+                )
             trained = load_run(args.run)
             cfg, net, net_label = trained.cfg, trained.net, trained.cfg.net.architecture
         else:
-            net = network_from_widths(args.widths or "default", args.space_to_depth, args.prefilter_bins,
-                                      args.architecture)
+            net = network_from_widths(
+                args.widths or "default", args.space_to_depth, args.prefilter_bins, args.architecture
+            )
             net_label = args.architecture
     psf = disk_psf(args.window if args.window is not None else cfg.psf.window)
 
@@ -129,8 +161,9 @@ def run(args) -> int:
                 if args.no_onnx:
                     continue
                 if not timing.onnx_available(device):
-                    print(f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime",
-                          file=sys.stderr)
+                    print(
+                        f"edofproj: note: no ONNX Runtime for {device}: skipping {label}/onnxruntime", file=sys.stderr
+                    )
                     continue
                 from ..compensation.export import export_network, fixed_size_onnx, require_onnx
 
@@ -156,20 +189,28 @@ def run(args) -> int:
             if "cls" in methods:
                 cases.append(timing.cls_torch_case(psf, args.cls_iterations, device))
         if not args.no_cuda_graphs:
-            cases += [timing.cuda_graph_case(case) for case in cases
-                      if case.device.startswith("cuda") and case.backend == "torch"]
+            cases += [
+                timing.cuda_graph_case(case)
+                for case in cases
+                if case.device.startswith("cuda") and case.backend == "torch"
+            ]
 
         def progress(t: timing.Timing) -> None:
-            print(f"  {t.method}/{t.backend}/{t.device} {t.height}x{t.width}: {t.median_ms:.1f} ms",
-                  file=sys.stderr, flush=True)
+            print(
+                f"  {t.method}/{t.backend}/{t.device} {t.height}x{t.width}: {t.median_ms:.1f} ms",
+                file=sys.stderr,
+                flush=True,
+            )
 
         results = timing.time_cases(cases, sizes, args.repeats, args.warmup, progress)
 
     threads = args.threads or torch.get_num_threads()
     gpu = f", GPU {torch.cuda.get_device_name()}" if any(t.device.startswith("cuda") for t in results) else ""
-    print(f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}{gpu}, "
-          f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame; "
-          f"CUDA: CUDA events)")
+    print(
+        f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}{gpu}, "
+        f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame; "
+        f"CUDA: CUDA events)"
+    )
     print(timing.format_table(results))
     if args.csv:
         write_text_atomic(args.csv, timing.timings_csv(results))

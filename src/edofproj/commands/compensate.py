@@ -19,18 +19,33 @@ from ..errors import EdofprojError
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("compensate", help="compute the projector image for a target with a trained network",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "compensate",
+        help="compute the projector image for a target with a trained network",
+        description=__doc__.split("\n")[0],
+    )
     p.add_argument("run", metavar="RUN", help="trained run directory")
     p.add_argument("--image", required=True, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
     source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--capture", default=None, metavar="CAPTURED",
-                        help="the uncompensated projection captured by a camera, warped to projector space")
-    source.add_argument("--depth-mm", type=float, default=None,
-                        help="simulate the capture on a flat screen at this depth (mm) with the run's DOE")
+    source.add_argument(
+        "--capture",
+        default=None,
+        metavar="CAPTURED",
+        help="the uncompensated projection captured by a camera, warped to projector space",
+    )
+    source.add_argument(
+        "--depth-mm",
+        type=float,
+        default=None,
+        help="simulate the capture on a flat screen at this depth (mm) with the run's DOE",
+    )
     p.add_argument("--out", required=True, metavar="PROJ", help="output image: the projector input")
-    p.add_argument("--preview", default=None, metavar="SHOWN",
-                   help="with --depth-mm: also write the simulated projection of the output")
+    p.add_argument(
+        "--preview",
+        default=None,
+        metavar="SHOWN",
+        help="with --depth-mm: also write the simulated projection of the output",
+    )
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the outputs")
     p.set_defaults(func=run)
 
@@ -68,8 +83,10 @@ def run(args) -> int:
     with torch.inference_mode():
         compensated = trained.net(target, captured).clamp(0.0, 1.0)
     write_image(args.out, compensated[0], bits=args.bits)
-    print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px)")
+    print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px, height x width)")
     if args.preview is not None:
+        if psf is None:  # refused above: --preview needs --depth-mm, which excludes --capture
+            raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
         with torch.inference_mode():
             write_image(args.preview, project(compensated, psf)[0], bits=args.bits)
         print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")

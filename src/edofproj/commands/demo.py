@@ -27,19 +27,46 @@ def _positive_float(text: str) -> float:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("demo", help="train, evaluate and write a report on built-in data (15 min; --quick: 2 min)",
-                              description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="a ~2-minute smoke run: few steps, tiny images")
-    p.add_argument("--out", default="runs/demo", metavar="DIR", help="output directory (new or empty; default runs/demo)")
+    p = subparsers.add_parser(
+        "demo",
+        help="train, evaluate and write a report on built-in data (about 15 min; --quick: a 30-s smoke run)",
+        description=__doc__.split("\n")[0],
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke run of about 30 s: few steps, tiny images; it checks that everything runs and judges nothing",
+    )
+    p.add_argument(
+        "--out", default="runs/demo", metavar="DIR", help="output directory (new or empty; default runs/demo)"
+    )
     p.add_argument("--config", default="cpu", help="training preset or YAML file (default: cpu)")
-    p.add_argument("--methods", default=None,
-                   help="only these methods (comma-separated; must include doe+net); their runs are then all trained")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config key of every run, e.g. --set train.steps=300 (repeatable)")
-    p.add_argument("--budget-min", type=_positive_float, default=None,
-                   help="time budget in minutes (default 15, --quick 2): optional baselines that would not fit are skipped")
-    p.add_argument("--workers", type=int, choices=(1, 2, 3, 4), default=2,
-                   help="training processes in parallel, one thread each (default 2)")
+    p.add_argument(
+        "--methods",
+        default=None,
+        help="only these methods (comma-separated; must include doe+net); their runs are then all trained",
+    )
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config key of every run, e.g. --set train.steps=300 (repeatable)",
+    )
+    p.add_argument(
+        "--budget-min",
+        type=_positive_float,
+        default=None,
+        help="time budget in minutes (default 15, --quick 2): optional baselines that would not fit are skipped",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        choices=(1, 2, 3, 4),
+        default=2,
+        help="training processes in parallel, one thread each (default 2)",
+    )
     p.add_argument("--no-timing", action="store_true", help="skip the per-frame timing stage")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
@@ -50,8 +77,16 @@ def run(args) -> int:
     from ..evaluation.progress import StageProgress
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
-    result = run_demo(args.out, quick=args.quick, config=args.config, methods=methods, overrides=args.overrides,
-                      workers=args.workers, budget_s=args.budget_min * 60 if args.budget_min else None,
-                      timing=not args.no_timing, progress=StageProgress("demo", enabled=not args.quiet))
+    result = run_demo(
+        args.out,
+        quick=args.quick,
+        config=args.config,
+        methods=methods,
+        overrides=args.overrides,
+        workers=args.workers,
+        budget_s=args.budget_min * 60 if args.budget_min else None,
+        timing=not args.no_timing,
+        progress=StageProgress("demo", enabled=not args.quiet),
+    )
     print(demo_finished_message(result))
     return 0

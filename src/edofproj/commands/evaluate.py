@@ -18,25 +18,47 @@ from ._common import parse_name_list, parse_number_list
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("evaluate", help="score a trained run and its baselines across depth (metrics, report)",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "evaluate",
+        help="score a trained run and its baselines across depth (metrics, report)",
+        description=__doc__.split("\n")[0],
+    )
     p.add_argument("run", metavar="RUN", help="trained run directory (config.yaml, checkpoints/last.pt)")
-    p.add_argument("--images", default=None, metavar="DIR",
-                   help="score the PNG/JPEG images below DIR instead of the run's held-out test images")
-    p.add_argument("--depths-mm", default=None,
-                   help="flat-screen depths, comma-separated or start:stop:step (default: 300-800 every 50, "
-                        "plus 250 and 900)")
-    p.add_argument("--methods", default=None,
-                   help="comma-separated methods (default: all whose runs exist)")
-    p.add_argument("--baselines", default=None, metavar="DIR",
-                   help="directory holding the baseline runs lens_net/, lens_onlineprodeb/, cubic_net/, axicon_net/ "
-                        "(default: RUN's parent)")
+    p.add_argument(
+        "--images",
+        default=None,
+        metavar="DIR",
+        help="score the PNG/JPEG images below DIR instead of the run's held-out test images",
+    )
+    p.add_argument(
+        "--depths-mm",
+        default=None,
+        help="flat-screen depths, comma-separated or start:stop:step (default: 300-800 every 50, plus 250 and 900)",
+    )
+    p.add_argument("--methods", default=None, help="comma-separated methods (default: all whose runs exist)")
+    p.add_argument(
+        "--baselines",
+        default=None,
+        metavar="DIR",
+        help="directory holding the baseline runs lens_net/, lens_onlineprodeb/, cubic_net/, axicon_net/ "
+        "(default: RUN's parent)",
+    )
     p.add_argument("--out", default=None, metavar="DIR", help="write the results here instead of into RUN")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override an evaluation key, e.g. --set evaluation.image_size=[384,512] (repeatable)")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="cpu",
-                   help="run images, PSFs and networks on the CPU (default) or a CUDA GPU (auto: the GPU when "
-                        "available); the scores agree to float32 rounding")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override an evaluation key, e.g. --set evaluation.image_size=[384,512] (repeatable)",
+    )
+    p.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="cpu",
+        help="run images, PSFs and networks on the CPU (default) or a CUDA GPU (auto: the GPU when "
+        "available); the scores agree to float32 rounding",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
@@ -56,18 +78,31 @@ def run(args) -> int:
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
     progress = StageProgress("evaluate", enabled=not args.quiet)
-    evaluation = evaluate_run(args.run, out_dir=args.out, images_dir=args.images, depths_mm=depths, methods=methods,
-                              baselines_dir=args.baselines, overrides=args.overrides, progress=progress,
-                              device=device)
+    evaluation = evaluate_run(
+        args.run,
+        out_dir=args.out,
+        images_dir=args.images,
+        depths_mm=depths,
+        methods=methods,
+        baselines_dir=args.baselines,
+        overrides=args.overrides,
+        progress=progress,
+        device=device,
+    )
     bars = ssim_bars(evaluation.table, evaluation.range_mm)
-    paths = write_documents(evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}",
-                            preface=bars_section(bars))
+    paths = write_documents(
+        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=bars_section(bars)
+    )
     print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"])))
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     if evaluation.perceptual_missing:
-        print(f"note: {', '.join(evaluation.perceptual_missing)} unavailable (no pretrained weights): columns omitted",
-              file=sys.stderr)
-    print(f"wrote {paths['summary']}, {evaluation.files['metrics']} and {paths['report_html']} "
-          f"({evaluation.seconds:.0f} s)")
+        print(
+            f"note: {', '.join(evaluation.perceptual_missing)} unavailable (no pretrained weights): columns omitted",
+            file=sys.stderr,
+        )
+    print(
+        f"wrote {paths['summary']}, {evaluation.files['metrics']} and {paths['report_html']} "
+        f"({evaluation.seconds:.0f} s)"
+    )
     return 0

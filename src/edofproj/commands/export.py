@@ -8,18 +8,25 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..compensation.export import (DEFAULT_FILE_NAMES, EXPORT_FORMATS, ONNX_OPSET, export_network, fixed_size_onnx,
-                                  require_onnx, verification_sizes)
+from ..compensation.export import (
+    DEFAULT_FILE_NAMES,
+    EXPORT_FORMATS,
+    ONNX_OPSET,
+    export_network,
+    fixed_size_onnx,
+    require_onnx,
+    verification_sizes,
+)
 from ..errors import EdofprojError
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("export", help="export a run's compensation network to ONNX or TorchScript",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "export", help="export a run's compensation network to ONNX or TorchScript", description=__doc__.split("\n")[0]
+    )
     p.add_argument("run", metavar="RUN", help="a training run directory (runs/<name>)")
     p.add_argument("--format", choices=EXPORT_FORMATS, default="onnx", help="output format (default: onnx)")
-    p.add_argument("--out", default=None,
-                   help="output file (default: RUN/net.onnx or RUN/net.torchscript.pt)")
+    p.add_argument("--out", default=None, help="output file (default: RUN/net.onnx or RUN/net.torchscript.pt)")
     p.add_argument("--height", type=int, default=256, help="example frame height for tracing (default 256)")
     p.add_argument("--width", type=int, default=256, help="example frame width for tracing (default 256)")
     p.add_argument("--no-verify", action="store_true", help="skip the comparison with PyTorch")
@@ -40,9 +47,13 @@ def run(args) -> int:
     trained = load_run(run_dir)
     worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)
     fixed_size = args.format == "onnx" and fixed_size_onnx(trained.net)
-    checked = "" if args.no_verify else (
-        f"; max |{args.format} - PyTorch| = {worst:.2g} at "
-        + " and ".join(f"{h}x{w}" for h, w in verification_sizes(args.height, args.width, fixed_size))
+    checked = (
+        ""
+        if args.no_verify
+        else (
+            f"; max |{args.format} - PyTorch| = {worst:.2g} at "
+            + " and ".join(f"{h}x{w}" for h, w in verification_sizes(args.height, args.width, fixed_size))
+        )
     )
     if args.format == "torchscript":
         dynamic = "traced"

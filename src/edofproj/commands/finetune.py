@@ -4,11 +4,17 @@ from __future__ import annotations
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("finetune", help="fine-tune the network on measured PSFs (paper Sec. 5.3)",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "finetune", help="fine-tune the network on measured PSFs (paper Sec. 5.3)", description=__doc__.split("\n")[0]
+    )
     p.add_argument("run", help="a trained run directory")
-    p.add_argument("--psfs", nargs="+", required=True, metavar="PSF.npz",
-                   help="measured PSF files (edofproj psf format, e.g. from 'edofproj procams estimate-psf')")
+    p.add_argument(
+        "--psfs",
+        nargs="+",
+        required=True,
+        metavar="PSF.npz",
+        help="measured PSF files (edofproj psf format, e.g. from 'edofproj procams estimate-psf')",
+    )
     p.add_argument("--steps", type=int, default=20, help="fine-tuning iterations (paper: 20)")
     p.add_argument("--out", default=None, help="new run directory (default: RUN-finetuned)")
     p.add_argument("--lr", type=float, default=None, help="learning rate (default: where the run's schedule ended)")
@@ -23,9 +29,12 @@ def run(args) -> int:
     from ..training.finetune import finetune
 
     out = args.out or str(Path(args.run.rstrip("/")).with_name(Path(args.run.rstrip("/")).name + "-finetuned"))
-    result = finetune(args.run, args.psfs, out, steps=args.steps, lr=args.lr, batch_size=args.batch_size,
-                      seed=args.seed)
+    result = finetune(
+        args.run, args.psfs, out, steps=args.steps, lr=args.lr, batch_size=args.batch_size, seed=args.seed
+    )
     lo, hi = result.depth_range_m
-    print(f"fine-tuned {result.steps} steps on measured PSFs at {lo * 1e3:.0f}-{hi * 1e3:.0f} mm: "
-          f"loss {result.first_loss:.4g} -> {result.last_loss:.4g}; wrote {result.run_dir}")
+    print(
+        f"fine-tuned {result.steps} steps on measured PSFs at {lo * 1e3:.0f}-{hi * 1e3:.0f} mm: "
+        f"loss {result.first_loss:.4g} -> {result.last_loss:.4g}; wrote {result.run_dir}"
+    )
     return 0

@@ -11,12 +11,17 @@ from .psf import add_optics_options, depths_from_args, psf_overrides
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("plot-psf", help="plot PSFs across depth for two designs",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "plot-psf", help="plot PSFs across depth for two designs", description=__doc__.split("\n")[0]
+    )
     add_config_options(p)
-    p.add_argument("--doe", action="append", default=[],
-                   help="a design (lens, mlp, cubic, axicon, multifocal, file, run dir); give one or two "
-                        "(default: lens and the config's design)")
+    p.add_argument(
+        "--doe",
+        action="append",
+        default=[],
+        help="a design (lens, mlp, cubic, axicon, multifocal, file, run dir); give one or two "
+        "(default: lens and the config's design)",
+    )
     p.add_argument("--depth-mm", action="append", default=[], help="depths in mm (list or start:stop:step)")
     p.add_argument("--window", type=int, default=None, help="PSF window K in pixels (odd)")
     add_optics_options(p)

@@ -23,8 +23,9 @@ from .psf import add_optics_options, psf_overrides
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("procams", help="projector-camera patterns, calibration and PSF measurement",
-                                   description=__doc__.split("\n")[0])
+    parser = subparsers.add_parser(
+        "procams", help="projector-camera patterns, calibration and PSF measurement", description=__doc__.split("\n")[0]
+    )
     sub = parser.add_subparsers(dest="procams_command", metavar="STEP")
     sub.required = True
 
@@ -35,10 +36,20 @@ def register(subparsers) -> None:
     p.add_argument("--bernoulli", type=int, default=5, metavar="N", help="number of Bernoulli noise patterns (5)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the noise patterns (0)")
     p.add_argument("--dots", default="16x32", metavar="ROWSxCOLS", help="dot grid (16x32, as in the paper)")
-    p.add_argument("--dot-radius", type=int, default=None, metavar="PX",
-                   help="dot radius in pixels (default: 1/8 of the smaller dot spacing)")
-    p.add_argument("--color-levels", type=int, default=6, metavar="L",
-                   help="levels per channel of the colour samples: L^3 uniform fields (6)")
+    p.add_argument(
+        "--dot-radius",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="dot radius in pixels (default: 1/8 of the smaller dot spacing)",
+    )
+    p.add_argument(
+        "--color-levels",
+        type=int,
+        default=6,
+        metavar="L",
+        help="levels per channel of the colour samples: L^3 uniform fields (6)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.set_defaults(func=run_patterns)
 
@@ -53,8 +64,12 @@ def register(subparsers) -> None:
     add_optics_options(p)
     p.add_argument("--gamma", type=float, nargs="+", default=[2.2], help="projector gamma, one or three values (2.2)")
     p.add_argument("--noise-sigma", type=float, default=0.005, help="camera noise, std in [0, 1] units (0.005)")
-    p.add_argument("--camera-scale", type=float, default=3.0,
-                   help="camera pixels per projector pixel (3); the camera is 4/3 of that times the projector")
+    p.add_argument(
+        "--camera-scale",
+        type=float,
+        default=3.0,
+        help="camera pixels per projector pixel (3); the camera is 4/3 of that times the projector",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the camera pose and the noise (0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.set_defaults(func=run_simulate)
@@ -63,8 +78,13 @@ def register(subparsers) -> None:
     p.add_argument("--patterns", required=True, help="pattern folder")
     p.add_argument("--captures", required=True, help="capture folder (one capture per pattern, same names)")
     p.add_argument("--out", required=True, help="output calibration .npz")
-    p.add_argument("--neighbours", type=int, default=6, metavar="K",
-                   help="nearest colour samples in the local linear response interpolation (6)")
+    p.add_argument(
+        "--neighbours",
+        type=int,
+        default=6,
+        metavar="K",
+        help="nearest colour samples in the local linear response interpolation (6)",
+    )
     p.set_defaults(func=run_calibrate)
 
     p = sub.add_parser("estimate-psf", help="measure the PSF from captured Bernoulli patterns (paper Eq. 13)")
@@ -74,16 +94,30 @@ def register(subparsers) -> None:
     p.add_argument("--calib", required=True, help="calibration .npz (from 'procams calibrate')")
     p.add_argument("--out", required=True, help="output PSF .npz (the 'edofproj psf' format)")
     p.add_argument("--window", type=int, default=None, help="PSF window K, odd (default: config psf.window)")
-    p.add_argument("--patch", type=int, default=0, metavar="N",
-                   help="estimate per N x N patch and write their mean (0: the whole image at once)")
-    p.add_argument("--depth-mm", type=float, default=None,
-                   help="screen distance, mm (default: depth_mm in the capture folder's captures.json)")
+    p.add_argument(
+        "--patch",
+        type=int,
+        default=0,
+        metavar="N",
+        help="estimate per N x N patch and write their mean (0: the whole image at once)",
+    )
+    p.add_argument(
+        "--depth-mm",
+        type=float,
+        default=None,
+        help="screen distance, mm (default: depth_mm in the capture folder's captures.json)",
+    )
     add_optics_options(p)
     p.add_argument("--eps", type=float, default=None, help="Tikhonov epsilon relative to the mean pattern power (1e-4)")
-    p.add_argument("--iterations", type=int, default=None,
-                   help="passes removing the light that enters each region from outside it (8)")
-    p.add_argument("--patch-psfs", default=None, metavar="FILE",
-                   help="also write the per-patch PSFs and patch centres (.npz)")
+    p.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help="passes removing the light that enters each region from outside it (8)",
+    )
+    p.add_argument(
+        "--patch-psfs", default=None, metavar="FILE", help="also write the per-patch PSFs and patch centres (.npz)"
+    )
     p.set_defaults(func=run_estimate_psf)
 
 
@@ -94,16 +128,25 @@ def run_patterns(args) -> int:
     from ..procams.capture_io import atomic_folder, write_rgb_png
     from ..procams.patterns import MANIFEST_NAME, PatternSpec, build_pattern_set, manifest_json_text, parse_grid
 
-    spec = PatternSpec(width=args.width, height=args.height, bernoulli_count=args.bernoulli, seed=args.seed,
-                       dot_grid=parse_grid(args.dots), dot_radius_px=args.dot_radius, color_levels=args.color_levels)
+    spec = PatternSpec(
+        width=args.width,
+        height=args.height,
+        bernoulli_count=args.bernoulli,
+        seed=args.seed,
+        dot_grid=parse_grid(args.dots),
+        dot_radius_px=args.dot_radius,
+        color_levels=args.color_levels,
+    )
     manifest, images = build_pattern_set(spec)
     with atomic_folder(args.out, overwrite=args.overwrite) as tmp:
         for name, image in images.items():
             write_rgb_png(tmp / name, image)
         (tmp / MANIFEST_NAME).write_text(manifest_json_text(manifest), encoding="utf-8")
     counts = {role: len(manifest.with_role(role)) for role in ("bernoulli", "color_sample")}
-    print(f"wrote {len(images)} patterns of {args.width}x{args.height} to {args.out}: {counts['bernoulli']} Bernoulli, "
-          f"{spec.dot_grid[0]}x{spec.dot_grid[1]} dots, 5 full fields, {counts['color_sample']} colour samples")
+    print(
+        f"wrote {len(images)} patterns of {args.width}x{args.height} to {args.out}: {counts['bernoulli']} Bernoulli, "
+        f"{spec.dot_grid[0]}x{spec.dot_grid[1]} dots, 5 full fields, {counts['color_sample']} colour samples"
+    )
     return 0
 
 
@@ -113,8 +156,10 @@ def run_patterns(args) -> int:
 def _note_width(manifest, cfg) -> None:
     """Say so when the patterns are not as wide as the projector the optics config describes."""
     if manifest.width != cfg.optics.width_px:
-        print(f"note: the patterns are {manifest.width} px wide but optics.width_px is {cfg.optics.width_px}: "
-              "PSFs and pixel pitch are for the latter (patterns = a crop of its image; else pass --width-px)")
+        print(
+            f"note: the patterns are {manifest.width} px wide but optics.width_px is {cfg.optics.width_px}: "
+            "PSFs and pixel pitch are for the latter (patterns = a crop of its image; else pass --width-px)"
+        )
 
 
 def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
@@ -127,10 +172,14 @@ def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
         bank = PSFBank.load(args.psf)
         index = int(np.argmin(np.abs(bank.depths_m - depth_m)))
         if abs(bank.depths_m[index] - depth_m) > 0.5e-3:
-            raise EdofprojError(f"PSF file '{args.psf}' has no depth within 0.5 mm of {depth_m * 1e3:g} mm "
-                                f"(it has {', '.join(f'{z * 1e3:g}' for z in bank.depths_m)} mm)")
+            raise EdofprojError(
+                f"PSF file '{args.psf}' has no depth within 0.5 mm of {depth_m * 1e3:g} mm "
+                f"(it has {', '.join(f'{z * 1e3:g}' for z in bank.depths_m)} mm)"
+            )
         if bank.psf.shape[1] != 3:
-            raise EdofprojError(f"PSF file '{args.psf}' has {bank.psf.shape[1]} channel(s); the virtual ProCams needs RGB")
+            raise EdofprojError(
+                f"PSF file '{args.psf}' has {bank.psf.shape[1]} channel(s); the virtual ProCams needs RGB"
+            )
         return bank.psf[index].double().numpy()
     import torch
 
@@ -139,7 +188,11 @@ def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
 
     doe = build_doe(cfg, args.doe)
     with torch.no_grad():
-        return simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))(doe, np.array([depth_m]))[0].double().numpy()
+        return (
+            simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))(doe, np.array([depth_m]))[0]
+            .double()
+            .numpy()
+        )
 
 
 def run_simulate(args) -> int:
@@ -159,13 +212,21 @@ def run_simulate(args) -> int:
     psf = _simulated_psf(args, cfg, depth_m)
     gamma = tuple(args.gamma) * (3 // len(args.gamma))
     _note_width(manifest, cfg)
-    rig = VirtualProCams.example((manifest.height, manifest.width), psf, seed=args.seed,
-                                 camera_scale=args.camera_scale, gamma=gamma, noise_sigma=args.noise_sigma,
-                                 depth_m=depth_m,
-                                 pixel_pitch_m=float(ProjectorGeometry.from_config(cfg.optics).pixel_pitch_m(depth_m)))
-    print(f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[1]}x{rig.camera_hw[0]} camera "
-          f"({rig.camera_pixels_per_projector_pixel():.2f} camera px per projector px), PSF window {psf.shape[-1]} px, "
-          f"in-window energy {np.round(psf.sum(axis=(-1, -2)), 4).tolist()}")
+    rig = VirtualProCams.example(
+        (manifest.height, manifest.width),
+        psf,
+        seed=args.seed,
+        camera_scale=args.camera_scale,
+        gamma=gamma,
+        noise_sigma=args.noise_sigma,
+        depth_m=depth_m,
+        pixel_pitch_m=float(ProjectorGeometry.from_config(cfg.optics).pixel_pitch_m(depth_m)),
+    )
+    print(
+        f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[1]}x{rig.camera_hw[0]} camera "
+        f"({rig.camera_pixels_per_projector_pixel():.2f} camera px per projector px), PSF window {psf.shape[-1]} px, "
+        f"in-window energy {np.round(psf.sum(axis=(-1, -2)), 4).tolist()}"
+    )
     simulate_captures(rig, args.patterns, args.out, seed=args.seed, overwrite=args.overwrite, log=print)
     print(f"wrote {args.out} (captures, ground_truth.json/.npz, true_psf.npz, captures.json)")
     return 0
@@ -182,14 +243,18 @@ def run_calibrate(args) -> int:
     manifest, calibration = calibrate_folders(args.patterns, args.captures, neighbours=args.neighbours)
     calibration.save(args.out)
     cm = calibration.camera_map
-    print(f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[1]}x{cm.camera_hw[0]}, "
-          f"{cm.camera_pixels_per_projector_pixel():.2f} camera px per projector px, lens distortion up to "
-          f"{cm.homography_residual_px().max():.2f} camera px beyond the homography")
+    print(
+        f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[1]}x{cm.camera_hw[0]}, "
+        f"{cm.camera_pixels_per_projector_pixel():.2f} camera px per projector px, lens distortion up to "
+        f"{cm.homography_residual_px().max():.2f} camera px beyond the homography"
+    )
     print("colour-mixing matrix (camera RGB per unit projector output):")
     for row in calibration.color.mixing_matrix:
         print("  " + " ".join(f"{v:8.4f}" for v in row))
-    print(f"{len(calibration.color.sample_inputs)} colour samples, black level "
-          f"{np.round(calibration.color.black_level, 4).tolist()}")
+    print(
+        f"{len(calibration.color.sample_inputs)} colour samples, black level "
+        f"{np.round(calibration.color.black_level, 4).tolist()}"
+    )
     return 0
 
 
@@ -231,19 +296,33 @@ def run_estimate_psf(args) -> int:
     entries = {e.file: e for e in manifest.entries}
     patterns = {f: read_pattern(args.patterns, entries[f], manifest) for f in files}
     captures = read_captures(args.captures, files, expected_hw=calibration.camera_map.camera_hw)
-    estimate = measure_psf(manifest, patterns, captures, calibration, cfg.psf.window, patch=args.patch,
-                           eps_rel=args.eps if args.eps is not None else DEFAULT_EPS_REL,
-                           iterations=args.iterations if args.iterations is not None else DEFAULT_ITERATIONS)
+    estimate = measure_psf(
+        manifest,
+        patterns,
+        captures,
+        calibration,
+        cfg.psf.window,
+        patch=args.patch,
+        eps_rel=args.eps if args.eps is not None else DEFAULT_EPS_REL,
+        iterations=args.iterations if args.iterations is not None else DEFAULT_ITERATIONS,
+    )
     _note_width(manifest, cfg)
     pitch = float(ProjectorGeometry.from_config(cfg.optics).pixel_pitch_m(depth_mm * 1e-3))
     where = "whole image" if args.patch <= 0 else f"mean of {len(estimate.patch_boxes)} patches of {args.patch} px"
-    bank = estimate.to_bank(depth_mm * 1e-3, pitch,
-                            description=f"measured (edofproj procams, {len(files)} Bernoulli patterns, {where})")
+    bank = estimate.to_bank(
+        depth_mm * 1e-3, pitch, description=f"measured (edofproj procams, {len(files)} Bernoulli patterns, {where})"
+    )
     bank.save(args.out)
     if args.patch_psfs:
-        save_npz_atomic(args.patch_psfs, psf=estimate.patch_psfs.astype(np.float32),
-                        patch_boxes=estimate.patch_boxes, patch_centers_px=estimate.patch_centers_px,
-                        depths_m=np.array([depth_mm * 1e-3]))
-    print(f"wrote {args.out}: PSF at {depth_mm:g} mm, window {cfg.psf.window} px, {where}; in-window energy "
-          f"{np.round(estimate.energy_in_window, 4).tolist()} (R, G, B)")
+        save_npz_atomic(
+            args.patch_psfs,
+            psf=estimate.patch_psfs.astype(np.float32),
+            patch_boxes=estimate.patch_boxes,
+            patch_centers_px=estimate.patch_centers_px,
+            depths_m=np.array([depth_mm * 1e-3]),
+        )
+    print(
+        f"wrote {args.out}: PSF at {depth_mm:g} mm, window {cfg.psf.window} px, {where}; in-window energy "
+        f"{np.round(estimate.energy_in_window, 4).tolist()} (R, G, B)"
+    )
     return 0

@@ -23,9 +23,15 @@ def add_optics_options(parser) -> None:
 def psf_overrides(args) -> list[str]:
     """Config overrides from the optics options and, where the command has them, ``--window``,
     ``--pupil-samples`` and ``--engine``."""
-    pairs = (("optics.aperture_mm", "aperture_mm"), ("optics.focus_mm", "focus_mm"),
-             ("optics.throw_ratio", "throw_ratio"), ("optics.width_px", "width_px"),
-             ("psf.window", "window"), ("psf.pupil_samples", "pupil_samples"), ("psf.engine", "engine"))
+    pairs = (
+        ("optics.aperture_mm", "aperture_mm"),
+        ("optics.focus_mm", "focus_mm"),
+        ("optics.throw_ratio", "throw_ratio"),
+        ("optics.width_px", "width_px"),
+        ("psf.window", "window"),
+        ("psf.pupil_samples", "pupil_samples"),
+        ("psf.engine", "engine"),
+    )
     values = ((key, getattr(args, attr, None)) for key, attr in pairs)
     return [f"{key}={value}" for key, value in values if value is not None]
 
@@ -43,15 +49,27 @@ def depths_from_args(depth_specs, cfg) -> np.ndarray:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("psf", help="simulate PSFs across depth and write them as .npz",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "psf", help="simulate PSFs across depth and write them as .npz", description=__doc__.split("\n")[0]
+    )
     add_config_options(p)
-    p.add_argument("--doe", default=None,
-                   help="lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file, or a run directory (default: config)")
-    p.add_argument("--depth-mm", action="append", default=[],
-                   help="screen depth(s) in mm: repeatable, comma-separated, or start:stop:step")
-    p.add_argument("--wavelength-nm", type=float, default=None,
-                   help="one wavelength (nm) instead of the RGB primaries: writes one channel")
+    p.add_argument(
+        "--doe",
+        default=None,
+        help="lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file, or a run directory (default: config)",
+    )
+    p.add_argument(
+        "--depth-mm",
+        action="append",
+        default=[],
+        help="screen depth(s) in mm: repeatable, comma-separated, or start:stop:step",
+    )
+    p.add_argument(
+        "--wavelength-nm",
+        type=float,
+        default=None,
+        help="one wavelength (nm) instead of the RGB primaries: writes one channel",
+    )
     p.add_argument("--window", type=int, default=None, help="PSF window K in pixels (odd)")
     p.add_argument("--engine", choices=("radial", "2d"), default=None, help="propagation engine")
     p.add_argument("--pupil-samples", type=int, default=None, help="pupil samples across the diameter")
@@ -84,8 +102,10 @@ def run(args) -> int:
     bank = sim.bank(doe, depths_m)
     bank.save(args.out)
     energy = bank.energy_in_window.numpy()
-    print(f"wrote {args.out}: {len(depths_m)} depths x {bank.psf.shape[1]} channel(s), window {bank.window} px, "
-          f"{doe.describe()}")
+    print(
+        f"wrote {args.out}: {len(depths_m)} depths x {bank.psf.shape[1]} channel(s), window {bank.window} px, "
+        f"{doe.describe()}"
+    )
     for z, e in zip(depths_m, energy):
         print(f"  {z * 1e3:7.1f} mm  energy in window " + " ".join(f"{v:.4f}" for v in e))
     if args.plot:
@@ -93,7 +113,9 @@ def run(args) -> int:
 
         lens = build_doe(cfg, "lens")
         with torch.no_grad():
-            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine="radial").bank(lens, depths_m)
+            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine="radial").bank(
+                lens, depths_m
+            )
         plot_psf_comparison([("lens", lens, lens_bank), (doe.name, doe, bank)], args.plot)
         print(f"wrote {args.plot}")
     return 0

@@ -16,25 +16,42 @@ from ._common import add_config_options, config_from_args
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("render", help="simulate the projection of an image (defocus blur + haze)",
-                              description=__doc__.split("\n")[0])
+    p = subparsers.add_parser(
+        "render", help="simulate the projection of an image (defocus blur + haze)", description=__doc__.split("\n")[0]
+    )
     p.add_argument("--image", required=True, help="input image (PNG/JPEG, 8 or 16 bit)")
     p.add_argument("--out", required=True, help="output image (.png, .tif, .jpg, .bmp)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--psf", default=None, help="PSF file (.npz from 'edofproj psf')")
-    source.add_argument("--doe", default=None,
-                        help="simulate the PSFs of a design: lens, mlp, free, cubic, axicon, multifocal, "
-                             "a DOE .npz file or a run directory")
-    p.add_argument("--depth-index", type=int, default=None,
-                   help="with --psf: which depth of the PSF file (needed when it holds several)")
+    source.add_argument(
+        "--doe",
+        default=None,
+        help="simulate the PSFs of a design: lens, mlp, free, cubic, axicon, multifocal, "
+        "a DOE .npz file or a run directory",
+    )
+    p.add_argument(
+        "--depth-index",
+        type=int,
+        default=None,
+        help="with --psf: which depth of the PSF file (needed when it holds several)",
+    )
     p.add_argument("--depth-mm", type=float, default=None, help="with --doe: the screen depth in mm")
-    p.add_argument("--depth-map", default=None,
-                   help="per-pixel screen depth: a .npy float array (H, W) in mm, the image's size")
-    p.add_argument("--tilt-deg", type=float, default=None,
-                   help="a plane screen turned by this angle about the vertical axis (>0: near side on the left)")
+    p.add_argument(
+        "--depth-map", default=None, help="per-pixel screen depth: a .npy float array (H, W) in mm, the image's size"
+    )
+    p.add_argument(
+        "--tilt-deg",
+        type=float,
+        default=None,
+        help="a plane screen turned by this angle about the vertical axis (>0: near side on the left)",
+    )
     p.add_argument("--near-mm", type=float, default=None, help="with --tilt-deg: depth seen by the near image edge, mm")
-    p.add_argument("--far-mm", type=float, default=None,
-                   help="with --tilt-deg: depth seen by the far image edge, mm (default: from the tilt and throw ratio)")
+    p.add_argument(
+        "--far-mm",
+        type=float,
+        default=None,
+        help="with --tilt-deg: depth seen by the far image edge, mm (default: from the tilt and throw ratio)",
+    )
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the output")
     add_config_options(p)
     p.set_defaults(func=run)
@@ -54,12 +71,16 @@ def check_arguments(args) -> None:
         if args.depth_mm is not None:
             raise EdofprojError("--depth-mm goes with --doe; with --psf choose the depth with --depth-index")
         if non_planar and args.depth_index is not None:
-            raise EdofprojError("--depth-index picks one plane; a depth map or tilted screen uses the PSF file's depths")
+            raise EdofprojError(
+                "--depth-index picks one plane; a depth map or tilted screen uses the PSF file's depths"
+            )
     else:
         if args.depth_index is not None:
             raise EdofprojError("--depth-index goes with --psf; with --doe give --depth-mm")
         if non_planar and args.depth_mm is not None:
-            raise EdofprojError("--depth-mm is a flat screen; with --depth-map or --tilt-deg the depths come from the map")
+            raise EdofprojError(
+                "--depth-mm is a flat screen; with --depth-map or --tilt-deg the depths come from the map"
+            )
         if not non_planar and args.depth_mm is None:
             raise EdofprojError("--doe needs the screen depth: --depth-mm Z (or --depth-map / --tilt-deg)")
     for name in ("depth_mm", "near_mm", "far_mm"):
@@ -127,11 +148,17 @@ def run(args) -> int:
     elif args.tilt_deg is not None:
         geometry = ProjectorGeometry.from_config(cfg.optics)
         near_m = args.near_mm * 1e-3
-        far_m = args.far_mm * 1e-3 if args.far_mm is not None else tilted_plane_far_m(near_m, args.tilt_deg, width, geometry)
+        far_m = (
+            args.far_mm * 1e-3
+            if args.far_mm is not None
+            else tilted_plane_far_m(near_m, args.tilt_deg, width, geometry)
+        )
         depth_map_m = tilted_plane_depth_map(height, width, args.tilt_deg, near_m, far_m)
         implied = tilted_plane_tilt_deg(near_m, far_m, width, geometry)
-        screen = (f"plane tilted {args.tilt_deg:g} deg, {near_m * 1e3:.1f}-{far_m * 1e3:.1f} mm "
-                  f"(with throw ratio {cfg.optics.throw_ratio:g} these depths mean a tilt of {implied:.1f} deg)")
+        screen = (
+            f"plane tilted {args.tilt_deg:g} deg, {near_m * 1e3:.1f}-{far_m * 1e3:.1f} mm "
+            f"(with throw ratio {cfg.optics.throw_ratio:g} these depths mean a tilt of {implied:.1f} deg)"
+        )
 
     with torch.no_grad():
         if args.psf is not None:
@@ -144,7 +171,7 @@ def run(args) -> int:
                 source = f"{len(depths)} PSF layers from '{args.psf}'"
             else:
                 index = pick_depth_index(bank, args.depth_index, args.psf)
-                result = project(image, bank.psf[index: index + 1])
+                result = project(image, bank.psf[index : index + 1])
                 screen = f"flat screen at {bank.depths_m[index] * 1e3:.1f} mm"
                 source = f"'{args.psf}' depth index {index}"
         else:
@@ -162,7 +189,7 @@ def run(args) -> int:
                 source = doe.describe()
 
     write_image(args.out, result[0], bits=args.bits)
-    print(f"wrote {args.out} ({width}x{height}, {args.bits}-bit): {screen}; {source}")
+    print(f"wrote {args.out} ({height}x{width} px, height x width, {args.bits}-bit): {screen}; {source}")
     return 0
 
 

@@ -15,27 +15,54 @@ def register(subparsers) -> None:
         "tolerance",
         help="Monte Carlo of fabrication errors: PSF energy concentration across depth",
         description="Draw etch-depth errors (per mask), overlay errors between masks and (2-D engine) DOE decentre; "
-                    "report the spread of the energy in the central 3x3 pixels across depth. Writes tolerance.csv, "
-                    "tolerance.md, tolerance.json and tolerance.png into the run directory (or beside the design "
-                    "file, or --out). Defaults come from the fabrication config section.",
+        "report the spread of the energy in the central 3x3 pixels across depth. Writes tolerance.csv, "
+        "tolerance.md, tolerance.json and tolerance.png into the run directory (or beside the design "
+        "file, or --out). Defaults come from the fabrication config section.",
     )
     parser.add_argument("source", metavar="RUN|DESIGN_FILE", help="run directory with doe.npz, or a DOE .npz file")
     parser.add_argument("--trials", type=int, default=None, help="Monte Carlo trials (default 20)")
-    parser.add_argument("--etch-error-pct", type=float, default=None, metavar="P",
-                        help="etch depth error per mask, percent (1 sigma; default 3)")
-    parser.add_argument("--misalignment-um", type=float, default=None, metavar="M",
-                        help="overlay error of each mask against mask 0, um (1 sigma per axis; default 0.5)")
-    parser.add_argument("--decentre-um", type=float, default=None, metavar="D",
-                        help="DOE decentre against the lens, um (1 sigma per axis; needs --engine 2d; default 0)")
-    parser.add_argument("--engine", choices=("radial", "2d"), default="radial",
-                        help="radial: exact radial proxy of overlay errors (fast); 2d: true lateral shifts (slow)")
-    parser.add_argument("--depths-mm", default=None, metavar="LIST",
-                        help="depths, e.g. 300,500,800 or 300:800:100 (default: evaluation.depths_mm)")
+    parser.add_argument(
+        "--etch-error-pct",
+        type=float,
+        default=None,
+        metavar="P",
+        help="etch depth error per mask, percent (1 sigma; default 3)",
+    )
+    parser.add_argument(
+        "--misalignment-um",
+        type=float,
+        default=None,
+        metavar="M",
+        help="overlay error of each mask against mask 0, um (1 sigma per axis; default 0.5)",
+    )
+    parser.add_argument(
+        "--decentre-um",
+        type=float,
+        default=None,
+        metavar="D",
+        help="DOE decentre against the lens, um (1 sigma per axis; needs --engine 2d; default 0)",
+    )
+    parser.add_argument(
+        "--engine",
+        choices=("radial", "2d"),
+        default="radial",
+        help="radial: exact radial proxy of overlay errors (fast); 2d: true lateral shifts (slow)",
+    )
+    parser.add_argument(
+        "--depths-mm",
+        default=None,
+        metavar="LIST",
+        help="depths, e.g. 300,500,800 or 300:800:100 (default: evaluation.depths_mm)",
+    )
     parser.add_argument("--out", default=None, metavar="DIR", help="output directory")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--ssim-images", type=int, default=3, metavar="N",
-                        help="held-out images for the compensated SSIM when RUN has a trained network "
-                             "(default 3; 0 skips it)")
+    parser.add_argument(
+        "--ssim-images",
+        type=int,
+        default=3,
+        metavar="N",
+        help="held-out images for the compensated SSIM when RUN has a trained network (default 3; 0 skips it)",
+    )
     add_config_options(parser)
     parser.set_defaults(func=run)
 
@@ -45,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fabrication.profile import RadialProfile
     from ..fabrication.tolerance import ToleranceSettings, run_tolerance
     from ..fabrication.tolerance_report import write_outputs
+
     design = DesignInput.resolve(args.source)
     cfg = design.config(args.config, args.overrides)
     fab = cfg.fabrication
@@ -70,20 +98,28 @@ def run(args: argparse.Namespace) -> int:
     if design.run_dir is not None and args.ssim_images > 0 and (design.run_dir / "checkpoints" / "last.pt").is_file():
         import torch
 
-        from ..fabrication.tolerance import compensated_ssim_evaluator
         from ..data import build_test_images
+        from ..fabrication.tolerance import compensated_ssim_evaluator
         from ..runs import load_run
 
         trained = load_run(design.run_dir)
-        images = torch.stack([img for _, img in build_test_images(cfg.data, size=128)[:args.ssim_images]])
+        images = torch.stack([img for _, img in build_test_images(cfg.data, size=128)[: args.ssim_images]])
         evaluate_ssim = compensated_ssim_evaluator(trained.net, cfg, images, settings.engine)
         print(f"compensated SSIM on {len(images)} held-out images with the run's network", file=sys.stderr)
-    result = run_tolerance(profile, cfg, settings, np.asarray(depths_mm, dtype=float) * 1e-3,
-                           evaluate_ssim=evaluate_ssim, progress=progress if sys.stderr.isatty() else None)
+    result = run_tolerance(
+        profile,
+        cfg,
+        settings,
+        np.asarray(depths_mm, dtype=float) * 1e-3,
+        evaluate_ssim=evaluate_ssim,
+        progress=progress if sys.stderr.isatty() else None,
+    )
     out_dir = args.out or design.run_dir or design.doe_file.parent
     paths = write_outputs(result, out_dir, source=args.source)
     p05, p50, _ = result.percentiles()
     worst = int(np.argmin(p05))
-    print(f"wrote {', '.join(str(p) for p in paths)}; energy in 3x3 px at {result.depths_m[worst] * 1e3:.0f} mm: "
-          f"nominal {result.nominal[worst]:.4f}, median {p50[worst]:.4f}, 5th percentile {p05[worst]:.4f}")
+    print(
+        f"wrote {', '.join(str(p) for p in paths)}; energy in 3x3 px at {result.depths_m[worst] * 1e3:.0f} mm: "
+        f"nominal {result.nominal[worst]:.4f}, median {p50[worst]:.4f}, 5th percentile {p05[worst]:.4f}"
+    )
     return 0

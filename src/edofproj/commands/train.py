@@ -20,16 +20,28 @@ from ._common import add_config_options
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "train", help="train a DOE and compensation network end to end",
+        "train",
+        help="train a DOE and compensation network end to end",
         description="Jointly train the DOE and the compensation network (paper Fig. 2). "
-                    "Runs data-parallel under torchrun.")
+        "Runs data-parallel under torchrun.",
+    )
     add_config_options(parser)
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory (new, or existing with --resume)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    parser.add_argument("--steps", type=_positive_int, default=None, metavar="N",
-                        help="total optimizer steps of the run (shortcut for --set train.steps=N)")
-    parser.add_argument("--stop-after", type=_positive_int, default=None, metavar="N",
-                        help="end this session after step N (checkpointed; continue later with --resume)")
+    parser.add_argument(
+        "--steps",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="total optimizer steps of the run (shortcut for --set train.steps=N)",
+    )
+    parser.add_argument(
+        "--stop-after",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="end this session after step N (checkpointed; continue later with --resume)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(func=run)
 
@@ -63,12 +75,15 @@ def run(args: argparse.Namespace) -> int:
     result = train(cfg, out, resume=args.resume, stop_after=args.stop_after, progress=not args.quiet)
     if int(os.environ.get("RANK", "0")) == 0:
         if result.step == result.start_step:
-            print(f"{out}: nothing to do, the run is at step {result.step} of {cfg.train.steps} "
-                  f"(raise --steps to continue)")
+            print(
+                f"{out}: nothing to do, the run is at step {result.step} of {cfg.train.steps} "
+                f"(raise --steps to continue)"
+            )
         else:
-            print(f"{out}: steps {result.start_step} -> {result.step} of {cfg.train.steps}, "
-                  f"loss {result.loss:.5g}, {result.seconds:.0f} s of training")
+            print(
+                f"{out}: steps {result.start_step} -> {result.step} of {cfg.train.steps}, "
+                f"loss {result.loss:.5g}, {result.seconds:.0f} s of training"
+            )
             if result.peak_gpu_memory_bytes is not None:
                 print(f"{out}: peak GPU memory {result.peak_gpu_memory_bytes / 2**30:.2f} GiB (PyTorch allocations)")
     return 0
-

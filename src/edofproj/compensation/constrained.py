@@ -57,8 +57,10 @@ class BlurHazeOperator:
             raise EdofprojError("the PSF contains NaN or infinite values")
         k = psf.shape[-1]
         self.height, self.width = int(height), int(width)
-        self.grid = (scipy.fft.next_fast_len(self.height + k // 2, real=True),
-                     scipy.fft.next_fast_len(self.width + k // 2, real=True))
+        self.grid = (
+            scipy.fft.next_fast_len(self.height + k // 2, real=True),
+            scipy.fft.next_fast_len(self.width + k // 2, real=True),
+        )
         kernel = F.pad(psf, (0, self.grid[1] - k, 0, self.grid[0] - k))
         kernel = torch.roll(kernel, shifts=(-(k // 2), -(k // 2)), dims=(-2, -1))
         self.otf = torch.fft.rfft2(kernel)
@@ -85,7 +87,7 @@ class BlurHazeOperator:
 
 def _objective(residual: torch.Tensor) -> torch.Tensor:
     """½‖r‖² per image (summed over channels and pixels)."""
-    return 0.5 * (residual ** 2).flatten(1).sum(dim=1)
+    return 0.5 * (residual**2).flatten(1).sum(dim=1)
 
 
 def box_constrained_deconvolution(

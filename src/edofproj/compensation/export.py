@@ -55,7 +55,7 @@ def require_onnx(fourier: bool = False) -> None:
         except ImportError:
             missing.append(name)
     if missing:
-        raise EdofprojError(f"ONNX export needs {', '.join(missing)} (not installed): pip install \"edofproj[export]\"")
+        raise EdofprojError(f'ONNX export needs {", ".join(missing)} (not installed): pip install "edofproj[export]"')
 
 
 def fixed_size_onnx(net: torch.nn.Module) -> bool:
@@ -86,8 +86,13 @@ def _write_onnx(net: torch.nn.Module, path: Path, height: int, width: int) -> No
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # tracer warnings about Python-int shape arithmetic
         torch.onnx.export(
-            net, _example_inputs(height, width, 0), str(path), dynamo=False, opset_version=ONNX_OPSET,
-            input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
+            net,
+            _example_inputs(height, width, 0),
+            str(path),
+            dynamo=False,
+            opset_version=ONNX_OPSET,
+            input_names=list(INPUT_NAMES),
+            output_names=[OUTPUT_NAME],
             dynamic_axes={name: dynamic for name in (*INPUT_NAMES, OUTPUT_NAME)},
         )
 
@@ -103,9 +108,16 @@ def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
             program = torch.onnx.export(
-                net, _example_inputs(height, width, 0), dynamo=True, opset_version=max(ONNX_OPSET, 18),
-                input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME], verbose=False,
+                net,
+                _example_inputs(height, width, 0),
+                dynamo=True,
+                opset_version=max(ONNX_OPSET, 18),
+                input_names=list(INPUT_NAMES),
+                output_names=[OUTPUT_NAME],
+                verbose=False,
             )
+            if program is None:
+                raise EdofprojError("torch.onnx.export returned no ONNX program")
             program.save(str(path))
     except Exception as exc:  # noqa: BLE001 - the exporter's errors are many and long
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -146,8 +158,14 @@ def _run_torchscript(path: Path):
     return run
 
 
-def export_network(net: torch.nn.Module, path: str | Path, format: str = "onnx", height: int = 256,
-                   width: int = 256, verify: bool = True) -> float:
+def export_network(
+    net: torch.nn.Module,
+    path: str | Path,
+    format: str = "onnx",
+    height: int = 256,
+    width: int = 256,
+    verify: bool = True,
+) -> float:
     """Export ``net(target, captured)`` to ``path`` (atomically); return the max |export − PyTorch|.
 
     ``format``: ``onnx`` or ``torchscript``; ``height``/``width``: the example frame used for

@@ -52,7 +52,7 @@ final sum; ``edofproj bench`` measures the whole.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Sequence, cast
 
 import torch
 from torch import nn
@@ -61,7 +61,6 @@ from torch.nn import functional as F
 from ..errors import EdofprojError
 from .radial_filter import RadialFourierFilter
 from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, unet_body, unet_layers
-
 
 #: The local filter's stored weights are ``L / LOCAL_GAIN_SCALE``: an optimizer step of size ``lr``
 #: moves a tap of ``L`` by up to ``LOCAL_GAIN_SCALE * lr``, so the taps of an inverse filter (a
@@ -93,8 +92,9 @@ def unshuffle_weight(block: int) -> torch.Tensor:
     return torch.eye(block * block).reshape(block * block, 1, block, block)
 
 
-def add_block_pixels(image: torch.Tensor, blocks: torch.Tensor, block: int,
-                     out: torch.Tensor | None = None) -> torch.Tensor:
+def add_block_pixels(
+    image: torch.Tensor, blocks: torch.Tensor, block: int, out: torch.Tensor | None = None
+) -> torch.Tensor:
     """``image + pixel_shuffle(blocks)`` in one pass over the image: ``image (B, C, H, W)``,
     ``blocks (B, C s^2, H/s, W/s)`` with each block's pixel values in
     :func:`torch.nn.functional.pixel_shuffle`'s channel order ``(colour, row, column)``;
@@ -120,8 +120,10 @@ def polyphase_taps(kernel: torch.Tensor, block: int) -> torch.Tensor:
     s = int(block)
     size = kernel.shape[-1]
     if kernel.dim() != 2 or kernel.shape[0] != size or size % 2 == 0 or size > 2 * s + 1:
-        raise EdofprojError(f"a polyphase kernel must be square, odd and at most {2 * s + 1} px for "
-                            f"{s}x{s} blocks, got {tuple(kernel.shape)}")
+        raise EdofprojError(
+            f"a polyphase kernel must be square, odd and at most {2 * s + 1} px for "
+            f"{s}x{s} blocks, got {tuple(kernel.shape)}"
+        )
     r = size // 2
     taps = torch.zeros(s, s, s, s, 3, 3, dtype=torch.float64)  # (out py, out px, in qy, in qx, dy, dx)
     for py in range(s):
@@ -150,6 +152,8 @@ class MultirateCompensationNet(nn.Module):
     #: fastest on contiguous (not channels-last) images; ``edofproj bench`` follows this.
     channels_last_inputs = False
 
+    unshuffle_weight: torch.Tensor  # buffer
+
     def __init__(
         self,
         widths: Sequence[int] = (16, 16, 24, 32),
@@ -165,14 +169,17 @@ class MultirateCompensationNet(nn.Module):
         if int(block) != block or block < 2:
             raise EdofprojError(f"multirate network block={block} must be an integer >= 2 (net.space_to_depth)")
         if int(filter_bins) != filter_bins or filter_bins < 2:
-            raise EdofprojError(f"multirate network filter_bins={filter_bins} must be an integer >= 2 "
-                                f"(net.prefilter_bins)")
+            raise EdofprojError(
+                f"multirate network filter_bins={filter_bins} must be an integer >= 2 (net.prefilter_bins)"
+            )
         widths = [int(w) for w in widths]
         if len(widths) < 2 or min(widths) < 1:
             raise EdofprojError(f"multirate network widths={widths} need at least two positive channel counts")
         if downsampling not in DOWNSAMPLING_MODES or upsampling not in UPSAMPLING_MODES:
-            raise EdofprojError(f"multirate network: downsampling must be one of {', '.join(DOWNSAMPLING_MODES)} "
-                                f"and upsampling one of {', '.join(UPSAMPLING_MODES)}")
+            raise EdofprojError(
+                f"multirate network: downsampling must be one of {', '.join(DOWNSAMPLING_MODES)} "
+                f"and upsampling one of {', '.join(UPSAMPLING_MODES)}"
+            )
         s = self.block = int(block)
         self.widths = widths
         self.channels = c = int(channels)
@@ -205,16 +212,20 @@ class MultirateCompensationNet(nn.Module):
         # there cost a fifth of the frame time and did not change the validation SSIM: 0.9845 with,
         # 0.9839 without; the realtime preset.)
         self.encoder, self.down, self.up, self.decoder = unet_layers(
-            nn.Identity(), widths, downsampling, upsampling, leaky_slope,
+            nn.Identity(),
+            widths,
+            downsampling,
+            upsampling,
+            leaky_slope,
             finest_decoder=lambda: nn.Sequential(nn.Conv2d(2 * widths[0], widths[0], 1), nn.LeakyReLU(leaky_slope)),
         )
         self.head = nn.Conv2d(widths[0], c * s * s, 1)  # W: pixel values, colour-major channels
         nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.head.bias))
         # g: the strength of the linear correction per colour and block (zero at start)
         self.linear_gain = nn.Conv2d(widths[0], c, 1)
         nn.init.zeros_(self.linear_gain.weight)
-        nn.init.zeros_(self.linear_gain.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.linear_gain.bias))
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
@@ -238,13 +249,16 @@ class MultirateCompensationNet(nn.Module):
         the identity."""
         kernels = torch.as_tensor(kernels, dtype=torch.float64)
         if kernels.dim() != 3 or kernels.shape[0] != self.channels:
-            raise EdofprojError(f"initialize_linear_path needs ({self.channels}, K, K) kernels, got {tuple(kernels.shape)}")
+            raise EdofprojError(
+                f"initialize_linear_path needs ({self.channels}, K, K) kernels, got {tuple(kernels.shape)}"
+            )
         s = self.block
         identity = polyphase_taps(F.pad(torch.ones(1, 1), (s, s, s, s)), s)
         with torch.no_grad():
             for local, kernel in zip(self.local_filter, kernels):
+                weight = cast(nn.Conv2d, local).weight
                 taps = polyphase_taps(kernel.flip(-2, -1), s) - identity  # convolution -> correlation
-                local.weight.copy_((taps / LOCAL_GAIN_SCALE).to(local.weight.dtype))
+                weight.copy_((taps / LOCAL_GAIN_SCALE).to(weight.dtype))
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
         """``I + S_s((1 + g)(L U + B D) + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
@@ -268,8 +282,9 @@ class MultirateCompensationNet(nn.Module):
         pixels = F.conv2d(F.pad(planes, (s, s, s, s), mode="replicate"), self.unshuffle_weight, stride=s)
         # (B C, s^2 + 1, hb + 2, wb + 2), channels-last for the convolutions over blocks (one
         # 17-channel convolution would do the same, but oneDNN runs it several times slower)
-        blocks = torch.empty((b * c, n + 1, hb + 2, wb + 2), dtype=pixels.dtype, device=pixels.device,
-                             memory_format=lowres)
+        blocks = torch.empty(
+            (b * c, n + 1, hb + 2, wb + 2), dtype=pixels.dtype, device=pixels.device, memory_format=lowres
+        )
         blocks[:, :n] = pixels
         blocks[:, n:] = pixels.mean(dim=1, keepdim=True)
         means = blocks[:, n, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
@@ -278,7 +293,9 @@ class MultirateCompensationNet(nn.Module):
         blocks[:, n].add_(_pad_one_block(correction).view(b * c, hb + 2, wb + 2))
 
         features = _full_resolution_conv(self.embed_target, full_target)
-        features = features + _full_resolution_conv(self.embed_captured, full_captured) + self.embed_correction(correction)
+        features = (
+            features + _full_resolution_conv(self.embed_captured, full_captured) + self.embed_correction(correction)
+        )
         features = self.activation(features)
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
         shared = self.head(features)
@@ -288,14 +305,14 @@ class MultirateCompensationNet(nn.Module):
         colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
         for i in range(c):
             values = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
-            values = torch.addcmul(shared[:, i * n: (i + 1) * n], values, 1 + gain[:, i: i + 1])  # one pass
+            values = torch.addcmul(shared[:, i * n : (i + 1) * n], values, 1 + gain[:, i : i + 1])  # one pass
             per_colour.append(values)
         if not inference:
             output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * n, hb, wb), s)
         else:  # each colour plane written straight into the output (no stacked copy)
             output = torch.empty(full_target.shape, dtype=full_target.dtype, device=full_target.device)
             for i, values in enumerate(per_colour):
-                add_block_pixels(full_target[:, i: i + 1], values, s, out=output[:, i: i + 1])
+                add_block_pixels(full_target[:, i : i + 1], values, s, out=output[:, i : i + 1])
         return output[..., :height, :width]
 
     def _linear_weight(self, colour: int) -> torch.Tensor:
@@ -303,8 +320,8 @@ class MultirateCompensationNet(nn.Module):
         of each block and its 8 neighbours: ``B D = B (H P) - B P``, and ``B P`` is linear in the
         pixels (``P`` is their mean), so it joins ``L`` on them."""
         n = self.block * self.block
-        local = LOCAL_GAIN_SCALE * self.local_filter[colour].weight  # scale the taps, not the image
-        to_pixels = self.correction_to_pixels[colour].weight  # (s^2, 1, 3, 3)
+        local = LOCAL_GAIN_SCALE * cast(nn.Conv2d, self.local_filter[colour]).weight  # scale the taps, not the image
+        to_pixels = cast(nn.Conv2d, self.correction_to_pixels[colour]).weight  # (s^2, 1, 3, 3)
         return torch.cat([local - to_pixels / n, to_pixels], dim=1)
 
     def _unet(self, x: torch.Tensor) -> torch.Tensor:
@@ -334,5 +351,3 @@ def _pad_bottom_right(x: torch.Tensor, multiple: int) -> torch.Tensor:
     if not (pad_bottom or pad_right or torch.jit.is_tracing()):
         return x
     return F.pad(x, (0, pad_right, 0, pad_bottom), mode="replicate")
-
-

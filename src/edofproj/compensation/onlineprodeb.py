@@ -45,7 +45,7 @@ What is our assumption (not published in what we could read)
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence, cast
 
 import torch
 import torch.nn as nn
@@ -56,7 +56,7 @@ from ..errors import EdofprojError
 METHOD_NAME = "lens+onlineprodeb"
 
 #: Channel-width presets: ``extractor_widths``, ``generator_width``, ``generator_blocks``.
-ONLINEPRODEB_PRESETS = {
+ONLINEPRODEB_PRESETS: dict[str, dict[str, Any]] = {
     "default": dict(extractor_widths=(16, 32, 64, 128), generator_width=32, generator_blocks=6),
     "fast": dict(extractor_widths=(8, 16, 32, 64), generator_width=16, generator_blocks=4),
 }
@@ -65,8 +65,10 @@ ONLINEPRODEB_PRESETS = {
 def _conv_block(in_channels: int, out_channels: int, slope: float) -> nn.Sequential:
     """Two 3×3 convolutions, each followed by LeakyReLU."""
     return nn.Sequential(
-        nn.Conv2d(in_channels, out_channels, 3, padding=1), nn.LeakyReLU(slope),
-        nn.Conv2d(out_channels, out_channels, 3, padding=1), nn.LeakyReLU(slope),
+        nn.Conv2d(in_channels, out_channels, 3, padding=1),
+        nn.LeakyReLU(slope),
+        nn.Conv2d(out_channels, out_channels, 3, padding=1),
+        nn.LeakyReLU(slope),
     )
 
 
@@ -76,8 +78,7 @@ class MapExtractorUNet(nn.Module):
     Input (N, 3, H, W) with H and W multiples of ``2 ** (len(widths) - 1)``; output (N, 1, H, W).
     """
 
-    def __init__(self, widths: Sequence[int] = (16, 32, 64, 128), in_channels: int = 3,
-                 leaky_slope: float = 0.2):
+    def __init__(self, widths: Sequence[int] = (16, 32, 64, 128), in_channels: int = 3, leaky_slope: float = 0.2):
         super().__init__()
         widths = [int(w) for w in widths]
         if len(widths) < 2 or min(widths) < 1:
@@ -117,7 +118,8 @@ class ResidualBlock(nn.Module):
     def __init__(self, width: int, slope: float):
         super().__init__()
         self.body = nn.Sequential(
-            nn.Conv2d(width, width, 3, padding=1), nn.LeakyReLU(slope),
+            nn.Conv2d(width, width, 3, padding=1),
+            nn.LeakyReLU(slope),
             nn.Conv2d(width, width, 3, padding=1),
         )
 
@@ -142,7 +144,7 @@ class CompensationGenerator(nn.Module):
         self.second = nn.Sequential(*[ResidualBlock(width, leaky_slope) for _ in range(blocks - blocks // 2)])
         self.tail = nn.Conv2d(width, 1, 3, padding=1)
         nn.init.zeros_(self.tail.weight)
-        nn.init.zeros_(self.tail.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.tail.bias))
 
     def forward(self, target: torch.Tensor, defocus: torch.Tensor, luminance: torch.Tensor) -> torch.Tensor:
         features = self.first(self.head(torch.cat([target, defocus, luminance], dim=1)))
@@ -158,8 +160,13 @@ class OnlineProDebNet(nn.Module):
     the publication and what is assumed.
     """
 
-    def __init__(self, extractor_widths: Sequence[int] = (16, 32, 64, 128), generator_width: int = 32,
-                 generator_blocks: int = 6, leaky_slope: float = 0.2):
+    def __init__(
+        self,
+        extractor_widths: Sequence[int] = (16, 32, 64, 128),
+        generator_width: int = 32,
+        generator_blocks: int = 6,
+        leaky_slope: float = 0.2,
+    ):
         super().__init__()
         self.defocus_net = MapExtractorUNet(extractor_widths, leaky_slope=leaky_slope)
         self.luminance_net = MapExtractorUNet(extractor_widths, leaky_slope=leaky_slope)
@@ -176,8 +183,12 @@ class OnlineProDebNet(nn.Module):
         h, w = x.shape[-2:]
         return F.pad(x, (0, (-w) % m, 0, (-h) % m), mode="replicate")
 
-    def extract_maps(self, projected: torch.Tensor, captured: torch.Tensor,
-                     previous_maps: tuple[torch.Tensor, torch.Tensor] | None = None):
+    def extract_maps(
+        self,
+        projected: torch.Tensor,
+        captured: torch.Tensor,
+        previous_maps: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ):
         """(defocus map, luminance map), each (N, 1, H, W), from grayscale (N, 1, H, W) inputs."""
         h, w = projected.shape[-2:]
         if previous_maps is None:

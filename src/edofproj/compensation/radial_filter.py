@@ -126,4 +126,4 @@ class RadialFourierFilter(nn.Module):
         with full_precision:
             spectrum = torch.fft.rfft2(work) * self.transfer_function(ph, pw).to(work.dtype)
             filtered = torch.fft.irfft2(spectrum, s=(ph, pw)).to(image.dtype)
-        return filtered[..., m: m + height, m: m + width]
+        return filtered[..., m : m + height, m : m + width]

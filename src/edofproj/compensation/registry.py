@@ -17,7 +17,7 @@ target). ``net.architecture`` in a config names one of :data:`NETWORKS`:
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 from torch import nn
 
@@ -25,6 +25,9 @@ from ..errors import EdofprojError
 from .multirate import MultirateCompensationNet
 from .onlineprodeb import OnlineProDebNet
 from .unet import CompensationUNet, width_preset
+
+if TYPE_CHECKING:
+    from ..config import NetConfig
 
 
 def _describe_unet(net_cfg) -> str:
@@ -40,24 +43,28 @@ def _describe_unet(net_cfg) -> str:
 def _describe_multirate(net_cfg) -> str:
     widths = [int(w) for w in net_cfg.widths]
     s = net_cfg.space_to_depth
-    return (f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
-            f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)")
+    return (
+        f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
+        f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)"
+    )
 
 
 class Architecture(NamedTuple):
     """A network class, how a config builds it, and how it is named in one line."""
 
     network: type
-    build: Callable[[object], nn.Module]
-    describe: Callable[[object], str]
+    build: Callable[[NetConfig], nn.Module]
+    describe: Callable[[NetConfig], str]
 
 
 NETWORKS: dict[str, Architecture] = {
     "unet": Architecture(CompensationUNet, CompensationUNet.from_config, _describe_unet),
     "multirate": Architecture(MultirateCompensationNet, MultirateCompensationNet.from_config, _describe_multirate),
     "onlineprodeb": Architecture(
-        OnlineProDebNet, lambda net_cfg: OnlineProDebNet.from_preset("default", leaky_slope=net_cfg.leaky_slope),
-        lambda net_cfg: "onlineprodeb"),
+        OnlineProDebNet,
+        lambda net_cfg: OnlineProDebNet.from_preset("default", leaky_slope=net_cfg.leaky_slope),
+        lambda net_cfg: "onlineprodeb",
+    ),
 }
 
 
@@ -78,8 +85,9 @@ def describe_network(net_cfg) -> str:
     return _architecture(net_cfg.architecture).describe(net_cfg)
 
 
-def network_from_widths(spec: str, space_to_depth: int = 1, prefilter_bins: int = 0,
-                        architecture: str = "unet") -> nn.Module:
+def network_from_widths(
+    spec: str, space_to_depth: int = 1, prefilter_bins: int = 0, architecture: str = "unet"
+) -> nn.Module:
     """An untrained network of a named width preset or comma-separated channel counts:
     :class:`CompensationUNet` or, for ``architecture="multirate"``, :class:`MultirateCompensationNet`
     (``space_to_depth`` is then its block size, ``prefilter_bins`` its filter's nodes)."""

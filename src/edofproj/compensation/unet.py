@@ -33,7 +33,7 @@ caller clamps to the projector's ``[0, 1]`` range before projecting.
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Callable, Sequence, cast
 
 import torch
 from torch import nn
@@ -60,9 +60,7 @@ PADDING_MODES = ("replicate", "reflect")
 def width_preset(name: str) -> list[int]:
     """The channel widths of preset ``name`` (a key of :data:`UNET_WIDTH_PRESETS`)."""
     if name not in UNET_WIDTH_PRESETS:
-        raise EdofprojError(
-            f"unknown U-Net width preset '{name}' (allowed: {', '.join(UNET_WIDTH_PRESETS)})"
-        )
+        raise EdofprojError(f"unknown U-Net width preset '{name}' (allowed: {', '.join(UNET_WIDTH_PRESETS)})")
     return list(UNET_WIDTH_PRESETS[name])
 
 
@@ -81,9 +79,7 @@ class ConvBlock(nn.Sequential):
 def _downsampling(channels: int, mode: str, leaky_slope: float) -> nn.Module:
     """Halve height and width: a learned stride-2 3×3 convolution or a 2×2 max-pool."""
     if mode == "conv":
-        return nn.Sequential(
-            nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.LeakyReLU(leaky_slope)
-        )
+        return nn.Sequential(nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.LeakyReLU(leaky_slope))
     return nn.MaxPool2d(2)
 
 
@@ -101,8 +97,14 @@ def _upsampling(in_channels: int, out_channels: int, mode: str) -> nn.Module:
     )
 
 
-def unet_layers(first: nn.Module, widths: Sequence[int], downsampling: str, upsampling: str,
-                leaky_slope: float, finest_decoder: Callable[[], nn.Module] | None = None):
+def unet_layers(
+    first: nn.Module,
+    widths: Sequence[int],
+    downsampling: str,
+    upsampling: str,
+    leaky_slope: float,
+    finest_decoder: Callable[[], nn.Module] | None = None,
+):
     """``(encoder, down, up, decoder)`` module lists of a U-Net with ``len(widths)`` scales.
 
     ``encoder[0] = first`` works at the finest scale; ``encoder[k]`` is a :class:`ConvBlock`
@@ -179,21 +181,13 @@ class CompensationUNet(nn.Module):
         if len(widths) < 2 or min(widths) < 1:
             raise EdofprojError(f"U-Net widths={widths} need at least two positive channel counts")
         if downsampling not in DOWNSAMPLING_MODES:
-            raise EdofprojError(
-                f"U-Net downsampling='{downsampling}' is not one of {', '.join(DOWNSAMPLING_MODES)}"
-            )
+            raise EdofprojError(f"U-Net downsampling='{downsampling}' is not one of {', '.join(DOWNSAMPLING_MODES)}")
         if upsampling not in UPSAMPLING_MODES:
-            raise EdofprojError(
-                f"U-Net upsampling='{upsampling}' is not one of {', '.join(UPSAMPLING_MODES)}"
-            )
+            raise EdofprojError(f"U-Net upsampling='{upsampling}' is not one of {', '.join(UPSAMPLING_MODES)}")
         if padding_mode not in PADDING_MODES:
-            raise EdofprojError(
-                f"U-Net padding_mode='{padding_mode}' is not one of {', '.join(PADDING_MODES)}"
-            )
+            raise EdofprojError(f"U-Net padding_mode='{padding_mode}' is not one of {', '.join(PADDING_MODES)}")
         if in_channels < out_channels:
-            raise EdofprojError(
-                f"U-Net in_channels={in_channels} must hold the target's out_channels={out_channels}"
-            )
+            raise EdofprojError(f"U-Net in_channels={in_channels} must hold the target's out_channels={out_channels}")
         self.widths = widths
         self.in_channels = in_channels
         self.out_channels = out_channels
@@ -210,7 +204,7 @@ class CompensationUNet(nn.Module):
         )
         self.head = nn.Conv2d(widths[0], out_channels * block, 1)
         nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.head.bias))
 
     @classmethod
     def from_config(cls, net_cfg) -> "CompensationUNet":

@@ -141,9 +141,9 @@ def depth_ensemble_wiener_kernel(psfs, nsr: float, radius: int, grid: int = 128)
     gain = np.conj(otfs).sum(0) / ((np.abs(otfs) ** 2).sum(0) + len(psfs) * checked_nsr(nsr))
     kernel = np.fft.fftshift(np.fft.irfft2(gain, s=(grid, grid)), axes=(-2, -1))
     centre = grid // 2
-    cut = kernel[:, centre - radius: centre + radius + 1, centre - radius: centre + radius + 1].copy()
-    yy, xx = np.mgrid[-radius: radius + 1, -radius: radius + 1]
-    spread = np.exp(-(yy ** 2 + xx ** 2) / (2 * max(radius / 2, 0.5) ** 2))
+    cut = kernel[:, centre - radius : centre + radius + 1, centre - radius : centre + radius + 1].copy()
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    spread = np.exp(-(yy**2 + xx**2) / (2 * max(radius / 2, 0.5) ** 2))
     spread /= spread.sum()
     cut += (gain[:, 0, 0].real - cut.sum(axis=(-2, -1)))[:, None, None] * spread
     return cut
@@ -197,7 +197,7 @@ class WienerCompensator:
         spectrum = scipy.fft.rfft2(padded, axes=(-2, -1), workers=self.workers)
         spectrum *= filt
         restored = scipy.fft.irfft2(spectrum, s=padded.shape[-2:], axes=(-2, -1), workers=self.workers)
-        restored = restored[..., top:top + height, left:left + width]
+        restored = restored[..., top : top + height, left : left + width]
         return np.clip(restored, 0.0, 1.0).astype(np.float32, copy=False)
 
 
@@ -222,8 +222,13 @@ def _check_torch_inputs(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
         raise EdofprojError(f"image must be (B, C, H, W), got {tuple(image.shape)}")
     if psf.ndim == 3:
         psf = psf.unsqueeze(0)
-    if (psf.ndim != 4 or psf.shape[-1] != psf.shape[-2] or psf.shape[-1] % 2 == 0
-            or psf.shape[1] not in (1, image.shape[1]) or psf.shape[0] not in (1, image.shape[0])):
+    if (
+        psf.ndim != 4
+        or psf.shape[-1] != psf.shape[-2]
+        or psf.shape[-1] % 2 == 0
+        or psf.shape[1] not in (1, image.shape[1])
+        or psf.shape[0] not in (1, image.shape[0])
+    ):
         raise EdofprojError(
             f"PSF must be (C|1,K,K) or (1|B,C|1,K,K) with K odd matching image {tuple(image.shape)}, "
             f"got {tuple(psf.shape)}"
@@ -244,11 +249,12 @@ def _apply_torch_filter(image: torch.Tensor, pads: tuple[int, int, int, int], fi
     height, width = image.shape[-2:]
     padded = F.pad(image, (left, right, top, bottom), mode="reflect") if any(pads) else image
     restored = torch.fft.irfft2(torch.fft.rfft2(padded) * filt, s=padded.shape[-2:])
-    return restored[..., top:top + height, left:left + width].clamp(0.0, 1.0)
+    return restored[..., top : top + height, left : left + width].clamp(0.0, 1.0)
 
 
-def wiener_deconvolve(image: torch.Tensor, psf: torch.Tensor, nsr: float, haze: bool = True,
-                      pad: bool = True) -> torch.Tensor:
+def wiener_deconvolve(
+    image: torch.Tensor, psf: torch.Tensor, nsr: float, haze: bool = True, pad: bool = True
+) -> torch.Tensor:
     """PyTorch Wiener deconvolution, ``clamp(F⁻¹{conj(H)·F{I}/(|H|²+NSR)}, 0, 1)``.
 
     ``image`` (B, C, H, W); ``psf`` (C, K, K) or (1|B, C, K, K) (one PSF per sample; a PSF
@@ -297,7 +303,7 @@ def tune_wiener_nsr(
     train_images: torch.Tensor,
     psf: torch.Tensor,
     project_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-    candidates: Sequence[float] = DEFAULT_NSR_CANDIDATES,
+    candidates: Sequence[float] | np.ndarray = DEFAULT_NSR_CANDIDATES,
     metric: str | Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = "psnr",
     haze: bool = True,
 ) -> tuple[float, dict[float, float]]:
@@ -309,6 +315,7 @@ def tune_wiener_nsr(
     ``(pred, target) -> per-image scores`` (higher is better). Returns ``(best_nsr, {nsr: score})``.
     Never pass test images here: the NSR is a trained parameter of the baseline.
     """
+    metric_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
     if isinstance(metric, str):
         if metric != "psnr":
             raise EdofprojError(f"unknown Wiener tuning metric '{metric}' (known: psnr, or a callable)")
@@ -329,5 +336,5 @@ def tune_wiener_nsr(
                 restored = wiener_deconvolve(train_images, one, nsr, haze=haze)
                 total += float(metric_fn(project_fn(restored, one), train_images).mean())
             scores[nsr] = total / len(psfs)
-    best = max(scores, key=scores.get)
+    best = max(scores, key=scores.__getitem__)
     return best, scores

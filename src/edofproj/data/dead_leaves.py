@@ -30,7 +30,7 @@ def power_law_quantile(u: np.ndarray, exponent: int, min_radius: float, max_radi
     if exponent == 1:
         return min_radius * (max_radius / min_radius) ** u
     e = 1.0 - exponent
-    return (min_radius ** e + u * (max_radius ** e - min_radius ** e)) ** (1.0 / e)
+    return (min_radius**e + u * (max_radius**e - min_radius**e)) ** (1.0 / e)
 
 
 def _power_integral(exponent: int, min_radius: float, max_radius: float) -> float:
@@ -38,11 +38,12 @@ def _power_integral(exponent: int, min_radius: float, max_radius: float) -> floa
     if exponent == 1:
         return math.log(max_radius / min_radius)
     e = 1.0 - exponent
-    return (max_radius ** e - min_radius ** e) / e
+    return (max_radius**e - min_radius**e) / e
 
 
-def sample_dead_leaves_disks(count: int, height: int, width: int, min_radius: float, max_radius: float,
-                             generator: torch.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_dead_leaves_disks(
+    count: int, height: int, width: int, min_radius: float, max_radius: float, generator: torch.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``count`` disks ``(radius, centre_x, centre_y)`` of a stationary Poisson process, front to back.
 
     The process has radius density ``p(r) ~ r^-3`` on ``[r_min, r_max]``. Pixel centres sit at
@@ -79,7 +80,7 @@ def disks_per_covering_layer(height: int, width: int, min_radius: float, max_rad
     """
     a, b = width - 1.0, height - 1.0
     if max_radius == min_radius:
-        return (a + 2 * min_radius) * (b + 2 * min_radius) / (math.pi * min_radius ** 2)
+        return (a + 2 * min_radius) * (b + 2 * min_radius) / (math.pi * min_radius**2)
     i3, i2, i1 = (_power_integral(k, min_radius, max_radius) for k in (3, 2, 1))
     return (a * b * i3 + 2 * (a + b) * i2 + 4 * i1) / (math.pi * i1)
 
@@ -108,8 +109,14 @@ def paint_front_most(labels: np.ndarray, radii: np.ndarray, cx: np.ndarray, cy: 
         np.minimum.at(flat, y[k, i] * width + x[k, j], index[members[k]])
 
 
-def dead_leaves_labels(height: int, width: int, min_radius: float, max_radius: float,
-                       generator: torch.Generator, max_disks: int = 2_000_000) -> np.ndarray:
+def dead_leaves_labels(
+    height: int,
+    width: int,
+    min_radius: float,
+    max_radius: float,
+    generator: torch.Generator,
+    max_disks: int = 2_000_000,
+) -> np.ndarray:
     """A dead-leaves partition ``(H, W)`` (int64): at each pixel the index of the front-most disk.
 
     The scale-invariant dead-leaves model (Matheron; Lee, Mumford & Huang 2001): disks of
@@ -132,8 +139,9 @@ def dead_leaves_labels(height: int, width: int, min_radius: float, max_radius: f
     layers = math.log(height * width) + 2
     drawn = 0
     while drawn < max_disks:
-        radii, cx, cy = sample_dead_leaves_disks(int(math.ceil(layers * per_layer)), height, width,
-                                                 min_radius, max_radius, generator)
+        radii, cx, cy = sample_dead_leaves_disks(
+            int(math.ceil(layers * per_layer)), height, width, min_radius, max_radius, generator
+        )
         paint_front_most(labels, radii, cx, cy, drawn)
         drawn += radii.size
         layers = 2.0
@@ -159,8 +167,9 @@ def natural_color_palette(test_fraction: float = 0.3, count: int = 65536) -> np.
     return palette
 
 
-def dead_leaves_image(height: int, width: int, min_radius: float, max_radius: float, palette: np.ndarray,
-                      generator: torch.Generator) -> torch.Tensor:
+def dead_leaves_image(
+    height: int, width: int, min_radius: float, max_radius: float, palette: np.ndarray, generator: torch.Generator
+) -> torch.Tensor:
     """A dead-leaves image ``(3, H, W)`` float32: :func:`dead_leaves_labels` with one colour per disk,
     drawn uniformly from ``palette (n, 3)``."""
     labels = dead_leaves_labels(height, width, min_radius, max_radius, generator)
@@ -180,10 +189,14 @@ class DeadLeavesSource:
         self.palette = palette
         self.generator = torch.Generator().manual_seed(int(seed))
 
-    def sample(self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+    def sample(
+        self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         crop = _check_crop(crop or self.crop)
         generator = generator or self.generator
-        return torch.stack([
-            dead_leaves_image(crop, crop, self.min_radius_px, self.max_radius_px, self.palette, generator)
-            for _ in range(int(batch_size))
-        ])
+        return torch.stack(
+            [
+                dead_leaves_image(crop, crop, self.min_radius_px, self.max_radius_px, self.palette, generator)
+                for _ in range(int(batch_size))
+            ]
+        )

@@ -54,9 +54,22 @@ def _matplotlib_sample(filename: str) -> Callable[[], np.ndarray]:
 
 
 BUILTIN_PHOTOS: dict[str, Callable[[], np.ndarray]] = {
-    **{name: _skimage_photo(name) for name in (
-        "astronaut", "coffee", "chelsea", "rocket", "stereo_motorcycle", "hubble_deep_field",
-        "immunohistochemistry", "retina", "brick", "grass", "gravel")},
+    **{
+        name: _skimage_photo(name)
+        for name in (
+            "astronaut",
+            "coffee",
+            "chelsea",
+            "rocket",
+            "stereo_motorcycle",
+            "hubble_deep_field",
+            "immunohistochemistry",
+            "retina",
+            "brick",
+            "grass",
+            "gravel",
+        )
+    },
     "grace_hopper": _matplotlib_sample("grace_hopper.jpg"),
 }
 """Photographs that ship inside scikit-image and matplotlib (checked to load without network)."""
@@ -120,7 +133,7 @@ def random_crop(pixels: np.ndarray, crop: int, generator: torch.Generator) -> to
     top = int(torch.randint(0, height - crop + 1, (), generator=generator))
     left = int(torch.randint(0, width - crop + 1, (), generator=generator))
     flip_lr, flip_ud = (torch.rand(2, generator=generator) < 0.5).tolist()
-    window = pixels[top: top + crop, left: left + crop]
+    window = pixels[top : top + crop, left : left + crop]
     if flip_lr:
         window = window[:, ::-1]
     if flip_ud:
@@ -148,14 +161,18 @@ class PhotoSource:
     def __len__(self) -> int:
         return len(self.images)
 
-    def sample(self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+    def sample(
+        self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         """``(batch_size, 3, crop, crop)``: each crop from a uniformly chosen image that is large enough."""
         crop = _check_crop(crop or self.crop)
         generator = generator or self.generator
         eligible = [i for i, p in enumerate(self.images) if min(p.shape[:2]) >= crop]
         if not eligible:
             largest = max(min(p.shape[:2]) for p in self.images)
-            raise EdofprojError(f"crop {crop} px is larger than every training image (largest side allows {largest} px)")
+            raise EdofprojError(
+                f"crop {crop} px is larger than every training image (largest side allows {largest} px)"
+            )
         picks = torch.randint(0, len(eligible), (int(batch_size),), generator=generator).tolist()
         return torch.stack([random_crop(self.images[eligible[k]], crop, generator) for k in picks])
 
@@ -167,8 +184,10 @@ def builtin_photo_source(crop: int, test_fraction: float, seed: int = 0) -> Phot
     for name in train:
         pixels = load_builtin_photo(name)
         if min(pixels.shape[:2]) < crop:
-            warnings.warn(f"built-in photograph '{name}' ({pixels.shape[1]}x{pixels.shape[0]}) is smaller than the "
-                          f"crop {crop} px; skipped")
+            warnings.warn(
+                f"built-in photograph '{name}' ({pixels.shape[1]}x{pixels.shape[0]}) is smaller than the "
+                f"crop {crop} px; skipped"
+            )
             continue
         images.append((name, pixels))
     if not images:
@@ -249,7 +268,9 @@ class FolderSource:
             self._cached_bytes += pixels.nbytes
         return pixels
 
-    def sample(self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+    def sample(
+        self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         """``(batch_size, 3, crop, crop)`` from uniformly chosen files at least ``crop`` px on each side."""
         crop = _check_crop(crop or self.crop)
         generator = generator or self.generator

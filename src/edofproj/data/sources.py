@@ -14,7 +14,8 @@ import torch
 
 from ..errors import EdofprojError
 from .dead_leaves import DeadLeavesSource, natural_color_palette
-from .photos import FolderSource, builtin_photo_source, find_image_files, folder_split
+from .photos import FolderSource, PhotoSource, builtin_photo_source, find_image_files, folder_split
+
 
 class MixedSource:
     """Photographs mixed with dead leaves: each sample of a batch is a dead-leaves image with
@@ -29,12 +30,12 @@ class MixedSource:
         self.crop = photos.crop
         self.generator = torch.Generator().manual_seed(int(seed))
 
-    def sample(self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+    def sample(
+        self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         generator = generator or self.generator
         is_leaves = (torch.rand(int(batch_size), generator=generator) < self.dead_leaves_fraction).tolist()
-        return torch.cat([
-            (self.leaves if leaves else self.photos).sample(1, crop, generator) for leaves in is_leaves
-        ])
+        return torch.cat([(self.leaves if leaves else self.photos).sample(1, crop, generator) for leaves in is_leaves])
 
 
 # --------------------------------------------------------------------------- public API
@@ -46,10 +47,16 @@ def build_training_source(data_cfg, seed: int = 0):
     generator, ``sample`` draws from the source's own generator seeded with ``seed``.
     ``data.dead_leaves_fraction > 0`` mixes dead leaves into a photo source (:class:`MixedSource`)."""
     if data_cfg.source == "dead-leaves" or data_cfg.dead_leaves_fraction > 0:
-        leaves = DeadLeavesSource(data_cfg.crop, data_cfg.dead_leaves_min_radius_px, data_cfg.dead_leaves_max_radius_px,
-                                  natural_color_palette(data_cfg.test_fraction), seed)
+        leaves = DeadLeavesSource(
+            data_cfg.crop,
+            data_cfg.dead_leaves_min_radius_px,
+            data_cfg.dead_leaves_max_radius_px,
+            natural_color_palette(data_cfg.test_fraction),
+            seed,
+        )
         if data_cfg.source == "dead-leaves":
             return leaves
+    photos: PhotoSource | FolderSource
     if data_cfg.source == "builtin":
         photos = builtin_photo_source(data_cfg.crop, data_cfg.test_fraction, seed)
     elif data_cfg.source == "folder":

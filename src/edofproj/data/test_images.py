@@ -23,8 +23,9 @@ ones by name. Size (``evaluation.image_size = [height, width]``, ``[]``: native 
 from __future__ import annotations
 
 import warnings
+from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Callable, cast
 
 import cv2
 import numpy as np
@@ -34,12 +35,17 @@ from ..errors import EdofprojError
 from ..imaging.image_io import read_image_array, to_unit_float
 from .photos import as_rgb, builtin_split, find_image_files, folder_split, load_builtin_photo
 
+
 def fit_to_size(pixels: np.ndarray, size: int | tuple[int, int]) -> np.ndarray:
     """Scale ``pixels (H, W, 3)`` to cover ``size`` (``n`` or ``(height, width)``), then crop the centre.
 
     Shrinking uses area averaging, enlarging bicubic interpolation (clipped to the dtype's range).
     """
-    out_h, out_w = (int(size), int(size)) if np.isscalar(size) else (int(size[0]), int(size[1]))
+    if np.isscalar(size):
+        out_h = out_w = int(cast(int, size))
+    else:
+        height_width = cast("tuple[int, int]", size)
+        out_h, out_w = int(height_width[0]), int(height_width[1])
     if out_h < 1 or out_w < 1:
         raise EdofprojError(f"test image size {size} must be positive")
     height, width = pixels.shape[:2]
@@ -50,18 +56,18 @@ def fit_to_size(pixels: np.ndarray, size: int | tuple[int, int]) -> np.ndarray:
         pixels = cv2.resize(np.ascontiguousarray(pixels), (new_w, new_h), interpolation=method)
         height, width = pixels.shape[:2]
     top, left = (height - out_h) // 2, (width - out_w) // 2
-    return pixels[top: top + out_h, left: left + out_w]
+    return pixels[top : top + out_h, left : left + out_w]
 
 
 def _test_entries(data_cfg) -> list[tuple[str, Callable[[], np.ndarray]]]:
     if data_cfg.source in ("builtin", "dead-leaves"):
         _, test = builtin_split(data_cfg.test_fraction)
-        return [(name, lambda name=name: load_builtin_photo(name)) for name in test]
+        return [(name, partial(load_builtin_photo, name)) for name in test]
     root = Path(data_cfg.test_folder or data_cfg.folder)
     files = find_image_files(root) if data_cfg.test_folder else folder_split(root, data_cfg.test_fraction)[1]
     if not files:
         raise EdofprojError(f"test folder '{root}' holds no PNG/JPEG files")
-    return [(p.relative_to(root).as_posix(), lambda p=p: read_image_array(p)) for p in files]
+    return [(p.relative_to(root).as_posix(), partial(read_image_array, p)) for p in files]
 
 
 def build_test_images(data_cfg, size: int | tuple[int, int] | None = None) -> list[tuple[str, torch.Tensor]]:
@@ -73,7 +79,7 @@ def build_test_images(data_cfg, size: int | tuple[int, int] | None = None) -> li
     """
     entries = _test_entries(data_cfg)
     limit = int(getattr(data_cfg, "max_test_images", 0) or 0)
-    images = []
+    images: list[tuple[str, torch.Tensor]] = []
     for name, load in entries:
         if limit and len(images) >= limit:
             break
@@ -89,6 +95,7 @@ def build_test_images(data_cfg, size: int | tuple[int, int] | None = None) -> li
         raise EdofprojError("no readable test image")
     return images
 
+
 def evaluation_size(cfg) -> tuple[int, int] | None:
     size = cfg.evaluation.image_size
     return (int(size[0]), int(size[1])) if size else None
@@ -101,7 +108,7 @@ def fit_image(pixels: np.ndarray, size: tuple[int, int] | None, scaling: str) ->
     height, width = pixels.shape[:2]
     if scaling == "crop" and height >= size[0] and width >= size[1]:
         top, left = (height - size[0]) // 2, (width - size[1]) // 2
-        return pixels[top: top + size[0], left: left + size[1]]
+        return pixels[top : top + size[0], left : left + size[1]]
     fitted = fit_to_size(pixels, size)
     return np.clip(fitted, 0.0, 1.0) if fitted.dtype.kind == "f" else fitted  # bicubic overshoot
 
@@ -111,14 +118,15 @@ def _as_tensor(pixels: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
 
 
-def folder_images(folder: str | Path, size: tuple[int, int] | None, scaling: str = "crop",
-                  limit: int = 0) -> list[tuple[str, torch.Tensor]]:
+def folder_images(
+    folder: str | Path, size: tuple[int, int] | None, scaling: str = "crop", limit: int = 0
+) -> list[tuple[str, torch.Tensor]]:
     """``[(relative path, (3, H, W) float32)]`` of the images below ``folder``, sorted by name."""
     root = Path(folder)
     files = find_image_files(root)
     if not files:
         raise EdofprojError(f"--images '{folder}' holds no PNG/JPEG files")
-    images = []
+    images: list[tuple[str, torch.Tensor]] = []
     for path in files:
         if limit and len(images) >= limit:
             break

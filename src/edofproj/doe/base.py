@@ -39,8 +39,13 @@ class DOE(nn.Module):
     radially_symmetric = False
     name = "doe"
 
-    def __init__(self, aperture_radius_m: float, design_wavelength_m: float = 550e-9,
-                 levels: int | None = 16, material: str = "fused_silica"):
+    def __init__(
+        self,
+        aperture_radius_m: float,
+        design_wavelength_m: float = 550e-9,
+        levels: int | None = 16,
+        material: str = "fused_silica",
+    ):
         super().__init__()
         self.aperture_radius_m = float(aperture_radius_m)
         self.design_wavelength_m = float(design_wavelength_m)

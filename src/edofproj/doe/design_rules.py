@@ -22,8 +22,8 @@ import math
 
 import torch
 
-from .base import RadialDOE, require_resolved_feature
 from ..errors import EdofprojError
+from .base import RadialDOE, require_resolved_feature
 
 
 def block_width_m(min_feature_m: float, aperture_radius_m: float, grid_m: float | None = None) -> float:
@@ -71,12 +71,13 @@ class MinimumFeatureRadialDOE(RadialDOE):
         return self.inner.raw_height_m(centres)[self.block_index(r_m)]
 
     def check_sampling(self, ring_width_m):
-        require_resolved_feature(self.block_m, ring_width_m, self.aperture_radius_m,
-                                 "the minimum-feature blocks are")
+        require_resolved_feature(self.block_m, ring_width_m, self.aperture_radius_m, "the minimum-feature blocks are")
 
     def describe(self):
-        return (f"{self.inner.describe()}, constant over {self.block_m * 1e6:.2f} um blocks "
-                f"(minimum feature {self.min_feature_m * 1e6:g} um)")
+        return (
+            f"{self.inner.describe()}, constant over {self.block_m * 1e6:.2f} um blocks "
+            f"(minimum feature {self.min_feature_m * 1e6:g} um)"
+        )
 
 
 def apply_design_rules(doe, cfg):

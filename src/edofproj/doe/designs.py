@@ -55,8 +55,14 @@ class CubicPhasePlate(DOE):
 
     name = "cubic"
 
-    def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", alpha_waves: float = 20.0):
+    def __init__(
+        self,
+        aperture_radius_m,
+        design_wavelength_m=550e-9,
+        levels=16,
+        material="fused_silica",
+        alpha_waves: float = 20.0,
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.alpha_waves = float(alpha_waves)
 
@@ -78,12 +84,20 @@ class Axicon(RadialDOE):
 
     name = "axicon"
 
-    def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", focus_distance_m: float = 0.5, near_m: float = 0.3, far_m: float = 0.8):
+    def __init__(
+        self,
+        aperture_radius_m,
+        design_wavelength_m=550e-9,
+        levels=16,
+        material="fused_silica",
+        focus_distance_m: float = 0.5,
+        near_m: float = 0.3,
+        far_m: float = 0.8,
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         R = aperture_radius_m
         self.near_m, self.far_m = float(near_m), float(far_m)
-        self.slope = (R / 3.0) * (1.0 / near_m - 1.0 / far_m)          # a (dimensionless OPD slope)
+        self.slope = (R / 3.0) * (1.0 / near_m - 1.0 / far_m)  # a (dimensionless OPD slope)
         self.power = 1.0 / near_m + self.slope / R - 1.0 / focus_distance_m  # P (1/m)
         self.n_d_minus_1 = float(self.refractive_index(design_wavelength_m)) - 1.0
 
@@ -96,7 +110,7 @@ class Axicon(RadialDOE):
         _check_phase_step(step, "axicon", ring_width_m)
 
     def describe(self):
-        return (f"axicon, focal line {self.near_m * 1e3:.0f}-{self.far_m * 1e3:.0f} mm; " + super().describe())
+        return f"axicon, focal line {self.near_m * 1e3:.0f}-{self.far_m * 1e3:.0f} mm; " + super().describe()
 
 
 class Multifocal(RadialDOE):
@@ -104,8 +118,15 @@ class Multifocal(RadialDOE):
 
     name = "multifocal"
 
-    def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", focus_distance_m: float = 0.5, foci_m=(0.35, 0.5, 0.7)):
+    def __init__(
+        self,
+        aperture_radius_m,
+        design_wavelength_m=550e-9,
+        levels=16,
+        material="fused_silica",
+        focus_distance_m: float = 0.5,
+        foci_m=(0.35, 0.5, 0.7),
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.foci_m = [float(f) for f in foci_m]
         n = len(self.foci_m)

@@ -55,14 +55,17 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
     if kind == "lens":
         return LensOnly(R, common["design_wavelength_m"])
     if kind == "mlp":
-        return RadialMLPDOE(**common, frequencies=doe_cfg.mlp_frequencies, hidden=doe_cfg.mlp_hidden,
-                            layers=doe_cfg.mlp_layers)
+        return RadialMLPDOE(
+            **common, frequencies=doe_cfg.mlp_frequencies, hidden=doe_cfg.mlp_hidden, layers=doe_cfg.mlp_layers
+        )
     if kind == "free":
         return FreeRadialDOE(**common, rings=max(cfg.psf.pupil_samples // 2, 1))
     if kind == "cubic":
         return CubicPhasePlate(**common, alpha_waves=doe_cfg.cubic_waves)
     if kind == "axicon":
-        return Axicon(**common, focus_distance_m=v, near_m=doe_cfg.axicon_near_mm * 1e-3, far_m=doe_cfg.axicon_far_mm * 1e-3)
+        return Axicon(
+            **common, focus_distance_m=v, near_m=doe_cfg.axicon_near_mm * 1e-3, far_m=doe_cfg.axicon_far_mm * 1e-3
+        )
     if kind == "multifocal":
         return Multifocal(**common, focus_distance_m=v, foci_m=[f * 1e-3 for f in doe_cfg.multifocal_foci_mm])
     if kind == "file":

@@ -32,8 +32,16 @@ class RadialMLPDOE(RadialDOE):
 
     name = "mlp"
 
-    def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", frequencies: int = 9, hidden: int = 64, layers: int = 3):
+    def __init__(
+        self,
+        aperture_radius_m,
+        design_wavelength_m=550e-9,
+        levels=16,
+        material="fused_silica",
+        frequencies: int = 9,
+        hidden: int = 64,
+        layers: int = 3,
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.frequencies = int(frequencies)
         blocks: list[nn.Module] = []
@@ -75,8 +83,9 @@ class FreeRadialDOE(RadialDOE):
 
     name = "free"
 
-    def __init__(self, aperture_radius_m, design_wavelength_m=550e-9, levels=16,
-                 material="fused_silica", rings: int = 512):
+    def __init__(
+        self, aperture_radius_m, design_wavelength_m=550e-9, levels=16, material="fused_silica", rings: int = 512
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.rings = int(rings)
         self.heights = nn.Parameter(torch.zeros(self.rings, dtype=torch.float64))
@@ -86,5 +95,9 @@ class FreeRadialDOE(RadialDOE):
         return (self.heights * self.h2pi_m)[idx].to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
-        require_resolved_feature(self.aperture_radius_m / self.rings, ring_width_m, self.aperture_radius_m,
-                                 f"the free profile's {self.rings} rings are")
+        require_resolved_feature(
+            self.aperture_radius_m / self.rings,
+            ring_width_m,
+            self.aperture_radius_m,
+            f"the free profile's {self.rings} rings are",
+        )

@@ -27,9 +27,19 @@ class TabulatedRadialDOE(RadialDOE):
     """A radial profile given ring by ring (piecewise constant)."""
 
     name = "file"
+    ring_edges_m: torch.Tensor  # buffers
+    table_height_m: torch.Tensor
 
-    def __init__(self, ring_edges_m, height_m, aperture_radius_m, design_wavelength_m, levels,
-                 material="fused_silica", description="tabulated radial DOE"):
+    def __init__(
+        self,
+        ring_edges_m,
+        height_m,
+        aperture_radius_m,
+        design_wavelength_m,
+        levels,
+        material="fused_silica",
+        description="tabulated radial DOE",
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.register_buffer("ring_edges_m", torch.as_tensor(np.asarray(ring_edges_m), dtype=torch.float64))
         self.register_buffer("table_height_m", torch.as_tensor(np.asarray(height_m), dtype=torch.float64))
@@ -37,7 +47,9 @@ class TabulatedRadialDOE(RadialDOE):
 
     def raw_height_m(self, r_m):
         edges = self.ring_edges_m.to(r_m.device)
-        idx = torch.clamp(torch.bucketize(r_m.to(edges.dtype), edges[1:-1], right=True), 0, len(self.table_height_m) - 1)
+        idx = torch.clamp(
+            torch.bucketize(r_m.to(edges.dtype), edges[1:-1], right=True), 0, len(self.table_height_m) - 1
+        )
         return self.table_height_m.to(r_m.device)[idx].to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
@@ -52,9 +64,18 @@ class TabulatedDOE2D(DOE):
     """A 2-D height map sampled on a square grid (nearest-neighbour lookup)."""
 
     name = "file"
+    table_height_m: torch.Tensor  # buffer
 
-    def __init__(self, height_map_m, pitch_m, aperture_radius_m, design_wavelength_m, levels,
-                 material="fused_silica", description="tabulated 2-D DOE"):
+    def __init__(
+        self,
+        height_map_m,
+        pitch_m,
+        aperture_radius_m,
+        design_wavelength_m,
+        levels,
+        material="fused_silica",
+        description="tabulated 2-D DOE",
+    ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
         self.register_buffer("table_height_m", torch.as_tensor(np.asarray(height_map_m), dtype=torch.float64))
         self.pitch_m = float(pitch_m)
@@ -88,21 +109,33 @@ def save_doe(doe: DOE, path: str | Path, samples: int = 1024) -> None:
         description=np.array(doe.describe()),
     )
     with torch.no_grad():
-        if doe.radially_symmetric:
+        if isinstance(doe, RadialDOE):  # the radially symmetric DOEs
             rings = max(samples // 2, 1)
             edges = np.linspace(0.0, R, rings + 1)
             centres = torch.as_tensor(0.5 * (edges[1:] + edges[:-1]), dtype=torch.float64)
             height = doe.height_m(centres).double()
-            level = quantize_levels(height, doe.h2pi_m, doe.levels) if doe.quantize else torch.zeros_like(height).long()
-            save_npz_atomic(path, kind=np.array("radial"), ring_edges_m=edges, height_m=height.cpu().numpy(),
-                            level=level.cpu().numpy().astype(np.int32), **common)
+            if doe.quantize:
+                if doe.levels is None:
+                    raise EdofprojError(f"the '{doe.name}' DOE is quantized but has no level count")
+                level = quantize_levels(height, doe.h2pi_m, doe.levels)
+            else:
+                level = torch.zeros_like(height).long()
+            save_npz_atomic(
+                path,
+                kind=np.array("radial"),
+                ring_edges_m=edges,
+                height_m=height.cpu().numpy(),
+                level=level.cpu().numpy().astype(np.int32),
+                **common,
+            )
         else:
             pitch = 2 * R / samples
             c = (torch.arange(samples, dtype=torch.float64) - samples / 2 + 0.5) * pitch
             y, x = torch.meshgrid(c, c, indexing="ij")
             height = doe.height_map_m(x, y).double()
-            save_npz_atomic(path, kind=np.array("map"), height_map_m=height.cpu().numpy(),
-                            pitch_m=np.array(pitch), **common)
+            save_npz_atomic(
+                path, kind=np.array("map"), height_map_m=height.cpu().numpy(), pitch_m=np.array(pitch), **common
+            )
 
 
 def load_doe(path: str | Path) -> DOE:

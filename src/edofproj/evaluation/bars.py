@@ -27,9 +27,12 @@ class Bar:
     statement: str
     passed: bool | None
     measured: str
+    judged: bool = True
 
     @property
     def verdict(self) -> str:
+        if not self.judged:
+            return "not judged (smoke run)"
         return "not measured" if self.passed is None else ("PASS" if self.passed else "FAIL")
 
 
@@ -55,17 +58,25 @@ def ssim_bars(table: MetricsTable, range_mm: tuple[float, float], metric: str = 
 
     best_other_mean = max(others, key=lambda m: stats[m].mean)
     passed_a = all(ours.mean > stats[m].mean for m in others)
-    measured_a = (f"{OURS} {ours.mean:.4f}; best other: {best_other_mean} {stats[best_other_mean].mean:.4f} "
-                  f"(compared: {', '.join(others)})")
+    measured_a = (
+        f"{OURS} {ours.mean:.4f}; best other: {best_other_mean} {stats[best_other_mean].mean:.4f} "
+        f"(compared: {', '.join(others)})"
+    )
 
     best_other_worst = max(others, key=lambda m: stats[m].worst)
     passed_b = all(ours.worst > stats[m].worst for m in others)
-    measured_b = (f"{OURS} worst {ours.worst:.4f} at {ours.worst_depth_mm:.0f} mm; best other worst: "
-                  f"{best_other_worst} {stats[best_other_worst].worst:.4f} at {stats[best_other_worst].worst_depth_mm:.0f} mm")
+    measured_b = (
+        f"{OURS} worst {ours.worst:.4f} at {ours.worst_depth_mm:.0f} mm; best other worst: "
+        f"{best_other_worst} {stats[best_other_worst].worst:.4f} at {stats[best_other_worst].worst_depth_mm:.0f} mm"
+    )
     return [Bar("a", statement_a, passed_a, measured_a), Bar("b", statement_b, passed_b, measured_b)]
 
 
 def wall_time_bar(seconds: float, budget_seconds: float) -> Bar:
     """Bar (c): ``seconds <= budget_seconds``."""
-    return Bar("c", f"demo wall time <= {budget_seconds / 60:.0f} min", seconds <= budget_seconds,
-               f"{seconds / 60:.1f} min ({seconds:.0f} s)")
+    return Bar(
+        "c",
+        f"demo wall time <= {budget_seconds / 60:.0f} min",
+        seconds <= budget_seconds,
+        f"{seconds / 60:.1f} min ({seconds:.0f} s)",
+    )

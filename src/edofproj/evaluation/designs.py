@@ -65,5 +65,9 @@ class OpticalDesign:
 
     def bank(self, depths_m) -> PSFBank:
         depths = np.atleast_1d(np.asarray(depths_m, dtype=float))
-        return PSFBank(psf=self.psf(depths).cpu(), depths_m=depths,
-                       pixel_pitch_m=self._simulator.geometry.pixel_pitch_m(depths), description=self.description)
+        return PSFBank(
+            psf=self.psf(depths).cpu(),
+            depths_m=depths,
+            pixel_pitch_m=self._simulator.geometry.pixel_pitch_m(depths),
+            description=self.description,
+        )

@@ -44,8 +44,13 @@ def _method_style(index: int, name: str) -> dict:
     return dict(color=colour, lw=1.3, ls="--" if name.startswith("lens") else "-", marker=".", ms=5)
 
 
-def plot_metric_vs_depth(table: MetricsTable, metric: str, path: str | Path,
-                         scored_range_mm: tuple[float, float] | None = None, title: str | None = None) -> None:
+def plot_metric_vs_depth(
+    table: MetricsTable,
+    metric: str,
+    path: str | Path,
+    scored_range_mm: tuple[float, float] | None = None,
+    title: str | None = None,
+) -> None:
     """Mean ``metric`` over the images against depth, one line per method; the depth range the
     summaries score (``evaluation.score_range_mm``) shaded."""
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
@@ -56,7 +61,9 @@ def plot_metric_vs_depth(table: MetricsTable, metric: str, path: str | Path,
         depths = sorted(means)
         ax.plot(depths, [means[z] for z in depths], label=method, **_method_style(index, method))
     ax.set_xlabel("screen depth z (mm)")
-    ax.set_ylabel(METRIC_LABELS.get(metric, metric) + ("" if metric not in ("lpips", "dists") else " (lower is better)"))
+    ax.set_ylabel(
+        METRIC_LABELS.get(metric, metric) + ("" if metric not in ("lpips", "dists") else " (lower is better)")
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2, loc="best")
     ax.set_title(title or f"{METRIC_LABELS.get(metric, metric)} vs depth (mean over the test images)", fontsize=10)
@@ -72,7 +79,7 @@ def _tile_text(scores: dict, best: dict) -> list[tuple[str, bool]]:
 
 
 def _best_of(row_scores: Sequence[dict]) -> dict:
-    best = {}
+    best: dict = {}
     for scores in row_scores:
         for metric, value in scores.items():
             if metric not in best or better(metric, value, best[metric]):
@@ -83,9 +90,18 @@ def _best_of(row_scores: Sequence[dict]) -> dict:
 def _annotate(ax, parts: list[tuple[str, bool]]) -> None:
     y = 0.02
     for text, is_best in reversed(parts):
-        ax.text(0.02, y, text, transform=ax.transAxes, fontsize=7, va="bottom", ha="left",
-                color="red" if is_best else "white", fontweight="bold" if is_best else "normal",
-                bbox=dict(facecolor="white" if is_best else "black", alpha=0.8 if is_best else 0.55, pad=1.0, lw=0))
+        ax.text(
+            0.02,
+            y,
+            text,
+            transform=ax.transAxes,
+            fontsize=7,
+            va="bottom",
+            ha="left",
+            color="red" if is_best else "white",
+            fontweight="bold" if is_best else "normal",
+            bbox=dict(facecolor="white" if is_best else "black", alpha=0.8 if is_best else 0.55, pad=1.0, lw=0),
+        )
         y += 0.11
 
 
@@ -94,8 +110,9 @@ def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, di
     n_cols = 1 + max(len(r[2]) for r in rows)
     height, width = rows[0][1].shape[:2]
     tile = 2.0
-    fig, axes = plt.subplots(len(rows), n_cols, figsize=(tile * n_cols, tile * height / width * len(rows) + 0.6),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows), n_cols, figsize=(tile * n_cols, tile * height / width * len(rows) + 0.6), squeeze=False
+    )
     for r, (label, target, tiles) in enumerate(rows):
         best = _best_of([scores for _, _, scores in tiles])
         axes[r, 0].imshow(np.clip(target, 0, 1))
@@ -116,8 +133,14 @@ def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, di
     _save(fig, path, dpi=120)
 
 
-def plot_comparison(target: np.ndarray, examples: dict, depths_mm: Sequence[float], methods: Sequence[str],
-                    path: str | Path, image_name: str = "") -> None:
+def plot_comparison(
+    target: np.ndarray,
+    examples: dict,
+    depths_mm: Sequence[float],
+    methods: Sequence[str],
+    path: str | Path,
+    image_name: str = "",
+) -> None:
     """Paper Fig. 6: rows = ``depths_mm``, columns = target + ``methods``; ``examples`` from
     :func:`edofproj.evaluation.sweep.example_displays`."""
     rows = []
@@ -126,17 +149,30 @@ def plot_comparison(target: np.ndarray, examples: dict, depths_mm: Sequence[floa
         rows.append((f"z = {z:.0f} mm", target, tiles))
     has_lpips = any("lpips" in scores for _, _, row in rows for _, _, scores in row)
     legend = "P = PSNR dB, S = SSIM" + (", L = LPIPS" if has_lpips else "")
-    _image_grid(rows, path, f"Simulated projections{' of ' + image_name if image_name else ''} "
-                            f"({legend}; best of each row in red)")
+    _image_grid(
+        rows,
+        path,
+        f"Simulated projections{' of ' + image_name if image_name else ''} ({legend}; best of each row in red)",
+    )
 
 
-def plot_tilted(target: np.ndarray, examples: dict, methods: Sequence[str], path: str | Path,
-                near_mm: float, far_mm: float, tilt_deg: float) -> None:
+def plot_tilted(
+    target: np.ndarray,
+    examples: dict,
+    methods: Sequence[str],
+    path: str | Path,
+    near_mm: float,
+    far_mm: float,
+    tilt_deg: float,
+) -> None:
     """The tilted screen: target + one tile per method (near edge on the left)."""
     tiles = [(m, *examples[m]) for m in methods if m in examples]
     label = f"{near_mm:.0f} mm (left) to\n{far_mm:.0f} mm (right)"
-    _image_grid([(label, target, tiles)], path,
-                f"Tilted screen ({tilt_deg:g} deg, depth {near_mm:.0f}-{far_mm:.0f} mm; P = PSNR, S = SSIM)")
+    _image_grid(
+        [(label, target, tiles)],
+        path,
+        f"Tilted screen ({tilt_deg:g} deg, depth {near_mm:.0f}-{far_mm:.0f} mm; P = PSNR, S = SSIM)",
+    )
 
 
 def plot_training_curves(curves: Sequence[tuple[str, list[dict]]], path: str | Path) -> None:
@@ -152,7 +188,7 @@ def plot_training_curves(curves: Sequence[tuple[str, list[dict]]], path: str | P
         style = _method_style(index, label)
         style.pop("marker", None)
         ax.plot(steps, loss, color=style["color"], alpha=0.15, lw=0.6)
-        ax.plot(steps[len(steps) - len(smooth):], smooth, label=label, **style)
+        ax.plot(steps[len(steps) - len(smooth) :], smooth, label=label, **style)
     ax.set_yscale("log")
     ax.set_xlabel("step")
     ax.set_ylabel("training loss (alpha MSE + beta perceptual)")

@@ -21,19 +21,32 @@ import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
 
 from ..compensation.registry import describe_network
-from ..config import apply_overrides, to_dict
+from ..config import Config, apply_overrides, to_dict
 from ..errors import EdofprojError
 from .designs import OpticalDesign
-from .methods import (ConstrainedCompensation, MethodSpec, NetworkCompensation, PreparedMethod, WienerCompensation,
-                      no_compensation, score_range_mm, select_methods, training_crops, tune_nsr)
+from .methods import (
+    ConstrainedCompensation,
+    MethodSpec,
+    NetworkCompensation,
+    PreparedMethod,
+    WienerCompensation,
+    no_compensation,
+    score_range_mm,
+    select_methods,
+    training_crops,
+    tune_nsr,
+)
 from .progress import StageProgress
 from .results import MetricsTable
+
+if TYPE_CHECKING:
+    from ..runs import TrainedRun
 
 FIGURES_DIR = "figures"
 METRICS_NAME = "metrics.csv"
@@ -49,11 +62,11 @@ class Evaluation:
     """Everything an evaluation measured and wrote."""
 
     out_dir: Path
-    run: object                                  # edofproj.runs.TrainedRun
-    cfg: object                                  # the run's config with the evaluation overrides
+    run: TrainedRun
+    cfg: Config  # the run's config with the evaluation overrides
     methods: list[PreparedMethod]
     designs: dict[str, OpticalDesign]
-    images: list[tuple[str, object]]
+    images: list[tuple[str, torch.Tensor]]
     depths_mm: list[float]
     range_mm: tuple[float, float]
     table: MetricsTable
@@ -64,7 +77,7 @@ class Evaluation:
     nsr: dict[str, float] = field(default_factory=dict)
     perceptual: list[str] = field(default_factory=list)
     perceptual_missing: list[str] = field(default_factory=list)
-    baseline_runs: dict[str, object] = field(default_factory=dict)
+    baseline_runs: dict[str, TrainedRun] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
     figures: dict[str, Path] = field(default_factory=dict)
     seconds: float = math.nan
@@ -121,7 +134,9 @@ def _check_baseline(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | No
 class MethodBuilder:
     """Builds :class:`PreparedMethod` objects, sharing designs and tuned NSRs between methods."""
 
-    def __init__(self, run, cfg, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self, run: TrainedRun, cfg: Config, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu"
+    ) -> None:
         from ..doe import build_doe
 
         self.device = torch.device(device)
@@ -132,9 +147,9 @@ class MethodBuilder:
         self.designs: dict[str, OpticalDesign] = {}
         self.nsr: dict[str, float] = {}
         self.notes: list[str] = []
-        self.baseline_runs: dict[str, object] = {}
+        self.baseline_runs: dict[str, TrainedRun] = {}
         self._build_doe = build_doe
-        self._train_images = None
+        self._train_images: torch.Tensor | None = None
 
     def design(self, key: str, label: str, doe) -> OpticalDesign:
         if key not in self.designs:
@@ -150,22 +165,27 @@ class MethodBuilder:
     def tuned_nsr(self, design: OpticalDesign) -> float:
         if design.key not in self.nsr:
             if self._train_images is None:
-                self._train_images = training_crops(self.cfg, self.cfg.evaluation.wiener_tuning_images,
-                                                    seed=self.cfg.train.seed).to(self.device)
+                self._train_images = training_crops(
+                    self.cfg, self.cfg.evaluation.wiener_tuning_images, seed=self.cfg.train.seed
+                ).to(self.device)
             self.nsr[design.key], _ = tune_nsr(design, self._train_images, self.cfg)
         return self.nsr[design.key]
 
-    def baseline(self, spec: MethodSpec):
+    def baseline(self, spec: MethodSpec) -> TrainedRun | None:
         """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
         from ..runs import last_checkpoint_path, load_run
 
+        if spec.run_dir is None:
+            raise EdofprojError(f"method {spec.name} has no separate run")
         path = self.baselines_dir / spec.run_dir
         if not last_checkpoint_path(path).is_file():
             reason = f"no trained run at '{path}'"
             hint = " ".join(f"--set {o}" for o in spec.train_overrides)
             if self.explicit:
-                raise EdofprojError(f"method {spec.name} needs {reason} (train one: edofproj train --config "
-                                    f"<config> --out {path} {hint})")
+                raise EdofprojError(
+                    f"method {spec.name} needs {reason} (train one: edofproj train --config "
+                    f"<config> --out {path} {hint})"
+                )
             self.notes.append(f"{spec.name} skipped: {reason}")
             return None
         baseline = load_run(path)
@@ -187,6 +207,8 @@ class MethodBuilder:
         elif spec.optics == "run":
             design = self.run_design()
         else:
+            if baseline is None or spec.run_dir is None:
+                raise EdofprojError(f"method {spec.name}: optics '{spec.optics}' needs a separate run")
             design = self.design(spec.run_dir, spec.name.split("+")[0], baseline.doe)
         detail = ""
         if spec.compensation == "none":
@@ -195,8 +217,10 @@ class MethodBuilder:
             nsr = self.tuned_nsr(design)
             compensate = WienerCompensation(nsr)
             near_mm, far_mm = score_range_mm(self.cfg)
-            detail = (f"NSR {nsr:.3g}, tuned for {self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops "
-                      f"at {near_mm:.0f}-{far_mm:.0f} mm")
+            detail = (
+                f"NSR {nsr:.3g}, tuned for {self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops "
+                f"at {near_mm:.0f}-{far_mm:.0f} mm"
+            )
         elif spec.compensation == "cls":
             compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
@@ -204,27 +228,40 @@ class MethodBuilder:
             source = baseline if baseline is not None else self.run
             compensate = NetworkCompensation(source.net.to(self.device))
             loss = source.cfg.loss
-            perceptual = f" + {loss.beta:g} (1 - {loss.perceptual.upper()})" if loss.beta > 0 and loss.perceptual != "none" else ""
-            detail = (f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
-                      f"({source.run_dir})")
+            perceptual = (
+                f" + {loss.beta:g} (1 - {loss.perceptual.upper()})"
+                if loss.beta > 0 and loss.perceptual != "none"
+                else ""
+            )
+            detail = (
+                f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
+                f"({source.run_dir})"
+            )
         return PreparedMethod(spec, design, compensate, detail)
 
 
 # --------------------------------------------------------------------------- evaluation
 
 
-def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_dir: str | Path | None = None,
-                 depths_mm: Sequence[float] | None = None, methods: Sequence[str] | None = None,
-                 baselines_dir: str | Path | None = None, overrides: Sequence[str] = (),
-                 progress: StageProgress | None = None, device: str | torch.device = "cpu") -> Evaluation:
+def evaluate_run(
+    run_dir: str | Path,
+    out_dir: str | Path | None = None,
+    images_dir: str | Path | None = None,
+    depths_mm: Sequence[float] | None = None,
+    methods: Sequence[str] | None = None,
+    baselines_dir: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    progress: StageProgress | None = None,
+    device: str | torch.device = "cpu",
+) -> Evaluation:
     """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run).
 
     ``device``: where the images, PSFs and networks are run (``cpu`` or ``cuda``); the PSFs are
     simulated on the CPU, and the tables do not depend on the device beyond float32 rounding."""
     import time
 
-    from ..runs import load_run
     from ..data import evaluation_images
+    from ..runs import load_run
     from .sweep import example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
 
     clock = time.perf_counter()
@@ -244,8 +281,13 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     images = evaluation_images(cfg, images_dir)
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
-    builder = MethodBuilder(run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent,
-                            explicit=bool(methods), device=device)
+    builder = MethodBuilder(
+        run,
+        cfg,
+        Path(baselines_dir) if baselines_dir is not None else run_path.parent,
+        explicit=bool(methods),
+        device=device,
+    )
     prepared = []
     for spec in specs:
         method = builder.build(spec)
@@ -263,8 +305,11 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     missing = [c for c in PERCEPTUAL_COLUMNS if c not in perceptual]
 
     units = len(prepared) * len(images)
-    progress.start("flat-screen sweep", units * len(depths),
-                   detail=f"{len(prepared)} methods x {len(depths)} depths x {len(images)} images")
+    progress.start(
+        "flat-screen sweep",
+        units * len(depths),
+        detail=f"{len(prepared)} methods x {len(depths)} depths x {len(images)} images",
+    )
     table = flat_screen_sweep(prepared, images, depths, perceptual, progress.advance, device)
     progress.finish()
     progress.start("tilted screen", units)
@@ -273,11 +318,25 @@ def evaluate_run(run_dir: str | Path, out_dir: str | Path | None = None, images_
     comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual, device)
     progress.finish()
 
-    evaluation = Evaluation(out_dir=out, run=run, cfg=cfg, methods=prepared, designs=builder.designs,
-                            images=images, depths_mm=depths, range_mm=range_mm, table=table, tilted=tilted,
-                            comparison=comparison, tilted_examples=tilted_examples, notes=builder.notes,
-                            nsr=builder.nsr, perceptual=list(perceptual), perceptual_missing=missing,
-                            baseline_runs=builder.baseline_runs)
+    evaluation = Evaluation(
+        out_dir=out,
+        run=run,
+        cfg=cfg,
+        methods=prepared,
+        designs=builder.designs,
+        images=images,
+        depths_mm=depths,
+        range_mm=range_mm,
+        table=table,
+        tilted=tilted,
+        comparison=comparison,
+        tilted_examples=tilted_examples,
+        notes=builder.notes,
+        nsr=builder.nsr,
+        perceptual=list(perceptual),
+        perceptual_missing=missing,
+        baseline_runs=builder.baseline_runs,
+    )
     write_tables(evaluation)
     progress.start("figures", 1)
     write_figures(evaluation)
@@ -319,13 +378,26 @@ def write_figures(ev: Evaluation) -> None:
     name, image = ev.images[0]
     target = image.permute(1, 2, 0).numpy()
     ev.figures["comparison"] = figures / "eval_comparison.png"
-    plot_comparison(target, ev.comparison, ev.cfg.evaluation.comparison_depths_mm, methods,
-                    ev.figures["comparison"], image_name=name)
+    plot_comparison(
+        target,
+        ev.comparison,
+        ev.cfg.evaluation.comparison_depths_mm,
+        methods,
+        ev.figures["comparison"],
+        image_name=name,
+    )
     if ev.tilted.rows:
         row = ev.tilted.rows[0]
         ev.figures["tilted"] = figures / "eval_tilted.png"
-        plot_tilted(target, ev.tilted_examples, methods, ev.figures["tilted"], row["near_mm"], row["far_mm"],
-                    ev.cfg.evaluation.tilt_deg)
+        plot_tilted(
+            target,
+            ev.tilted_examples,
+            methods,
+            ev.figures["tilted"],
+            row["near_mm"],
+            row["far_mm"],
+            ev.cfg.evaluation.tilt_deg,
+        )
 
     depths_m = psf_figure_depths_m(ev.cfg)
     panels = []

@@ -41,7 +41,13 @@ class StageProgress:
         self._eta_override: float | None = None
 
     def start(self, stage: str, total: float, later_s: float = 0.0, detail: str = "") -> None:
-        self.stage, self.total, self.done, self.later_s, self.detail = stage, max(float(total), 1e-9), 0.0, later_s, detail
+        self.stage, self.total, self.done, self.later_s, self.detail = (
+            stage,
+            max(float(total), 1e-9),
+            0.0,
+            later_s,
+            detail,
+        )
         self._stage_start = time.perf_counter()
         self._last_print = 0.0
         self._eta_override = None
@@ -55,8 +61,9 @@ class StageProgress:
             return float("nan")
         return elapsed * max(self.total - self.done, 0.0) / self.done
 
-    def set(self, done: float, detail: str | None = None, total: float | None = None,
-            eta_s: float | None = None) -> None:
+    def set(
+        self, done: float, detail: str | None = None, total: float | None = None, eta_s: float | None = None
+    ) -> None:
         """Progress ``done`` of ``total``; ``eta_s`` replaces the extrapolated ETA (e.g. parallel jobs)."""
         self.done = float(done)
         self._eta_override = eta_s
@@ -72,8 +79,10 @@ class StageProgress:
     def finish(self, message: str = "") -> None:
         elapsed = time.perf_counter() - self._stage_start
         self.done = self.total
-        self._write(f"{self.command} | {self.stage}: done in {format_duration(elapsed)}"
-                    + (f" | {message}" if message else ""), final=True)
+        self._write(
+            f"{self.command} | {self.stage}: done in {format_duration(elapsed)}" + (f" | {message}" if message else ""),
+            final=True,
+        )
 
     def note(self, message: str) -> None:
         """A line of its own (e.g. a skipped method)."""
@@ -87,8 +96,10 @@ class StageProgress:
         parts = [self.command, self.stage]
         if self.detail:
             parts.append(self.detail)
-        parts.append(f"{percent:3.0f}%  ETA {format_duration(eta)}"
-                     + (f" (all {format_duration(total_eta)})" if self.later_s > 0 else ""))
+        parts.append(
+            f"{percent:3.0f}%  ETA {format_duration(eta)}"
+            + (f" (all {format_duration(total_eta)})" if self.later_s > 0 else "")
+        )
         return " | ".join(parts)
 
     def _show(self, force: bool = False) -> None:

@@ -35,7 +35,8 @@ def plot_psf_comparison(panels, out_path, title: str | None = None) -> None:
     n_depths = len(depths_mm)
     n_designs = len(panels)
     fig = plt.figure(figsize=(max(8.0, 1.3 * n_depths), 1.6 * n_designs + 3.6), layout="constrained")
-    top, bottom = fig.subfigures(2, 1, height_ratios=[1.6 * n_designs, 3.2])
+    subfigures = fig.subfigures(2, 1, squeeze=False, height_ratios=[1.6 * n_designs, 3.2])
+    top, bottom = subfigures[0, 0], subfigures[1, 0]
     tiles = top.subplots(n_designs, n_depths, squeeze=False)
     for row, (label, _doe, bank) in enumerate(panels):
         psf = bank.psf.detach().cpu().numpy()
@@ -60,8 +61,13 @@ def plot_psf_comparison(panels, out_path, title: str | None = None) -> None:
         K = psf.shape[-1]
         offsets = np.arange(K) - K // 2
         for colour, i in zip(colours, picks):
-            ax_profile.semilogy(offsets, np.maximum(psf[i, c, K // 2, :], 1e-7), styles[d % 4], color=colour,
-                                label=f"{label}, {depths_mm[i]:.0f} mm")
+            ax_profile.semilogy(
+                offsets,
+                np.maximum(psf[i, c, K // 2, :], 1e-7),
+                styles[d % 4],
+                color=colour,
+                label=f"{label}, {depths_mm[i]:.0f} mm",
+            )
         if ax_height is not None:
             R = doe.aperture_radius_m
             r = torch.linspace(0, R, 2000, dtype=torch.float64)
@@ -76,11 +82,14 @@ def plot_psf_comparison(panels, out_path, title: str | None = None) -> None:
     ax_profile.set_ylim(1e-6, 1.2)
     ax_profile.legend(fontsize=7, ncol=2)
     if ax_height is not None:
-        ax_height.set_xlabel("radius (mm)" + ("" if all(p[1].radially_symmetric for p in panels) else "; x for 2-D designs"))
+        ax_height.set_xlabel(
+            "radius (mm)" + ("" if all(p[1].radially_symmetric for p in panels) else "; x for 2-D designs")
+        )
         ax_height.set_ylabel("height (nm)")
         ax_height.legend(fontsize=8)
-    fig.suptitle(title or "RGB PSFs across depth (each tile peak-normalized, gamma 0.5; E = energy in window)",
-                 fontsize=10)
+    fig.suptitle(
+        title or "RGB PSFs across depth (each tile peak-normalized, gamma 0.5; E = energy in window)", fontsize=10
+    )
     with atomic_path(out_path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -80,7 +80,9 @@ pre { background: #f6f6f6; padding: .6em; overflow-x: auto; font-size: 0.85em; }
 def _inline_html(text: str) -> str:
     escaped = html.escape(text)
     escaped = _BOLD.sub(r"<b>\1</b>", escaped)
-    escaped = escaped.replace("PASS", '<span class="pass">PASS</span>').replace("FAIL", '<span class="fail">FAIL</span>')
+    escaped = escaped.replace("PASS", '<span class="pass">PASS</span>').replace(
+        "FAIL", '<span class="fail">FAIL</span>'
+    )
     return escaped
 
 
@@ -122,9 +124,12 @@ class Report:
         body = [f"<h1>{_inline_html(self.title)}</h1>"]
         for block in self.blocks:
             body.append(_block_html(block))
-        return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-                f"<title>{html.escape(self.title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
-                + "\n".join(body) + "\n</body>\n</html>\n")
+        return (
+            '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+            f"<title>{html.escape(self.title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
+            + "\n".join(body)
+            + "\n</body>\n</html>\n"
+        )
 
     def write(self, markdown_path: str | Path | None = None, html_path: str | Path | None = None) -> None:
         """Write the Markdown and/or the HTML file atomically."""
@@ -144,8 +149,10 @@ def _is_number(cell: str) -> bool:
 
 def _numeric_columns(table: Table) -> list[bool]:
     """Right-align the columns whose cells are all numbers (the first column never)."""
-    return [index > 0 and all(_is_number(row[index]) for row in table.rows if index < len(row))
-            for index in range(len(table.header))]
+    return [
+        index > 0 and all(_is_number(row[index]) for row in table.rows if index < len(row))
+        for index in range(len(table.header))
+    ]
 
 
 def _block_markdown(block: Block, base_dir: Path) -> list[str]:
@@ -181,13 +188,21 @@ def _block_html(block: Block) -> str:
         caption = f"<caption>{_inline_html(block.caption)}</caption>" if block.caption else ""
         numeric = _numeric_columns(block)
         head = "<tr>" + "".join(f"<th>{_inline_html(h)}</th>" for h in block.header) + "</tr>"
-        rows = "\n".join("<tr>" + "".join(
-            f"<td style=\"text-align:{'right' if numeric[i] else 'left'}\">{_inline_html(str(c))}</td>"
-            for i, c in enumerate(row)) + "</tr>" for row in block.rows)
+        rows = "\n".join(
+            "<tr>"
+            + "".join(
+                f'<td style="text-align:{"right" if numeric[i] else "left"}">{_inline_html(str(c))}</td>'
+                for i, c in enumerate(row)
+            )
+            + "</tr>"
+            for row in block.rows
+        )
         return f"<table>{caption}\n<thead>{head}</thead>\n<tbody>\n{rows}\n</tbody></table>"
     if isinstance(block, Figure):
-        return (f"<figure><img src=\"{image_data_uri(block.path)}\" alt=\"{html.escape(block.caption)}\">"
-                f"<figcaption>{_inline_html(block.caption)}</figcaption></figure>")
+        return (
+            f'<figure><img src="{image_data_uri(block.path)}" alt="{html.escape(block.caption)}">'
+            f"<figcaption>{_inline_html(block.caption)}</figcaption></figure>"
+        )
     if isinstance(block, Preformatted):
         return f"<pre>{html.escape(block.text)}</pre>"
     raise TypeError(f"unknown report block {block!r}")

@@ -74,23 +74,27 @@ class MetricsTable:
         return sorted({float(r["depth_mm"]) for r in self.rows})
 
     def values(self, metric: str, **where) -> np.ndarray:
-        return np.array([float(r[metric]) for r in self.rows
-                         if all(_same(r[k], v) for k, v in where.items())], dtype=float)
+        return np.array(
+            [float(r[metric]) for r in self.rows if all(_same(r[k], v) for k, v in where.items())], dtype=float
+        )
 
     def mean(self, metric: str, **where) -> float:
         values = self.values(metric, **where)
         return float(values.mean()) if values.size else math.nan
 
     def per_depth_means(self, method: str, metric: str) -> dict[float, float]:
-        return {z: self.mean(metric, method=method, depth_mm=z) for z in self.depths_mm()
-                if self.values(metric, method=method, depth_mm=z).size}
+        return {
+            z: self.mean(metric, method=method, depth_mm=z)
+            for z in self.depths_mm()
+            if self.values(metric, method=method, depth_mm=z).size
+        }
 
     def range_stats(self, method: str, metric: str, lo_mm: float, hi_mm: float) -> RangeStats:
         means = {z: m for z, m in self.per_depth_means(method, metric).items() if lo_mm - 1e-9 <= z <= hi_mm + 1e-9}
         if not means:
             return RangeStats(math.nan, math.nan, math.nan, 0)
         pick = min if HIGHER_IS_BETTER[metric] else max
-        worst_depth = pick(means, key=means.get)
+        worst_depth = pick(means, key=means.__getitem__)
         return RangeStats(float(np.mean(list(means.values()))), means[worst_depth], worst_depth, len(means))
 
     # -- files ---------------------------------------------------------------------------
@@ -116,7 +120,7 @@ class MetricsTable:
             raise EdofprojError(f"cannot read metrics file '{path}': {exc.strerror or exc}") from None
         if header[: len(keys)] != keys:
             raise EdofprojError(f"'{path}' is not a metrics table (columns {', '.join(header)})")
-        table = cls(keys, header[len(keys):])
+        table = cls(keys, header[len(keys) :])
         for row in rows:
             table.rows.append({k: (row[k] if k in ("method", "image") else float(row[k])) for k in header})
         return table

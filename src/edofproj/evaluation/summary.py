@@ -51,11 +51,16 @@ def range_table(table: MetricsTable, range_mm: tuple[float, float], metrics: Seq
         label = METRIC_LABELS.get(metric, metric)
         header += [f"mean {label}", f"worst {label} (depth)"]
         columns.append(_cells(metric, [s.mean for s in stats]))
-        columns.append(_cells(metric, [s.worst for s in stats],
-                              [f"({s.worst_depth_mm:.0f})" if s.depths else "" for s in stats]))
+        columns.append(
+            _cells(metric, [s.worst for s in stats], [f"({s.worst_depth_mm:.0f})" if s.depths else "" for s in stats])
+        )
     rows = [[method] + [col[i] for col in columns] for i, method in enumerate(methods)]
-    return Table(header, rows, f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
-                               f"images; worst = lowest, or highest for LPIPS/DISTS; best of each column in bold)")
+    return Table(
+        header,
+        rows,
+        f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
+        f"images; worst = lowest, or highest for LPIPS/DISTS; best of each column in bold)",
+    )
 
 
 def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float]) -> Table:

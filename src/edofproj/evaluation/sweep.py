@@ -30,10 +30,10 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from .. import metrics
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.projection import project
 from ..imaging.screens import tilted_plane_depth_map
-from .. import metrics
 from .results import BASE_METRICS, MetricsTable
 
 Progress = Callable[[int], None]
@@ -103,8 +103,14 @@ def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
             yield method, project(x, psf)
 
 
-def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depths_mm: Sequence[float],
-                      perceptual: dict, progress: Progress | None = None, device: str | torch.device = "cpu") -> MetricsTable:
+def flat_screen_sweep(
+    methods,
+    images: Sequence[tuple[str, torch.Tensor]],
+    depths_mm: Sequence[float],
+    perceptual: dict,
+    progress: Progress | None = None,
+    device: str | torch.device = "cpu",
+) -> MetricsTable:
     """Score every method on every image at every depth (rows: method, depth_mm, image); the images
     are moved to ``device``, where the methods' networks and PSFs must be."""
     table = MetricsTable(("method", "depth_mm", "image"), metric_columns(perceptual))
@@ -123,8 +129,9 @@ def flat_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], depth
     return table
 
 
-def example_displays(methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict,
-                     device: str | torch.device = "cpu") -> dict:
+def example_displays(
+    methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict, device: str | torch.device = "cpu"
+) -> dict:
     """``{(depth_mm, method name): (display (H, W, 3) array, scores)}`` for the comparison figure."""
     examples = {}
     target = image.unsqueeze(0).to(device)
@@ -165,9 +172,14 @@ class TiltedScreen:
                 yield method, self.render(x, design)
 
 
-def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg, perceptual: dict,
-                        progress: Progress | None = None,
-                        device: str | torch.device = "cpu") -> tuple[MetricsTable, dict]:
+def tilted_screen_sweep(
+    methods,
+    images: Sequence[tuple[str, torch.Tensor]],
+    cfg,
+    perceptual: dict,
+    progress: Progress | None = None,
+    device: str | torch.device = "cpu",
+) -> tuple[MetricsTable, dict]:
     """Score every method on the tilted screen. Returns the table (rows: method, near_mm,
     far_mm, image) and the displays of the first image ``{method name: (array, scores)}``."""
     table = MetricsTable(("method", "near_mm", "far_mm", "image"), metric_columns(perceptual))
@@ -181,10 +193,11 @@ def tilted_screen_sweep(methods, images: Sequence[tuple[str, torch.Tensor]], cfg
             screen = screens.setdefault(size, TiltedScreen(cfg, *size))
             for method, display in screen.displays(methods, target):
                 for index, (name, values) in enumerate(zip(names, score(display, target, perceptual))):
-                    table.add(method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3,
-                              image=name, **values)
+                    table.add(
+                        method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3, image=name, **values
+                    )
                     if name == first:
-                        examples[method.name] = (_to_array(display[index: index + 1]), values)
+                        examples[method.name] = (_to_array(display[index : index + 1]), values)
                 if progress is not None:
                     progress(len(names))
     return table, examples

@@ -58,8 +58,9 @@ class Timing:
     repeats: int
 
 
-def measure_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2,
-               synchronize: Callable[[], None] | None = None) -> list[float]:
+def measure_ms(
+    frame: FrameFunction, repeats: int = 10, warmup: int = 2, synchronize: Callable[[], None] | None = None
+) -> list[float]:
     """Wall-clock milliseconds of each of ``repeats`` calls of ``frame`` after ``warmup`` untimed
     calls (``synchronize`` is called after each, e.g. to wait for a device)."""
     if repeats < 1 or warmup < 0:
@@ -101,16 +102,20 @@ def _measure(case: "Case", frame: FrameFunction, repeats: int, warmup: int) -> l
     return measure_ms(frame, repeats, warmup, synchronize)
 
 
-def time_cases(cases: Iterable[Case], sizes: Sequence[tuple[int, int]], repeats: int = 10,
-               warmup: int = 2, progress: Callable[[Timing], None] | None = None) -> list[Timing]:
+def time_cases(
+    cases: Iterable[Case],
+    sizes: Sequence[tuple[int, int]],
+    repeats: int = 10,
+    warmup: int = 2,
+    progress: Callable[[Timing], None] | None = None,
+) -> list[Timing]:
     """Median milliseconds per frame of every case at every ``(height, width)``."""
     results = []
     for case in cases:
         for height, width in sizes:
             frame = case.build(height, width)
             times = _measure(case, frame, repeats, warmup)
-            timing = Timing(case.method, case.backend, case.device, height, width,
-                            statistics.median(times), repeats)
+            timing = Timing(case.method, case.backend, case.device, height, width, statistics.median(times), repeats)
             results.append(timing)
             if progress is not None:
                 progress(timing)
@@ -126,8 +131,8 @@ def disk_psf(window: int, channels: int = 3, energy: float = 0.95) -> np.ndarray
     if window < 1 or window % 2 == 0:
         raise EdofprojError(f"--window={window} must be odd and >= 1")
     radius = window // 2
-    y, x = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-    disk = (x ** 2 + y ** 2 <= radius ** 2 + 0.5).astype(np.float64)
+    y, x = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    disk = (x**2 + y**2 <= radius**2 + 0.5).astype(np.float64)
     return np.repeat((energy * disk / disk.sum())[None], channels, axis=0)
 
 
@@ -174,13 +179,12 @@ def cls_torch_case(psf, iterations: int = 100, device: str = "cpu") -> Case:
     return Case("cls", "torch", device, build)
 
 
-def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu",
-                       channels_last: bool = True) -> Case:
+def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu", channels_last: bool = True) -> Case:
     """``net(target, captured)`` in ``torch.inference_mode`` (``channels_last`` memory format for the
     weights, and for the images unless the network says ``channels_last_inputs = False``)."""
     net = net.eval().to(device)
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
-    net = net.to(memory_format=memory_format)
+    net = net.to(memory_format=memory_format)  # type: ignore[call-overload]  # documented; missing from torch's stubs
     if not getattr(net, "channels_last_inputs", True):
         memory_format = torch.contiguous_format
 

@@ -12,8 +12,8 @@ from typing import Sequence
 
 from .bars import Bar
 from .methods import METHOD_NAMES
-from .results import METRIC_LABELS
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
+from .results import METRIC_LABELS
 from .summary import depth_table, range_table, tilted_table
 
 SUMMARY_NAME = "summary.md"
@@ -33,15 +33,19 @@ def overview(ev) -> list:
     size = ev.images[0][1].shape[-2:]
     lo, hi = ev.range_mm
     return [
-        Paragraph(f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
-                  f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
-                  f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
-                  f"{lo:.0f}-{hi:.0f} mm."),
-        Paragraph(f"Scored on {len(ev.images)} held-out image(s) ({images}) of {size[0]}x{size[1]} px, at "
-                  f"{len(ev.depths_mm)} flat-screen depths ({', '.join(f'{z:.0f}' for z in ev.depths_mm)} mm) and on a "
-                  f"tilted screen. Every projector input is clamped to [0, 1] and projected through the same image "
-                  f"formation (FFT convolution with the simulated RGB PSF plus the haze of the light outside the PSF "
-                  f"window). Networks receive the target and the simulated capture I* = project(I, p_z)."),
+        Paragraph(
+            f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
+            f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
+            f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
+            f"{lo:.0f}-{hi:.0f} mm."
+        ),
+        Paragraph(
+            f"Scored on {len(ev.images)} held-out image(s) ({images}) of {size[0]}x{size[1]} px, at "
+            f"{len(ev.depths_mm)} flat-screen depths ({', '.join(f'{z:.0f}' for z in ev.depths_mm)} mm) and on a "
+            f"tilted screen. Every projector input is clamped to [0, 1] and projected through the same image "
+            f"formation (FFT convolution with the simulated RGB PSF plus the haze of the light outside the PSF "
+            f"window). Networks receive the target and the simulated capture I* = project(I, p_z)."
+        ),
     ]
 
 
@@ -56,10 +60,14 @@ def methods_section(ev) -> list:
     if not_evaluated:
         notes.append(f"Not evaluated: {', '.join(not_evaluated)}.")
     if ev.perceptual_missing:
-        notes.append(f"Perceptual metrics unavailable on this machine (no pretrained weights): "
-                     f"{', '.join(m.upper() for m in ev.perceptual_missing)}; their columns are omitted, not zero.")
-    notes.append("Wiener and CLS are non-blind (given the exact PSF of the depth); on the tilted screen they get the "
-                 "PSF of the screen's middle column. The networks are blind.")
+        notes.append(
+            f"Perceptual metrics unavailable on this machine (no pretrained weights): "
+            f"{', '.join(m.upper() for m in ev.perceptual_missing)}; their columns are omitted, not zero."
+        )
+    notes.append(
+        "Wiener and CLS are non-blind (given the exact PSF of the depth); on the tilted screen they get the "
+        "PSF of the screen's middle column. The networks are blind."
+    )
     blocks += [Heading("Notes", 3), Bullets(notes)]
     return blocks
 
@@ -81,8 +89,11 @@ def bars_section(bars: Sequence[Bar]) -> list:
         verdict = "Some bars could not be measured: " + ", ".join(f"({b.key})" for b in unmeasured) + "."
     else:
         verdict = "All bars are met (PASS)."
-    return [Heading("Pass/fail bars (measured on held-out images)"), Paragraph(verdict),
-            Table(["bar", "statement", "result", "measured"], rows)]
+    return [
+        Heading("Pass/fail bars (measured on held-out images)"),
+        Paragraph(verdict),
+        Table(["bar", "statement", "result", "measured"], rows),
+    ]
 
 
 def summary_report(ev) -> Report:
@@ -108,25 +119,47 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.add(Heading("Quality against depth"))
     for metric in ev.table.metrics:
         if f"{metric}_vs_depth" in figures:
-            report.add(Figure(figures[f"{metric}_vs_depth"], f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
-                                                              f"test images (scored depth range shaded)."))
+            report.add(
+                Figure(
+                    figures[f"{metric}_vs_depth"],
+                    f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
+                    f"test images (scored depth range shaded).",
+                )
+            )
     report.extend(results_tables(ev)[1:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
     if "comparison" in figures:
-        report.add(Figure(figures["comparison"], "Simulated projections of the first test image on flat screens; "
-                                                 "PSNR (P), SSIM (S) of each tile, best of each row in red."))
+        report.add(
+            Figure(
+                figures["comparison"],
+                "Simulated projections of the first test image on flat screens; "
+                "PSNR (P), SSIM (S) of each tile, best of each row in red.",
+            )
+        )
     report.add(Heading("Tilted screen (paper Sec. 5.3)"))
     report.add(tilted_table(ev.tilted))
     if "tilted" in figures:
-        report.add(Figure(figures["tilted"], f"A plane screen tilted by {ev.cfg.evaluation.tilt_deg:g} deg, depth "
-                                             f"from v to v + {ev.cfg.evaluation.tilt_span_mm:g} mm (left to right), "
-                                             f"rendered by {ev.cfg.imaging.depth_layers} depth layers."))
+        report.add(
+            Figure(
+                figures["tilted"],
+                f"A plane screen tilted by {ev.cfg.evaluation.tilt_deg:g} deg, depth "
+                f"from v to v + {ev.cfg.evaluation.tilt_span_mm:g} mm (left to right), "
+                f"rendered by {ev.cfg.imaging.depth_layers} depth layers.",
+            )
+        )
     report.add(Heading("Optics"))
     if "psf" in figures:
-        report.add(Figure(figures["psf"], "RGB PSFs across the training depth range: bare lens vs the learned DOE "
-                                          "(and baseline optics); E = energy inside the PSF window."))
+        report.add(
+            Figure(
+                figures["psf"],
+                "RGB PSFs across the training depth range: bare lens vs the learned DOE "
+                "(and baseline optics); E = energy inside the PSF window.",
+            )
+        )
     if "doe_profile" in figures:
-        report.add(Figure(figures["doe_profile"], "Height profile of the learned DOE as fabricated (wrapped, quantized)."))
+        report.add(
+            Figure(figures["doe_profile"], "Height profile of the learned DOE as fabricated (wrapped, quantized).")
+        )
     if "training" in figures:
         report.add(Heading("Training"))
         report.add(Figure(figures["training"], "Training loss of each run."))
@@ -135,7 +168,9 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     return report
 
 
-def write_documents(ev, title: str = "edofproj evaluation", preface: Sequence = (), extra: Sequence = ()) -> dict[str, Path]:
+def write_documents(
+    ev, title: str = "edofproj evaluation", preface: Sequence = (), extra: Sequence = ()
+) -> dict[str, Path]:
     """Write ``summary.md``, ``report.md`` and ``report.html`` into ``ev.out_dir``."""
     out = Path(ev.out_dir)
     paths = {"summary": out / SUMMARY_NAME, "report_md": out / REPORT_MD_NAME, "report_html": out / REPORT_HTML_NAME}

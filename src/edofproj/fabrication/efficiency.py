@@ -59,8 +59,9 @@ def continuous_efficiency(alpha, order: int = 1) -> np.ndarray:
     return np.sinc(np.asarray(alpha, dtype=float) - order) ** 2
 
 
-def efficiency_spectrum(levels: int, wavelengths_m, design_wavelength_m: float,
-                        material: str = "fused_silica") -> np.ndarray:
+def efficiency_spectrum(
+    levels: int, wavelengths_m, design_wavelength_m: float, material: str = "fused_silica"
+) -> np.ndarray:
     """First-order efficiency at each wavelength."""
     return multilevel_efficiency(levels, phase_depth_ratio(wavelengths_m, design_wavelength_m, material))
 
@@ -71,8 +72,9 @@ def fine_spectrum(spectrum_cfg, step_nm: float = 1.0) -> Spectrum:
     return Spectrum.from_config(dataclasses.replace(spectrum_cfg, wavelength_step_nm=step_nm))
 
 
-def channel_efficiency(levels: int, spectrum: Spectrum, design_wavelength_m: float,
-                       material: str = "fused_silica") -> np.ndarray:
+def channel_efficiency(
+    levels: int, spectrum: Spectrum, design_wavelength_m: float, material: str = "fused_silica"
+) -> np.ndarray:
     """SPD-weighted first-order efficiency per channel: ``eta_c = sum_k w_ck eta(lambda_k)``, (C,)."""
     eta = efficiency_spectrum(levels, spectrum.wavelengths_m, design_wavelength_m, material)
     return spectrum.weights @ eta

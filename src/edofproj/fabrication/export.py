@@ -26,7 +26,8 @@ from ..config import SpectrumConfig  # noqa: E402
 from ..doe.storage import load_doe  # noqa: E402
 from ..errors import EdofprojError  # noqa: E402
 from .efficiency import continuous_efficiency, efficiency_spectrum, fine_spectrum, phase_depth_ratio  # noqa: E402
-from .gdsii import arc_tolerance_um as choose_arc_tolerance_um, write_gds  # noqa: E402
+from .gdsii import arc_tolerance_um as choose_arc_tolerance_um  # noqa: E402
+from .gdsii import write_gds
 from .masks import decompose  # noqa: E402
 from .output_dir import staged_directory  # noqa: E402
 from .profile import RadialProfile  # noqa: E402
@@ -61,8 +62,12 @@ def plot_efficiency(path: Path, profile: RadialProfile, spectrum_cfg) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for weights, colour in zip(spectrum.weights, ("tab:red", "tab:green", "tab:blue")):
         ax.fill_between(lam * 1e9, 0, weights / weights.max() * 30, color=colour, alpha=0.25, lw=0)
-    ax.plot(lam * 1e9, 100 * efficiency_spectrum(profile.levels, lam, profile.design_wavelength_m, profile.material),
-            "k-", label=f"{profile.levels} levels")
+    ax.plot(
+        lam * 1e9,
+        100 * efficiency_spectrum(profile.levels, lam, profile.design_wavelength_m, profile.material),
+        "k-",
+        label=f"{profile.levels} levels",
+    )
     ax.plot(lam * 1e9, 100 * continuous_efficiency(alpha), "k--", lw=1, label="continuous profile")
     ax.axvline(profile.design_wavelength_m * 1e9, color="0.6", lw=0.8)
     ax.set_xlabel("wavelength (nm)")
@@ -75,10 +80,18 @@ def plot_efficiency(path: Path, profile: RadialProfile, spectrum_cfg) -> None:
     plt.close(fig)
 
 
-def export_doe(doe_file: str | Path, out_dir: str | Path, *, levels: int | None = None,
-               critical_dimension_um: float = 1.0, arc_tolerance_um: float = 0.01,
-               spectrum_cfg=None, strict: bool = False, map_px: int | None = None,
-               source: str | None = None) -> dict:
+def export_doe(
+    doe_file: str | Path,
+    out_dir: str | Path,
+    *,
+    levels: int | None = None,
+    critical_dimension_um: float = 1.0,
+    arc_tolerance_um: float = 0.01,
+    spectrum_cfg=None,
+    strict: bool = False,
+    map_px: int | None = None,
+    source: str | None = None,
+) -> dict:
     """Export ``doe_file`` into ``out_dir``; returns the report mapping.
 
     ``levels``: re-quantize to this many levels (a power of two; default: the design's own).
@@ -108,19 +121,31 @@ def export_doe(doe_file: str | Path, out_dir: str | Path, *, levels: int | None 
     pitch_um = 2 * profile.aperture_radius_m * 1e6 / size
     files = {
         PROFILE_CSV: "radius_um,height_nm,level per constant-level zone; radius_um = the zone's outer radius "
-                     "(it starts at the previous row's radius, the first at 0)",
+        "(it starts at the previous row's radius, the first at 0)",
         HEIGHT_PNG: f"16-bit height map, {size}x{size} px across the aperture ({pitch_um:.3f} um/px); "
-                    f"grey = level*65536/N (height_nm = grey*h2pi_nm/65536); 0 outside the aperture"
-                    + ("" if pitch_um <= profile.narrowest_zone_m() * 1e6 / 2 else
-                       "; this pitch does not resolve the narrowest zone (preview only; the GDSII is exact)"),
+        f"grey = level*65536/N (height_nm = grey*h2pi_nm/65536); 0 outside the aperture"
+        + (
+            ""
+            if pitch_um <= profile.narrowest_zone_m() * 1e6 / 2
+            else "; this pitch does not resolve the narrowest zone (preview only; the GDSII is exact)"
+        ),
         GDS_FILE: f"GDSII (um units, 1 nm grid): mask j on layer j+1 = etched regions, layer 100 = clear aperture "
-                  f"(chrome outside); arc sagitta <= {tolerance_um:g} um",
+        f"(chrome outside); arc sagitta <= {tolerance_um:g} um",
         EFFICIENCY_PNG: "first-order efficiency vs wavelength",
     }
     for mask in masks:
-        files[mask_preview_name(mask)] = f"preview of mask {mask.index} (white = etched {mask.etch_depth_m * 1e9:.1f} nm)"
-    report = build_report(profile, masks, critical_dimension_um, spectrum_cfg,
-                          source=source or str(doe_file), source_levels=source_levels, files=files)
+        files[mask_preview_name(mask)] = (
+            f"preview of mask {mask.index} (white = etched {mask.etch_depth_m * 1e9:.1f} nm)"
+        )
+    report = build_report(
+        profile,
+        masks,
+        critical_dimension_um,
+        spectrum_cfg,
+        source=source or str(doe_file),
+        source_levels=source_levels,
+        files=files,
+    )
 
     with staged_directory(out_dir, REPORT_JSON) as stage:
         (stage / PROFILE_CSV).write_text(profile_csv_text(profile), encoding="utf-8")

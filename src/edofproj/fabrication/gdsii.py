@@ -21,6 +21,7 @@ from pathlib import Path
 import gdstk
 import numpy as np
 
+from ..errors import EdofprojError
 from .masks import MaskLayer
 
 APERTURE_LAYER = 100
@@ -43,8 +44,9 @@ def annulus_polygon(inner_um: float, outer_um: float, tolerance_um: float, layer
     return gdstk.ellipse((0.0, 0.0), outer_um, inner_radius=inner, tolerance=tolerance_um, layer=layer)
 
 
-def build_library(masks: list[MaskLayer], aperture_radius_m: float, tolerance_um: float,
-                  name: str = "EDOFPROJ_DOE") -> gdstk.Library:
+def build_library(
+    masks: list[MaskLayer], aperture_radius_m: float, tolerance_um: float, name: str = "EDOFPROJ_DOE"
+) -> gdstk.Library:
     """A gdstk library with one cell holding all mask layers and the aperture layer."""
     lib = gdstk.Library(name, unit=UNIT_M, precision=PRECISION_M)
     cell = lib.new_cell(CELL_NAME)
@@ -59,7 +61,10 @@ def write_gds(path: str | Path, masks: list[MaskLayer], aperture_radius_m: float
     """Write the layout to ``path`` (the caller makes it atomic); returns polygon and vertex counts."""
     lib = build_library(masks, aperture_radius_m, tolerance_um)
     lib.write_gds(str(path), max_points=MAX_POINTS)
-    polygons = lib.cells[0].polygons
+    cell = lib.cells[0]
+    if not isinstance(cell, gdstk.Cell):
+        raise EdofprojError("the GDSII layout's first cell is a raw cell, not a cell of polygons")
+    polygons = cell.polygons
     return {
         "polygons": len(polygons),
         "vertices": int(sum(len(p.points) for p in polygons)),
@@ -72,6 +77,8 @@ def read_layers(path: str | Path) -> dict[int, list[gdstk.Polygon]]:
     lib = gdstk.read_gds(str(path), unit=UNIT_M)
     layers: dict[int, list[gdstk.Polygon]] = {}
     for cell in lib.top_level():
+        if not isinstance(cell, gdstk.Cell):
+            raise EdofprojError(f"'{path}': top-level cell '{cell.name}' is a raw cell, not a cell of polygons")
         for polygon in cell.get_polygons():
             layers.setdefault(polygon.layer, []).append(polygon)
     return layers
@@ -81,4 +88,6 @@ def inside_layer(points_um: np.ndarray, polygons: list[gdstk.Polygon]) -> np.nda
     """Point-in-polygon test (gdstk) of ``points_um`` (n, 2) against a layer's polygons."""
     if not polygons:
         return np.zeros(len(points_um), dtype=bool)
-    return np.asarray(gdstk.inside(np.asarray(points_um, dtype=float), polygons), dtype=bool)
+    points = np.asarray(points_um, dtype=float)
+    # gdstk accepts an (n, 2) array of points; its stubs only name sequences of tuples
+    return np.asarray(gdstk.inside(points, polygons), dtype=bool)  # type: ignore[arg-type]

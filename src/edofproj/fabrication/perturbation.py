@@ -48,8 +48,9 @@ class FabricationErrors:
         return cls(np.ones(masks), np.zeros((masks, 2)), np.zeros(2))
 
     @classmethod
-    def sample(cls, rng: np.random.Generator, masks: int, etch_error_pct: float, misalignment_m: float,
-               decentre_m: float) -> "FabricationErrors":
+    def sample(
+        cls, rng: np.random.Generator, masks: int, etch_error_pct: float, misalignment_m: float, decentre_m: float
+    ) -> "FabricationErrors":
         """Draw etch scales, overlay shifts (mask 0 is the reference: no shift) and a decentre."""
         etch = 1.0 + rng.normal(0.0, etch_error_pct / 100.0, masks)
         shift = rng.normal(0.0, misalignment_m, (masks, 2)) if misalignment_m > 0 else np.zeros((masks, 2))
@@ -148,8 +149,9 @@ class FabricatedDOE2D(_Fabricated, DOE):
         return height.to(x_m.dtype)
 
     def check_sampling(self, ring_width_m):
-        require_resolved_feature(self.nominal_zone_m, ring_width_m, self.aperture_radius_m,
-                                 "the design's narrowest zone is")
+        require_resolved_feature(
+            self.nominal_zone_m, ring_width_m, self.aperture_radius_m, "the design's narrowest zone is"
+        )
 
     def describe(self):
         return "as-fabricated DOE (2-D)"

@@ -14,8 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EdofprojError
-from .efficiency import (channel_efficiency, continuous_efficiency, efficiency_spectrum, fine_spectrum,
-                         multilevel_efficiency, phase_depth_ratio)
+from .efficiency import (
+    channel_efficiency,
+    continuous_efficiency,
+    efficiency_spectrum,
+    fine_spectrum,
+    multilevel_efficiency,
+    phase_depth_ratio,
+)
 from .masks import MaskLayer, top_surface_m
 from .profile import RadialProfile
 
@@ -73,12 +79,18 @@ def check_masks(masks: list[MaskLayer], critical_dimension_m: float) -> list[Mas
     return [check_mask(m, critical_dimension_m) for m in masks]
 
 
+def _narrowest_um(check: MaskCheck) -> float:
+    if check.narrowest_um is None:  # below_cd > 0 implies a narrowest feature
+        raise EdofprojError(f"mask {check.mask.index} has features below the CD but no narrowest feature")
+    return check.narrowest_um
+
+
 def strict_failure_message(checks: list[MaskCheck], critical_dimension_um: float) -> str | None:
     """One line naming the worst violation, or None when every feature meets the CD."""
     bad = [c for c in checks if c.below_cd]  # below_cd > 0 implies a finite narrowest feature
     if not bad:
         return None
-    worst = min(bad, key=lambda c: c.narrowest_um)
+    worst = min(bad, key=_narrowest_um)
     total = sum(c.below_cd for c in bad)
     return (
         f"{total} feature(s) below the critical dimension {critical_dimension_um:g} um; narrowest: "
@@ -87,8 +99,15 @@ def strict_failure_message(checks: list[MaskCheck], critical_dimension_um: float
     )
 
 
-def build_report(profile: RadialProfile, masks: list[MaskLayer], critical_dimension_um: float, spectrum_cfg,
-                 source: str, source_levels: int | None, files: dict | None = None) -> dict:
+def build_report(
+    profile: RadialProfile,
+    masks: list[MaskLayer],
+    critical_dimension_um: float,
+    spectrum_cfg,
+    source: str,
+    source_levels: int | None,
+    files: dict | None = None,
+) -> dict:
     """The report as a JSON-ready mapping."""
     checks = check_masks(masks, critical_dimension_um * 1e-6)
     edges, _ = profile.zones()
@@ -112,20 +131,23 @@ def build_report(profile: RadialProfile, masks: list[MaskLayer], critical_dimens
         "zones": int(len(edges) - 1),
         "narrowest_zone_um": profile.narrowest_zone_m() * 1e6,
         "etch_convention": "height = level * step above the deepest etch floor; etched depth = (N-1-level) * step; "
-                           "mask j (GDS layer j+1) etches step*2^j where bit j of (N-1-level) is set",
+        "mask j (GDS layer j+1) etches step*2^j where bit j of (N-1-level) is set",
         "total_etch_depth_nm": top_surface_m(profile) * 1e9,
         "critical_dimension_um": critical_dimension_um,
         "masks": [c.as_dict() for c in checks],
         "passes_critical_dimension": not any(c.below_cd for c in checks),
         "efficiency": {
             "formula": "eta_1 = sinc^2(1/N) [sinc(alpha-1)/sinc((alpha-1)/N)]^2, "
-                       "alpha = (n(lambda)-1) lambda_d / ((n(lambda_d)-1) lambda)",
+            "alpha = (n(lambda)-1) lambda_d / ((n(lambda_d)-1) lambda)",
             "design_wavelength": float(multilevel_efficiency(profile.levels)),
             "per_channel_spd_weighted": {name: float(v) for name, v in zip(CHANNELS, per_channel)},
             "continuous_profile_per_channel": {
-                name: float(v) for name, v in zip(
-                    CHANNELS, spectrum.weights @ continuous_efficiency(
-                        phase_depth_ratio(spectrum.wavelengths_m, lam_d, profile.material)))
+                name: float(v)
+                for name, v in zip(
+                    CHANNELS,
+                    spectrum.weights
+                    @ continuous_efficiency(phase_depth_ratio(spectrum.wavelengths_m, lam_d, profile.material)),
+                )
             },
             "wavelength_nm": table_nm.tolist(),
             "eta": eta_table.tolist(),
@@ -145,8 +167,11 @@ def report_markdown(report: dict) -> str:
         f"Source: `{report['source']}` ({report['description']})",
         "",
         f"* Levels: {report['levels']} ({report['masks_count']} masks)"
-        + (f", re-quantized from {report['source_levels']}" if report["source_levels"] not in (None, report["levels"])
-           else ""),
+        + (
+            f", re-quantized from {report['source_levels']}"
+            if report["source_levels"] not in (None, report["levels"])
+            else ""
+        ),
         f"* Design wavelength {report['design_wavelength_nm']:.1f} nm, {report['material']}: "
         f"h2pi = {report['h2pi_nm']:.1f} nm, step = {report['step_nm']:.2f} nm",
         f"* Aperture radius {report['aperture_radius_um']:.1f} um; {report['design_rings']} design rings merged into "
@@ -176,7 +201,8 @@ def report_markdown(report: dict) -> str:
         "* SPD-weighted per primary (SPDs resampled at 1 nm): "
         + ", ".join(f"{k} {100 * v:.1f} %" for k, v in eff["per_channel_spd_weighted"].items())
         + " (continuous profile: "
-        + ", ".join(f"{k} {100 * v:.1f} %" for k, v in eff["continuous_profile_per_channel"].items()) + ")",
+        + ", ".join(f"{k} {100 * v:.1f} %" for k, v in eff["continuous_profile_per_channel"].items())
+        + ")",
         "",
         "| wavelength (nm) | " + " | ".join(f"{w:.0f}" for w in eff["wavelength_nm"][::3]) + " |",
         "| --- | " + " | ".join("---" for _ in eff["wavelength_nm"][::3]) + " |",
@@ -188,8 +214,11 @@ def report_markdown(report: dict) -> str:
     ]
     if report.get("gds"):
         gds = report["gds"]
-        lines += ["", f"GDSII: {gds['polygons']} polygons, {gds['vertices']} vertices, arc sagitta <= "
-                      f"{gds['tolerance_um']:g} um."]
+        lines += [
+            "",
+            f"GDSII: {gds['polygons']} polygons, {gds['vertices']} vertices, arc sagitta <= "
+            f"{gds['tolerance_um']:g} um.",
+        ]
     if report.get("files"):
         lines += ["", "## Files", ""]
         lines += [f"* `{name}`: {what}" for name, what in report["files"].items()]

@@ -17,11 +17,15 @@ plain engine on the same rings.
 from __future__ import annotations
 
 import copy
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from ..optics.radial_engine import RadialPSFEngine
+
+if TYPE_CHECKING:
+    from ..optics.fourier_engine import FourierPSFEngine
 
 MIN_RING_M = 1e-10
 
@@ -38,7 +42,7 @@ def split_ring_edges(base_edges_m: np.ndarray, extra_edges_m) -> np.ndarray:
     return edges
 
 
-def radial_engine_on_edges(engine: RadialPSFEngine, extra_edges_m) -> RadialPSFEngine:
+def radial_engine_on_edges(engine: RadialPSFEngine | FourierPSFEngine, extra_edges_m) -> RadialPSFEngine:
     """A copy of ``engine`` whose pupil rings are its own rings split at ``extra_edges_m``.
 
     The copy shares the pixel weights and radial samples; only the ring geometry and the

@@ -94,7 +94,7 @@ def energy_concentration(psf: torch.Tensor, box_px: int = CONCENTRATION_BOX_PX) 
     if box_px > K:
         raise EdofprojError(f"the PSF window ({K} px) is smaller than the {box_px}-px box")
     lo = K // 2 - box_px // 2
-    return psf[..., lo:lo + box_px, lo:lo + box_px].sum(dim=(-1, -2))
+    return psf[..., lo : lo + box_px, lo : lo + box_px].sum(dim=(-1, -2))
 
 
 class FabricatedPSF:
@@ -122,8 +122,8 @@ class FabricatedPSF:
 def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "radial") -> SSIMEvaluator:
     """``evaluate_ssim(doe, depths_m)``: mean SSIM over ``images`` (B, 3, H, W) of
     ``project(clamp(net(I, project(I, P_z))), P_z)`` against ``I``, for each depth ``z``."""
-    from ..metrics import ssim
     from ..imaging.projection import project
+    from ..metrics import ssim
 
     psf_of = FabricatedPSF(cfg, engine, window=cfg.psf.window)
 
@@ -132,8 +132,8 @@ def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "ra
         scores = []
         with torch.no_grad():
             for i in range(len(depths_m)):
-                captured = project(images, psf[i:i + 1])
-                projected = project(net(images, captured).clamp(0.0, 1.0), psf[i:i + 1])
+                captured = project(images, psf[i : i + 1])
+                projected = project(net(images, captured).clamp(0.0, 1.0), psf[i : i + 1])
                 scores.append(float(ssim(projected, images).mean()))
         return np.asarray(scores)
 
@@ -149,9 +149,14 @@ def check_aperture(profile: RadialProfile, cfg) -> None:
         )
 
 
-def run_tolerance(profile: RadialProfile, cfg, settings: ToleranceSettings, depths_m,
-                  evaluate_ssim: SSIMEvaluator | None = None, progress: Callable[[int, int], None] | None = None
-                  ) -> ToleranceResult:
+def run_tolerance(
+    profile: RadialProfile,
+    cfg,
+    settings: ToleranceSettings,
+    depths_m,
+    evaluate_ssim: SSIMEvaluator | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ToleranceResult:
     """Monte Carlo over fabrication errors (see the module docstring)."""
     settings.validate()
     check_aperture(profile, cfg)
@@ -165,8 +170,9 @@ def run_tolerance(profile: RadialProfile, cfg, settings: ToleranceSettings, dept
     ssim_nominal = None if evaluate_ssim is None else np.asarray(evaluate_ssim(nominal_doe, depths_m), dtype=float)
     trials, ssim_trials, drawn = [], [], []
     for t in range(settings.trials):
-        errors = FabricationErrors.sample(rng, len(masks), settings.etch_error_pct,
-                                          settings.misalignment_um * 1e-6, settings.decentre_um * 1e-6)
+        errors = FabricationErrors.sample(
+            rng, len(masks), settings.etch_error_pct, settings.misalignment_um * 1e-6, settings.decentre_um * 1e-6
+        )
         doe = psf_of.doe(profile, masks, errors)
         trials.append(energy_concentration(psf_of(doe, depths_m)).double().cpu().numpy().mean(axis=1))
         if evaluate_ssim is not None:

@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..errors import EdofprojError  # noqa: E402
 from ..fileio import atomic_path, write_text_atomic  # noqa: E402
 from .tolerance import CONCENTRATION_BOX_PX, ToleranceResult  # noqa: E402
 
@@ -26,23 +27,31 @@ PNG_NAME = "tolerance.png"
 
 MODEL_TEXT = {
     "radial": "radial engine; overlay errors as the radially symmetric proxy (every edge of mask j moved "
-              "outward by the x-component of its shift, revolved about the axis: the full shift at every "
-              "azimuth, so it overstates overlay errors), simulated exactly on rings split at every edge; "
-              "no decentre",
+    "outward by the x-component of its shift, revolved about the axis: the full shift at every "
+    "azimuth, so it overstates overlay errors), simulated exactly on rings split at every edge; "
+    "no decentre",
     "2d": "2-D engine; true lateral shifts of each mask and of the whole DOE, point-sampled on the engine's grid",
 }
 
 
 def _stats(values: np.ndarray, nominal: np.ndarray) -> dict:
     p05, p50, p95 = np.percentile(values, (5.0, 50.0, 95.0), axis=0)
-    return {"nominal": nominal, "median": p50, "p05": p05, "p95": p95,
-            "min": values.min(axis=0), "max": values.max(axis=0)}
+    return {
+        "nominal": nominal,
+        "median": p50,
+        "p05": p05,
+        "p95": p95,
+        "min": values.min(axis=0),
+        "max": values.max(axis=0),
+    }
 
 
 def table_columns(result: ToleranceResult) -> dict:
     columns = {"depth_mm": result.depths_m * 1e3}
     columns.update(_stats(result.trials, result.nominal))
     if result.ssim_trials is not None:
+        if result.ssim_nominal is None:
+            raise EdofprojError("the tolerance result has SSIM trials but no nominal SSIM")
         columns.update({f"ssim_{k}": v for k, v in _stats(result.ssim_trials, result.ssim_nominal).items()})
     return columns
 
@@ -79,13 +88,23 @@ def markdown_text(result: ToleranceResult, source: str) -> str:
             f"{columns['p05'][i]:.4f} | {columns['p95'][i]:.4f} | {columns['min'][i]:.4f} |"
         )
     relative = (result.trials - result.nominal) / np.maximum(result.nominal, 1e-12)
-    lines += ["", f"Median change across depths and trials: {100 * np.median(relative):+.2f} %; "
-                  f"5th percentile: {100 * np.percentile(relative, 5):+.2f} %."]
+    lines += [
+        "",
+        f"Median change across depths and trials: {100 * np.median(relative):+.2f} %; "
+        f"5th percentile: {100 * np.percentile(relative, 5):+.2f} %.",
+    ]
     if result.ssim_trials is None:
-        lines += ["", "Compensated SSIM: not computed (it needs a trained compensation network; "
-                      "`run_tolerance(..., evaluate_ssim=...)`)."]
+        lines += [
+            "",
+            "Compensated SSIM: not computed (it needs a trained compensation network; "
+            "`run_tolerance(..., evaluate_ssim=...)`).",
+        ]
     else:
-        lines += ["", "| depth (mm) | SSIM nominal | SSIM median | SSIM 5 % | SSIM 95 % |", "| --- | --- | --- | --- | --- |"]
+        lines += [
+            "",
+            "| depth (mm) | SSIM nominal | SSIM median | SSIM 5 % | SSIM 95 % |",
+            "| --- | --- | --- | --- | --- |",
+        ]
         for i in range(len(result.depths_m)):
             lines.append(
                 f"| {columns['depth_mm'][i]:.0f} | {columns['ssim_nominal'][i]:.4f} | {columns['ssim_median'][i]:.4f} | "
@@ -127,8 +146,11 @@ def plot(result: ToleranceResult, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     s = result.settings
-    fig.suptitle(f"{s.trials} trials: etch {s.etch_error_pct:g} %, overlay {s.misalignment_um:g} um, "
-                 f"decentre {s.decentre_um:g} um ({s.engine})", fontsize=9)
+    fig.suptitle(
+        f"{s.trials} trials: etch {s.etch_error_pct:g} %, overlay {s.misalignment_um:g} um, "
+        f"decentre {s.decentre_um:g} um ({s.engine})",
+        fontsize=9,
+    )
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp)

@@ -41,7 +41,9 @@ def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     the alignment (kernel pixel ``K//2`` maps onto the source pixel).
     """
     if image.ndim < 2 or kernel.ndim < 2:
-        raise EdofprojError(f"convolution needs 2-D images and kernels, got shapes {tuple(image.shape)} and {tuple(kernel.shape)}")
+        raise EdofprojError(
+            f"convolution needs 2-D images and kernels, got shapes {tuple(image.shape)} and {tuple(kernel.shape)}"
+        )
     lead_image, lead_kernel = image.shape[:-2], kernel.shape[:-2]
     try:
         torch.broadcast_shapes(lead_image, lead_kernel)
@@ -58,4 +60,4 @@ def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     kernel = kernel.to(dtype=image.dtype, device=image.device)
     spectrum = torch.fft.rfft2(image, s=size) * torch.fft.rfft2(kernel, s=size)
     full = torch.fft.irfft2(spectrum, s=size)
-    return full[..., Kh // 2: Kh // 2 + H, Kw // 2: Kw // 2 + W]
+    return full[..., Kh // 2 : Kh // 2 + H, Kw // 2 : Kw // 2 + W]

@@ -49,7 +49,9 @@ def layer_depths_m(depth_min_m: float, depth_max_m: float, layers: int) -> np.nd
         raise EdofprojError(f"depth range {near:g}-{far:g} m must be positive, finite and increasing")
     if near == far or int(layers) == 1:
         if near != far:
-            raise EdofprojError(f"one depth layer cannot represent depths {near * 1e3:g}-{far * 1e3:g} mm; use >= 2 layers")
+            raise EdofprojError(
+                f"one depth layer cannot represent depths {near * 1e3:g}-{far * 1e3:g} mm; use >= 2 layers"
+            )
         return np.array([near])
     inverse = np.linspace(1.0 / near, 1.0 / far, int(layers))
     depths = 1.0 / inverse
@@ -68,7 +70,7 @@ def _as_depth_tensor(depth_map_m) -> torch.Tensor:
     return depth
 
 
-def _check_layer_depths(layer_depths_m: Sequence[float]) -> np.ndarray:
+def _check_layer_depths(layer_depths_m: Sequence[float] | np.ndarray) -> np.ndarray:
     depths = np.atleast_1d(np.asarray(layer_depths_m, dtype=float))
     if depths.ndim != 1 or depths.size == 0:
         raise EdofprojError("layer depths must be a non-empty list of depths")
@@ -91,7 +93,7 @@ def check_within_layers(depth_map_m, layer_depths_m) -> None:
         )
 
 
-def layer_weights(depth_map_m, layer_depths_m: Sequence[float]) -> torch.Tensor:
+def layer_weights(depth_map_m, layer_depths_m: Sequence[float] | np.ndarray) -> torch.Tensor:
     """Hat weights in inverse depth, ``(n, H, W)`` for an ``(H, W)`` map or ``(B, n, H, W)`` for ``(B, H, W)``.
 
     For ``z`` between layers ``z_l <= z <= z_{l+1}``:
@@ -113,8 +115,13 @@ def layer_weights(depth_map_m, layer_depths_m: Sequence[float]) -> torch.Tensor:
     return weights.movedim(-1, -3)
 
 
-def render_depth_map(image: torch.Tensor, depth_map_m, psf_for_depths: Union[PSFForDepths, torch.Tensor],
-                     layers: Union[int, Sequence[float]] = 8, haze: bool = True) -> torch.Tensor:
+def render_depth_map(
+    image: torch.Tensor,
+    depth_map_m,
+    psf_for_depths: Union[PSFForDepths, torch.Tensor],
+    layers: Union[int, Sequence[float], np.ndarray] = 8,
+    haze: bool = True,
+) -> torch.Tensor:
     """Project ``image (B, C, H, W)`` onto a screen whose depth varies per pixel.
 
     ``depth_map_m``: ``(H, W)`` (all samples) or ``(B, H, W)``, metres (tensor or array).
@@ -128,7 +135,9 @@ def render_depth_map(image: torch.Tensor, depth_map_m, psf_for_depths: Union[PSF
     if image.ndim != 4:
         raise EdofprojError(f"images must be (B, C, H, W), got shape {tuple(image.shape)}")
     depth = _as_depth_tensor(depth_map_m)
-    if tuple(depth.shape[-2:]) != tuple(image.shape[-2:]) or (depth.ndim == 3 and depth.shape[0] not in (1, image.shape[0])):
+    if tuple(depth.shape[-2:]) != tuple(image.shape[-2:]) or (
+        depth.ndim == 3 and depth.shape[0] not in (1, image.shape[0])
+    ):
         raise EdofprojError(
             f"depth map has shape {tuple(depth.shape)} but the image is {tuple(image.shape[-2:])} "
             f"(expected (H, W) = {tuple(image.shape[-2:])} or ({image.shape[0]}, H, W))"
@@ -150,11 +159,11 @@ def render_depth_map(image: torch.Tensor, depth_map_m, psf_for_depths: Union[PSF
     clamped = image.clamp(0.0, 1.0)
     out = torch.zeros_like(clamped)
     for index in range(depths.size):
-        weight = weights[:, index: index + 1]  # (B or 1, 1, H, W)
+        weight = weights[:, index : index + 1]  # (B or 1, 1, H, W)
         if not torch.any(weight > 0):
             continue
         layer_image = clamped * weight
-        layer_psf = psf[index: index + 1]
+        layer_psf = psf[index : index + 1]
         out = out + convolve_same(layer_image, layer_psf)
         if haze:
             out = out + haze_term(layer_image, layer_psf)
@@ -178,5 +187,5 @@ def bank_layers(bank, depth_map_m) -> tuple[np.ndarray, torch.Tensor]:
     check_within_layers(depth, bank_depths)
     first = max(int(np.searchsorted(bank_depths, lo * (1 + RANGE_TOLERANCE), side="right")) - 1, 0)
     last = min(int(np.searchsorted(bank_depths, hi * (1 - RANGE_TOLERANCE), side="left")), bank_depths.size - 1)
-    chosen = order[first: last + 1]
-    return bank_depths[first: last + 1], bank.psf[torch.as_tensor(chosen)]
+    chosen = order[first : last + 1]
+    return bank_depths[first : last + 1], bank.psf[torch.as_tensor(chosen)]

@@ -119,7 +119,9 @@ def encode_image(image, bits: int = 8, suffix: str = ".png") -> bytes:
     if not np.all(np.isfinite(array)):
         raise EdofprojError("refusing to write an image with NaN or infinite values")
     top = (1 << bits) - 1
-    pixels = np.rint(np.clip(array.astype(np.float64), 0.0, 1.0) * top).astype(np.uint8 if bits == 8 else np.uint16)
+    pixels: np.ndarray = np.rint(np.clip(array.astype(np.float64), 0.0, 1.0) * top).astype(
+        np.uint8 if bits == 8 else np.uint16
+    )
     pixels = pixels.transpose(1, 2, 0)
     pixels = pixels[..., 0] if pixels.shape[-1] == 1 else cv2.cvtColor(np.ascontiguousarray(pixels), cv2.COLOR_RGB2BGR)
     ok, encoded = cv2.imencode(suffix, np.ascontiguousarray(pixels))

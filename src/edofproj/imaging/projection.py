@@ -60,4 +60,3 @@ def project(image: torch.Tensor, psf: torch.Tensor, haze: bool = True) -> torch.
     if haze:
         out = out + haze_term(clamped, psf)
     return out
-

@@ -63,8 +63,7 @@ def edge_ray_slope(width_px: int, geometry) -> float:
     return (int(width_px) - 1) / (2.0 * geometry.throw_width_m)
 
 
-def tilted_plane_depth_map(height_px: int, width_px: int, tilt_deg: float, near_m: float,
-                           far_m: float) -> np.ndarray:
+def tilted_plane_depth_map(height_px: int, width_px: int, tilt_deg: float, near_m: float, far_m: float) -> np.ndarray:
     """Axial depth (m) of each pixel of a plane screen tilted about the vertical axis, ``(H, W)``.
 
     ``1/z`` varies linearly from ``1/near_m`` at the first column to ``1/far_m`` at the last

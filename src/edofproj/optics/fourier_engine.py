@@ -32,8 +32,13 @@ from scipy import fft as sfft
 
 from ..errors import EdofprojError, SamplingError
 from .geometry import ProjectorGeometry
-from .radial_engine import (MAX_DEFOCUS_STEP_RAD, check_depths, check_pupil_samples, check_window,
-                            warn_if_blur_exceeds_window)
+from .radial_engine import (
+    MAX_DEFOCUS_STEP_RAD,
+    check_depths,
+    check_pupil_samples,
+    check_window,
+    warn_if_blur_exceeds_window,
+)
 
 
 def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.ndarray:
@@ -47,8 +52,16 @@ def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.n
 class FourierPSFEngine:
     """Monochromatic pixel-integrated PSFs of any DOE on a 2-D grid (same call as the radial engine)."""
 
-    def __init__(self, geometry: ProjectorGeometry, wavelengths_m, window: int, pupil_samples: int = 1024,
-                 dtype: torch.dtype = torch.float64, device=None, depth_chunk: int = 2):
+    def __init__(
+        self,
+        geometry: ProjectorGeometry,
+        wavelengths_m,
+        window: int,
+        pupil_samples: int = 1024,
+        dtype: torch.dtype = torch.float64,
+        device=None,
+        depth_chunk: int = 2,
+    ):
         self.geometry = geometry
         self.window = check_window(window)
         self.M = check_pupil_samples(pupil_samples)
@@ -63,7 +76,7 @@ class FourierPSFEngine:
         yy, xx = torch.meshgrid(self.x_t, self.x_t, indexing="ij")
         self.xx, self.yy = xx, yy
         self.r2 = xx**2 + yy**2
-        self.aperture = (self.r2 <= geometry.aperture_radius_m**2)
+        self.aperture = self.r2 <= geometry.aperture_radius_m**2
 
         self.fft_size = []
         self.binning = []
@@ -129,8 +142,10 @@ class FourierPSFEngine:
             keep_t = torch.as_tensor(keep, device=self.device)
             per_depth = []
             for start in range(0, len(depths_m), self.depth_chunk):
-                zc = z[start:start + self.depth_chunk]
-                defocus = math.pi * self.r2[None] * (1.0 / zc - 1.0 / self.geometry.focus_distance_m)[:, None, None] / lam
+                zc = z[start : start + self.depth_chunk]
+                defocus = (
+                    math.pi * self.r2[None] * (1.0 / zc - 1.0 / self.geometry.focus_distance_m)[:, None, None] / lam
+                )
                 phase = (doe_phase[None] + defocus).to(self.dtype)
                 field = torch.polar(aperture.expand_as(phase), phase).to(complex_dtype)
                 spectrum = torch.fft.fftshift(torch.fft.fft2(field, s=(N, N)), dim=(-2, -1))

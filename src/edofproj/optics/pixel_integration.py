@@ -43,10 +43,7 @@ def disk_rectangle_area(rho, x0, x1, y0, y1) -> np.ndarray:
     Broadcasts over all arguments.
     """
     rho = np.asarray(rho, dtype=float)
-    return (
-        _corner_area(x1, y1, rho) - _corner_area(x0, y1, rho)
-        - _corner_area(x1, y0, rho) + _corner_area(x0, y0, rho)
-    )
+    return _corner_area(x1, y1, rho) - _corner_area(x0, y1, rho) - _corner_area(x1, y0, rho) + _corner_area(x0, y0, rho)
 
 
 def octant_pixels(window: int) -> tuple[np.ndarray, np.ndarray]:

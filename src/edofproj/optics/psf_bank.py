@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -23,6 +24,9 @@ from ..fileio import save_npz_atomic
 from .geometry import ProjectorGeometry
 from .radial_engine import RadialPSFEngine, check_depths, check_window
 from .spectra import Spectrum
+
+if TYPE_CHECKING:
+    from .fourier_engine import FourierPSFEngine
 
 
 @dataclass
@@ -100,13 +104,22 @@ class PSFSimulator:
     ``engine``: ``"radial"`` (radially symmetric DOEs; fast) or ``"2d"`` (any height map).
     """
 
-    def __init__(self, geometry: ProjectorGeometry, spectrum: Spectrum, window: int, pupil_samples: int = 1024,
-                 engine: str = "radial", dtype: torch.dtype = torch.float64, device=None):
+    def __init__(
+        self,
+        geometry: ProjectorGeometry,
+        spectrum: Spectrum,
+        window: int,
+        pupil_samples: int = 1024,
+        engine: str = "radial",
+        dtype: torch.dtype = torch.float64,
+        device=None,
+    ):
         self.geometry = geometry
         self.spectrum = spectrum
         self.window = check_window(window)
         self.engine_name = engine
         self.dtype = dtype
+        self.engine: RadialPSFEngine | FourierPSFEngine
         if engine == "radial":
             self.engine = RadialPSFEngine(geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device)
         elif engine == "2d":
@@ -131,9 +144,14 @@ class PSFSimulator:
         depths_m = check_depths(depths_m)
         with torch.no_grad():
             psf = self(doe, depths_m)
-        return PSFBank(psf=psf, depths_m=depths_m, pixel_pitch_m=self.geometry.pixel_pitch_m(depths_m),
-                       wavelengths_m=self.spectrum.wavelengths_m, channel_weights=self.spectrum.weights,
-                       description=description or (doe.describe() if doe is not None else "lens"))
+        return PSFBank(
+            psf=psf,
+            depths_m=depths_m,
+            pixel_pitch_m=self.geometry.pixel_pitch_m(depths_m),
+            wavelengths_m=self.spectrum.wavelengths_m,
+            channel_weights=self.spectrum.weights,
+            description=description or (doe.describe() if doe is not None else "lens"),
+        )
 
 
 def design_engine(doe, configured: str = "radial") -> str:
@@ -145,11 +163,15 @@ def design_engine(doe, configured: str = "radial") -> str:
     return "2d"
 
 
-def simulator_from_config(cfg, wavelength_nm: float | None = None, engine: str | None = None,
-                          window: int | None = None, device=None) -> PSFSimulator:
+def simulator_from_config(
+    cfg, wavelength_nm: float | None = None, engine: str | None = None, window: int | None = None, device=None
+) -> PSFSimulator:
     """A :class:`PSFSimulator` for a :class:`~edofproj.config.Config`."""
     geometry = ProjectorGeometry.from_config(cfg.optics)
-    spectrum = Spectrum.monochromatic(wavelength_nm) if wavelength_nm is not None else Spectrum.from_config(cfg.spectrum)
+    spectrum = (
+        Spectrum.monochromatic(wavelength_nm) if wavelength_nm is not None else Spectrum.from_config(cfg.spectrum)
+    )
     dtype = torch.float64 if cfg.psf.precision == "float64" else torch.float32
-    return PSFSimulator(geometry, spectrum, window or cfg.psf.window, cfg.psf.pupil_samples,
-                        engine or cfg.psf.engine, dtype, device)
+    return PSFSimulator(
+        geometry, spectrum, window or cfg.psf.window, cfg.psf.pupil_samples, engine or cfg.psf.engine, dtype, device
+    )

@@ -95,7 +95,8 @@ def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: i
         warnings.warn(
             f"the geometric blur disk ({blur[worst]:.1f} px at {depths_m[worst] * 1e3:.0f} mm) is wider than "
             f"the {window}-px window: the light outside is counted as haze; increase the window to keep it",
-            BlurExceedsWindowWarning, stacklevel=3,
+            BlurExceedsWindowWarning,
+            stacklevel=3,
         )
 
 
@@ -114,14 +115,15 @@ def bessel_j123(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             term = (xs / 2) ** order / math.factorial(order)
             total = term.copy()
             for k in range(1, 12):
-                term = term * (-(xs / 2) ** 2) / (k * (k + order))
+                term = term * (-((xs / 2) ** 2)) / (k * (k + order))
                 total += term
             out[small] = total
     return b1, b2, b3
 
 
-def normalized_radius_grid(nu_max: float, fine_until: float, fine_step: float = 1 / 64,
-                           coarse_step: float = 1 / 4) -> np.ndarray:
+def normalized_radius_grid(
+    nu_max: float, fine_until: float, fine_step: float = 1 / 64, coarse_step: float = 1 / 4
+) -> np.ndarray:
     """Sample radii in diffraction units nu = rho_px D / (lambda T W) (the first Airy zero is
     at nu = 1.22; the intensity oscillates with period >= 1 in nu): 1/64 up to ``fine_until``
     (the centre pixel, where the in-focus core sits), 1/4 beyond; from 0 to at least ``nu_max``.
@@ -145,8 +147,15 @@ class RadialPSFEngine:
     differentiable with respect to the DOE heights.
     """
 
-    def __init__(self, geometry: ProjectorGeometry, wavelengths_m, window: int, pupil_samples: int = 1024,
-                 dtype: torch.dtype = torch.float64, device: torch.device | str | None = None):
+    def __init__(
+        self,
+        geometry: ProjectorGeometry,
+        wavelengths_m,
+        window: int,
+        pupil_samples: int = 1024,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ):
         self.geometry = geometry
         self.window = check_window(window)
         self.pupil_samples = check_pupil_samples(pupil_samples)
@@ -174,7 +183,9 @@ class RadialPSFEngine:
         # |G|^2 * norm^2 is the pupil-energy fraction per square pixel
         self.intensity_norm = torch.as_tensor(
             (2 * math.pi / (self.wavelengths_m * geometry.throw_width_m * math.sqrt(math.pi) * R)) ** 2,
-            dtype=dtype, device=self.device)[:, None, None]
+            dtype=dtype,
+            device=self.device,
+        )[:, None, None]
         self.kernel = torch.as_tensor(self._ring_moments(), dtype=dtype, device=self.device)  # (M, 3 n_nu)
         self.ring_centres_t = torch.as_tensor(self.ring_centres_m, dtype=torch.float64, device=self.device)
 
@@ -190,14 +201,14 @@ class RadialPSFEngine:
     def _ring_moments(self) -> np.ndarray:
         """Kernel (M, 3 n_nu): ring moments int_ring s^n J0(2 pi f r) r dr, n = 0, 1, 2, s = r^2 - r_m^2."""
         r = self.ring_edges_m[None, :]
-        c = (self.ring_centres_m ** 2)[:, None]
+        c = (self.ring_centres_m**2)[:, None]
         f = self.nu / self.geometry.aperture_diameter_m  # spatial frequency (1/m)
         a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
         x = a * r
         j1_, j2, j3 = bessel_j123(x)
-        p0 = r * j1_ / a                                                       # int r J0 dr
-        p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2                             # int r^3 J0 dr
-        p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3      # int r^5 J0 dr
+        p0 = r * j1_ / a  # int r J0 dr
+        p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2  # int r^3 J0 dr
+        p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3  # int r^5 J0 dr
         zero = f[:, None] <= 0
         p0 = np.where(zero, r**2 / 2, p0)
         p1 = np.where(zero, r**4 / 4, p1)
@@ -222,8 +233,9 @@ class RadialPSFEngine:
             height = doe.height_m(r).to(torch.float64)
             if not torch.all(torch.isfinite(height)):
                 raise EdofprojError("the DOE produced NaN or infinite heights")
-            n_minus_1 = torch.as_tensor(doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64,
-                                        device=self.device)
+            n_minus_1 = torch.as_tensor(
+                doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64, device=self.device
+            )
         doe_phase = 2 * math.pi * n_minus_1[:, None] * height[None, :] / lam[:, None]  # (L, M)
         alpha = math.pi * (1.0 / z - 1.0 / self.geometry.focus_distance_m)[None, :, None] / lam[:, None, None]
         return doe_phase[:, None, :] + alpha * r[None, None, :] ** 2, alpha
@@ -239,8 +251,8 @@ class RadialPSFEngine:
         a = alpha.to(self.dtype)
         half_a2 = 0.5 * a * a
         # G = K0 g + i alpha K1 g - alpha^2/2 K2 g with g = cos + i sin
-        re = cos_k[..., :n] - a * sin_k[..., n:2 * n] - half_a2 * cos_k[..., 2 * n:]
-        im = sin_k[..., :n] + a * cos_k[..., n:2 * n] - half_a2 * sin_k[..., 2 * n:]
+        re = cos_k[..., :n] - a * sin_k[..., n : 2 * n] - half_a2 * cos_k[..., 2 * n :]
+        im = sin_k[..., :n] + a * cos_k[..., n : 2 * n] - half_a2 * sin_k[..., 2 * n :]
         return (re * re + im * im) * self.intensity_norm
 
     def psf(self, doe, depths_m) -> torch.Tensor:

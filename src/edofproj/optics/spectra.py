@@ -76,9 +76,7 @@ class Spectrum:
         table = np.atleast_2d(table)
         table = table[np.all(np.isfinite(table), axis=1)] if table.size else table
         if table.ndim != 2 or table.shape[1] != 4 or table.shape[0] < 2:
-            raise EdofprojError(
-                f"SPD file '{path}' must have rows 'wavelength_nm,r,g,b' (at least two rows)"
-            )
+            raise EdofprojError(f"SPD file '{path}' must have rows 'wavelength_nm,r,g,b' (at least two rows)")
         order = np.argsort(table[:, 0])
         table = table[order]
         if np.any(table[:, 1:] < 0):

@@ -12,6 +12,7 @@ own normalization). Parameters are frozen: gradients flow to the input only.
 
 from __future__ import annotations
 
+import itertools
 import os
 from typing import Sequence
 
@@ -22,8 +23,7 @@ from ..errors import EdofprojError
 from .weights import load_state_dict_file
 
 #: torchvision's VGG16 configuration "D": channel counts, "M" = 2×2 max-pool.
-VGG16_LAYOUT = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M",
-                512, 512, 512, "M")
+VGG16_LAYOUT = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
 #: Indices of relu1_2, relu2_2, relu3_3, relu4_3, relu5_3 in ``vgg16().features``.
 VGG16_TAPS = (3, 8, 15, 22, 29)
 #: Indices of the five ReLUs in ``alexnet().features``.
@@ -39,8 +39,9 @@ def vgg16_feature_layers() -> nn.Sequential:
         if item == "M":
             layers.append(nn.MaxPool2d(kernel_size=2, stride=2))
         else:
-            layers += [nn.Conv2d(channels, item, kernel_size=3, padding=1), nn.ReLU(inplace=False)]
-            channels = item
+            width = int(item)
+            layers += [nn.Conv2d(channels, width, kernel_size=3, padding=1), nn.ReLU(inplace=False)]
+            channels = width
     return nn.Sequential(*layers)
 
 
@@ -77,7 +78,7 @@ class FeatureBackbone(nn.Module):
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """Activations after each layer index in ``taps`` (layers past the last tap skipped)."""
         outputs = []
-        for index, layer in enumerate(self.features[: self.taps[-1] + 1]):
+        for index, layer in enumerate(itertools.islice(self.features, self.taps[-1] + 1)):
             x = layer(x)
             if index in self.taps:
                 outputs.append(x)
@@ -100,8 +101,7 @@ class FeatureBackbone(nn.Module):
         for key, value in selected.items():
             if tuple(value.shape) != tuple(expected[key].shape):
                 raise EdofprojError(
-                    f"{source}: '{key}' has shape {tuple(value.shape)}, {self.name} needs "
-                    f"{tuple(expected[key].shape)}"
+                    f"{source}: '{key}' has shape {tuple(value.shape)}, {self.name} needs {tuple(expected[key].shape)}"
                 )
         self.load_state_dict(selected, strict=True)
 

@@ -44,6 +44,8 @@ DISTS_EPS = 1e-6
 class L2Pooling(nn.Module):
     """``sqrt(conv(x^2, g, stride=2, padding=1) + 1e-12)`` per channel, ``g`` a 3×3 Hann window."""
 
+    window: torch.Tensor  # buffer
+
     def __init__(self) -> None:
         super().__init__()
         hann = torch.tensor(np.hanning(5)[1:-1], dtype=torch.float32)
@@ -75,13 +77,16 @@ class DISTS(nn.Module):
     the alpha/beta weights are frozen.
     """
 
+    alpha: torch.Tensor  # buffers
+    beta: torch.Tensor
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(self, backbone: FeatureBackbone, alpha: torch.Tensor, beta: torch.Tensor) -> None:
         super().__init__()
         total = sum(DISTS_STAGE_CHANNELS)
         if alpha.numel() != total or beta.numel() != total:
-            raise EdofprojError(
-                f"DISTS alpha/beta need {total} weights each, got {alpha.numel()} and {beta.numel()}"
-            )
+            raise EdofprojError(f"DISTS alpha/beta need {total} weights each, got {alpha.numel()} and {beta.numel()}")
         self.backbone = backbone
         self.register_buffer("alpha", alpha.detach().reshape(total).float().clone())
         self.register_buffer("beta", beta.detach().reshape(total).float().clone())
@@ -116,8 +121,8 @@ class DISTS(nn.Module):
                 f"{tuple(pred.shape)} and {tuple(target.shape)}"
             )
         weight_sum = self.alpha.sum() + self.beta.sum()
-        alphas = torch.split(self.alpha / weight_sum, DISTS_STAGE_CHANNELS)
-        betas = torch.split(self.beta / weight_sum, DISTS_STAGE_CHANNELS)
+        alphas = torch.split(self.alpha / weight_sum, list(DISTS_STAGE_CHANNELS))
+        betas = torch.split(self.beta / weight_sum, list(DISTS_STAGE_CHANNELS))
         similarity = pred.new_zeros(pred.shape[0])
         for x, y, alpha, beta in zip(self.stage_features(pred), self.stage_features(target), alphas, betas):
             mu_x, mu_y = x.mean((2, 3)), y.mean((2, 3))

@@ -40,12 +40,13 @@ class LPIPS(nn.Module):
     the layer's channel count.
     """
 
+    shift: torch.Tensor  # buffers
+    scale: torch.Tensor
+
     def __init__(self, backbone: FeatureBackbone, layer_weights: Sequence[torch.Tensor]) -> None:
         super().__init__()
         if len(layer_weights) != len(backbone.taps):
-            raise EdofprojError(
-                f"LPIPS needs {len(backbone.taps)} layer weight vectors, got {len(layer_weights)}"
-            )
+            raise EdofprojError(f"LPIPS needs {len(backbone.taps)} layer weight vectors, got {len(layer_weights)}")
         self.backbone = backbone
         for index, weight in enumerate(layer_weights):
             weight = weight.detach().reshape(1, -1, 1, 1).float().clone()

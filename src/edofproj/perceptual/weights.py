@@ -70,9 +70,7 @@ def backbone_weights_path(backbone: str, weights_dir: Optional[PathLike] = None)
     holds it.
     """
     if backbone not in TORCHVISION_WEIGHT_FILES:
-        raise EdofprojError(
-            f"unknown backbone '{backbone}' (allowed: {', '.join(TORCHVISION_WEIGHT_FILES)})"
-        )
+        raise EdofprojError(f"unknown backbone '{backbone}' (allowed: {', '.join(TORCHVISION_WEIGHT_FILES)})")
     name = TORCHVISION_WEIGHT_FILES[backbone]
     folders = ([Path(weights_dir)] if weights_dir is not None else []) + [hub_checkpoint_dir()]
     for folder in folders:
@@ -93,9 +91,7 @@ def metric_weights_path(metric: str, weights_dir: Optional[PathLike] = None) -> 
     :class:`PerceptualWeightsMissing` when neither exists.
     """
     if metric not in TORCHMETRICS_DATA_FILES:
-        raise EdofprojError(
-            f"unknown perceptual metric '{metric}' (allowed: {', '.join(TORCHMETRICS_DATA_FILES)})"
-        )
+        raise EdofprojError(f"unknown perceptual metric '{metric}' (allowed: {', '.join(TORCHMETRICS_DATA_FILES)})")
     package_path, copy_name = TORCHMETRICS_DATA_FILES[metric]
     candidates = [Path(weights_dir) / copy_name] if weights_dir is not None else []
     package_dir = _torchmetrics_dir()

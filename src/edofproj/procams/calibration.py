@@ -27,7 +27,7 @@ from ..fileio import save_npz_atomic
 from .capture_io import read_captures, saturated_fraction
 from .color import ColorCalibration, calibrate_color
 from .geometry import CameraMap, calibrate_geometry
-from .patterns import PRIMARY_COLORS, PatternManifest
+from .patterns import PRIMARY_COLORS, PatternEntry, PatternManifest
 
 CALIBRATION_FORMAT = "edofproj-procams-calibration"
 
@@ -64,12 +64,21 @@ class ProCamsCalibration:
     def save(self, path: str | Path) -> None:
         cm, color = self.camera_map, self.color
         save_npz_atomic(
-            path, format=np.array(CALIBRATION_FORMAT), projector_hw=np.array(cm.projector_hw),
-            camera_hw=np.array(cm.camera_hw), map_x=cm.map_x.astype(np.float32), map_y=cm.map_y.astype(np.float32),
-            homography=cm.homography, dots_proj=cm.dots_proj, dots_cam=cm.dots_cam,
-            mixing_matrix=color.mixing_matrix, black_level=color.black_level,
-            black_image=self.black_image.astype(np.float32), color_inputs=color.sample_inputs,
-            color_outputs=color.sample_outputs, neighbours=np.array(color.neighbours),
+            path,
+            format=np.array(CALIBRATION_FORMAT),
+            projector_hw=np.array(cm.projector_hw),
+            camera_hw=np.array(cm.camera_hw),
+            map_x=cm.map_x.astype(np.float32),
+            map_y=cm.map_y.astype(np.float32),
+            homography=cm.homography,
+            dots_proj=cm.dots_proj,
+            dots_cam=cm.dots_cam,
+            mixing_matrix=color.mixing_matrix,
+            black_level=color.black_level,
+            black_image=self.black_image.astype(np.float32),
+            color_inputs=color.sample_inputs,
+            color_outputs=color.sample_outputs,
+            neighbours=np.array(color.neighbours),
         )
 
     @classmethod
@@ -78,12 +87,21 @@ class ProCamsCalibration:
             data = np.load(path, allow_pickle=False)
             if "format" not in data or str(data["format"]) != CALIBRATION_FORMAT:
                 raise ValueError("not a calibration file (make one with 'edofproj procams calibrate')")
-            camera_map = CameraMap(map_x=data["map_x"].astype(np.float64), map_y=data["map_y"].astype(np.float64),
-                                   homography=data["homography"], dots_proj=data["dots_proj"],
-                                   dots_cam=data["dots_cam"], camera_hw=tuple(int(v) for v in data["camera_hw"]))
-            color = ColorCalibration(mixing_matrix=data["mixing_matrix"], black_level=data["black_level"],
-                                     sample_inputs=data["color_inputs"], sample_outputs=data["color_outputs"],
-                                     neighbours=int(data["neighbours"]))
+            camera_map = CameraMap(
+                map_x=data["map_x"].astype(np.float64),
+                map_y=data["map_y"].astype(np.float64),
+                homography=data["homography"],
+                dots_proj=data["dots_proj"],
+                dots_cam=data["dots_cam"],
+                camera_hw=_camera_hw(data["camera_hw"]),
+            )
+            color = ColorCalibration(
+                mixing_matrix=data["mixing_matrix"],
+                black_level=data["black_level"],
+                sample_inputs=data["color_inputs"],
+                sample_outputs=data["color_outputs"],
+                neighbours=int(data["neighbours"]),
+            )
             black = data["black_image"].astype(np.float64)
         except FileNotFoundError:
             raise EdofprojError(f"calibration file '{path}' does not exist") from None
@@ -92,35 +110,54 @@ class ProCamsCalibration:
         return cls(camera_map=camera_map, color=color, black_image=black)
 
 
+def _camera_hw(values: np.ndarray) -> tuple[int, int]:
+    """The stored camera size ``[Hc, Wc]`` (ValueError unless it has two values)."""
+    height, width = (int(v) for v in values)
+    return height, width
+
+
+def _sample_color(entry: PatternEntry) -> tuple[float, float, float]:
+    if entry.color is None:
+        raise EdofprojError(f"the pattern manifest gives no colour for colour sample '{entry.file}'")
+    return entry.color
+
+
 def calibration_files(manifest: PatternManifest) -> list[str]:
     """The pattern (and capture) files calibration needs: dots, black, primaries, white (the
     brightest field: only checked for saturation) and the colour samples."""
     if not manifest.with_role("color_sample"):
         raise EdofprojError("the pattern manifest has no colour samples (role 'color_sample')")
-    return ([manifest.one("dots").file, manifest.one("black").file]
-            + [manifest.primary(name).file for name in PRIMARY_COLORS]
-            + [e.file for e in manifest.with_role("white")]
-            + [e.file for e in manifest.with_role("color_sample")])
+    return (
+        [manifest.one("dots").file, manifest.one("black").file]
+        + [manifest.primary(name).file for name in PRIMARY_COLORS]
+        + [e.file for e in manifest.with_role("white")]
+        + [e.file for e in manifest.with_role("color_sample")]
+    )
 
 
-def calibrate(manifest: PatternManifest, captures: Mapping[str, np.ndarray], neighbours: int = 6
-              ) -> ProCamsCalibration:
+def calibrate(manifest: PatternManifest, captures: Mapping[str, np.ndarray], neighbours: int = 6) -> ProCamsCalibration:
     """Geometric and colour calibration from captures ``{pattern file: (Hc, Wc, 3) image}``."""
     dots, black = manifest.one("dots"), manifest.one("black")
+    if dots.dots is None or dots.grid is None:
+        raise EdofprojError(f"the pattern manifest lists no dot grid for '{dots.file}'")
     names = calibration_files(manifest)
-    camera_map = calibrate_geometry(captures[dots.file], captures[black.file], dots.dots, dots.grid,
-                                    (manifest.height, manifest.width))
+    camera_map = calibrate_geometry(
+        captures[dots.file], captures[black.file], dots.dots, dots.grid, (manifest.height, manifest.width)
+    )
     warped = {name: camera_map.warp(captures[name]) for name in names if name != dots.file}
     warn_if_saturated({name: warped[name] for name in names if name not in (dots.file, black.file)})
-    color = calibrate_color({name: warped[manifest.primary(name).file] for name in PRIMARY_COLORS},
-                            warped[black.file],
-                            [(e.color, warped[e.file]) for e in manifest.with_role("color_sample")],
-                            neighbours=neighbours)
+    color = calibrate_color(
+        {name: warped[manifest.primary(name).file] for name in PRIMARY_COLORS},
+        warped[black.file],
+        [(_sample_color(e), warped[e.file]) for e in manifest.with_role("color_sample")],
+        neighbours=neighbours,
+    )
     return ProCamsCalibration(camera_map=camera_map, color=color, black_image=warped[black.file])
 
 
-def calibrate_folders(pattern_dir: str | Path, capture_dir: str | Path, neighbours: int = 6
-                      ) -> tuple[PatternManifest, ProCamsCalibration]:
+def calibrate_folders(
+    pattern_dir: str | Path, capture_dir: str | Path, neighbours: int = 6
+) -> tuple[PatternManifest, ProCamsCalibration]:
     """:func:`calibrate` on a pattern folder and its capture folder."""
     manifest = PatternManifest.load(pattern_dir)
     captures = read_captures(capture_dir, calibration_files(manifest))

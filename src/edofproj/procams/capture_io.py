@@ -39,8 +39,9 @@ def write_rgb_png(path: str | Path, image: np.ndarray) -> None:
     write_image(path, np.ascontiguousarray(np.asarray(image, dtype=np.float32).transpose(2, 0, 1)), bits=8)
 
 
-def read_captures(folder: str | Path, files: Iterable[str], expected_hw: tuple[int, int] | None = None
-                  ) -> dict[str, np.ndarray]:
+def read_captures(
+    folder: str | Path, files: Iterable[str], expected_hw: tuple[int, int] | None = None
+) -> dict[str, np.ndarray]:
     """The captures ``{file: (H, W, 3)}`` of ``files`` from ``folder``.
 
     Raises one line naming the missing captures, or the first capture whose size differs from
@@ -101,5 +102,4 @@ def atomic_folder(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
         raise
 
 
-__all__ = ["read_rgb", "write_rgb_png", "read_captures", "saturated_fraction", "atomic_folder",
-           "SATURATION_LEVEL"]
+__all__ = ["read_rgb", "write_rgb_png", "read_captures", "saturated_fraction", "atomic_folder", "SATURATION_LEVEL"]

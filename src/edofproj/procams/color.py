@@ -52,11 +52,10 @@ def interior_mean(image: np.ndarray, inset_fraction: float = INTERIOR_INSET_FRAC
     """Per-channel mean of ``image (H, W, C)`` without a border of ``inset_fraction`` of each side."""
     H, W = image.shape[:2]
     dy, dx = int(round(H * inset_fraction)), int(round(W * inset_fraction))
-    return np.asarray(image[dy:H - dy, dx:W - dx], dtype=np.float64).reshape(-1, image.shape[-1]).mean(axis=0)
+    return np.asarray(image[dy : H - dy, dx : W - dx], dtype=np.float64).reshape(-1, image.shape[-1]).mean(axis=0)
 
 
-def mixing_matrix_from_primaries(red: np.ndarray, green: np.ndarray, blue: np.ndarray,
-                                 black: np.ndarray) -> np.ndarray:
+def mixing_matrix_from_primaries(red: np.ndarray, green: np.ndarray, blue: np.ndarray, black: np.ndarray) -> np.ndarray:
     """``M`` (3x3): column ``j`` = interior mean of the capture of full primary ``j`` minus black."""
     black_mean = interior_mean(black)
     matrix = np.stack([interior_mean(capture) - black_mean for capture in (red, green, blue)], axis=1)
@@ -69,8 +68,7 @@ def mixing_matrix_from_primaries(red: np.ndarray, green: np.ndarray, blue: np.nd
     return matrix
 
 
-def locally_linear_weights(queries: np.ndarray, samples: np.ndarray, neighbours: int
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def locally_linear_weights(queries: np.ndarray, samples: np.ndarray, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices ``(n, k)`` of the ``k`` nearest samples of each query and their LLE weights ``(n, k)``
     (module docstring); each row of weights sums to 1."""
     k = min(int(neighbours), len(samples))
@@ -126,8 +124,9 @@ class ColorCalibration:
         return _interpolate(outputs, self.sample_outputs, self.sample_inputs, self.neighbours)
 
 
-def calibrate_color(primaries: dict[str, np.ndarray], black: np.ndarray, samples: list[tuple[tuple, np.ndarray]],
-                    neighbours: int = 6) -> ColorCalibration:
+def calibrate_color(
+    primaries: dict[str, np.ndarray], black: np.ndarray, samples: list[tuple[tuple, np.ndarray]], neighbours: int = 6
+) -> ColorCalibration:
     """Colour calibration from captures warped into projector pixels.
 
     ``primaries``: ``{"red"|"green"|"blue": capture}``; ``black``: the black capture;
@@ -138,9 +137,13 @@ def calibrate_color(primaries: dict[str, np.ndarray], black: np.ndarray, samples
     if len(samples) < neighbours:
         raise EdofprojError(f"{len(samples)} colour samples are fewer than --neighbours {neighbours}")
     matrix = mixing_matrix_from_primaries(primaries["red"], primaries["green"], primaries["blue"], black)
-    calibration = ColorCalibration(mixing_matrix=matrix, black_level=interior_mean(black),
-                                   sample_inputs=np.zeros((0, 3)), sample_outputs=np.zeros((0, 3)),
-                                   neighbours=neighbours)
+    calibration = ColorCalibration(
+        mixing_matrix=matrix,
+        black_level=interior_mean(black),
+        sample_inputs=np.zeros((0, 3)),
+        sample_outputs=np.zeros((0, 3)),
+        neighbours=neighbours,
+    )
     inputs = np.asarray([color for color, _ in samples], dtype=np.float64)
     outputs = np.stack([calibration.camera_to_output(interior_mean(capture)) for _, capture in samples])
     calibration.sample_inputs, calibration.sample_outputs = inputs, outputs

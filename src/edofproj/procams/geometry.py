@@ -48,8 +48,9 @@ def apply_homography(homography: np.ndarray, points: np.ndarray) -> np.ndarray:
     return mapped[:, :2] / mapped[:, 2:3]
 
 
-def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: float = 1.5,
-                refinements: int = 3) -> np.ndarray:
+def detect_dots(
+    gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: float = 1.5, refinements: int = 3
+) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` as ``(u, v)`` of the bright blobs of a black-subtracted grey image.
 
     Blobs: the image smoothed by a Gaussian of ``smoothing_px`` (noise), thresholded at Otsu's
@@ -81,8 +82,10 @@ def detect_dots(gray: np.ndarray, min_area_fraction: float = 0.2, smoothing_px: 
             weights = smooth[v0:v1, u0:u1]
             total = weights.sum()
             if total > 0:
-                centres[n] = [(weights.sum(axis=0) @ (offsets[u0 - cu + half:u1 - cu + half] + cu)) / total,
-                              (weights.sum(axis=1) @ (offsets[v0 - cv + half:v1 - cv + half] + cv)) / total]
+                centres[n] = [
+                    (weights.sum(axis=0) @ (offsets[u0 - cu + half : u1 - cu + half] + cu)) / total,
+                    (weights.sum(axis=1) @ (offsets[v0 - cv + half : v1 - cv + half] + cv)) / total,
+                ]
     return centres
 
 
@@ -142,8 +145,13 @@ class CameraMap:
                 f"capture is {capture.shape[1]}x{capture.shape[0]} pixels, the calibrated camera "
                 f"{self.camera_hw[1]}x{self.camera_hw[0]}"
             )
-        warped = cv2.remap(np.asarray(capture, dtype=np.float32), self.map_x.astype(np.float32),
-                           self.map_y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        warped = cv2.remap(
+            np.asarray(capture, dtype=np.float32),
+            self.map_x.astype(np.float32),
+            self.map_y.astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
         return warped.reshape(self.projector_hw + capture.shape[2:])
 
     def homography_residual_px(self) -> np.ndarray:
@@ -156,8 +164,9 @@ class CameraMap:
         return float(np.sqrt(np.abs(jacobian[0] * jacobian[3] - jacobian[1] * jacobian[2])).min())
 
 
-def fit_camera_map(dots_proj: np.ndarray, dots_cam: np.ndarray, projector_hw: tuple[int, int],
-                   camera_hw: tuple[int, int]) -> CameraMap:
+def fit_camera_map(
+    dots_proj: np.ndarray, dots_cam: np.ndarray, projector_hw: tuple[int, int], camera_hw: tuple[int, int]
+) -> CameraMap:
     """The dense map ``q(x) = H x + r(x)`` (module docstring, step 3) from dot correspondences."""
     dots_proj = np.asarray(dots_proj, dtype=np.float64)
     dots_cam = np.asarray(dots_cam, dtype=np.float64)
@@ -170,12 +179,23 @@ def fit_camera_map(dots_proj: np.ndarray, dots_cam: np.ndarray, projector_hw: tu
     y, x = np.mgrid[0:H, 0:W]
     pixels = np.c_[x.ravel(), y.ravel()].astype(np.float64)
     mapped = apply_homography(homography, pixels) + spline(pixels)
-    return CameraMap(map_x=mapped[:, 0].reshape(H, W), map_y=mapped[:, 1].reshape(H, W), homography=homography,
-                     dots_proj=dots_proj, dots_cam=dots_cam, camera_hw=tuple(camera_hw))
+    return CameraMap(
+        map_x=mapped[:, 0].reshape(H, W),
+        map_y=mapped[:, 1].reshape(H, W),
+        homography=homography,
+        dots_proj=dots_proj,
+        dots_cam=dots_cam,
+        camera_hw=(camera_hw[0], camera_hw[1]),
+    )
 
 
-def calibrate_geometry(dots_capture: np.ndarray, black_capture: np.ndarray, dots_proj: np.ndarray,
-                       grid: tuple[int, int], projector_hw: tuple[int, int]) -> CameraMap:
+def calibrate_geometry(
+    dots_capture: np.ndarray,
+    black_capture: np.ndarray,
+    dots_proj: np.ndarray,
+    grid: tuple[int, int],
+    projector_hw: tuple[int, int],
+) -> CameraMap:
     """The camera map from the captures of the dot grid and of the black field.
 
     Raises one line when the number of blobs found differs from the grid's, or when the camera
@@ -190,11 +210,13 @@ def calibrate_geometry(dots_capture: np.ndarray, black_capture: np.ndarray, dots
             f"found {len(detected)} dots in the dot-grid capture, expected {rows}x{cols} = {rows * cols} "
             "(blobs merged, cut by the image border, or too faint: try fewer dots or a longer exposure)"
         )
-    camera_map = fit_camera_map(dots_proj, match_grid(detected, dots_proj, rows, cols), projector_hw,
-                                black_capture.shape[:2])
+    camera_map = fit_camera_map(
+        dots_proj, match_grid(detected, dots_proj, rows, cols), projector_hw, black_capture.shape[:2]
+    )
     Hc, Wc = camera_map.camera_hw
-    outside = ((camera_map.map_x < 0) | (camera_map.map_x > Wc - 1) |
-               (camera_map.map_y < 0) | (camera_map.map_y > Hc - 1))
+    outside = (
+        (camera_map.map_x < 0) | (camera_map.map_x > Wc - 1) | (camera_map.map_y < 0) | (camera_map.map_y > Hc - 1)
+    )
     if np.any(outside):
         raise EdofprojError(
             f"the camera does not see the whole projector image: {100 * outside.mean():.1f} % of the projector "
@@ -204,6 +226,7 @@ def calibrate_geometry(dots_capture: np.ndarray, black_capture: np.ndarray, dots
     if magnification < MIN_CAMERA_PIXELS_PER_PROJECTOR_PIXEL:
         warnings.warn(
             f"the camera resolves a projector pixel with only {magnification:.2f} camera pixels (>= 3 recommended): "
-            "measured PSFs will be widened by the camera's sampling", stacklevel=2,
+            "measured PSFs will be widened by the camera's sampling",
+            stacklevel=2,
         )
     return camera_map

@@ -106,6 +106,8 @@ class PatternEntry:
         if self.color is not None:
             item["color"] = [float(c) for c in self.color]
         if self.grid is not None:
+            if self.radius_px is None or self.dots is None:
+                raise EdofprojError(f"pattern '{self.file}' has a dot grid but no dot radius or dot positions")
             item["grid"] = [int(g) for g in self.grid]
             item["radius_px"] = int(self.radius_px)
             item["dots"] = [[float(x), float(y)] for x, y in self.dots]
@@ -134,14 +136,19 @@ class PatternManifest:
         """The full field of primary ``red``, ``green`` or ``blue``."""
         want = PRIMARY_COLORS[name]
         for e in self.with_role("primary"):
-            if tuple(e.color) == want:
+            if e.color is not None and tuple(e.color) == want:
                 return e
         raise EdofprojError(f"the pattern manifest has no {name} primary field")
 
     # -- files -------------------------------------------------------------------------
     def to_json(self) -> dict:
-        return {"format": MANIFEST_FORMAT, "version": 1, "width": self.width, "height": self.height,
-                "files": [e.to_json() for e in self.entries]}
+        return {
+            "format": MANIFEST_FORMAT,
+            "version": 1,
+            "width": self.width,
+            "height": self.height,
+            "files": [e.to_json() for e in self.entries],
+        }
 
     @classmethod
     def load(cls, folder: str | Path) -> "PatternManifest":
@@ -159,17 +166,36 @@ class PatternManifest:
                 dots = np.asarray(item["dots"], dtype=float).reshape(-1, 2) if "dots" in item else None
                 if dots is not None and len(dots) != int(np.prod(item["grid"])):
                     raise ValueError(f"'{item['file']}' lists {len(dots)} dots for a {item['grid']} grid")
-                entries.append(PatternEntry(
-                    file=str(item["file"]), role=role, index=item.get("index"),
-                    color=tuple(float(c) for c in item["color"]) if "color" in item else None,
-                    grid=tuple(int(g) for g in item["grid"]) if "grid" in item else None,
-                    radius_px=item.get("radius_px"), dots=dots,
-                ))
+                entries.append(
+                    PatternEntry(
+                        file=str(item["file"]),
+                        role=role,
+                        index=item.get("index"),
+                        color=_color_triple(item["color"]) if "color" in item else None,
+                        grid=_grid_pair(item["grid"]) if "grid" in item else None,
+                        radius_px=item.get("radius_px"),
+                        dots=dots,
+                    )
+                )
         except FileNotFoundError:
-            raise EdofprojError(f"'{folder}' has no {MANIFEST_NAME} (make one with 'edofproj procams patterns')") from None
+            raise EdofprojError(
+                f"'{folder}' has no {MANIFEST_NAME} (make one with 'edofproj procams patterns')"
+            ) from None
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise EdofprojError(f"cannot read '{path}': {exc}") from None
         return cls(width=width, height=height, entries=entries)
+
+
+def _color_triple(values) -> tuple[float, float, float]:
+    """A manifest colour ``[r, g, b]`` (ValueError unless it has three values)."""
+    r, g, b = (float(c) for c in values)
+    return r, g, b
+
+
+def _grid_pair(values) -> tuple[int, int]:
+    """A manifest dot grid ``[rows, cols]`` (ValueError unless it has two values)."""
+    rows, cols = (int(g) for g in values)
+    return rows, cols
 
 
 # ----------------------------------------------------------------------------- builders
@@ -194,7 +220,7 @@ def dot_grid_image(height: int, width: int, centers: np.ndarray, radius_px: int)
     image = np.zeros((height, width), np.float32)
     offsets = np.arange(-radius_px, radius_px + 1)
     oy, ox = np.meshgrid(offsets, offsets, indexing="ij")
-    disc = (ox ** 2 + oy ** 2) <= radius_px ** 2
+    disc = (ox**2 + oy**2) <= radius_px**2
     for cx, cy in centers.astype(int):
         ys, xs = cy + oy[disc], cx + ox[disc]
         keep = (ys >= 0) & (ys < height) & (xs >= 0) & (xs < width)
@@ -233,18 +259,22 @@ def build_pattern_set(spec: PatternSpec) -> tuple[PatternManifest, dict[str, np.
     rows, cols = spec.dot_grid
     radius = spec.dot_radius_px or max(1, int(min(H / rows, W / cols) // 8))
     centers = dot_grid_centers(H, W, rows, cols)
-    add(PatternEntry("dots.png", "dots", grid=(rows, cols), radius_px=radius, dots=centers),
-        dot_grid_image(H, W, centers, radius))
+    add(
+        PatternEntry("dots.png", "dots", grid=(rows, cols), radius_px=radius, dots=centers),
+        dot_grid_image(H, W, centers, radius),
+    )
 
     for name, color in PRIMARY_COLORS.items():
         add(PatternEntry(f"{name}.png", "primary", color=color), uniform_field(H, W, color))
     add(PatternEntry("white.png", "white", color=(1.0, 1.0, 1.0)), uniform_field(H, W, (1, 1, 1)))
     add(PatternEntry("black.png", "black", color=(0.0, 0.0, 0.0)), uniform_field(H, W, (0, 0, 0)))
 
-    digits = max(3, len(str(spec.color_levels ** 3 - 1)))
+    digits = max(3, len(str(spec.color_levels**3 - 1)))
     for i, color in enumerate(color_sample_values(spec.color_levels)):
-        add(PatternEntry(f"color_{i:0{digits}d}.png", "color_sample", index=i, color=tuple(color)),
-            uniform_field(H, W, color))
+        add(
+            PatternEntry(f"color_{i:0{digits}d}.png", "color_sample", index=i, color=tuple(color)),
+            uniform_field(H, W, color),
+        )
     return manifest, images
 
 
@@ -273,7 +303,15 @@ def manifest_json_text(manifest: PatternManifest) -> str:
 
 
 __all__ = [
-    "PatternSpec", "PatternEntry", "PatternManifest", "build_pattern_set", "bernoulli_noise",
-    "dot_grid_centers", "dot_grid_image", "color_sample_values", "read_pattern", "parse_grid",
+    "PatternSpec",
+    "PatternEntry",
+    "PatternManifest",
+    "build_pattern_set",
+    "bernoulli_noise",
+    "dot_grid_centers",
+    "dot_grid_image",
+    "color_sample_values",
+    "read_pattern",
+    "parse_grid",
     "MANIFEST_NAME",
 ]

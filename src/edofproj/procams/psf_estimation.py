@@ -109,8 +109,12 @@ class PSFEstimate:
 
     def to_bank(self, depth_m: float, pixel_pitch_m: float, description: str = "") -> PSFBank:
         """The measured PSF as a one-depth :class:`~edofproj.optics.psf_bank.PSFBank` (``edofproj psf`` format)."""
-        return PSFBank(psf=torch.from_numpy(self.psf[None].astype(np.float32)), depths_m=np.array([depth_m]),
-                       pixel_pitch_m=np.array([pixel_pitch_m]), description=description)
+        return PSFBank(
+            psf=torch.from_numpy(self.psf[None].astype(np.float32)),
+            depths_m=np.array([depth_m]),
+            pixel_pitch_m=np.array([pixel_pitch_m]),
+            description=description,
+        )
 
 
 def _convolve(images: np.ndarray, psf: np.ndarray) -> np.ndarray:
@@ -137,8 +141,15 @@ def patch_boxes(height: int, width: int, margin: int, patch: int) -> np.ndarray:
     return np.array([[y, y + patch, x, x + patch] for y in starts_y for x in starts_x])
 
 
-def _estimate_region(patterns: np.ndarray, captures: np.ndarray, box, window: int, start: np.ndarray | None,
-                     iterations: int, eps_rel: float) -> np.ndarray:
+def _estimate_region(
+    patterns: np.ndarray,
+    captures: np.ndarray,
+    box,
+    window: int,
+    start: np.ndarray | None,
+    iterations: int,
+    eps_rel: float,
+) -> np.ndarray:
     """Eq. 13 on region ``box`` with the light from outside it removed (module docstring, step 2),
     ``iterations`` times after a first pass that predicts that light with ``start`` (None: no light);
     each later pass predicts it with the region's own previous estimate. Returns ``(3, K, K)``.
@@ -165,11 +176,19 @@ def _estimate_region(patterns: np.ndarray, captures: np.ndarray, box, window: in
             kernel = eq13_kernel(pattern_inside[..., c], data[..., c], eps_rel)
             windowed, floor = window_and_floor(kernel, window)
             psf[c] = windowed - floor
+    if psf is None:  # only with iterations < 0, which estimate_psf refuses
+        raise EdofprojError(f"iterations={iterations} must be >= 0")
     return psf
 
 
-def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch: int = 0,
-                 eps_rel: float = DEFAULT_EPS_REL, iterations: int = DEFAULT_ITERATIONS) -> PSFEstimate:
+def estimate_psf(
+    patterns: np.ndarray,
+    captures: np.ndarray,
+    window: int,
+    patch: int = 0,
+    eps_rel: float = DEFAULT_EPS_REL,
+    iterations: int = DEFAULT_ITERATIONS,
+) -> PSFEstimate:
     """Measure the PSF from patterns and captures ``(n, H, W, 3)`` in projector output space
     (module docstring). ``window`` K (odd), ``patch`` N px (0: whole image), ``iterations``
     passes that remove the light from outside each region (0: none)."""
@@ -186,16 +205,18 @@ def estimate_psf(patterns: np.ndarray, captures: np.ndarray, window: int, patch:
     H, W = patterns.shape[1:3]
     m = window // 2
     if min(H, W) - 4 * m < window:
-        raise EdofprojError(f"a {W}x{H} image is too small for a {window} px window (needs at least "
-                            f"{window + 4 * m} px on each side)")
+        raise EdofprojError(
+            f"a {W}x{H} image is too small for a {window} px window (needs at least {window + 4 * m} px on each side)"
+        )
     patterns = patterns - patterns.mean(axis=(1, 2), keepdims=True)  # B' (module docstring, step 1)
     whole = _estimate_region(patterns, captures, patch_boxes(H, W, 2 * m, 0)[0], window, None, iterations, eps_rel)
     boxes = patch_boxes(H, W, 2 * m, patch)
     if patch <= 0:
         patch_psfs = whole[None]
     else:
-        patch_psfs = np.stack([_estimate_region(patterns, captures, box, window, whole, iterations, eps_rel)
-                               for box in boxes])
+        patch_psfs = np.stack(
+            [_estimate_region(patterns, captures, box, window, whole, iterations, eps_rel) for box in boxes]
+        )
     return PSFEstimate(psf=patch_psfs.mean(axis=0), patch_psfs=patch_psfs, patch_boxes=boxes, whole_image_psf=whole)
 
 
@@ -206,9 +227,16 @@ def bernoulli_files(manifest: PatternManifest) -> list[str]:
     return [e.file for e in entries]
 
 
-def measure_psf(manifest: PatternManifest, patterns: Mapping[str, np.ndarray], captures: Mapping[str, np.ndarray],
-                calibration: ProCamsCalibration, window: int, patch: int = 0, eps_rel: float = DEFAULT_EPS_REL,
-                iterations: int = DEFAULT_ITERATIONS) -> PSFEstimate:
+def measure_psf(
+    manifest: PatternManifest,
+    patterns: Mapping[str, np.ndarray],
+    captures: Mapping[str, np.ndarray],
+    calibration: ProCamsCalibration,
+    window: int,
+    patch: int = 0,
+    eps_rel: float = DEFAULT_EPS_REL,
+    iterations: int = DEFAULT_ITERATIONS,
+) -> PSFEstimate:
     """The PSF from the Bernoulli patterns ``{file: (H, W, 3) input image}`` and their captures
     ``{file: (Hc, Wc, 3)}``, through the calibration into projector output space."""
     files = bernoulli_files(manifest)
@@ -226,6 +254,7 @@ def measure_psf(manifest: PatternManifest, patterns: Mapping[str, np.ndarray], c
     if np.any(energy > 1.05) or np.any(energy < 0.05):
         warnings.warn(
             f"measured in-window energy {np.round(energy, 3).tolist()} (R, G, B) is implausible (expected 0-1): "
-            "check the colour calibration and that the captures match the patterns", stacklevel=2,
+            "check the colour calibration and that the captures match the patterns",
+            stacklevel=2,
         )
     return estimate

@@ -43,15 +43,19 @@ from ..imaging import haze_term, layer_weights, project, render_depth_map
 from .capture_io import atomic_folder, write_rgb_png
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
 
-DEFAULT_MIXING_MATRIX = np.array([[0.62, 0.12, 0.04],
-                                  [0.10, 0.60, 0.10],
-                                  [0.03, 0.12, 0.58]])
+DEFAULT_MIXING_MATRIX = np.array([[0.62, 0.12, 0.04], [0.10, 0.60, 0.10], [0.03, 0.12, 0.58]])
 """Camera RGB per unit projector output: column j is the camera's response to primary j."""
 
 GROUND_TRUTH_JSON = "ground_truth.json"
 GROUND_TRUTH_NPZ = "ground_truth.npz"
 TRUE_PSF_NPZ = "true_psf.npz"
 CAPTURE_INFO_JSON = "captures.json"
+
+
+def _rgb_triple(value) -> tuple[float, float, float]:
+    """One value per RGB channel (a scalar is used for all three)."""
+    red, green, blue = (float(v) for v in np.broadcast_to(value, (3,)))
+    return red, green, blue
 
 
 @dataclass
@@ -92,16 +96,25 @@ class VirtualProCams:
             raise EdofprojError(f"a flat screen takes one PSF, got {self.psf.shape[0]}")
         self.homography = np.asarray(self.homography, dtype=np.float64)
         self.mixing_matrix = np.asarray(self.mixing_matrix, dtype=np.float64)
-        self.gamma = tuple(float(g) for g in np.broadcast_to(self.gamma, (3,)))
-        self.ambient = tuple(float(a) for a in np.broadcast_to(self.ambient, (3,)))
+        self.gamma = _rgb_triple(self.gamma)
+        self.ambient = _rgb_triple(self.ambient)
         if not (0.0 <= self.projector_black < 1.0):
             raise EdofprojError(f"projector_black={self.projector_black} must be in [0, 1)")
 
     # ------------------------------------------------------------------ a plausible rig
     @classmethod
-    def example(cls, projector_hw: tuple[int, int], psf, seed: int = 0, camera_scale: float = 3.0,
-                fill: float = 0.75, rotation_deg: float = 4.0, perspective: float = 0.04,
-                radial_k1: float = 0.02, **params) -> "VirtualProCams":
+    def example(
+        cls,
+        projector_hw: tuple[int, int],
+        psf,
+        seed: int = 0,
+        camera_scale: float = 3.0,
+        fill: float = 0.75,
+        rotation_deg: float = 4.0,
+        perspective: float = 0.04,
+        radial_k1: float = 0.02,
+        **params,
+    ) -> "VirtualProCams":
         """A rig whose camera sees the projector image at ``camera_scale`` camera pixels per
         projector pixel, filling ``fill`` of the camera frame, turned by up to ``rotation_deg``,
         with perspective (corners moved by up to ``perspective`` of the image size) and barrel
@@ -117,8 +130,9 @@ class VirtualProCams:
         jitter = rng.uniform(-1, 1, (4, 2)) * perspective * camera_scale * min(H, W)
         target = centre_cam + (corners - centre_proj) @ rotation.T * camera_scale + jitter
         homography = cv2.getPerspectiveTransform(corners.astype(np.float32), target.astype(np.float32))
-        rig = cls(projector_hw=(H, W), camera_hw=camera_hw, psf=psf, homography=homography,
-                  radial_k1=radial_k1, **params)
+        rig = cls(
+            projector_hw=(H, W), camera_hw=camera_hw, psf=psf, homography=homography, radial_k1=radial_k1, **params
+        )
         u, v = rig.projector_points_to_camera(corners[:, 0], corners[:, 1])
         if u.min() < 0 or v.min() < 0 or u.max() > camera_hw[1] - 1 or v.max() > camera_hw[0] - 1:
             raise EdofprojError("the example camera does not see the whole projector image; lower fill")
@@ -169,12 +183,16 @@ class VirtualProCams:
                 direct = project(canvas, psf, haze=False)
                 haze = haze_term(output, psf)
             else:
+                if self.layer_depths_m is None:
+                    raise EdofprojError("a depth map needs layer_depths_m (one PSF per layer)")
                 depth = np.pad(np.asarray(self.depth_map_m, dtype=np.float64), m, mode="edge")
                 direct = render_depth_map(canvas, depth, psf, layers=list(self.layer_depths_m), haze=False)
                 weights = layer_weights(self.depth_map_m, self.layer_depths_m).to(output.dtype)  # (n, H, W)
-                haze = sum(haze_term(output * weights[l], psf[l:l + 1]) for l in range(len(self.layer_depths_m)))
+                haze = haze_term(output * weights[0], psf[0:1])
+                for layer in range(1, len(self.layer_depths_m)):
+                    haze = haze + haze_term(output * weights[layer], psf[layer : layer + 1])
         screen = direct[0].numpy()
-        screen[:, m:m + H, m:m + W] += haze[0].numpy()
+        screen[:, m : m + H, m : m + W] += haze[0].numpy()
         return screen.transpose(1, 2, 0)
 
     # ------------------------------------------------------------------ geometry
@@ -187,7 +205,7 @@ class VirtualProCams:
         """Projector ``(x, y)`` seen by camera points ``(u, v)`` (module docstring, step 4)."""
         centre, scale = self._distortion_centre_and_scale
         du, dv = np.asarray(u, float) - centre[0], np.asarray(v, float) - centre[1]
-        factor = 1.0 + self.radial_k1 * (du ** 2 + dv ** 2) / scale ** 2
+        factor = 1.0 + self.radial_k1 * (du**2 + dv**2) / scale**2
         w = np.stack([centre[0] + du * factor, centre[1] + dv * factor, np.ones_like(du)])
         x = np.tensordot(np.linalg.inv(self.homography), w, axes=1)
         return x[0] / x[2], x[1] / x[2]
@@ -201,7 +219,7 @@ class VirtualProCams:
         dw = np.stack([w[0] / w[2] - centre[0], w[1] / w[2] - centre[1]])
         d = dw.copy()
         for _ in range(iterations):
-            d = dw / (1.0 + self.radial_k1 * (d[0] ** 2 + d[1] ** 2) / scale ** 2)
+            d = dw / (1.0 + self.radial_k1 * (d[0] ** 2 + d[1] ** 2) / scale**2)
         return centre[0] + d[0], centre[1] + d[1]
 
     def true_camera_map(self) -> tuple[np.ndarray, np.ndarray]:
@@ -238,8 +256,15 @@ class VirtualProCams:
         """The camera's 8-bit capture of projector input ``image`` as ``(Hc, Wc, 3)`` float32 in ``[0, 1]``."""
         screen = self.screen_image(image)
         camera_light = (screen @ self.mixing_matrix.T).astype(np.float32)  # (H + 2m, W + 2m, 3)
-        samples = cv2.remap(camera_light, self._camera_sample_map, None, cv2.INTER_NEAREST,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # black beyond the canvas
+        # map2=None (map1 holds both coordinates) is valid OpenCV but missing from its stubs
+        samples = cv2.remap(
+            camera_light,
+            self._camera_sample_map,
+            None,
+            cv2.INTER_NEAREST,  # type: ignore[call-overload]
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )  # black beyond the canvas
         Hc, Wc = self.camera_hw
         pixels = cv2.resize(samples, (Wc, Hc), interpolation=cv2.INTER_AREA)  # area mean of the sub-samples
         pixels += np.asarray(self.ambient, dtype=np.float32)
@@ -249,23 +274,29 @@ class VirtualProCams:
     # ------------------------------------------------------------------ ground truth
     def ground_truth_json(self) -> dict:
         return {
-            "projector_hw": list(self.projector_hw), "camera_hw": list(self.camera_hw),
+            "projector_hw": list(self.projector_hw),
+            "camera_hw": list(self.camera_hw),
             "depth_mm": None if self.depth_m is None else self.depth_m * 1e3,
             "pixel_pitch_m": self.pixel_pitch_m,
-            "gamma": list(self.gamma), "projector_black": self.projector_black,
+            "gamma": list(self.gamma),
+            "projector_black": self.projector_black,
             "mixing_matrix": self.mixing_matrix.tolist(),
             "effective_mixing_matrix": self.effective_mixing_matrix.tolist(),
-            "ambient": list(self.ambient), "black_capture_level": self.black_capture_level.tolist(),
-            "homography": self.homography.tolist(), "radial_k1": self.radial_k1,
-            "noise_sigma": self.noise_sigma, "supersampling": self.supersampling,
+            "ambient": list(self.ambient),
+            "black_capture_level": self.black_capture_level.tolist(),
+            "homography": self.homography.tolist(),
+            "radial_k1": self.radial_k1,
+            "noise_sigma": self.noise_sigma,
+            "supersampling": self.supersampling,
             "camera_pixels_per_projector_pixel": self.camera_pixels_per_projector_pixel(),
             "psf_window": int(self.psf.shape[-1]),
             "energy_in_window": self.psf.sum(axis=(-1, -2)).tolist(),
         }
 
 
-def simulate_captures(rig: VirtualProCams, pattern_dir: str | Path, out_dir: str | Path, seed: int = 0,
-                      overwrite: bool = False, log=None) -> PatternManifest:
+def simulate_captures(
+    rig: VirtualProCams, pattern_dir: str | Path, out_dir: str | Path, seed: int = 0, overwrite: bool = False, log=None
+) -> PatternManifest:
     """Capture every pattern of ``pattern_dir`` with ``rig`` into ``out_dir`` (written atomically).
 
     Writes one PNG per pattern under the pattern's name, ``ground_truth.json`` (the rig's
@@ -292,14 +323,27 @@ def simulate_captures(rig: VirtualProCams, pattern_dir: str | Path, out_dir: str
             if log is not None and (number + 1) % 50 == 0:
                 log(f"  {number + 1}/{len(manifest.entries)} captures")
         (tmp / GROUND_TRUTH_JSON).write_text(json.dumps(rig.ground_truth_json(), indent=1) + "\n", encoding="utf-8")
-        save_npz_atomic(tmp / GROUND_TRUTH_NPZ, psf=rig.psf.astype(np.float32), camera_map_x=map_x,
-                        camera_map_y=map_y, homography=rig.homography, mixing_matrix=rig.mixing_matrix,
-                        effective_mixing_matrix=rig.effective_mixing_matrix, gamma=np.asarray(rig.gamma))
+        save_npz_atomic(
+            tmp / GROUND_TRUTH_NPZ,
+            psf=rig.psf.astype(np.float32),
+            camera_map_x=map_x,
+            camera_map_y=map_y,
+            homography=rig.homography,
+            mixing_matrix=rig.mixing_matrix,
+            effective_mixing_matrix=rig.effective_mixing_matrix,
+            gamma=np.asarray(rig.gamma),
+        )
         if rig.depth_m is not None and rig.depth_map_m is None:
-            PSFBank(psf=torch.from_numpy(rig.psf), depths_m=np.array([rig.depth_m]),
-                    pixel_pitch_m=np.array([rig.pixel_pitch_m if rig.pixel_pitch_m is not None else np.nan]),
-                    description="ground truth of the virtual ProCams").save(tmp / TRUE_PSF_NPZ)
-        info = {"depth_mm": None if rig.depth_m is None else rig.depth_m * 1e3,
-                "patterns": str(Path(pattern_dir).resolve() / MANIFEST_NAME), "source": "edofproj procams simulate"}
+            PSFBank(
+                psf=torch.from_numpy(rig.psf),
+                depths_m=np.array([rig.depth_m]),
+                pixel_pitch_m=np.array([rig.pixel_pitch_m if rig.pixel_pitch_m is not None else np.nan]),
+                description="ground truth of the virtual ProCams",
+            ).save(tmp / TRUE_PSF_NPZ)
+        info = {
+            "depth_mm": None if rig.depth_m is None else rig.depth_m * 1e3,
+            "patterns": str(Path(pattern_dir).resolve() / MANIFEST_NAME),
+            "source": "edofproj procams simulate",
+        }
         (tmp / CAPTURE_INFO_JSON).write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
     return manifest

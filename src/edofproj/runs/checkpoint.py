@@ -43,7 +43,10 @@ def step_name(step: int) -> str:
 
 def capture_rng_state() -> dict[str, Any]:
     """The global random states of torch, CUDA, NumPy and Python, as tensors and plain values."""
-    np_kind, np_keys, np_pos, np_has_gauss, np_gauss = np.random.get_state()
+    np_state = np.random.get_state(legacy=True)
+    if isinstance(np_state, dict):
+        raise RuntimeError("NumPy's global random generator is not MT19937; its state cannot be checkpointed")
+    np_kind, np_keys, np_pos, np_has_gauss, np_gauss = np_state
     state = {
         "torch": torch.get_rng_state(),
         "numpy": {"kind": str(np_kind), "keys": torch.from_numpy(np_keys.astype(np.int64)), "pos": int(np_pos),
@@ -100,8 +103,12 @@ def list_step_checkpoints(directory: str | Path) -> list[Path]:
     directory = Path(directory)
     if not directory.is_dir():
         return []
-    files = [p for p in directory.iterdir() if STEP_PATTERN.match(p.name)]
-    return sorted(files, key=lambda p: int(STEP_PATTERN.match(p.name).group(1)))
+    steps = {}
+    for p in directory.iterdir():
+        match = STEP_PATTERN.match(p.name)
+        if match:
+            steps[p] = int(match.group(1))
+    return sorted(steps, key=steps.__getitem__)
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:

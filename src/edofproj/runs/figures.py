@@ -80,7 +80,7 @@ def plot_doe_profile(doe, path: str | Path, samples: int = 1024) -> None:
             h = doe.height_map_m(x, y).double().cpu().numpy()
             h[(x**2 + y**2).numpy() > R**2] = np.nan
             fig, ax = plt.subplots(figsize=(4.5, 4))
-            image = ax.imshow(h * 1e9, extent=[-R * 1e3, R * 1e3, -R * 1e3, R * 1e3], cmap="viridis")
+            image = ax.imshow(h * 1e9, extent=(-R * 1e3, R * 1e3, -R * 1e3, R * 1e3), cmap="viridis")
             fig.colorbar(image, ax=ax, label="height (nm)")
             ax.set_xlabel("x (mm)")
             ax.set_ylabel("y (mm)")
@@ -90,10 +90,10 @@ def plot_doe_profile(doe, path: str | Path, samples: int = 1024) -> None:
 
 def plot_psfs_across_depth(psf: torch.Tensor, depths_m, path: str | Path) -> None:
     """One panel per depth: the RGB PSF ``(n, 3, K, K)`` normalized to its maximum."""
-    psf = psf.detach().float().cpu().numpy()
-    n = psf.shape[0]
+    psfs = psf.detach().float().cpu().numpy()
+    n = psfs.shape[0]
     fig, axes = plt.subplots(1, n, figsize=(1.8 * n, 2.1), squeeze=False)
-    for ax, p, z in zip(axes[0], psf, np.asarray(depths_m)):
+    for ax, p, z in zip(axes[0], psfs, np.asarray(depths_m)):
         rgb = np.moveaxis(p[:3] if p.shape[0] >= 3 else np.repeat(p[:1], 3, axis=0), 0, -1)
         ax.imshow(np.clip(rgb / max(rgb.max(), 1e-12), 0, 1), interpolation="nearest")
         ax.set_title(f"{z * 1e3:.0f} mm\nin window {p.sum(axis=(-1, -2)).mean():.2f}", fontsize=8)

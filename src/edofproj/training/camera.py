@@ -21,8 +21,9 @@ def quantize_8bit_ste(image: torch.Tensor) -> torch.Tensor:
     return image + (quantized - image).detach()
 
 
-def camera_capture(projection: torch.Tensor, noise: torch.Tensor | None = None, sigma: float = 0.0,
-                   quantize: bool = False) -> torch.Tensor:
+def camera_capture(
+    projection: torch.Tensor, noise: torch.Tensor | None = None, sigma: float = 0.0, quantize: bool = False
+) -> torch.Tensor:
     """What the camera records of ``projection`` (B, C, H, W); ``noise`` is standard normal, same shape."""
     captured = projection
     if sigma > 0:

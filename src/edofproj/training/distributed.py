@@ -101,8 +101,10 @@ def setup_process_group(device: str = "auto") -> ProcessGroup:
             dist.init_process_group(backend=backend, rank=rank, world_size=world_size)
         except (RuntimeError, ValueError) as exc:
             first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise EdofprojError(f"cannot join the {backend} process group as rank {rank} of {world_size} "
-                                f"(start data-parallel runs with torchrun): {first_line}") from None
+            raise EdofprojError(
+                f"cannot join the {backend} process group as rank {rank} of {world_size} "
+                f"(start data-parallel runs with torchrun): {first_line}"
+            ) from None
     return ProcessGroup(rank, world_size, local_rank, chosen, joined=True)
 
 

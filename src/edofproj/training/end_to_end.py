@@ -48,16 +48,22 @@ class SimulatedPSF(nn.Module):
 class Projections(NamedTuple):
     """The images of one forward pass, each ``(B, 3, H, W)``."""
 
-    captured: torch.Tensor      # I*: the uncompensated projection as the camera records it
-    compensated: torch.Tensor   # Î: the network's projector input (unclamped)
-    projected: torch.Tensor     # Î*: the projection of clamp(Î)
+    captured: torch.Tensor  # I*: the uncompensated projection as the camera records it
+    compensated: torch.Tensor  # Î: the network's projector input (unclamped)
+    projected: torch.Tensor  # Î*: the projection of clamp(Î)
 
 
 class EndToEndProjector(nn.Module):
     """PSF source + compensation network + image formation, as one module (one DDP wrapper)."""
 
-    def __init__(self, psf_source: nn.Module, net: nn.Module, noise_sigma: float = 0.0,
-                 quantize_capture: bool = False, mixed_precision: str = "none") -> None:
+    def __init__(
+        self,
+        psf_source: nn.Module,
+        net: nn.Module,
+        noise_sigma: float = 0.0,
+        quantize_capture: bool = False,
+        mixed_precision: str = "none",
+    ) -> None:
         super().__init__()
         if mixed_precision not in ("none", "bf16"):
             raise ValueError(f"mixed_precision={mixed_precision!r} is not one of none, bf16")

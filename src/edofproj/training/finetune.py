@@ -31,15 +31,17 @@ from torch import nn
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from ..optics.psf_bank import PSFBank
+from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
-from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from .trainer import loss_terms, seed_everything
 
 
 class MeasuredPSFTable(nn.Module):
     """PSFs measured at arbitrary depths; ``table(depths_m) -> (B, C, K, K)`` interpolated in 1/z."""
+
+    psf: torch.Tensor  # buffer
 
     def __init__(self, psf: torch.Tensor, depths_m) -> None:
         super().__init__()
@@ -61,12 +63,14 @@ class MeasuredPSFTable(nn.Module):
             depths.extend(bank.depths_m.tolist())
         windows = {p.shape[-1] for p in psfs}
         if len(windows) != 1:
-            raise EdofprojError(f"the measured PSF files have different windows {sorted(windows)}: re-estimate "
-                                "them with the same --window")
-        depths = np.asarray(depths)
-        if len(np.unique(np.round(depths, 6))) != len(depths):
-            raise EdofprojError(f"the measured PSF files repeat a depth: {np.round(depths * 1e3, 1).tolist()} mm")
-        return cls(torch.cat(psfs), depths)
+            raise EdofprojError(
+                f"the measured PSF files have different windows {sorted(windows)}: re-estimate "
+                "them with the same --window"
+            )
+        depths_m = np.asarray(depths)
+        if len(np.unique(np.round(depths_m, 6))) != len(depths_m):
+            raise EdofprojError(f"the measured PSF files repeat a depth: {np.round(depths_m * 1e3, 1).tolist()} mm")
+        return cls(torch.cat(psfs), depths_m)
 
     @property
     def depth_range_m(self) -> tuple[float, float]:
@@ -76,8 +80,9 @@ class MeasuredPSFTable(nn.Module):
         inverse = 1.0 / torch.as_tensor(np.asarray(depths_m, dtype=np.float64))
         lo, hi = float(self.inverse[0]), float(self.inverse[-1])
         if torch.any(inverse < lo - 1e-9) or torch.any(inverse > hi + 1e-9):
-            raise EdofprojError(f"depths outside the measured {self.depths_m.min() * 1e3:.0f}-"
-                                f"{self.depths_m.max() * 1e3:.0f} mm")
+            raise EdofprojError(
+                f"depths outside the measured {self.depths_m.min() * 1e3:.0f}-{self.depths_m.max() * 1e3:.0f} mm"
+            )
         n = len(self.depths_m)
         if n == 1:
             return self.psf[[0] * len(inverse)]
@@ -97,8 +102,16 @@ class FinetuneResult:
     last_loss: float
 
 
-def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = None, batch_size: int | None = None,
-             seed: int | None = None, progress: bool = True) -> FinetuneResult:
+def finetune(
+    run_dir,
+    psf_files,
+    out_dir,
+    steps: int = 20,
+    lr: float | None = None,
+    batch_size: int | None = None,
+    seed: int | None = None,
+    progress: bool = True,
+) -> FinetuneResult:
     """Fine-tune the network of ``run_dir`` on measured PSFs; write a new run to ``out_dir``.
 
     ``lr`` defaults to the run's ``train.lr_net`` times its final decay fraction (where its
@@ -117,10 +130,18 @@ def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = No
     cfg = trained.cfg
     z_min, z_max = table.depth_range_m
     train_cfg = dataclasses.replace(
-        cfg.train, batch_size=batch_size or cfg.train.batch_size, seed=cfg.train.seed if seed is None else seed,
-        steps=steps, train_doe=False)
-    cfg = dataclasses.replace(cfg, train=train_cfg, name=f"{cfg.name}-finetuned",
-                              psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3))
+        cfg.train,
+        batch_size=batch_size or cfg.train.batch_size,
+        seed=cfg.train.seed if seed is None else seed,
+        steps=steps,
+        train_doe=False,
+    )
+    cfg = dataclasses.replace(
+        cfg,
+        train=train_cfg,
+        name=f"{cfg.name}-finetuned",
+        psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3),
+    )
     seed_everything(cfg.train.seed)
 
     from ..data import build_training_source
@@ -147,7 +168,9 @@ def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = No
     for step in range(1, steps + 1):
         depths = sample_depths_m(cfg.train.seed, step, shard, z_min, z_max, "uniform")
         images = sample_images(source, cfg.train.seed, step, shard, cfg.data.crop)
-        noise = sample_noise(cfg.train.seed, step, shard, tuple(images.shape[1:])) if cfg.train.noise_sigma > 0 else None
+        noise = (
+            sample_noise(cfg.train.seed, step, shard, tuple(images.shape[1:])) if cfg.train.noise_sigma > 0 else None
+        )
         out = model(images, depths, noise)
         loss, mse, perceptual = loss_terms(loss_fn, cfg, out.projected, images)
         if not torch.isfinite(loss):
@@ -170,10 +193,17 @@ def finetune(run_dir, psf_files, out_dir, steps: int = 20, lr: float | None = No
     if source_doe.is_file():
         shutil.copyfile(source_doe, out_dir / DOE_NAME)
     net.eval()
-    save_checkpoint(out_dir / CHECKPOINT_DIR, {
-        "step": steps, "net": net.state_dict(), "doe": {}, "finetuned_from": str(run_dir),
-        "measured_psfs": [str(p) for p in psf_files], "measured_depths_m": table.depths_m.tolist(),
-    })
+    save_checkpoint(
+        out_dir / CHECKPOINT_DIR,
+        {
+            "step": steps,
+            "net": net.state_dict(),
+            "doe": {},
+            "finetuned_from": str(run_dir),
+            "measured_psfs": [str(p) for p in psf_files],
+            "measured_depths_m": table.depths_m.tolist(),
+        },
+    )
     text = io.StringIO()
     writer = csv.writer(text)
     writer.writerow(["step", "loss", "mse", "perceptual", "lr", "seconds"])

@@ -64,8 +64,7 @@ class CompensationLoss(nn.Module):
         """``{"mse": ..., "perceptual": ..., "total": ...}`` (scalars; perceptual 0 if unused)."""
         if pred.shape != target.shape:
             raise EdofprojError(
-                f"loss needs pred and target of the same shape, got {tuple(pred.shape)} and "
-                f"{tuple(target.shape)}"
+                f"loss needs pred and target of the same shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
             )
         mse = F.mse_loss(pred, target)
         if self.perceptual is not None and self.beta > 0:

@@ -32,6 +32,8 @@ from ..errors import EdofprojError
 class DepthPSFTable(nn.Module):
     """RGB PSFs ``(n, C, K, K)`` on a grid uniform in inverse depth; ``table(depths_m) -> (B, C, K, K)``."""
 
+    psf: torch.Tensor  # buffer
+
     def __init__(self, psf: torch.Tensor, depths_m: np.ndarray) -> None:
         super().__init__()
         depths_m = np.asarray(depths_m, dtype=np.float64)
@@ -46,15 +48,16 @@ class DepthPSFTable(nn.Module):
         self.inverse_step = float(inverse[1] - inverse[0])
 
     @classmethod
-    def simulate(cls, simulator, doe, depth_min_m: float, depth_max_m: float, count: int,
-                 chunk: int = 16) -> "DepthPSFTable":
+    def simulate(
+        cls, simulator, doe, depth_min_m: float, depth_max_m: float, count: int, chunk: int = 16
+    ) -> "DepthPSFTable":
         """Simulate ``count`` depths uniform in 1/z from ``depth_max_m`` to ``depth_min_m`` (no gradient)."""
         if count < 2:
             raise EdofprojError(f"train.psf_table_depths={count} must be >= 2")
         inverse = np.linspace(1.0 / depth_max_m, 1.0 / depth_min_m, count)
         depths = 1.0 / inverse
         with torch.no_grad():
-            parts = [simulator(doe, depths[i:i + chunk]) for i in range(0, count, chunk)]
+            parts = [simulator(doe, depths[i : i + chunk]) for i in range(0, count, chunk)]
         return cls(torch.cat(parts).float(), depths)
 
     def forward(self, depths_m) -> torch.Tensor:

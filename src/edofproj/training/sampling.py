@@ -80,8 +80,15 @@ class BatchShard:
         return cls(rank * per_rank, (rank + 1) * per_rank, global_size)
 
 
-def sample_depths_m(seed: int, step: int, shard: BatchShard, depth_min_m: float, depth_max_m: float,
-                    mode: str = "uniform", spacing: str = "depth") -> np.ndarray:
+def sample_depths_m(
+    seed: int,
+    step: int,
+    shard: BatchShard,
+    depth_min_m: float,
+    depth_max_m: float,
+    mode: str = "uniform",
+    spacing: str = "depth",
+) -> np.ndarray:
     """Screen depths (m) of the shard's samples at ``step`` (see the module docstring)."""
     if mode not in DEPTH_SAMPLING:
         raise EdofprojError(f"depth sampling '{mode}' is not one of {', '.join(DEPTH_SAMPLING)}")
@@ -107,6 +114,6 @@ def sample_images(source, seed: int, step: int, shard: BatchShard, crop: int) ->
 
 def sample_noise(seed: int, step: int, shard: BatchShard, shape: tuple[int, ...]) -> torch.Tensor:
     """Standard normal noise ``(shard.size, *shape)`` for the camera model."""
-    return torch.stack([
-        torch.randn(shape, generator=sample_generator(seed, step, i, NOISE_STREAM)) for i in shard.indices
-    ])
+    return torch.stack(
+        [torch.randn(shape, generator=sample_generator(seed, step, i, NOISE_STREAM)) for i in shard.indices]
+    )

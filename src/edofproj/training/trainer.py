@@ -32,6 +32,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -44,13 +45,26 @@ from ..doe import build_run_doe, save_doe
 from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..optics.psf_bank import design_engine, simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
-from ..runs import (CHECKPOINT_DIR, DOE_NAME, FIGURES_DIR, check_new_run_dir, check_resume_config,
-                    last_checkpoint_path, write_run_config)
+from ..runs import (
+    CHECKPOINT_DIR,
+    DOE_NAME,
+    FIGURES_DIR,
+    check_new_run_dir,
+    check_resume_config,
+    last_checkpoint_path,
+    write_run_config,
+)
 from ..runs.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
 from ..runs.figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
 from ..runs.log import TrainingLog, read_log
-from .distributed import (ProcessGroup, average_across_processes, barrier, replica_max_difference,
-                          setup_process_group, teardown_process_group)
+from .distributed import (
+    ProcessGroup,
+    average_across_processes,
+    barrier,
+    replica_max_difference,
+    setup_process_group,
+    teardown_process_group,
+)
 from .end_to_end import EndToEndProjector, SimulatedPSF
 from .losses import build_loss
 from .psf_table import DepthPSFTable
@@ -98,13 +112,15 @@ def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> Non
     a *fixed* DOE starts that path as the depth-ensemble Wiener filter of the DOE's PSF table
     (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans. A resumed run
     then loads its checkpoint over this start."""
-    if cfg.net.init_nsr <= 0 or not isinstance(psf_source, DepthPSFTable) or not hasattr(net, "initialize_linear_path"):
+    initialize_linear_path = getattr(net, "initialize_linear_path", None)
+    if cfg.net.init_nsr <= 0 or not isinstance(psf_source, DepthPSFTable) or initialize_linear_path is None:
         return
     from ..compensation.wiener import depth_ensemble_wiener_kernel
 
-    kernels = depth_ensemble_wiener_kernel(psf_source.psf.detach().cpu().numpy(), cfg.net.init_nsr,
-                                           radius=cfg.net.space_to_depth)
-    net.initialize_linear_path(kernels)
+    kernels = depth_ensemble_wiener_kernel(
+        psf_source.psf.detach().cpu().numpy(), cfg.net.init_nsr, radius=cfg.net.space_to_depth
+    )
+    initialize_linear_path(kernels)
 
 
 def exponential_decay(total_steps: int, final_fraction: float, warmup_steps: int = 0):
@@ -116,8 +132,9 @@ def exponential_decay(total_steps: int, final_fraction: float, warmup_steps: int
     return lambda t: min(1.0, (t + 1) / warmup if warmup else 1.0) * final_fraction ** (t / total_steps)
 
 
-def loss_terms(loss_fn, cfg: Config, projected: torch.Tensor,
-               target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def loss_terms(
+    loss_fn, cfg: Config, projected: torch.Tensor, target: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(loss, mse, perceptual)``: the objective ``alpha mse + beta perceptual`` and its two
     unweighted terms, from :meth:`~edofproj.training.losses.CompensationLoss.terms`
     (``perceptual`` is ``nan`` when the loss has no perceptual term)."""
@@ -166,8 +183,9 @@ class _Session:
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
         start_from_wiener(cfg, self.net, psf_source)
-        self.model = EndToEndProjector(psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture,
-                                       cfg.train.mixed_precision)
+        self.model = EndToEndProjector(
+            psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture, cfg.train.mixed_precision
+        )
 
         self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
         self.net_params = [p for p in self.net.parameters() if p.requires_grad]
@@ -177,11 +195,13 @@ class _Session:
         if self.net_params:
             groups.append({"params": self.net_params, "lr": cfg.train.lr_net, "name": "net"})
         if not groups:
-            raise EdofprojError("nothing to train: the DOE is fixed (train.train_doe=false or a fixed design) "
-                                "and train.train_net=false")
+            raise EdofprojError(
+                "nothing to train: the DOE is fixed (train.train_doe=false or a fixed design) and train.train_net=false"
+            )
         self.optimizer = torch.optim.Adam(groups)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, exponential_decay(cfg.train.steps, cfg.train.lr_final_fraction, cfg.train.warmup_steps))
+            self.optimizer, exponential_decay(cfg.train.steps, cfg.train.lr_final_fraction, cfg.train.warmup_steps)
+        )
         self.loss_fn = build_loss(cfg.loss)
         if hasattr(self.loss_fn, "to"):
             self.loss_fn = self.loss_fn.to(device)
@@ -196,11 +216,14 @@ class _Session:
             from torch.nn.parallel import DistributedDataParallel
 
             # buffers (a PSF table) are identical on every rank: no need to sync them each step
-            no_buffer_sync = ({"forward_sync_buffers": False}
-                              if "forward_sync_buffers" in inspect.signature(DistributedDataParallel).parameters
-                              else {"broadcast_buffers": False})
+            no_buffer_sync: dict[str, Any] = (
+                {"forward_sync_buffers": False}
+                if "forward_sync_buffers" in inspect.signature(DistributedDataParallel).parameters
+                else {"broadcast_buffers": False}
+            )
             self.wrapped = DistributedDataParallel(
-                self.model, device_ids=[device] if device.type == "cuda" else None, **no_buffer_sync)
+                self.model, device_ids=[device] if device.type == "cuda" else None, **no_buffer_sync
+            )
 
     # -- checkpoints ---------------------------------------------------------------
     def state(self) -> dict:
@@ -237,8 +260,9 @@ class _Session:
         data-parallel replicas still hold identical parameters (a collective call)."""
         difference = replica_max_difference(list(self.model.parameters()), self.group)
         if difference != 0.0:
-            raise EdofprojError(f"data-parallel replicas diverged at step {self.step} "
-                                f"(parameters differ by up to {difference:.3g})")
+            raise EdofprojError(
+                f"data-parallel replicas diverged at step {self.step} (parameters differ by up to {difference:.3g})"
+            )
         if self.group.is_main:
             state = dict(self.state(), replica_max_difference=difference)
             save_checkpoint(self.run_dir / CHECKPOINT_DIR, state, keep=self.cfg.train.keep_checkpoints)
@@ -255,8 +279,15 @@ class _Session:
         """One step on the global batch; returns (loss, mse, perceptual) averaged over the processes."""
         cfg, step = self.cfg, self.step + 1
         device = self.group.device
-        depths = sample_depths_m(cfg.train.seed, step, self.shard, cfg.psf.depth_min_mm * 1e-3,
-                                 cfg.psf.depth_max_mm * 1e-3, cfg.train.depth_sampling, cfg.train.depth_spacing)
+        depths = sample_depths_m(
+            cfg.train.seed,
+            step,
+            self.shard,
+            cfg.psf.depth_min_mm * 1e-3,
+            cfg.psf.depth_max_mm * 1e-3,
+            cfg.train.depth_sampling,
+            cfg.train.depth_spacing,
+        )
         images = sample_images(self.source, cfg.train.seed, step, self.shard, cfg.data.crop).to(device)
         noise = None
         if cfg.train.noise_sigma > 0:
@@ -282,13 +313,19 @@ class _Session:
         return float(logged[0]), float(logged[1]), float(logged[2])
 
     def _stop_non_finite(self, step: int, what: str, value: float) -> None:
-        where = (f"the last good checkpoint is step {self.last_checkpoint_step} "
-                 f"({last_checkpoint_path(self.run_dir)})" if self.last_checkpoint_step else "no checkpoint was written")
+        where = (
+            f"the last good checkpoint is step {self.last_checkpoint_step} ({last_checkpoint_path(self.run_dir)})"
+            if self.last_checkpoint_step
+            else "no checkpoint was written"
+        )
         raise EdofprojError(f"training stopped: the {what} became {value} at step {step}; {where}")
 
     def current_lr(self) -> float:
         named = {g.get("name"): g["lr"] for g in self.optimizer.param_groups}
-        return float(named.get("net", named.get("doe")))
+        lr = named.get("net", named.get("doe"))
+        if lr is None:
+            raise EdofprojError("the optimizer has neither a 'net' nor a 'doe' parameter group")
+        return float(lr)
 
     # -- end-of-session files ------------------------------------------------------
     def write_figures(self) -> None:
@@ -303,8 +340,9 @@ class _Session:
         plot_psfs_across_depth(psf, depths, figures / "psf_depths.png")
 
 
-def train(cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: int | None = None,
-          progress: bool = True) -> TrainingResult:
+def train(
+    cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: int | None = None, progress: bool = True
+) -> TrainingResult:
     """Train (or, with ``resume``, continue) the run in ``out_dir`` up to ``cfg.train.steps`` steps.
 
     ``stop_after``: end this session after that many steps in total (the learning-rate
@@ -323,13 +361,13 @@ def train(cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: in
         teardown_process_group(group)
 
 
-def _train(cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, progress: bool,
-           group: ProcessGroup) -> TrainingResult:
+def _train(
+    cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, progress: bool, group: ProcessGroup
+) -> TrainingResult:
     if resume:
         check_resume_config(run_dir, cfg)
         if not last_checkpoint_path(run_dir).is_file():
-            raise EdofprojError(f"--resume: '{run_dir}' has no checkpoint to continue from "
-                                f"({CHECKPOINT_DIR}/last.pt)")
+            raise EdofprojError(f"--resume: '{run_dir}' has no checkpoint to continue from ({CHECKPOINT_DIR}/last.pt)")
         checkpoint = load_checkpoint(last_checkpoint_path(run_dir))
     else:
         check_new_run_dir(run_dir)
