@@ -14,10 +14,32 @@
 * :mod:`.figures` -- a run's figures.
 """
 
-from .directory import (CHECKPOINT_DIR, CONFIG_NAME, DOE_NAME, FIGURES_DIR, RESUMABLE_KEYS, TrainedRun,
-                        check_new_run_dir, check_resume_config, last_checkpoint_path, load_run, saved_config,
-                        write_run_config)
+from .directory import (
+    CHECKPOINT_DIR,
+    CONFIG_NAME,
+    DOE_NAME,
+    FIGURES_DIR,
+    RESUMABLE_KEYS,
+    TrainedRun,
+    check_new_run_dir,
+    check_resume_config,
+    last_checkpoint_path,
+    load_run,
+    saved_config,
+    write_run_config,
+)
 
-__all__ = ["CHECKPOINT_DIR", "CONFIG_NAME", "DOE_NAME", "FIGURES_DIR", "RESUMABLE_KEYS", "TrainedRun",
-           "check_new_run_dir", "check_resume_config", "last_checkpoint_path", "load_run", "saved_config",
-           "write_run_config"]
+__all__ = [
+    "CHECKPOINT_DIR",
+    "CONFIG_NAME",
+    "DOE_NAME",
+    "FIGURES_DIR",
+    "RESUMABLE_KEYS",
+    "TrainedRun",
+    "check_new_run_dir",
+    "check_resume_config",
+    "last_checkpoint_path",
+    "load_run",
+    "saved_config",
+    "write_run_config",
+]

@@ -1,12 +1,12 @@
 """Run directories: their layout, and loading a trained run for evaluation, export or fine-tuning.
 
-    runs/<name>/
-      config.yaml              the full resolved configuration of the run
-      doe.npz                  the fabricated (quantized) DOE (:func:`edofproj.doe.save_doe`);
-                               absent for a lens-only run
-      checkpoints/last.pt      the newest checkpoint (+ step_XXXXXX.pt)
-      train_log.csv            loss per step
-      figures/                 loss curve, DOE profile, PSFs across depth
+runs/<name>/
+  config.yaml              the full resolved configuration of the run
+  doe.npz                  the fabricated (quantized) DOE (:func:`edofproj.doe.save_doe`);
+                           absent for a lens-only run
+  checkpoints/last.pt      the newest checkpoint (+ step_XXXXXX.pt)
+  train_log.csv            loss per step
+  figures/                 loss curve, DOE profile, PSFs across depth
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from pathlib import Path
 
 from torch import nn
 
-from ..config import Config, dump_config, load_config, to_dict
 from ..compensation.registry import build_network
+from ..config import Config, dump_config, load_config, to_dict
 from ..doe import DOE, build_run_doe, load_doe
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
@@ -29,8 +29,14 @@ CHECKPOINT_DIR = "checkpoints"
 FIGURES_DIR = "figures"
 
 #: Keys that may change when a run is resumed (they do not change what is computed so far).
-RESUMABLE_KEYS = ("train.steps", "train.checkpoint_every", "train.keep_checkpoints", "train.threads",
-                  "train.device", "name")
+RESUMABLE_KEYS = (
+    "train.steps",
+    "train.checkpoint_every",
+    "train.keep_checkpoints",
+    "train.threads",
+    "train.device",
+    "name",
+)
 
 
 def last_checkpoint_path(run_dir: str | Path) -> Path:
@@ -115,8 +121,9 @@ def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
     try:
         net.load_state_dict(checkpoint["net"])
     except RuntimeError as exc:
-        raise EdofprojError(f"the checkpoint of '{run_dir}' does not fit its net config: "
-                            f"{str(exc).splitlines()[0]}") from None
+        raise EdofprojError(
+            f"the checkpoint of '{run_dir}' does not fit its net config: {str(exc).splitlines()[0]}"
+        ) from None
     net.eval()
     doe_file = run_dir / DOE_NAME
     if doe_file.is_file():

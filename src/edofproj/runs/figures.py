@@ -48,7 +48,7 @@ def plot_loss_curve(rows: list[dict[str, float]], path: str | Path) -> None:
             ax.plot(steps, values, color=colour, alpha=0.3, lw=0.8)
             width = max(1, len(values) // 20)
             smooth = _moving_average(values, width)
-            ax.plot(steps[len(steps) - len(smooth):], smooth, color=colour, lw=1.6, label=key)
+            ax.plot(steps[len(steps) - len(smooth) :], smooth, color=colour, lw=1.6, label=key)
         ax.set_yscale("log")
         ax.legend()
     ax.set_xlabel("step")

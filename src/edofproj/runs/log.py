@@ -66,8 +66,9 @@ class TrainingLog:
         kept = [lines[0]] + [line for line in lines[1:] if line and int(float(line.split(",")[0])) <= step]
         write_text_atomic(self.path, "\n".join(kept) + "\n")
 
-    def write(self, step: int, loss: float, mse: float | None, perceptual: float | None, lr: float,
-              seconds: float) -> None:
+    def write(
+        self, step: int, loss: float, mse: float | None, perceptual: float | None, lr: float, seconds: float
+    ) -> None:
         self._writer.writerow([_format(v) for v in (int(step), loss, mse, perceptual, lr, seconds)])
         self._handle.flush()
         if self._tensorboard is not None:
