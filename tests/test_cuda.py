@@ -174,12 +174,10 @@ def test_cuda_graph_replays_give_the_eager_output():
     replay = graph.build(64, 96)
     frame = eager.build(64, 96)
     with torch.inference_mode():
-        expected = frame()
-    replay()
-    torch.cuda.synchronize()
+        expected = frame().clone()
+    torch.testing.assert_close(replay(), expected, rtol=0, atol=1e-5)
     times = timing.measure_cuda_ms(replay, repeats=5, warmup=1)
     assert len(times) == 5 and all(t > 0 for t in times)
-    assert expected.shape == (1, 3, 64, 96)
 
 
 def test_a_cuda_graph_refuses_a_cpu_case():

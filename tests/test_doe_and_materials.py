@@ -17,7 +17,7 @@ def test_fused_silica_index_at_the_sodium_d_line():
 
 
 def test_sixteen_level_step_is_about_75_nm():
-    # DESIGN.md: h_2pi / 16 ~ 75 nm near 552 nm (the paper's 75/150/300/600 nm etch steps)
+    # docs/physics.md: h_2pi / 16 ~ 75 nm near 552 nm (the paper's 75/150/300/600 nm etch steps)
     assert height_2pi_m(552e-9) / 16 == pytest.approx(75e-9, abs=1e-9)
 
 

@@ -84,7 +84,7 @@ def test_centre_pixel_energy_matches_the_integrated_airy_pattern(in_focus):
         epsabs=1e-12,
     )
     expected = disk + 4 * corner
-    assert expected == pytest.approx(0.9653, abs=1e-4)  # the figure quoted in DESIGN.md
+    assert expected == pytest.approx(0.9653, abs=1e-4)  # the figure quoted in docs/physics.md (section on energy)
     assert psf[4, 4] == pytest.approx(expected, abs=3e-4)
 
 

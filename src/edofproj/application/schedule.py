@@ -1,7 +1,7 @@
 """Training several runs side by side within a time budget (one-thread ``edofproj train`` processes).
 
 On a small CPU, two one-thread training processes finish more work than one two-thread process
-(DESIGN.md, measured), so runs are trained as ``workers`` parallel subprocesses
+(measured on the 2-core development machine), so runs are trained as ``workers`` parallel subprocesses
 ``python -m edofproj.cli train --config PRESET --out RUN --set train.threads=1 ...``.
 
 Jobs are started in order. *Required* jobs always run. An *optional* job starts only when it

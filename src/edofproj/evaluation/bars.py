@@ -1,4 +1,4 @@
-"""The acceptance bars of the demo, measured on held-out images (never assumed).
+"""The paper's claims checked by the demo, measured on held-out images (never assumed).
 
 (a) ``doe+net`` has the best mean SSIM over the training depth range of all evaluated methods;
 (b) ``doe+net``'s worst depth in that range (lowest per-depth mean SSIM) beats every other

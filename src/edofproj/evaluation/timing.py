@@ -218,8 +218,13 @@ def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
         torch.cuda.current_stream().wait_stream(stream)
         graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(graph):
-            frame()
-        return graph.replay
+            output = frame()
+
+        def replay():
+            graph.replay()
+            return output  # the captured output buffer, rewritten by every replay
+
+        return replay
 
     return Case(case.method, f"{case.backend}+graph", case.device, build)
 

@@ -1,4 +1,4 @@
-"""Projection onto a screen at one depth (paper Eq. 9) with the haze of DESIGN.md "Energy".
+"""Projection onto a screen at one depth (paper Eq. 9) with the haze of docs/physics.md "Energy".
 
 The projector can only emit light in ``[0, 1]``, so the image is clamped first. Light of a
 source pixel lands according to the PSF ``p`` (each value the pixel's share of the energy

@@ -17,7 +17,7 @@ One pattern set holds, all at the projector's resolution ``W x H`` (8-bit RGB PN
 * ``color_XXX.png`` -- the colour samples: ``L^3`` *uniform* full fields, one per RGB value
   of an ``L x L x L`` grid of levels (8-bit values ``round(255 k / (L - 1))``). Uniform fields
   rather than tiles of many colours in one image, because a tile's measured colour would be
-  biased by its neighbours' blur and by the haze (light a DOE throws far, DESIGN.md
+  biased by its neighbours' blur and by the haze (light a DOE throws far, docs/physics.md
   "Energy"), which is ``(1 - sum p) * mean(image)`` everywhere.
 
 Coordinates: ``(x, y)`` in projector pixels, ``x`` the column, the centre of pixel

@@ -4,7 +4,7 @@ Image formation for a projector input image ``u`` (``H x W x 3``, values in ``[0
 
 1. projector response, per channel: ``o = b + (1 - b) u^gamma`` (``b``: light leaking at
    input 0, as a fraction of the full output; full output = 1);
-2. optics at the screen depth (paper Eq. 9 with the haze of DESIGN.md "Energy"):
+2. optics at the screen depth (paper Eq. 9 with the haze of docs/physics.md "Energy"):
    ``s = o (*) p + (1 - sum p) mean(o)``, exactly :func:`edofproj.imaging.project` (or
    :func:`~edofproj.imaging.render_depth_map` for a screen with a depth map) inside the image,
    on a canvas with a black margin of ``K//2 + 1`` px that also keeps the direct light spilling

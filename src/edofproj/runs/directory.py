@@ -1,13 +1,5 @@
-"""Run directories: their layout, and loading a trained run for evaluation, export or fine-tuning.
-
-runs/<name>/
-  config.yaml              the full resolved configuration of the run
-  doe.npz                  the fabricated (quantized) DOE (:func:`edofproj.doe.save_doe`);
-                           absent for a lens-only run
-  checkpoints/last.pt      the newest checkpoint (+ step_XXXXXX.pt)
-  train_log.csv            loss per step
-  figures/                 loss curve, DOE profile, PSFs across depth
-"""
+"""The run directory (its layout: :mod:`edofproj.runs`): new-run and resume checks, the saved
+configuration, and loading a trained run for evaluation, export or fine-tuning."""
 
 from __future__ import annotations
 
