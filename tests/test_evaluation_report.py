@@ -1,4 +1,4 @@
-"""The evaluation's bookkeeping: metrics table statistics, acceptance bars, report rendering, scheduling."""
+"""The evaluation's bookkeeping: metrics table statistics, the paper's claims, report rendering, scheduling."""
 
 import math
 import time
@@ -9,7 +9,7 @@ import pytest
 
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.bars import ssim_bars, wall_time_bar
+from edofproj.evaluation.claims import ssim_claims, wall_time_claim
 from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, method_spec, select_methods
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
@@ -53,7 +53,7 @@ def test_csv_round_trip(tmp_path):
     assert back.mean("ssim", method="doe+net") == pytest.approx(0.8)
 
 
-def test_bars_pass_when_ours_wins_mean_and_worst():
+def test_claims_hold_when_ours_wins_mean_and_worst():
     table = table_from(
         {
             "lens": {300.0: 0.5, 500.0: 0.99, 800.0: 0.7},
@@ -61,26 +61,26 @@ def test_bars_pass_when_ours_wins_mean_and_worst():
             "doe+net": {300.0: 0.85, 500.0: 0.95, 800.0: 0.9},
         }
     )
-    a, b = ssim_bars(table, (300, 800))
-    assert a.passed and b.passed and a.verdict == "PASS"
+    a, b = ssim_claims(table, (300, 800))
+    assert a.holds and b.holds and a.verdict == "holds"
 
 
-def test_bars_fail_plainly_when_a_baseline_wins():
+def test_claims_fail_plainly_when_a_baseline_wins():
     table = table_from(
         {"lens+cls": {300.0: 0.7, 500.0: 0.99, 800.0: 0.9}, "doe+net": {300.0: 0.8, 500.0: 0.9, 800.0: 0.85}}
     )
-    a, b = ssim_bars(table, (300, 800))
-    assert a.passed is False and a.verdict == "FAIL" and "lens+cls" in a.measured
-    assert b.passed is True  # ours is worst at 0.8 > 0.7
+    a, b = ssim_claims(table, (300, 800))
+    assert a.holds is False and a.verdict == "does not hold" and "lens+cls" in a.measured
+    assert b.holds is True  # ours is worst at 0.8 > 0.7
 
 
-def test_bars_are_not_measured_without_ours():
-    a, b = ssim_bars(table_from({"lens": {300.0: 0.5}}), (300, 800))
-    assert a.passed is None and b.passed is None and a.verdict == "not measured"
+def test_claims_are_not_measured_without_ours():
+    a, b = ssim_claims(table_from({"lens": {300.0: 0.5}}), (300, 800))
+    assert a.holds is None and b.holds is None and a.verdict == "not measured"
 
 
-def test_wall_time_bar():
-    assert wall_time_bar(899, 900).passed and not wall_time_bar(901, 900).passed
+def test_wall_time_claim():
+    assert wall_time_claim(899, 900).holds and not wall_time_claim(901, 900).holds
 
 
 def test_range_table_marks_the_best_value_in_bold():

@@ -6,7 +6,7 @@ import scipy.signal
 import torch
 
 from edofproj.errors import EdofprojError
-from edofproj.imaging.convolution import convolve_same, fast_fft_length, padded_shape
+from edofproj.imaging.convolution import convolve_same, fast_fft_length, fft_shape
 
 
 @pytest.mark.parametrize("hw, k", [((37, 50), 9), ((16, 16), 33), ((1, 7), 3), ((64, 45), 1)])
@@ -79,4 +79,5 @@ def test_fft_sizes_are_fast_and_large_enough():
             while factors % p == 0:
                 factors //= p
         assert factors == 1  # 5-smooth
-    assert padded_shape((600, 800), (33, 33)) == (640, 864)
+    # a centred 33x33 kernel needs 16 zero rows/columns: 616 -> 625 = 5^4, 816 -> 864 = 2^5 3^3
+    assert fft_shape((600, 800), (33, 33)) == (625, 864)

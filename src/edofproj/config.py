@@ -26,6 +26,10 @@ import yaml
 
 from .errors import ConfigError
 
+#: Metres per millimetre. Configs and options speak millimetres; the code computes in metres, and
+#: the conversion happens here, in the ``*_m`` properties of the sections, and nowhere else.
+M_PER_MM = 1e-3
+
 # --------------------------------------------------------------------------- sections
 
 
@@ -42,6 +46,14 @@ class OpticsConfig:
     throw_ratio: float = 1.5
     width_px: int = 800
     height_px: int = 600
+
+    @property
+    def aperture_m(self) -> float:
+        return self.aperture_mm * M_PER_MM
+
+    @property
+    def focus_m(self) -> float:
+        return self.focus_mm * M_PER_MM
 
     def validate(self) -> None:
         _positive(self, "aperture_mm", "optics.aperture_mm")
@@ -118,6 +130,18 @@ class DOEConfig:
     multifocal_foci_mm: list = field(default_factory=lambda: [350.0, 500.0, 700.0])
     min_feature_um: float = 0.0
 
+    @property
+    def axicon_near_m(self) -> float:
+        return self.axicon_near_mm * M_PER_MM
+
+    @property
+    def axicon_far_m(self) -> float:
+        return self.axicon_far_mm * M_PER_MM
+
+    @property
+    def multifocal_foci_m(self) -> list[float]:
+        return [f * M_PER_MM for f in self.multifocal_foci_mm]
+
     def validate(self) -> None:
         if self.kind not in DOE_KINDS:
             raise ConfigError(_unknown_choice("doe.kind", self.kind, DOE_KINDS))
@@ -151,6 +175,14 @@ class PSFConfig:
     depth_min_mm: float = 300.0
     depth_max_mm: float = 800.0
     precision: str = "float64"
+
+    @property
+    def depth_min_m(self) -> float:
+        return self.depth_min_mm * M_PER_MM
+
+    @property
+    def depth_max_m(self) -> float:
+        return self.depth_max_mm * M_PER_MM
 
     def validate(self) -> None:
         if self.engine not in ("radial", "2d"):
@@ -406,9 +438,9 @@ class EvaluationConfig:
     ``cover`` scales each image to cover the size first. ``cls_iterations``: iterations of the
     box-constrained solver. The Wiener NSR is tuned on ``wiener_tuning_images`` training crops
     at ``wiener_tuning_depths`` depths of the scored range. ``score_range_mm``: ``[near, far]``
-    over which summaries and the demo's bars take the mean and the worst depth (``[]``: the
+    over which summaries and the demo's claims take the mean and the worst depth (``[]``: the
     training range ``psf.depth_min_mm`` - ``psf.depth_max_mm``). ``wiener_tuning_metric``: what
-    the NSR maximizes, ``ssim`` (the metric of the demo's bars, so the baseline is as strong as
+    the NSR maximizes, ``ssim`` (the metric of the demo's claims, so the baseline is as strong as
     it can be there) or ``psnr`` (the MSE-optimal choice).
     """
 
@@ -439,6 +471,10 @@ class EvaluationConfig:
     wiener_tuning_depths: int = 6
     score_range_mm: list = field(default_factory=list)
     wiener_tuning_metric: str = "ssim"
+
+    @property
+    def tilt_span_m(self) -> float:
+        return self.tilt_span_mm * M_PER_MM
 
     def validate(self) -> None:
         if self.wiener_tuning_metric not in ("ssim", "psnr"):

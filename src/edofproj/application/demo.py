@@ -10,7 +10,7 @@ Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StagePr
    others as baselines, on the held-out built-in photographs;
 3. **timing** -- milliseconds per compensated frame (:mod:`.timing`);
 4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
-   ``metrics.csv``, with the pass/fail bars of :mod:`.bars` measured on the held-out images.
+   ``metrics.csv``, with the paper's claims (:mod:`edofproj.evaluation.claims`) measured on the held-out images.
 
 ``--quick`` shrinks everything (few steps, small crops, two small test images, three depths)
 into a smoke run of about two minutes; its numbers are not meant to be judged.
@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Sequence
 
 from ..config import load_config
 from ..errors import EdofprojError
-from ..evaluation.bars import Bar, ssim_bars, wall_time_bar
+from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
 from ..evaluation.progress import StageProgress, format_duration
 from ..evaluation.report import Heading, Paragraph, Table
@@ -174,7 +174,7 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
 
     cases = []
     run_design = evaluation.designs.get("run")
-    focus_m = evaluation.cfg.optics.focus_mm * 1e-3
+    focus_m = evaluation.cfg.optics.focus_m
     by_name = {m.name: m for m in evaluation.methods}
     psf = run_design.psf([focus_m])[0].cpu().numpy() if run_design is not None else None
     if "doe+wiener" in by_name and psf is not None:
@@ -219,7 +219,7 @@ def _check_out(out: Path) -> None:
 class DemoResult:
     out: Path
     evaluation: Evaluation
-    bars: list[Bar]
+    claims: list[Claim]
     jobs: list[TrainingJob]
     wall_s: float
     report_html: Path
@@ -240,7 +240,7 @@ def run_demo(
     import torch
 
     from ..evaluation.pipeline import evaluate_run
-    from ..evaluation.writeup import bars_section, write_documents
+    from ..evaluation.writeup import claims_section, write_documents
 
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
@@ -283,11 +283,11 @@ def run_demo(
         progress.finish()
 
     progress.start("stage 4/4 report", 1)
-    bars = ssim_bars(evaluation.table, evaluation.range_mm)
+    claims = ssim_claims(evaluation.table, evaluation.range_mm)
     wall_s = time.perf_counter() - clock
-    bars.append(wall_time_bar(wall_s, budget))
+    claims.append(wall_time_claim(wall_s, budget))
     if quick:  # a smoke run measures the claims on tiny images and few steps: it judges nothing
-        bars = [dataclasses.replace(bar, judged=False) for bar in bars]
+        claims = [dataclasses.replace(claim, judged=False) for claim in claims]
     preface = [
         Heading("Demo"),
         Paragraph(
@@ -297,7 +297,7 @@ def run_demo(
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
         ),
         jobs_table(jobs),
-    ] + bars_section(bars)
+    ] + claims_section(claims)
     paths = write_documents(
         evaluation,
         title="edofproj demo report",
@@ -305,14 +305,14 @@ def run_demo(
         extra=timing_section(timings, torch.get_num_threads()),
     )
     progress.finish()
-    return DemoResult(out, evaluation, bars, jobs, time.perf_counter() - clock, paths["report_html"])
+    return DemoResult(out, evaluation, claims, jobs, time.perf_counter() - clock, paths["report_html"])
 
 
 def demo_finished_message(result: DemoResult) -> str:
     from ..evaluation.summary import format_text_table, range_table
 
     lines = [format_text_table(range_table(result.evaluation.table, result.evaluation.range_mm, ["ssim", "psnr"])), ""]
-    lines += [f"claim ({b.key}) {b.verdict}: {b.statement} -- {b.measured}" for b in result.bars]
+    lines += [f"claim ({c.key}) {c.verdict}: {c.statement} -- {c.measured}" for c in result.claims]
     lines += [
         "",
         f"report: {result.report_html}",

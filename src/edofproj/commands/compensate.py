@@ -53,9 +53,9 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import torch
 
+    from ..compensation.closed_loop import closed_loop, flat_screen
     from ..evaluation.pipeline import require_trained_run
     from ..imaging.image_io import check_output_path, read_image, write_image
-    from ..imaging.projection import project
     from ..runs import load_run
 
     if args.preview is not None and args.depth_mm is None:
@@ -79,15 +79,15 @@ def run(args) -> int:
         from ..evaluation.designs import OpticalDesign
 
         psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
-        captured = project(target, psf)
     with torch.inference_mode():
-        compensated = trained.net(target, captured).clamp(0.0, 1.0)
-    write_image(args.out, compensated[0], bits=args.bits)
+        # a simulated screen runs the whole loop (its projection is the preview); a capture, the network alone
+        loop = closed_loop(target, flat_screen(psf), trained.net) if psf is not None else None
+        emitted = loop.emitted if loop is not None else trained.net(target, captured).clamp(0.0, 1.0)
+    write_image(args.out, emitted[0], bits=args.bits)
     print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px, height x width)")
     if args.preview is not None:
-        if psf is None:  # refused above: --preview needs --depth-mm, which excludes --capture
+        if loop is None:  # refused above: --preview needs --depth-mm, which excludes --capture
             raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
-        with torch.inference_mode():
-            write_image(args.preview, project(compensated, psf)[0], bits=args.bits)
+        write_image(args.preview, loop.projected[0], bits=args.bits)
         print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")
     return 0

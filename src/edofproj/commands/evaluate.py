@@ -64,12 +64,12 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..evaluation.bars import ssim_bars
+    from ..evaluation.claims import ssim_claims
     from ..evaluation.methods import method_spec
     from ..evaluation.pipeline import evaluate_run
     from ..evaluation.progress import StageProgress
     from ..evaluation.summary import format_text_table, range_table
-    from ..evaluation.writeup import bars_section, write_documents
+    from ..evaluation.writeup import claims_section, write_documents
     from ..training.distributed import choose_device
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
@@ -89,9 +89,9 @@ def run(args) -> int:
         progress=progress,
         device=device,
     )
-    bars = ssim_bars(evaluation.table, evaluation.range_mm)
+    claims = ssim_claims(evaluation.table, evaluation.range_mm)
     paths = write_documents(
-        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=bars_section(bars)
+        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
     )
     print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"])))
     for note in evaluation.notes:

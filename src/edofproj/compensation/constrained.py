@@ -9,9 +9,9 @@ afterwards (Wiener), solve the constrained problem directly, per colour channel:
 (``⊛`` the zero-padded linear convolution with output of the same size, i.e. the projection
 of :func:`edofproj.imaging.project` for inputs already in [0, 1]). The gradient is
 ``∇f(x) = Aᵀ(A x − I)`` with the adjoint ``Aᵀ r = p̃ ⊛ r + h · mean(r)`` (``p̃`` the PSF
-rotated by 180°: a correlation). Both are computed by FFT on a grid of at least
-``H + K//2`` rows and ``W + K//2`` columns, where the circular convolution equals the
-linear one on the cropped frame.
+rotated by 180°: a correlation). Both use the project's FFT operator
+(:mod:`edofproj.imaging.convolution`): the centred transfer function ``H`` on the grid where the
+circular convolution equals the linear one on the cropped frame, and ``conj(H)`` for the adjoint.
 
 **Step size.** ``∇f`` is Lipschitz with ``L = ‖A‖² ≤ (Σ|p| + h)²`` (Young's inequality for
 the convolution, triangle inequality for the sum); for a non-negative PSF with haze
@@ -31,11 +31,10 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-import scipy.fft
 import torch
-import torch.nn.functional as F
 
 from ..errors import EdofprojError
+from ..imaging.convolution import apply_transfer_function, fft_shape, optical_transfer_function
 
 METHOD_NAME = "lens+cls"
 SOLVERS = ("fista", "pgd")
@@ -57,30 +56,22 @@ class BlurHazeOperator:
             raise EdofprojError("the PSF contains NaN or infinite values")
         k = psf.shape[-1]
         self.height, self.width = int(height), int(width)
-        self.grid = (
-            scipy.fft.next_fast_len(self.height + k // 2, real=True),
-            scipy.fft.next_fast_len(self.width + k // 2, real=True),
-        )
-        kernel = F.pad(psf, (0, self.grid[1] - k, 0, self.grid[0] - k))
-        kernel = torch.roll(kernel, shifts=(-(k // 2), -(k // 2)), dims=(-2, -1))
-        self.otf = torch.fft.rfft2(kernel)
+        self.grid = fft_shape((self.height, self.width), (k, k))
+        self.otf = optical_transfer_function(psf, self.grid)
         mass = psf.sum(dim=(-1, -2), keepdim=True)
         self.haze_fraction = (1.0 - mass) if haze else torch.zeros_like(mass)
         #: Lipschitz bound of the gradient per (sample, channel): (Σ|p| + |h|)².
         self.lipschitz = (psf.abs().sum(dim=(-1, -2), keepdim=True) + self.haze_fraction.abs()) ** 2
 
-    def _circular(self, x: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
-        padded = F.pad(x, (0, self.grid[1] - self.width, 0, self.grid[0] - self.height))
-        out = torch.fft.irfft2(torch.fft.rfft2(padded) * otf, s=self.grid)
-        return out[..., : self.height, : self.width]
-
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``A x = p ⊛ x + h · mean(x)``."""
-        return self._circular(x, self.otf) + self.haze_fraction * x.mean(dim=(-1, -2), keepdim=True)
+        return apply_transfer_function(x, self.otf, self.grid) + self.haze_fraction * x.mean(dim=(-1, -2), keepdim=True)
 
     def adjoint(self, r: torch.Tensor) -> torch.Tensor:
         """``Aᵀ r = p̃ ⊛ r + h · mean(r)`` (correlation with the PSF)."""
-        return self._circular(r, self.otf.conj()) + self.haze_fraction * r.mean(dim=(-1, -2), keepdim=True)
+        return apply_transfer_function(r, self.otf.conj(), self.grid) + self.haze_fraction * r.mean(
+            dim=(-1, -2), keepdim=True
+        )
 
     __call__ = forward
 

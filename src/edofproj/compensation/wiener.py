@@ -6,7 +6,8 @@ target ``I`` is, per colour channel,
 
     X̂(k) = conj(H(k)) · I(k) / (|H(k)|² + NSR),        x̂ = clamp(F⁻¹{X̂}, 0, 1)
 
-where ``H`` is the optical transfer function (the DFT of the PSF, centred on its optical
+where ``H`` is the optical transfer function (:func:`edofproj.imaging.convolution.optical_transfer_function`,
+the project's one FFT operator: the DFT of the PSF, centred on its optical
 axis) and ``NSR`` the noise-to-signal power ratio, the one free parameter.
 
 **Haze.** ``h · mean(x)`` is a constant image: it only adds to the zero-frequency bin, where
@@ -39,6 +40,7 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import EdofprojError
+from ..imaging.convolution import optical_transfer_function
 
 #: Default NSR candidates searched by :func:`tune_wiener_nsr` (log-spaced, 1e-5 … 1e-1).
 DEFAULT_NSR_CANDIDATES = np.logspace(-5, -1, 13)
@@ -82,23 +84,9 @@ def padding_for(height: int, width: int, window: int, pad: bool = True) -> tuple
     return top, bottom, left, right
 
 
-def optical_transfer_function(psf, height: int, width: int, haze: bool = True) -> np.ndarray:
-    """``H = rfft2(psf)`` on a ``height × width`` grid, the optical axis moved to pixel (0, 0).
-
-    Returns complex128 ``(C, height, width // 2 + 1)``. With ``haze`` the zero-frequency
-    bin is set to 1 (the haze ``(1 - Σp)·mean`` restores the PSF's missing DC gain).
-    """
-    psf = _psf_3d(psf)
-    channels, k, _ = psf.shape
-    if k > height or k > width:
-        raise EdofprojError(f"a {k}x{k} PSF does not fit in a {height}x{width} frame")
-    kernel = np.zeros((channels, height, width))
-    kernel[:, :k, :k] = psf
-    kernel = np.roll(kernel, (-(k // 2), -(k // 2)), axis=(-2, -1))
-    otf = scipy.fft.rfft2(kernel, axes=(-2, -1))
-    if haze:
-        otf[:, 0, 0] = 1.0
-    return otf
+def _otf_numpy(psf: np.ndarray, height: int, width: int, haze: bool) -> np.ndarray:
+    """:func:`~edofproj.imaging.convolution.optical_transfer_function` of a ``(C, K, K)`` array, complex128."""
+    return optical_transfer_function(torch.from_numpy(psf), (height, width), haze=haze).numpy()
 
 
 def checked_nsr(nsr: float) -> float:
@@ -122,7 +110,8 @@ def depth_ensemble_wiener_kernel(psfs, nsr: float, radius: int, grid: int = 128)
 
         G(k) = sum_z conj(H_z(k)) / (sum_z |H_z(k)|^2 + N NSR)
 
-    (with one PSF, the Wiener filter; ``H_z`` with the haze, :func:`optical_transfer_function`).
+    (with one PSF, the Wiener filter; ``H_z`` with the haze,
+    :func:`edofproj.imaging.convolution.optical_transfer_function`).
     Its convolution kernel ``g = F^-1[G]`` (computed on a ``grid x grid`` frame) is cut to
     ``(2 radius + 1)^2`` taps around the centre, and the DC gain the cut tail carried,
     ``G(0) - sum(cut)``, is added back spread by a normalized Gaussian (sigma = radius / 2), so
@@ -137,7 +126,7 @@ def depth_ensemble_wiener_kernel(psfs, nsr: float, radius: int, grid: int = 128)
     radius = int(radius)
     if radius < 0 or 2 * radius + 1 > grid:
         raise EdofprojError(f"kernel radius {radius} must be >= 0 and fit in the {grid}-px grid")
-    otfs = np.stack([optical_transfer_function(p, grid, grid) for p in psfs])  # (N, C, grid, grid/2+1)
+    otfs = np.stack([_otf_numpy(p, grid, grid, haze=True) for p in psfs])  # (N, C, grid, grid/2+1)
     gain = np.conj(otfs).sum(0) / ((np.abs(otfs) ** 2).sum(0) + len(psfs) * checked_nsr(nsr))
     kernel = np.fft.fftshift(np.fft.irfft2(gain, s=(grid, grid)), axes=(-2, -1))
     centre = grid // 2
@@ -178,7 +167,7 @@ class WienerCompensator:
         key = (int(height), int(width))
         if key not in self._filters:
             pads = padding_for(height, width, self.window, self.pad)
-            otf = optical_transfer_function(self.psf, height + pads[0] + pads[1], width + pads[2] + pads[3], self.haze)
+            otf = _otf_numpy(self.psf, height + pads[0] + pads[1], width + pads[2] + pads[3], self.haze)
             self._filters[key] = (pads, wiener_filter(otf, self.nsr).astype(np.complex64))
         return self._filters[key]
 
@@ -204,19 +193,6 @@ class WienerCompensator:
 # --------------------------------------------------------------------------- PyTorch
 
 
-def _otf_torch(psf: torch.Tensor, height: int, width: int, haze: bool) -> torch.Tensor:
-    """Torch twin of :func:`optical_transfer_function` for PSFs (N, C, K, K); differentiable."""
-    k = psf.shape[-1]
-    kernel = F.pad(psf, (0, width - k, 0, height - k))
-    kernel = torch.roll(kernel, shifts=(-(k // 2), -(k // 2)), dims=(-2, -1))
-    otf = torch.fft.rfft2(kernel)
-    if haze:
-        dc = torch.zeros_like(otf)
-        dc[..., 0, 0] = 1.0 - otf[..., 0, 0]
-        otf = otf + dc
-    return otf
-
-
 def _check_torch_inputs(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     if image.ndim != 4:
         raise EdofprojError(f"image must be (B, C, H, W), got {tuple(image.shape)}")
@@ -239,7 +215,7 @@ def _check_torch_inputs(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
 def _torch_wiener_filter(psf: torch.Tensor, height: int, width: int, nsr: float, haze: bool, pad: bool):
     """(padding, complex filter (N, C, Hp, Wp//2+1)) for frames of ``height × width``."""
     pads = padding_for(height, width, psf.shape[-1], pad)
-    otf = _otf_torch(psf, height + pads[0] + pads[1], width + pads[2] + pads[3], haze)
+    otf = optical_transfer_function(psf, (height + pads[0] + pads[1], width + pads[2] + pads[3]), haze=haze)
     return pads, otf.conj() / (otf.abs() ** 2 + checked_nsr(nsr))
 
 

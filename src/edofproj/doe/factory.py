@@ -43,8 +43,8 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
             doe_cfg = dataclasses.replace(doe_cfg, kind=spec)
         else:
             return load_doe(resolve_doe_file(spec))
-    R = cfg.optics.aperture_mm * 1e-3 / 2
-    v = cfg.optics.focus_mm * 1e-3
+    R = cfg.optics.aperture_m / 2
+    v = cfg.optics.focus_m
     common = dict(
         aperture_radius_m=R,
         design_wavelength_m=doe_cfg.design_wavelength_nm * 1e-9,
@@ -63,11 +63,9 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
     if kind == "cubic":
         return CubicPhasePlate(**common, alpha_waves=doe_cfg.cubic_waves)
     if kind == "axicon":
-        return Axicon(
-            **common, focus_distance_m=v, near_m=doe_cfg.axicon_near_mm * 1e-3, far_m=doe_cfg.axicon_far_mm * 1e-3
-        )
+        return Axicon(**common, focus_distance_m=v, near_m=doe_cfg.axicon_near_m, far_m=doe_cfg.axicon_far_m)
     if kind == "multifocal":
-        return Multifocal(**common, focus_distance_m=v, foci_m=[f * 1e-3 for f in doe_cfg.multifocal_foci_mm])
+        return Multifocal(**common, focus_distance_m=v, foci_m=doe_cfg.multifocal_foci_m)
     if kind == "file":
         return load_doe(resolve_doe_file(doe_cfg.path))
     raise EdofprojError(f"unknown DOE kind '{kind}' (known: {', '.join(DOE_CHOICES)}, or a file)")

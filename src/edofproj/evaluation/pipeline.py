@@ -357,7 +357,7 @@ def write_tables(ev: Evaluation) -> None:
 
 
 def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
-    return np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, count) * 1e-3
+    return np.linspace(cfg.psf.depth_min_m, cfg.psf.depth_max_m, count)
 
 
 def write_figures(ev: Evaluation) -> None:

@@ -80,10 +80,9 @@ pre { background: #f6f6f6; padding: .6em; overflow-x: auto; font-size: 0.85em; }
 def _inline_html(text: str) -> str:
     escaped = html.escape(text)
     escaped = _BOLD.sub(r"<b>\1</b>", escaped)
-    escaped = escaped.replace("PASS", '<span class="pass">PASS</span>').replace(
-        "FAIL", '<span class="fail">FAIL</span>'
-    )
-    return escaped
+    for word, style in (("PASS", "pass"), ("FAIL", "fail"), ("does not hold", "fail")):
+        escaped = escaped.replace(word, f'<span class="{style}">{word}</span>')
+    return re.sub(r"\bholds\b", '<span class="pass">holds</span>', escaped)
 
 
 def _md_cell(text: str) -> str:

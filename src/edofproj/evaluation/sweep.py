@@ -1,8 +1,9 @@
 """Running the methods: the flat-screen depth sweep and the tilted screen, scored per image.
 
-Flat screen at depth ``z`` (each method's design PSF ``p_z``; see :mod:`.methods`)::
+Both run the closed loop of :mod:`edofproj.compensation.closed_loop` (the forward models clamp
+``x`` to ``[0, 1]``). Flat screen at depth ``z`` (each method's design PSF ``p_z``; see :mod:`.methods`)::
 
-    I* = project(I, p_z),   x = compensate(I, I*, p_z),   display = project(clamp(x, 0, 1), p_z)
+    I* = project(I, p_z),   x = compensate(I, I*, p_z),   display = project(x, p_z)
 
 Tilted screen (paper Sec. 5.3): a plane turned by ``evaluation.tilt_deg`` about the vertical
 axis whose depth runs from the in-focus distance ``v`` (left column) to ``v + tilt_span_mm``
@@ -11,7 +12,7 @@ axis whose depth runs from the in-focus distance ``v`` (left column) to ``v + ti
 it is rendered by depth layers, ``render(x)`` (:func:`edofproj.imaging.depth_layers.render_depth_map`,
 ``imaging.depth_layers`` layers evenly spaced in ``1/z``), so::
 
-    I* = render(I),   x = compensate(I, I*, p_c),   display = render(clamp(x, 0, 1))
+    I* = render(I),   x = compensate(I, I*, p_c),   display = render(x)
 
 The networks get the tilted capture ``I*``, as they would from a camera. Wiener and CLS need
 one PSF: they get ``p_c``, the PSF at the depth of the screen's middle column
@@ -25,14 +26,16 @@ metrics whose weights are present (LPIPS with AlexNet, DISTS).
 from __future__ import annotations
 
 from collections import OrderedDict
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
 from .. import metrics
+from ..compensation.closed_loop import closed_loop, flat_screen
+from ..config import M_PER_MM
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
-from ..imaging.projection import project
 from ..imaging.screens import tilted_plane_depth_map
 from .results import BASE_METRICS, MetricsTable
 
@@ -74,6 +77,11 @@ def metric_columns(perceptual: dict) -> tuple[str, ...]:
     return BASE_METRICS + tuple(c for c in PERCEPTUAL_COLUMNS if c in perceptual)
 
 
+def _with_psf(compensate, psf: torch.Tensor):
+    """A method's ``compensate(target, captured, psf)`` with the PSF it is told, as ``(target, captured) -> x``."""
+    return lambda target, captured: compensate(target, captured, psf)
+
+
 def _by_design(methods) -> "OrderedDict[str, list]":
     groups: OrderedDict[str, list] = OrderedDict()
     for method in methods:
@@ -96,11 +104,12 @@ def image_batches(images: Sequence[tuple[str, torch.Tensor]], max_batch: int = M
 def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
     """Yield ``(method, display)`` for every method at one depth; ``target`` and ``display`` ``(B, 3, H, W)``."""
     for group in _by_design(methods).values():
-        psf = group[0].design.psf([depth_mm * 1e-3])
-        captured = project(target, psf)
+        psf = group[0].design.psf([depth_mm * M_PER_MM])
+        forward = flat_screen(psf)
+        captured = forward(target)
         for method in group:
-            x = method.compensate(target, captured, psf)
-            yield method, project(x, psf)
+            loop = closed_loop(target, forward, _with_psf(method.compensate, psf), captured=captured)
+            yield method, loop.projected
 
 
 def flat_screen_sweep(
@@ -150,8 +159,8 @@ class TiltedScreen:
 
     def __init__(self, cfg, height: int, width: int) -> None:
         ev = cfg.evaluation
-        self.near_m = cfg.optics.focus_mm * 1e-3
-        self.far_m = (cfg.optics.focus_mm + ev.tilt_span_mm) * 1e-3
+        self.near_m = cfg.optics.focus_m
+        self.far_m = cfg.optics.focus_m + ev.tilt_span_m
         self.tilt_deg = float(ev.tilt_deg)
         self.depth_map_m = tilted_plane_depth_map(height, width, self.tilt_deg, self.near_m, self.far_m)
         self.layers_m = layer_depths_m(self.near_m, self.far_m, cfg.imaging.depth_layers)
@@ -165,11 +174,12 @@ class TiltedScreen:
         """Yield ``(method, display)`` on this screen for every method; ``target`` ``(B, 3, H, W)``."""
         for group in _by_design(methods).values():
             design = group[0].design
-            captured = self.render(target, design)
+            forward = partial(self.render, design=design)
+            captured = forward(target)
             centre_psf = design.psf([self.centre_m])
             for method in group:
-                x = method.compensate(target, captured, centre_psf)
-                yield method, self.render(x, design)
+                loop = closed_loop(target, forward, _with_psf(method.compensate, centre_psf), captured=captured)
+                yield method, loop.projected
 
 
 def tilted_screen_sweep(

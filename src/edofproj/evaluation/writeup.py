@@ -1,8 +1,8 @@
 """What an evaluation's documents say: ``summary.md`` and the report (``report.md`` + ``report.html``).
 
 The content is assembled from an :class:`~edofproj.evaluation.pipeline.Evaluation` as
-:mod:`.report` blocks; callers (the demo) add their own sections before and after (acceptance
-bars, timing, wall time).
+:mod:`.report` blocks; callers (the demo) add their own sections before and after (the paper's
+claims, timing, wall time).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-from .bars import Bar
+from .claims import Claim
 from .methods import METHOD_NAMES
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
 from .results import METRIC_LABELS
@@ -79,20 +79,23 @@ def results_tables(ev) -> list:
     return blocks
 
 
-def bars_section(bars: Sequence[Bar]) -> list:
-    rows = [[f"({b.key})", b.statement, b.verdict, b.measured] for b in bars]
-    failed = [b for b in bars if b.passed is False]
-    unmeasured = [b for b in bars if b.passed is None]
-    if failed:
-        verdict = "**Not all bars are met**: " + "; ".join(f"({b.key}) FAIL" for b in failed) + "."
+def claims_section(claims: Sequence[Claim]) -> list:
+    """The paper's claims as measured here: a verdict paragraph and a table."""
+    rows = [[f"({c.key})", c.statement, c.verdict, c.measured] for c in claims]
+    failed = [c for c in claims if c.holds is False]
+    unmeasured = [c for c in claims if c.holds is None]
+    if not all(c.judged for c in claims):
+        verdict = "A smoke run: its images and training are too small to judge any claim."
+    elif failed:
+        verdict = "**Not every claim holds here**: " + "; ".join(f"({c.key}) does not hold" for c in failed) + "."
     elif unmeasured:
-        verdict = "Some bars could not be measured: " + ", ".join(f"({b.key})" for b in unmeasured) + "."
+        verdict = "Some claims could not be measured: " + ", ".join(f"({c.key})" for c in unmeasured) + "."
     else:
-        verdict = "All bars are met (PASS)."
+        verdict = "Every claim holds on these images."
     return [
-        Heading("Pass/fail bars (measured on held-out images)"),
+        Heading("Claims of the paper, on the evaluated images"),
         Paragraph(verdict),
-        Table(["bar", "statement", "result", "measured"], rows),
+        Table(["claim", "statement", "result", "measured"], rows),
     ]
 
 

@@ -32,7 +32,9 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
+from ..compensation.closed_loop import closed_loop, flat_screen
 from ..errors import BlurExceedsWindowWarning, EdofprojError
+from ..metrics import ssim
 from ..optics.psf_bank import simulator_from_config
 from .masks import decompose
 from .perturbation import FabricatedDOE2D, FabricatedRadialDOE, FabricationErrors
@@ -121,9 +123,8 @@ class FabricatedPSF:
 
 def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "radial") -> SSIMEvaluator:
     """``evaluate_ssim(doe, depths_m)``: mean SSIM over ``images`` (B, 3, H, W) of
-    ``project(clamp(net(I, project(I, P_z))), P_z)`` against ``I``, for each depth ``z``."""
-    from ..imaging.projection import project
-    from ..metrics import ssim
+    ``project(net(I, project(I, P_z)), P_z)`` (the closed loop on a flat screen) against ``I``,
+    for each depth ``z``."""
 
     psf_of = FabricatedPSF(cfg, engine, window=cfg.psf.window)
 
@@ -132,9 +133,8 @@ def compensated_ssim_evaluator(net, cfg, images: torch.Tensor, engine: str = "ra
         scores = []
         with torch.no_grad():
             for i in range(len(depths_m)):
-                captured = project(images, psf[i : i + 1])
-                projected = project(net(images, captured).clamp(0.0, 1.0), psf[i : i + 1])
-                scores.append(float(ssim(projected, images).mean()))
+                loop = closed_loop(images, flat_screen(psf[i : i + 1]), net)
+                scores.append(float(ssim(loop.projected, images).mean()))
         return np.asarray(scores)
 
     return evaluate

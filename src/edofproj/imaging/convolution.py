@@ -1,23 +1,37 @@
-"""Linear 2-D convolution by FFT, with zero padding and 'same' output alignment.
+"""The FFT convolution operator of the whole project: one PSF, its transfer function, and its use.
 
-For an image ``I`` of ``H x W`` pixels and a kernel ``p`` of ``Kh x Kw`` pixels the output is
+For an image ``I`` of ``H x W`` pixels and a kernel ``p`` of ``Kh x Kw`` pixels, the linear
+'same' convolution is
 
     out[y, x] = sum_{i, j} I[y + Kh//2 - i, x + Kw//2 - j] * p[i, j],
 
-with ``I`` taken as zero outside the image. The kernel's pixel ``(Kh//2, Kw//2)`` (the
-optical axis of a PSF) therefore lands on the source pixel itself, and the output has the
-input's size. This is ``scipy.signal.fftconvolve(I, p, mode='same')`` for odd kernels.
+with ``I`` taken as zero outside the image. The kernel's pixel ``(Kh//2, Kw//2)`` (the optical
+axis of a PSF) lands on the source pixel itself, and the output has the input's size. This is
+``scipy.signal.fftconvolve(I, p, mode='same')`` for odd kernels.
 
-Computation: both arrays are zero-padded to at least ``(H + Kh - 1) x (W + Kw - 1)`` (rounded
-up to a fast FFT length, :func:`scipy.fft.next_fast_len`) so the circular convolution of
-the DFT equals the linear one (no wrap-around); then ``irfft2(rfft2(I) * rfft2(p))`` is
-cropped. Everything is ``torch`` and differentiable in both arguments.
+Everything that filters an image with a PSF in the Fourier domain goes through three pieces:
+
+* :func:`optical_transfer_function` -- ``H = rfft2(p)`` on an FFT grid, with the optical axis
+  moved to pixel ``(0, 0)`` (*centring*, so ``H`` carries no linear phase) and, optionally, the
+  DC gain set to 1 (*haze*: the light ``1 - sum p`` outside the PSF window comes back as a
+  uniform haze, so the projection keeps the mean brightness; see :mod:`.projection`);
+* :func:`fft_shape` -- the grid that makes the circular convolution of the DFT equal the linear
+  one on the cropped frame (*zero padding*): at least ``(H + Kh//2) x (W + Kw//2)`` (and the kernel's size), rounded up
+  to a fast FFT length (:func:`scipy.fft.next_fast_len`). Pixels ``y - s`` with a shift
+  ``|s| <= Kh//2`` that fall outside the image then land on padded zeros, never on the other side;
+* :func:`apply_transfer_function` -- zero-pad the image to the grid, multiply its spectrum by a
+  transfer function, crop ``[:H, :W]``.
+
+:func:`convolve_same` is the three together; the projection (:mod:`.projection`), the Wiener
+filters and the constrained least-squares operator (:mod:`edofproj.compensation`) build on the
+same pieces. Everything is ``torch`` and differentiable in the image and the PSF.
 """
 
 from __future__ import annotations
 
 import scipy.fft
 import torch
+import torch.nn.functional as F
 
 from ..errors import EdofprojError
 
@@ -27,9 +41,48 @@ def fast_fft_length(n: int) -> int:
     return int(scipy.fft.next_fast_len(int(n), real=True))
 
 
-def padded_shape(image_hw: tuple[int, int], kernel_hw: tuple[int, int]) -> tuple[int, int]:
-    """FFT size that makes a circular convolution linear: ``>= H + Kh - 1``, ``>= W + Kw - 1``."""
-    return (fast_fft_length(image_hw[0] + kernel_hw[0] - 1), fast_fft_length(image_hw[1] + kernel_hw[1] - 1))
+def fft_shape(image_hw: tuple[int, int], kernel_hw: tuple[int, int]) -> tuple[int, int]:
+    """FFT grid on which a centred kernel's circular convolution is linear: ``>= max(H + Kh//2, Kh)`` rows, likewise columns.
+
+    (``>= Kh`` keeps the kernel's taps from overlapping themselves when it is larger than the image.)
+    """
+    rows = max(image_hw[0] + kernel_hw[0] // 2, kernel_hw[0])
+    cols = max(image_hw[1] + kernel_hw[1] // 2, kernel_hw[1])
+    return (fast_fft_length(rows), fast_fft_length(cols))
+
+
+def optical_transfer_function(psf: torch.Tensor, grid_hw: tuple[int, int], haze: bool = False) -> torch.Tensor:
+    """``H = rfft2(p)`` of ``psf (..., Kh, Kw)`` on a ``grid_hw`` grid, optical axis at pixel ``(0, 0)``.
+
+    The kernel is zero-padded to the grid and rolled by ``(-Kh//2, -Kw//2)``, so its pixel
+    ``(Kh//2, Kw//2)`` sits at the origin and ``H`` is real for a centro-symmetric PSF. With
+    ``haze`` the zero-frequency bin is set to 1: the haze ``(1 - sum p) mean(I)`` adds exactly
+    the DC gain the window lost (exact for a periodic frame). Returns complex ``(..., Gh, Gw//2 + 1)``;
+    differentiable in ``psf`` (the DC bin does not depend on it when ``haze``).
+    """
+    kh, kw = psf.shape[-2:]
+    gh, gw = int(grid_hw[0]), int(grid_hw[1])
+    if kh > gh or kw > gw:
+        raise EdofprojError(f"a {kh}x{kw} PSF does not fit in a {gh}x{gw} FFT grid")
+    kernel = F.pad(psf, (0, gw - kw, 0, gh - kh))
+    kernel = torch.roll(kernel, shifts=(-(kh // 2), -(kw // 2)), dims=(-2, -1))
+    otf = torch.fft.rfft2(kernel)
+    if haze:
+        otf = otf.clone()
+        otf[..., 0, 0] = 1.0
+    return otf
+
+
+def apply_transfer_function(image: torch.Tensor, otf: torch.Tensor, grid_hw: tuple[int, int]) -> torch.Tensor:
+    """``crop(irfft2(rfft2(pad0(I)) * H))``: ``image (..., H, W)`` zero-padded to ``grid_hw``, filtered, cropped.
+
+    ``otf (..., Gh, Gw//2 + 1)`` broadcasts against the image's spectrum (e.g. one transfer
+    function for a batch). Returns ``(..., H, W)``.
+    """
+    height, width = image.shape[-2:]
+    grid = (int(grid_hw[0]), int(grid_hw[1]))
+    spectrum = torch.fft.rfft2(image, s=grid) * otf
+    return torch.fft.irfft2(spectrum, s=grid)[..., :height, :width]
 
 
 def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
@@ -54,10 +107,6 @@ def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
         ) from None
     if not image.is_floating_point():
         raise EdofprojError(f"convolution needs a floating-point image, got {image.dtype}")
-    H, W = image.shape[-2:]
-    Kh, Kw = kernel.shape[-2:]
-    size = padded_shape((H, W), (Kh, Kw))
+    grid = fft_shape((image.shape[-2], image.shape[-1]), (kernel.shape[-2], kernel.shape[-1]))
     kernel = kernel.to(dtype=image.dtype, device=image.device)
-    spectrum = torch.fft.rfft2(image, s=size) * torch.fft.rfft2(kernel, s=size)
-    full = torch.fft.irfft2(spectrum, s=size)
-    return full[..., Kh // 2 : Kh // 2 + H, Kw // 2 : Kw // 2 + W]
+    return apply_transfer_function(image, optical_transfer_function(kernel, grid), grid)

@@ -40,10 +40,10 @@ class ProjectorGeometry:
 
     @classmethod
     def from_config(cls, optics) -> "ProjectorGeometry":
-        """From an :class:`~edofproj.config.OpticsConfig` (mm -> m)."""
+        """From an :class:`~edofproj.config.OpticsConfig` (its ``*_m`` properties)."""
         return cls(
-            aperture_diameter_m=optics.aperture_mm * 1e-3,
-            focus_distance_m=optics.focus_mm * 1e-3,
+            aperture_diameter_m=optics.aperture_m,
+            focus_distance_m=optics.focus_m,
             throw_ratio=optics.throw_ratio,
             width_px=int(optics.width_px),
             height_px=int(optics.height_px),

@@ -5,9 +5,10 @@ For a target image ``I`` and a screen depth ``z`` per sample:
     P     = PSF_DOE(z)                                  RGB PSF of the (quantized) DOE at depth z
     I*    = camera( project(I, P) )                     uncompensated projection, as observed
     Î     = net(I, I*)                                  compensated projector input (unclamped)
-    Î*    = project(clamp(Î, 0, 1), P)                  what the screen shows
+    Î*    = project(Î, P)                               what the screen shows
 
-where ``project(x, P) = clamp(x, 0, 1) ⊛ P + (1 - ΣP) mean(x)`` (:func:`edofproj.imaging.projection.project`):
+the closed loop of :mod:`edofproj.compensation.closed_loop` on a flat screen, where
+``project(x, P) = clamp(x, 0, 1) ⊛ P + (1 - ΣP) mean(clamp(x, 0, 1))`` (:func:`edofproj.imaging.projection.project`):
 the projector emits only light in [0, 1], and light outside the PSF window is a uniform haze.
 The loss ``L(Î*, I)`` (Eq. 12) is taken by the caller. Everything is differentiable with
 respect to the network and, through ``P`` (the PSF simulator with the straight-through
@@ -24,12 +25,10 @@ PSFs come from a *PSF source*, a module ``source(depths_m) -> (B, C, K, K)``:
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import torch
 from torch import nn
 
-from ..imaging.projection import project
+from ..compensation.closed_loop import LoopImages, closed_loop, flat_screen
 from .camera import camera_capture
 
 
@@ -43,14 +42,6 @@ class SimulatedPSF(nn.Module):
 
     def forward(self, depths_m) -> torch.Tensor:
         return self.simulator(self.doe, depths_m).float()
-
-
-class Projections(NamedTuple):
-    """The images of one forward pass, each ``(B, 3, H, W)``."""
-
-    captured: torch.Tensor  # I*: the uncompensated projection as the camera records it
-    compensated: torch.Tensor  # Î: the network's projector input (unclamped)
-    projected: torch.Tensor  # Î*: the projection of clamp(Î)
 
 
 class EndToEndProjector(nn.Module):
@@ -73,12 +64,19 @@ class EndToEndProjector(nn.Module):
         self.quantize_capture = bool(quantize_capture)
         self.mixed_precision = mixed_precision
 
-    def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> Projections:
-        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``."""
-        psf = self.psf_source(depths_m).to(target.device)
-        captured = camera_capture(project(target, psf), noise, self.noise_sigma, self.quantize_capture)
+    def _compensate(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
         with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
             compensated = self.net(target, captured)
-        compensated = compensated.float()
-        projected = project(compensated.clamp(0.0, 1.0), psf)
-        return Projections(captured, compensated, projected)
+        return compensated.float()
+
+    def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> LoopImages:
+        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``.
+
+        Returns the loop's images ``(captured I*, compensated Î, projected Î*)``.
+        """
+        psf = self.psf_source(depths_m).to(target.device)
+
+        def observe(image: torch.Tensor) -> torch.Tensor:
+            return camera_capture(image, noise, self.noise_sigma, self.quantize_capture)
+
+        return closed_loop(target, flat_screen(psf), self._compensate, observe)

@@ -98,7 +98,7 @@ def doe_is_trained(cfg: Config, doe: nn.Module) -> bool:
 def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.Module:
     """A :class:`SimulatedPSF` for a DOE being optimized, a :class:`DepthPSFTable` for a fixed one."""
     simulator = simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine), device=device)
-    z_min, z_max = cfg.psf.depth_min_mm * 1e-3, cfg.psf.depth_max_mm * 1e-3
+    z_min, z_max = cfg.psf.depth_min_m, cfg.psf.depth_max_m
     warn_if_blur_exceeds_window(simulator.geometry, np.array([z_min, z_max]), simulator.window)
     if trained:
         return SimulatedPSF(doe, simulator)
@@ -283,8 +283,8 @@ class _Session:
             cfg.train.seed,
             step,
             self.shard,
-            cfg.psf.depth_min_mm * 1e-3,
-            cfg.psf.depth_max_mm * 1e-3,
+            cfg.psf.depth_min_m,
+            cfg.psf.depth_max_m,
             cfg.train.depth_sampling,
             cfg.train.depth_spacing,
         )
@@ -333,7 +333,7 @@ class _Session:
         figures.mkdir(parents=True, exist_ok=True)
         plot_loss_curve(read_log(self.run_dir / "train_log.csv"), figures / "loss.png")
         plot_doe_profile(self.doe, figures / "doe_profile.png", samples=self.cfg.psf.pupil_samples)
-        depths = np.linspace(self.cfg.psf.depth_min_mm, self.cfg.psf.depth_max_mm, FIGURE_DEPTHS) * 1e-3
+        depths = np.linspace(self.cfg.psf.depth_min_m, self.cfg.psf.depth_max_m, FIGURE_DEPTHS)
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore", BlurExceedsWindowWarning)
             psf = self.model.psf_source(depths)

@@ -5,9 +5,9 @@
     method's worst depth;
 (c) the demo's wall time is within its budget.
 
-A bar compares against the methods that were actually evaluated; the report lists them (a
-method whose run was not trained cannot be beaten or lost to). A bar that could not be
-measured (``doe+net`` missing) is reported as not measured, never as passed.
+A claim compares against the methods that were actually evaluated; the report lists them (a
+method whose run was not trained cannot be beaten or lost to). A claim that could not be
+measured (``doe+net`` missing) is reported as not measured, never as holding.
 """
 
 from __future__ import annotations
@@ -20,12 +20,12 @@ from .results import MetricsTable
 
 
 @dataclass
-class Bar:
-    """One bar: its statement, the outcome (None: not measured) and the numbers behind it."""
+class Claim:
+    """One claim: its statement, whether it holds (None: not measured) and the numbers behind it."""
 
     key: str
     statement: str
-    passed: bool | None
+    holds: bool | None
     measured: str
     judged: bool = True
 
@@ -33,11 +33,11 @@ class Bar:
     def verdict(self) -> str:
         if not self.judged:
             return "not judged (smoke run)"
-        return "not measured" if self.passed is None else ("PASS" if self.passed else "FAIL")
+        return "not measured" if self.holds is None else ("holds" if self.holds else "does not hold")
 
 
-def ssim_bars(table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim") -> list[Bar]:
-    """Bars (a) and (b) on ``table`` over ``range_mm``."""
+def ssim_claims(table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim") -> list[Claim]:
+    """Claims (a) and (b) on ``table`` over ``range_mm``."""
     lo, hi = range_mm
     span = f"{lo:.0f}-{hi:.0f} mm"
     statement_a = f"{OURS} has the best mean SSIM over {span} of all evaluated methods"
@@ -46,35 +46,35 @@ def ssim_bars(table: MetricsTable, range_mm: tuple[float, float], metric: str = 
     others = [m for m in methods if m != OURS]
     if OURS not in methods:
         missing = f"{OURS} was not evaluated"
-        return [Bar("a", statement_a, None, missing), Bar("b", statement_b, None, missing)]
+        return [Claim("a", statement_a, None, missing), Claim("b", statement_b, None, missing)]
     if not others:
         alone = "no other method was evaluated"
-        return [Bar("a", statement_a, None, alone), Bar("b", statement_b, None, alone)]
+        return [Claim("a", statement_a, None, alone), Claim("b", statement_b, None, alone)]
     stats = {m: table.range_stats(m, metric, lo, hi) for m in methods}
     ours = stats[OURS]
     if math.isnan(ours.mean):
         none = f"no {OURS} result inside {span}"
-        return [Bar("a", statement_a, None, none), Bar("b", statement_b, None, none)]
+        return [Claim("a", statement_a, None, none), Claim("b", statement_b, None, none)]
 
     best_other_mean = max(others, key=lambda m: stats[m].mean)
-    passed_a = all(ours.mean > stats[m].mean for m in others)
+    holds_a = all(ours.mean > stats[m].mean for m in others)
     measured_a = (
         f"{OURS} {ours.mean:.4f}; best other: {best_other_mean} {stats[best_other_mean].mean:.4f} "
         f"(compared: {', '.join(others)})"
     )
 
     best_other_worst = max(others, key=lambda m: stats[m].worst)
-    passed_b = all(ours.worst > stats[m].worst for m in others)
+    holds_b = all(ours.worst > stats[m].worst for m in others)
     measured_b = (
         f"{OURS} worst {ours.worst:.4f} at {ours.worst_depth_mm:.0f} mm; best other worst: "
         f"{best_other_worst} {stats[best_other_worst].worst:.4f} at {stats[best_other_worst].worst_depth_mm:.0f} mm"
     )
-    return [Bar("a", statement_a, passed_a, measured_a), Bar("b", statement_b, passed_b, measured_b)]
+    return [Claim("a", statement_a, holds_a, measured_a), Claim("b", statement_b, holds_b, measured_b)]
 
 
-def wall_time_bar(seconds: float, budget_seconds: float) -> Bar:
-    """Bar (c): ``seconds <= budget_seconds``."""
-    return Bar(
+def wall_time_claim(seconds: float, budget_seconds: float) -> Claim:
+    """Claim (c): ``seconds <= budget_seconds``."""
+    return Claim(
         "c",
         f"demo wall time <= {budget_seconds / 60:.0f} min",
         seconds <= budget_seconds,
