@@ -1,6 +1,6 @@
 """``edofproj psf``: simulate the RGB (or monochromatic) PSFs of a design across depth.
 
-Writes the ``.npz`` contract of docs/physics.md (``psf``, ``depths_m``, ``pixel_pitch_m``,
+Writes the ``.npz`` contract of docs/formats.md (``psf``, ``depths_m``, ``pixel_pitch_m``,
 ``energy_in_window``) and optionally a comparison figure against the bare lens.
 """
 

@@ -1,0 +1,215 @@
+"""Generate the site's reference pages at build time (run by the mkdocs-gen-files plugin).
+
+* ``reference/cli.md``: every command's ``--help``, read from the real argument parsers;
+* ``reference/config.md``: every configuration key with its type, unit, default and the rule its
+  validation enforces (the rule is the message the validator gives for an invalid value, so the page
+  cannot drift from the code);
+* ``reference/api/<package>.md``: the API reference from the docstrings (mkdocstrings);
+* ``results.md`` and ``performance.md``: the README's sections of the same names, the one source of
+  the project's measured figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import pkgutil
+import re
+from pathlib import Path
+
+import mkdocs_gen_files
+
+import edofproj
+from edofproj.cli import build_parser
+from edofproj.config import Config, ConfigError
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# --------------------------------------------------------------------------- CLI
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def _command_sections(parser: argparse.ArgumentParser, name: str, level: int) -> list[str]:
+    lines = [f"{'#' * level} `{name}`", "", "```text", parser.format_help().rstrip(), "```", ""]
+    for sub_name, sub in _subcommands(parser).items():
+        lines += _command_sections(sub, f"{name} {sub_name}", level + 1)
+    return lines
+
+
+def cli_reference() -> str:
+    os.environ["COLUMNS"] = "100"  # argparse wraps at the terminal width: fix it for a stable page
+    parser = build_parser()
+    lines = [
+        "# Command-line reference",
+        "",
+        "Generated from the command's own argument parsers when the site is built. Every command",
+        "fails on bad input with one line `edofproj: error: ...` and exit code 2.",
+        "",
+    ]
+    for name, sub in _subcommands(parser).items():
+        lines += _command_sections(sub, f"edofproj {name}", 2)
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- configuration
+
+UNITS = {
+    "_mm": "mm",
+    "_nm": "nm",
+    "_um": "µm",
+    "_m": "m",
+    "_deg": "degrees",
+    "_px": "pixels",
+    "_s": "s",
+    "_min": "min",
+    "_ms": "ms",
+}
+
+
+def _unit(key: str) -> str:
+    for suffix, unit in UNITS.items():
+        if key.endswith(suffix):
+            return unit
+    return ""
+
+
+def _default(field: dataclasses.Field):
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return None
+
+
+def _invalid_values(value) -> list:
+    if isinstance(value, bool):
+        return []
+    if isinstance(value, (int, float)):
+        return [-1, 0, 0.5, 1e12, math.nan]
+    if isinstance(value, str) or value is None:
+        return ["?not-a-choice?"]
+    if isinstance(value, list):
+        return [[], [-1.0], [math.nan], ["?"]]
+    return []
+
+
+def _rule(section_name: str, key: str, default) -> str:
+    """The validator's message for the first invalid value tried, or '' when every value is accepted."""
+    for bad in _invalid_values(default):
+        cfg = Config()
+        setattr(getattr(cfg, section_name), key, bad)
+        try:
+            cfg.validate()
+        except ConfigError as exc:
+            return str(exc)
+        except (TypeError, ValueError):
+            continue
+    return ""
+
+
+def _cell(text) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def config_reference() -> str:
+    lines = [
+        "# Configuration reference",
+        "",
+        "Generated from `edofproj.config.Config` when the site is built. A configuration is read from",
+        "YAML (`--config cpu|paper|realtime|FILE.yaml`); `--set section.key=value` overrides one key.",
+        "The unit follows from the key's name. *Rule* is what the validator says when it is given an",
+        "invalid value (one of -1, 0, 0.5, 1e12, NaN, an unknown name or an empty list, whichever it",
+        "refuses first); an empty rule means no value of the right type is refused.",
+        "",
+    ]
+    root = Config()
+    for section in dataclasses.fields(root):
+        value = getattr(root, section.name)
+        if not dataclasses.is_dataclass(value):
+            lines += [f"## `{section.name}`", "", f"Default `{value!r}`.", ""]
+            continue
+        doc = (type(value).__doc__ or "").strip()
+        lines += [
+            f"## `{section.name}`",
+            "",
+            doc,
+            "",
+            "| key | type | unit | default | rule |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        for field in dataclasses.fields(value):
+            default = _default(field)
+            annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", field.type)
+            rule = _rule(section.name, field.name, default)
+            lines.append(
+                f"| `{section.name}.{field.name}` | {_cell(annotation)} | {_unit(field.name)} | `{_cell(repr(default))}` "
+                f"| {_cell(rule)} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- API
+
+
+def api_pages() -> dict[str, str]:
+    """One page per top-level module or package of ``edofproj`` (commands excluded: see the CLI page)."""
+    pages = {}
+    for info in sorted(pkgutil.iter_modules(edofproj.__path__), key=lambda m: m.name):
+        if info.name in ("commands", "cli", "__main__") or info.name.startswith("_"):
+            continue
+        name = f"edofproj.{info.name}"
+        body = [f"# `{name}`", ""]
+        if info.ispkg:
+            package = __import__(name, fromlist=["_"])
+            body += [f"::: {name}", "    options:", "      members: false", ""]
+            for sub in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+                if sub.name.startswith("_"):
+                    continue
+                body += [
+                    f"## `{name}.{sub.name}`",
+                    "",
+                    f"::: {name}.{sub.name}",
+                    "    options:",
+                    "      heading_level: 3",
+                    "",
+                ]
+        else:
+            body += [f"::: {name}", ""]
+        pages[f"reference/api/{info.name}.md"] = "\n".join(body)
+    return pages
+
+
+# --------------------------------------------------------------------------- README sections
+
+
+def readme_section(title: str) -> str:
+    """The README's ``## title`` section, its links rewritten for pages at the root of the site."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
+    if match is None:
+        raise SystemExit(f"README.md has no '## {title}' section")
+    body = match.group(1)
+    body = body.replace("](docs/", "](")
+    return f"# {title}\n\nFrom the project's README, where the same section sits.\n\n{body}"
+
+
+def main() -> None:
+    pages = {"reference/cli.md": cli_reference(), "reference/config.md": config_reference()}
+    pages.update(api_pages())
+    pages["results.md"] = readme_section("Results")
+    pages["performance.md"] = readme_section("Performance")
+    for path, text in pages.items():
+        with mkdocs_gen_files.open(path, "w") as handle:
+            handle.write(text)
+
+
+main()
