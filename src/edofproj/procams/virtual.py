@@ -138,6 +138,38 @@ class VirtualProCams:
             raise EdofprojError("the example camera does not see the whole projector image; lower fill")
         return rig
 
+    @classmethod
+    def from_capture_folder(cls, folder: str | Path) -> "VirtualProCams":
+        """The rig that wrote the capture folder ``folder`` (:func:`simulate_captures`), rebuilt
+        from its ``ground_truth.json`` and ``ground_truth.npz`` (flat screens)."""
+        folder = Path(folder)
+        try:
+            info = json.loads((folder / GROUND_TRUTH_JSON).read_text(encoding="utf-8"))
+            with np.load(folder / GROUND_TRUTH_NPZ, allow_pickle=False) as data:
+                psf = data["psf"].astype(np.float64)
+            depth_mm = info.get("depth_mm")
+            return cls(
+                projector_hw=(int(info["projector_hw"][0]), int(info["projector_hw"][1])),
+                camera_hw=(int(info["camera_hw"][0]), int(info["camera_hw"][1])),
+                psf=psf,
+                homography=np.asarray(info["homography"]),
+                radial_k1=float(info["radial_k1"]),
+                gamma=_rgb_triple(info["gamma"]),
+                projector_black=float(info["projector_black"]),
+                mixing_matrix=np.asarray(info["mixing_matrix"]),
+                ambient=_rgb_triple(info["ambient"]),
+                noise_sigma=float(info["noise_sigma"]),
+                supersampling=int(info["supersampling"]),
+                depth_m=None if depth_mm is None else float(depth_mm) * 1e-3,
+                pixel_pitch_m=info.get("pixel_pitch_m"),
+            )
+        except FileNotFoundError as exc:
+            raise EdofprojError(
+                f"'{folder}' is not a folder written by 'edofproj procams simulate' (no {Path(str(exc.filename)).name})"
+            ) from None
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            raise EdofprojError(f"cannot rebuild the virtual ProCams from '{folder}': {exc}") from None
+
     # ------------------------------------------------------------------ radiometry
     def projector_output(self, image: np.ndarray) -> np.ndarray:
         """Linear light per channel: ``b + (1 - b) u^gamma`` for input ``u`` in ``[0, 1]``."""
