@@ -175,7 +175,9 @@ def run_live(
                     return net(light, _to_tensor(rectified)).clamp(0.0, 1.0)
 
             compensated_light = timed("compensate", times, compensate)
-            projector_input = timed("to_input", times, lambda: _to_array(calibration.to_projector_input(compensated_light)))
+            projector_input = timed(
+                "to_input", times, lambda: _to_array(calibration.to_projector_input(compensated_light))
+            )
             timed("show_compensated", times, display.show, projector_input)
             record = LiveFrame(name, target, rectified.astype(np.float32), projector_input, times)
             if measure:

@@ -63,7 +63,7 @@ class ProCamsCalibration:
         """A camera capture as projector output light per projector pixel, ``(H, W, 3)`` float64."""
         return self.color.camera_to_output(self.camera_map.warp(capture), self.black_image)
 
-    def check_projector_hw(self, height_width: tuple[int, int], what: str = "the image") -> None:
+    def check_projector_hw(self, height_width: tuple[int, ...], what: str = "the image") -> None:
         """Raise one line unless ``height_width`` is the calibrated projector's size."""
         H, W = self.projector_hw
         if tuple(height_width) != (H, W):

@@ -1,7 +1,7 @@
 """A capture session: show every pattern of a manifest and capture it, resumably.
 
-The capture folder holds one capture per pattern under the pattern's file name (8-bit PNG,
-each written atomically: temp file, then rename) and ``captures.json``::
+The capture folder holds one capture per pattern under the pattern's file name (PNG, 8-bit,
+or 16-bit for a mean of several frames; each written atomically: temp file, then rename) and ``captures.json``::
 
     {"source": "edofproj procams capture", "patterns": ".../manifest.json",
      "projector_hw": [H, W], "camera_hw": [Hc, Wc], "depth_mm": Z,
@@ -20,8 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
+from ..imaging.image_io import write_image
 from .capture_io import read_rgb, write_rgb_png
 from .devices import Camera, Display, GrabSettings, grab_frame
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
@@ -52,7 +55,9 @@ def _check_resume(out: Path, info: dict | None, manifest_path: Path, depth_mm: f
     """The existing session's ``captures.json`` if ``out`` can be resumed, else raise; None if new."""
     if info is None:
         if out.is_dir() and any(out.iterdir()):
-            raise EdofprojError(f"'{out}' is not empty and holds no {CAPTURE_INFO_JSON}: not a capture session to resume")
+            raise EdofprojError(
+                f"'{out}' is not empty and holds no {CAPTURE_INFO_JSON}: not a capture session to resume"
+            )
         return None
     if info.get("source") != CAPTURE_SOURCE:
         raise EdofprojError(f"'{out}' was not written by 'edofproj procams capture' (source: {info.get('source')})")
@@ -124,7 +129,10 @@ def capture_patterns(
                     f"capture of '{entry.file}' is {frame.shape[1]}x{frame.shape[0]} pixels, the session's camera "
                     f"{camera_hw[1]}x{camera_hw[0]}: did the camera's resolution change?"
                 )
-            write_rgb_png(out / entry.file, frame)
+            if grab.average > 1:  # a mean of frames has more than 8 bits
+                write_image(out / entry.file, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=16)
+            else:
+                write_rgb_png(out / entry.file, frame)
             captured += 1
             if log is not None and (len(done) + captured) % 25 == 0:
                 log(f"  {len(done) + captured}/{len(manifest.entries)} captured")

@@ -56,7 +56,9 @@ class OpenCVCamera(Camera):
             cv2.utils.logging.setLogLevel(level)
         if not self.capture.isOpened():
             self.capture.release()
-            raise EdofprojError(f"camera '{self.spec}' does not answer (OpenCV cannot open it); found: {video_devices_found()}")
+            raise EdofprojError(
+                f"camera '{self.spec}' does not answer (OpenCV cannot open it); found: {video_devices_found()}"
+            )
         self.exposure = exposure
         if exposure is not None and not self.capture.set(cv2.CAP_PROP_EXPOSURE, float(exposure)):
             raise EdofprojError(f"camera '{self.spec}' does not let OpenCV set its exposure")
@@ -77,7 +79,10 @@ class OpenCVCamera(Camera):
             "spec": self.spec,
             "backend": "opencv",
             "exposure": self.exposure,
-            "frame_hw": [int(self.capture.get(cv2.CAP_PROP_FRAME_HEIGHT)), int(self.capture.get(cv2.CAP_PROP_FRAME_WIDTH))],
+            "frame_hw": [
+                int(self.capture.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+                int(self.capture.get(cv2.CAP_PROP_FRAME_WIDTH)),
+            ],
         }
 
 
@@ -115,9 +120,7 @@ class CommandCamera(Camera):
             raise EdofprojError(f"camera command timed out after {self.timeout_s:g} s: {' '.join(command)}") from None
         if result.returncode != 0:
             last = (result.stderr or result.stdout).strip().splitlines()
-            raise EdofprojError(
-                f"camera command exited with {result.returncode}: {last[-1] if last else 'no message'}"
-            )
+            raise EdofprojError(f"camera command exited with {result.returncode}: {last[-1] if last else 'no message'}")
         written = _image_files(folder)
         if not written:
             raise EdofprojError(f"camera command wrote no image file to {{out}} ({' '.join(command)})")

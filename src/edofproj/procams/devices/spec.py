@@ -25,7 +25,9 @@ DEVICE_TABLE: tuple[DeviceKind, ...] = (
     DeviceKind("display", "file", "file:shown.png", "writes every frame atomically to PATH (for other software)"),
     DeviceKind("display", "memory", "memory", "keeps the frame in memory (Python API; with a virtual camera)"),
     DeviceKind("camera", "opencv", "opencv:0", "OpenCV VideoCapture: a camera index, a video, an image sequence"),
-    DeviceKind("camera", "cmd", "cmd:gphoto2 --capture-image-and-download --filename {out}", "runs a command writing {out}"),
+    DeviceKind(
+        "camera", "cmd", "cmd:gphoto2 --capture-image-and-download --filename {out}", "runs a command writing {out}"
+    ),
     DeviceKind("camera", "folder", "folder:incoming/", "waits for each new image a tethered camera writes to DIR"),
     DeviceKind("camera", "virtual", "virtual:captures/", "the virtual ProCams of a 'procams simulate' folder"),
 )
@@ -72,7 +74,9 @@ def open_camera(spec: str, display: Display | None = None, exposure: float | Non
     if exposure is not None and kind != "opencv":
         raise EdofprojError(f"--exposure is set through OpenCV only; set it on the camera itself for '{kind}:'")
     if not argument:
-        raise EdofprojError(f"camera '{kind}:' needs an argument (e.g. {[r.example for r in DEVICE_TABLE if r.kind == kind][0]})")
+        raise EdofprojError(
+            f"camera '{kind}:' needs an argument (e.g. {[r.example for r in DEVICE_TABLE if r.kind == kind][0]})"
+        )
     if kind == "opencv":
         return OpenCVCamera(argument, exposure=exposure)
     if kind == "cmd":
