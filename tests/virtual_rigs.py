@@ -33,7 +33,7 @@ def straight_rig(height_width, psf, noise_sigma: float = 0.0, gamma: float = 2.2
     )
 
 
-def exact_calibration(rig: VirtualProCams, levels: int = 6) -> ProCamsCalibration:
+def exact_calibration(rig: VirtualProCams, levels: int = 6, lut_size: int = 33) -> ProCamsCalibration:
     H, W = rig.projector_hw
     y, x = np.mgrid[0:H, 0:W].astype(np.float64)
     camera_map = CameraMap(

@@ -26,7 +26,7 @@ import torch
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
 from .capture_io import read_captures, saturated_fraction
-from .color import ColorCalibration, ResponseLUT, calibrate_color
+from .color import RESPONSE_LUT_SIZE, ColorCalibration, ResponseLUT, calibrate_color
 from .geometry import CameraMap, calibrate_geometry
 from .patterns import PRIMARY_COLORS, PatternEntry, PatternManifest
 
@@ -53,6 +53,7 @@ class ProCamsCalibration:
     camera_map: CameraMap
     color: ColorCalibration
     black_image: np.ndarray
+    response_lut_size: int = field(default=RESPONSE_LUT_SIZE, compare=False)
     _inverse_lut: ResponseLUT | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -73,9 +74,10 @@ class ProCamsCalibration:
 
     def to_projector_input(self, light: torch.Tensor) -> torch.Tensor:
         """Projector output light ``(B, 3, H, W)`` (clamped to ``[0, 1]``) -> the projector input
-        that emits it, ``u = f^-1(o)`` (:meth:`ColorCalibration.inverse_response_lut`, built once)."""
+        that emits it, ``u = f^-1(o)`` (:meth:`ColorCalibration.inverse_response_lut` with
+        ``response_lut_size`` points per channel, built on first use)."""
         if self._inverse_lut is None:
-            self._inverse_lut = self.color.inverse_response_lut()
+            self._inverse_lut = self.color.inverse_response_lut(self.response_lut_size)
         return self._inverse_lut(light)
 
     def save(self, path: str | Path) -> None:
