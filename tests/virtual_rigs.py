@@ -1,17 +1,10 @@
-"""A virtual ProCams whose camera looks straight at the projector, and its exact calibration.
-
-Camera pixel ``q`` sees projector pixel ``q`` (identity homography, no distortion, one
-sub-sample), so the calibration is known in closed form from the rig's parameters: identity
-camera map, mixing matrix ``M (1 - b)``, black capture ``M b 1 + a``, response ``u^gamma``
-sampled on a grid. Tests of the live loop and of the evaluation use it without running the
-(slow) calibration.
-"""
+"""A virtual ProCams whose camera looks straight at the projector (camera pixel ``q`` sees
+projector pixel ``q``: identity homography, no distortion, one sub-sample), for tests of what
+comes after calibration; its calibration is :meth:`VirtualProCams.ideal_calibration`."""
 
 import numpy as np
 
 from edofproj.procams.calibration import ProCamsCalibration
-from edofproj.procams.color import ColorCalibration
-from edofproj.procams.geometry import CameraMap
 from edofproj.procams.virtual import VirtualProCams
 
 
@@ -33,20 +26,10 @@ def straight_rig(height_width, psf, noise_sigma: float = 0.0, gamma: float = 2.2
     )
 
 
-def exact_calibration(rig: VirtualProCams, levels: int = 6, lut_size: int = 33) -> ProCamsCalibration:
+def exact_calibration(rig: VirtualProCams, lut_size: int = 33) -> ProCamsCalibration:
+    calibration = rig.ideal_calibration(response_lut_size=lut_size)
     H, W = rig.projector_hw
     y, x = np.mgrid[0:H, 0:W].astype(np.float64)
-    camera_map = CameraMap(
-        map_x=x, map_y=y, homography=np.eye(3), dots_proj=np.zeros((0, 2)), dots_cam=np.zeros((0, 2)), camera_hw=(H, W)
-    )
-    values = np.linspace(0.0, 1.0, levels)
-    inputs = np.stack(np.meshgrid(values, values, values, indexing="ij"), axis=-1).reshape(-1, 3)
-    color = ColorCalibration(
-        mixing_matrix=rig.effective_mixing_matrix,
-        black_level=rig.black_capture_level,
-        sample_inputs=inputs,
-        sample_outputs=rig.normalized_response(inputs),
-    )
-    return ProCamsCalibration(
-        camera_map=camera_map, color=color, black_image=np.broadcast_to(rig.black_capture_level, (H, W, 3)).copy()
-    )
+    np.testing.assert_allclose(calibration.camera_map.map_x, x, atol=1e-9)  # the rig is straight
+    np.testing.assert_allclose(calibration.camera_map.map_y, y, atol=1e-9)
+    return calibration

@@ -304,6 +304,40 @@ class VirtualProCams:
         return np.round(np.clip(pixels, 0.0, 1.0) * 255.0) / np.float32(255.0)
 
     # ------------------------------------------------------------------ ground truth
+    def ideal_calibration(self, levels: int = 6, response_lut_size: int | None = None):
+        """The calibration a perfect measurement of this rig gives (no captures, no noise): the true
+        camera map, the effective mixing matrix, the black capture level ``M b 1 + a`` everywhere
+        and the normalized response ``u^gamma`` sampled on ``levels^3`` colours. For tests and
+        benchmarks of what comes after calibration."""
+        from .calibration import ProCamsCalibration
+        from .color import RESPONSE_LUT_SIZE, ColorCalibration
+        from .geometry import CameraMap
+
+        H, W = self.projector_hw
+        map_x, map_y = self.true_camera_map()
+        camera_map = CameraMap(
+            map_x=map_x,
+            map_y=map_y,
+            homography=self.homography,
+            dots_proj=np.zeros((0, 2)),
+            dots_cam=np.zeros((0, 2)),
+            camera_hw=self.camera_hw,
+        )
+        values = np.linspace(0.0, 1.0, levels)
+        inputs = np.stack(np.meshgrid(values, values, values, indexing="ij"), axis=-1).reshape(-1, 3)
+        color = ColorCalibration(
+            mixing_matrix=self.effective_mixing_matrix,
+            black_level=self.black_capture_level,
+            sample_inputs=inputs,
+            sample_outputs=self.normalized_response(inputs),
+        )
+        return ProCamsCalibration(
+            camera_map=camera_map,
+            color=color,
+            black_image=np.broadcast_to(self.black_capture_level, (H, W, 3)).copy(),
+            response_lut_size=RESPONSE_LUT_SIZE if response_lut_size is None else response_lut_size,
+        )
+
     def ground_truth_json(self) -> dict:
         return {
             "projector_hw": list(self.projector_hw),
