@@ -69,7 +69,9 @@ def main() -> int:
     )
     print(f"{summary.fps:.2f} frames/s ({1e3 * summary.frame_s:.0f} ms per frame)")
     for stage, ms in summary.mean_stage_ms().items():
-        note = " (not in the frame time: capture + rectify of the compensated projection)" if stage not in STAGES else ""
+        note = (
+            " (not in the frame time: capture + rectify of the compensated projection)" if stage not in STAGES else ""
+        )
         print(f"  {stage:<17} {ms:8.1f} ms{note}")
     print(
         f"SSIM against the target (untrained network unless --run): uncompensated "

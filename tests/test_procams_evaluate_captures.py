@@ -10,6 +10,7 @@ from scipy.ndimage import gaussian_filter
 from edofproj.cli import main
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.captures import evaluate_captures
+from edofproj.imaging.image_io import read_image_array, to_unit_float
 from edofproj.procams.capture_io import write_rgb_png
 from virtual_rigs import delta_psf, exact_calibration, straight_rig
 
@@ -77,3 +78,42 @@ def test_missing_captures_and_wrong_sizes_fail_in_one_line(session, capsys):
         ]
     )
     assert code == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_rectify_turns_raw_captures_into_the_light_of_the_targets(session):
+    folder, _ = session
+    assert (
+        main(
+            [
+                "procams",
+                "rectify",
+                str(folder / "captures" / "doe+net"),
+                "--calib",
+                str(folder / "calib.npz"),
+                "--out",
+                str(folder / "rectified"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "procams",
+                "rectify",
+                str(folder / "captures" / "doe+net" / "t0.png"),
+                "--calib",
+                str(folder / "calib.npz"),
+                "--out",
+                str(folder / "one.png"),
+            ]
+        )
+        == 0
+    )
+    for name in ("t0", "t1"):
+        rectified = to_unit_float(read_image_array(folder / "rectified" / f"{name}.png"))
+        target = to_unit_float(read_image_array(folder / "targets" / f"{name}.png"))
+        assert np.abs(rectified - target).mean() < 0.02  # sharp rig: the captured light is the target's
+    np.testing.assert_array_equal(
+        read_image_array(folder / "one.png"), read_image_array(folder / "rectified" / "t0.png")
+    )

@@ -21,9 +21,9 @@ class DeviceKind(NamedTuple):
 
 
 DEVICE_TABLE: tuple[DeviceKind, ...] = (
-    DeviceKind("display", "screen", "screen:1", "full-screen window on monitor N (pygame/SDL2; extra [projector])"),
-    DeviceKind("display", "file", "file:shown.png", "writes every frame atomically to PATH (for other software)"),
-    DeviceKind("display", "memory", "memory", "keeps the frame in memory (Python API; with a virtual camera)"),
+    DeviceKind("display", "screen", "screen:1", "full-screen window on monitor N, pygame/SDL2, extra [projector]"),
+    DeviceKind("display", "file", "file:shown.png", "writes every frame atomically to PATH, for other software"),
+    DeviceKind("display", "memory", "memory", "keeps the frame in memory, for the Python API and a virtual camera"),
     DeviceKind("camera", "opencv", "opencv:0", "OpenCV VideoCapture: a camera index, a video, an image sequence"),
     DeviceKind(
         "camera", "cmd", "cmd:gphoto2 --capture-image-and-download --filename {out}", "runs a command writing {out}"
@@ -35,7 +35,7 @@ DEVICE_TABLE: tuple[DeviceKind, ...] = (
 
 def device_table_text(role: str) -> str:
     """The rows of :data:`DEVICE_TABLE` for ``role``, one ``example  description`` line each."""
-    return "; ".join(f"{row.example} ({row.description})" for row in DEVICE_TABLE if row.role == role)
+    return "; ".join(f"{row.example}: {row.description}" for row in DEVICE_TABLE if row.role == role)
 
 
 def _split(spec: str, role: str) -> tuple[str, str]:
