@@ -281,3 +281,52 @@ def test_inverse_response_table_inverts_a_gamma_projector():
     assert float((table[0].permute(1, 2, 0) - torch.from_numpy(direct)).abs().mean()) < 0.005  # what it tabulates
     error = (table - light ** (1 / 2.2)).abs()  # the closed-form inverse u = o^(1/2.2)
     assert float(error.mean()) < 0.03
+
+
+def test_capture_command_photographs_a_file_display(tmp_path, pattern_dir, capsys):
+    """``procams capture`` with ``file:`` as display and a ``cmd:`` camera copying that file: every
+    capture is its own pattern, and a second run has nothing left to do."""
+    from edofproj.cli import main
+
+    folder, manifest, images = pattern_dir
+    shown = tmp_path / "shown.png"
+    args = [
+        "procams",
+        "capture",
+        "--patterns",
+        str(folder),
+        "--out",
+        str(tmp_path / "cap"),
+        "--display",
+        f"file:{shown}",
+        "--camera",
+        f"cmd:cp {shown} {{out}}",
+    ]
+    with pytest.warns(UserWarning, match=r"14 of 16 captures have saturated pixels \(worst '\w+\.png': 100\.0 %"):
+        assert main(args) == 0  # the 'camera' sees the patterns themselves: full fields are saturated
+    for entry in manifest.entries:
+        np.testing.assert_array_equal(
+            read_image_array(tmp_path / "cap" / entry.file), read_image_array(folder / entry.file)
+        )
+    assert main(args) == 0
+    assert f"captured 0 patterns ({len(manifest.entries)} already there)" in capsys.readouterr().out
+    assert main(args[:-1] + ["cmd:false {out}"]) == 0  # nothing left to capture: the camera is not asked
+    assert (
+        main(
+            [
+                "procams",
+                "capture",
+                "--patterns",
+                str(folder),
+                "--out",
+                str(tmp_path / "other"),
+                "--display",
+                "memory",
+                "--camera",
+                "cmd:false {out}",
+            ]
+        )
+        == 2
+    )
+    assert "camera command exited with 1" in capsys.readouterr().err
+    assert not (tmp_path / "other" / manifest.entries[0].file).exists()

@@ -16,6 +16,7 @@ pattern manifest and depth, and every capture must have the camera size of the f
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -25,8 +26,9 @@ import numpy as np
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from ..imaging.image_io import write_image
-from .capture_io import read_rgb, write_rgb_png
+from .capture_io import read_rgb, saturated_fraction, write_rgb_png
 from .devices import Camera, Display, GrabSettings, grab_frame
+from .devices.base import SATURATION_WARN_FRACTION
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
 from .virtual import CAPTURE_INFO_JSON
 
@@ -118,10 +120,14 @@ def capture_patterns(
     if done and log is not None:
         log(f"resuming: {len(done)} of {len(manifest.entries)} patterns already captured in {out}")
     captured = 0
+    saturated: dict[str, float] = {}
     try:
         for entry in todo[:stop_after] if stop_after is not None else todo:
             display.show(read_pattern(pattern_dir, entry, manifest))
-            frame = grab_frame(camera, grab, what=f"capture of '{entry.file}'")
+            frame = grab_frame(camera, grab, warn=False)
+            fraction = saturated_fraction(frame)
+            if fraction > SATURATION_WARN_FRACTION:
+                saturated[entry.file] = fraction
             if camera_hw is None:
                 camera_hw = frame.shape[:2]
             elif frame.shape[:2] != tuple(camera_hw):
@@ -138,4 +144,11 @@ def capture_patterns(
                 log(f"  {len(done) + captured}/{len(manifest.entries)} captured")
     finally:
         write_info(len(done) + captured)
+        if saturated:
+            worst = max(saturated, key=saturated.__getitem__)
+            warnings.warn(
+                f"{len(saturated)} of {captured} captures have saturated pixels (worst '{worst}': "
+                f"{100 * saturated[worst]:.1f} % of its pixels); saturated light is not measured -- lower the exposure",
+                stacklevel=2,
+            )
     return CaptureResult(captured=captured, skipped=len(done), total=len(manifest.entries), camera_hw=camera_hw)

@@ -121,8 +121,11 @@ class GrabSettings:
             raise EdofprojError(f"--average {self.average} must be >= 1")
 
 
-def grab_frame(camera: Camera, settings: GrabSettings = GrabSettings(), what: str = "capture") -> np.ndarray:
-    """The mean of ``settings.average`` frames after ``settings.settle_s``; warns when saturated.
+def grab_frame(
+    camera: Camera, settings: GrabSettings = GrabSettings(), what: str = "capture", warn: bool = True
+) -> np.ndarray:
+    """The mean of ``settings.average`` frames after ``settings.settle_s``; warns (unless ``warn`` is
+    False) when more than :data:`SATURATION_WARN_FRACTION` of a frame's pixels are saturated.
 
     Every frame must have the first one's size (a camera that changes resolution is an error).
     """
@@ -141,7 +144,7 @@ def grab_frame(camera: Camera, settings: GrabSettings = GrabSettings(), what: st
         else:
             total += frame
         saturated = max(saturated, saturated_fraction(frame))
-    if saturated > SATURATION_WARN_FRACTION:
+    if warn and saturated > SATURATION_WARN_FRACTION:
         warnings.warn(
             f"{what}: {100 * saturated:.1f} % of the pixels are saturated (light there is not measured; "
             "lower the exposure)",
