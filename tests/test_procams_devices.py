@@ -231,6 +231,8 @@ def test_capture_session_resumes_after_an_interruption(tmp_path, pattern_dir):
     assert sorted(p.name for p in out.iterdir()) == sorted([e.file for e in manifest.entries[:3]] + [CAPTURE_INFO_JSON])
     with pytest.raises(EdofprojError, match="captured at --depth-mm 400.0, not 500.0"):
         capture_patterns(folder, out, display, camera, depth_mm=500.0)
+    with pytest.raises(EdofprojError, match="captured with --average 1, not 2"):
+        capture_patterns(folder, out, display, camera, GrabSettings(average=2), depth_mm=400.0)
     result = capture_patterns(folder, out, display, camera, depth_mm=400.0)
     assert (result.skipped, result.captured, result.total) == (3, len(manifest.entries) - 3, len(manifest.entries))
     info = json.loads((out / CAPTURE_INFO_JSON).read_text())

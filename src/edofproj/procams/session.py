@@ -10,7 +10,8 @@ or 16-bit for a mean of several frames; each written atomically: temp file, then
 
 An interrupted session (Ctrl-C, a camera that stops answering) keeps every capture already
 written; running it again skips them and continues. A folder is resumed only with the same
-pattern manifest and depth, and every capture must have the camera size of the first.
+pattern manifest, depth and number of frames averaged, and every capture must have the camera
+size of the first.
 """
 
 from __future__ import annotations
@@ -92,6 +93,10 @@ def capture_patterns(
     if out.exists() and not out.is_dir():
         raise EdofprojError(f"'{out}' exists and is not a folder")
     previous = _check_resume(out, _load_info(out), manifest_path, depth_mm)
+    if previous is not None and previous.get("average", grab.average) != grab.average:
+        raise EdofprojError(
+            f"'{out}' was captured with --average {previous.get('average')}, not {grab.average}: resume with the same"
+        )
     out.mkdir(parents=True, exist_ok=True)
     camera_hw = tuple(previous["camera_hw"]) if previous and previous.get("camera_hw") else None
     info = {
