@@ -104,7 +104,7 @@ def test_patterns_capture_calibrate_estimate_finetune_live(tmp_path, capsys):
 
     train(cfg, tmp_path / "run", progress=False)
     tuned = finetune(
-        tmp_path / "run", [tmp_path / "psf.npz"], tmp_path / "tuned", steps=120, lr=3e-3, batch_size=4, progress=False
+        tmp_path / "run", [tmp_path / "psf.npz"], tmp_path / "tuned", steps=80, lr=3e-3, batch_size=4, progress=False
     )
 
     calibration = ProCamsCalibration.load(tmp_path / "calib.npz")
