@@ -2,6 +2,7 @@
 
     edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
     edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
+    edofproj compensate RUN --image TARGET --capture RAW --calib calib.npz --out PROJ.png
 
 The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
 projection ``I*``: either a camera capture already warped into projector space (``--capture``,
@@ -9,6 +10,11 @@ same size as the target) or the simulated capture ``I* = project(I, p_z)`` of th
 flat screen at ``--depth-mm``. ``x`` is clamped to ``[0, 1]`` (what a projector can emit) and
 written as an 8- or 16-bit image. Any image size. With ``--depth-mm``, ``--preview`` also writes
 the simulated projection of ``x``.
+
+With ``--calib`` (from ``edofproj procams calibrate``) the capture is a *raw* camera frame: it is
+rectified into projector output light per projector pixel, and the output is the projector
+*input* ``u = f^-1(x)`` that emits the light ``x`` (the inverse of the measured response).
+The target is then projector output light (full primary = 1); see docs/procams.md.
 """
 
 from __future__ import annotations
@@ -39,6 +45,12 @@ def register(subparsers) -> None:
         default=None,
         help="simulate the capture on a flat screen at this depth (mm) with the run's DOE",
     )
+    p.add_argument(
+        "--calib",
+        default=None,
+        metavar="calib.npz",
+        help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response",
+    )
     p.add_argument("--out", required=True, metavar="PROJ", help="output image: the projector input")
     p.add_argument(
         "--preview",
@@ -58,6 +70,8 @@ def run(args) -> int:
     from ..imaging.image_io import check_output_path, read_image, write_image
     from ..runs import load_run
 
+    if args.calib is not None and args.capture is None:
+        raise EdofprojError("--calib goes with --capture (a raw camera frame to rectify)")
     if args.preview is not None and args.depth_mm is None:
         raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
     if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
@@ -68,7 +82,16 @@ def run(args) -> int:
     trained = load_run(require_trained_run(args.run))
     target = read_image(args.image).unsqueeze(0)
     psf = None
-    if args.capture is not None:
+    calibration = None
+    if args.calib is not None:
+        from ..procams.calibration import ProCamsCalibration
+        from ..procams.capture_io import read_rgb
+
+        calibration = ProCamsCalibration.load(args.calib)
+        calibration.check_projector_hw((target.shape[-2], target.shape[-1]), what=f"--image '{args.image}'")
+        light = calibration.to_output_space(read_rgb(args.capture, what="capture"))
+        captured = torch.from_numpy(light.astype("float32").transpose(2, 0, 1).copy())[None]
+    elif args.capture is not None:
         captured = read_image(args.capture).unsqueeze(0)
         if captured.shape != target.shape:
             raise EdofprojError(
@@ -83,6 +106,12 @@ def run(args) -> int:
         # a simulated screen runs the whole loop (its projection is the preview); a capture, the network alone
         loop = closed_loop(target, flat_screen(psf), trained.net) if psf is not None else None
         emitted = loop.emitted if loop is not None else trained.net(target, captured).clamp(0.0, 1.0)
+    if calibration is not None:
+        write_image(args.out, calibration.to_projector_input(emitted)[0], bits=args.bits)
+        print(
+            f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px): projector input (measured response inverted)"
+        )
+        return 0
     write_image(args.out, emitted[0], bits=args.bits)
     print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px, height x width)")
     if args.preview is not None:

@@ -4,10 +4,15 @@
     edofproj procams simulate --patterns PATTERNS --out CAPTURES --depth-mm Z [--doe D | --psf FILE]
     edofproj procams calibrate --patterns PATTERNS --captures CAPTURES --out calib.npz
     edofproj procams estimate-psf --patterns PATTERNS --captures CAPTURES --calib calib.npz --out psf.npz
+    edofproj procams capture --patterns PATTERNS --out CAPTURES --camera SPEC --display SPEC [--depth-mm Z]
+    edofproj procams rectify CAPTURE --calib calib.npz --out OUT
+    edofproj procams evaluate --targets DIR --captures DIR --calib calib.npz --out REPORT_DIR
 
 Project every pattern, capture it with a camera (linear/RAW, fixed exposure, the whole
-projected image in view) into a folder under the pattern's file name, calibrate, then
-measure the PSF (paper Sec. 5.1-5.2); ``simulate`` plays projector and camera.
+projected image in view) into a folder under the pattern's file name (``capture`` does it
+with the devices named by --camera/--display, resumably), calibrate, then measure the PSF
+(paper Sec. 5.1-5.2); ``simulate`` plays projector and camera. ``rectify`` brings raw captures
+into projector space; ``evaluate`` scores captured projections against their targets.
 """
 
 from __future__ import annotations
@@ -119,6 +124,64 @@ def register(subparsers) -> None:
         "--patch-psfs", default=None, metavar="FILE", help="also write the per-patch PSFs and patch centres (.npz)"
     )
     p.set_defaults(func=run_estimate_psf)
+
+    p = sub.add_parser("capture", help="show every pattern on a display and capture it with a camera (resumable)")
+    p.add_argument("--patterns", required=True, help="pattern folder (from 'procams patterns')")
+    p.add_argument("--out", required=True, help="capture folder (an interrupted session is resumed)")
+    add_device_options(p)
+    p.add_argument("--depth-mm", type=float, default=None, help="screen distance, mm (recorded in captures.json)")
+    p.set_defaults(func=run_capture)
+
+    p = sub.add_parser("rectify", help="raw camera captures -> projector output light per projector pixel")
+    p.add_argument("capture", metavar="CAPTURE", help="a raw capture (image file) or a folder of them")
+    p.add_argument("--calib", required=True, help="calibration .npz (from 'procams calibrate')")
+    p.add_argument("--out", required=True, help="output image (for one capture) or folder (for a folder)")
+    p.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per channel of the output PNGs (16)")
+    p.set_defaults(func=run_rectify)
+
+    p = sub.add_parser("evaluate", help="score captured projections against their targets (paper Table 2)")
+    p.add_argument("--targets", required=True, help="folder of target images (projector output light)")
+    p.add_argument(
+        "--captures",
+        required=True,
+        help="folder with one sub-folder of raw captures per method (e.g. lens, lens+net, doe+net), named like the targets",
+    )
+    p.add_argument("--calib", required=True, help="calibration .npz (from 'procams calibrate')")
+    p.add_argument("--out", required=True, help="report folder (report.md, report.html, comparison figure, scores)")
+    p.add_argument("--weights-dir", default=None, help="folder of LPIPS/DISTS weights (default: the usual places)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report folder")
+    p.set_defaults(func=run_evaluate)
+
+
+# --------------------------------------------------------------------------- devices (shared with 'live')
+
+
+def add_device_options(p) -> None:
+    """``--camera``, ``--display`` (device specs), ``--settle-s``, ``--average``, ``--exposure``, ``--seed``."""
+    from ..procams.devices.spec import device_table_text
+
+    p.add_argument(
+        "--camera", required=True, metavar="SPEC", help="camera: " + device_table_text("camera").replace("%", "%%")
+    )
+    p.add_argument("--display", required=True, metavar="SPEC", help="display: " + device_table_text("display"))
+    p.add_argument("--settle-s", type=float, default=0.0, help="wait after showing an image before capturing, s (0)")
+    p.add_argument("--average", type=int, default=1, metavar="N", help="frames averaged per capture (1)")
+    p.add_argument("--exposure", type=float, default=None, help="exposure (OpenCV cameras that have it; driver units)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed of a virtual camera (0)")
+
+
+def open_devices(args):
+    """``(display, camera, grab settings)`` from :func:`add_device_options`' options; close both after use."""
+    from ..procams.devices import GrabSettings, open_camera, open_display
+
+    grab = GrabSettings(settle_s=args.settle_s, average=args.average)
+    display = open_display(args.display)
+    try:
+        camera = open_camera(args.camera, display=display, exposure=args.exposure, seed=args.seed)
+    except BaseException:
+        display.close()
+        raise
+    return display, camera, grab
 
 
 # --------------------------------------------------------------------------- patterns
@@ -325,4 +388,75 @@ def run_estimate_psf(args) -> int:
         f"wrote {args.out}: PSF at {depth_mm:g} mm, window {cfg.psf.window} px, {where}; in-window energy "
         f"{np.round(estimate.energy_in_window, 4).tolist()} (R, G, B)"
     )
+    return 0
+
+
+# --------------------------------------------------------------------------- capture
+
+
+def run_capture(args) -> int:
+    from ..procams.session import capture_patterns
+
+    if args.depth_mm is not None and not (np.isfinite(args.depth_mm) and args.depth_mm > 0):
+        raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
+    display, camera, grab = open_devices(args)
+    with display, camera:
+        print(f"capturing with camera '{camera.spec}' and display '{display.spec}' into {args.out}")
+        try:
+            result = capture_patterns(args.patterns, args.out, display, camera, grab, depth_mm=args.depth_mm, log=print)
+        except KeyboardInterrupt:
+            print(f"interrupted: the captures so far are kept in {args.out}; run the same command again to resume")
+            raise
+    hw = result.camera_hw
+    print(
+        f"captured {result.captured} patterns ({result.skipped} already there) of {result.total} into {args.out}"
+        + (f", camera {hw[1]}x{hw[0]}" if hw else "")
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- rectify
+
+
+def run_rectify(args) -> int:
+    from ..imaging.image_io import IMAGE_EXTENSIONS, check_output_path, write_image
+    from ..procams.calibration import ProCamsCalibration
+    from ..procams.capture_io import atomic_folder, read_rgb
+
+    calibration = ProCamsCalibration.load(args.calib)
+    source = Path(args.capture)
+
+    def rectified(path: Path) -> np.ndarray:
+        light = calibration.to_output_space(read_rgb(path, what="capture"))
+        return np.ascontiguousarray(light.transpose(2, 0, 1))
+
+    if source.is_dir():
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
+        if not files:
+            raise EdofprojError(f"capture folder '{source}' holds no image")
+        with atomic_folder(args.out) as tmp:
+            for path in files:
+                write_image(tmp / (path.stem + ".png"), rectified(path), bits=args.bits)
+        print(f"wrote {len(files)} rectified captures to {args.out}")
+    else:
+        check_output_path(args.out, args.bits)
+        write_image(args.out, rectified(source), bits=args.bits)
+        print(f"wrote {args.out}")
+    H, W = calibration.projector_hw
+    print(f"projector space: {W}x{H}, projector output light (full primary = 1; clipped to [0, 1] in the file)")
+    return 0
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+def run_evaluate(args) -> int:
+    from ..evaluation.captures import evaluate_captures
+
+    result = evaluate_captures(
+        args.targets, args.captures, args.calib, args.out, weights_dir=args.weights_dir, overwrite=args.overwrite
+    )
+    for line in result.summary_lines():
+        print(line)
+    print(f"wrote {args.out} (report.md, report.html, comparison.png, scores.csv)")
     return 0

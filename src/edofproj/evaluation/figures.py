@@ -6,6 +6,7 @@
   columns = the target and each method, PSNR / SSIM (and LPIPS when available) on each tile,
   the best value of each row in bold red;
 * :func:`plot_tilted` -- the same for the tilted screen (one row);
+* :func:`plot_captured_comparison` -- the same for real captures (rows = images);
 * :func:`plot_training_curves` -- the training loss of every run, one line each.
 
 The PSF figure is :func:`edofproj.evaluation.psf_plots.plot_psf_comparison` and the DOE profile
@@ -153,6 +154,16 @@ def plot_comparison(
         rows,
         path,
         f"Simulated projections{' of ' + image_name if image_name else ''} ({legend}; best of each row in red)",
+    )
+
+
+def plot_captured_comparison(
+    rows: Sequence[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]], path: str | Path
+) -> None:
+    """Real captures side by side (paper Table 2's images): one row per target image
+    ``(name, target, [(method, rectified capture, scores)])``, the target first."""
+    _image_grid(
+        list(rows), path, "Captured projections in projector space (P = PSNR dB, S = SSIM; best of each row in red)"
     )
 
 

@@ -16,16 +16,17 @@ the colour-sample table) and ``neighbours``.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+import torch
 
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
 from .capture_io import read_captures, saturated_fraction
-from .color import ColorCalibration, calibrate_color
+from .color import RESPONSE_LUT_SIZE, ColorCalibration, ResponseLUT, calibrate_color
 from .geometry import CameraMap, calibrate_geometry
 from .patterns import PRIMARY_COLORS, PatternEntry, PatternManifest
 
@@ -52,6 +53,8 @@ class ProCamsCalibration:
     camera_map: CameraMap
     color: ColorCalibration
     black_image: np.ndarray
+    response_lut_size: int = field(default=RESPONSE_LUT_SIZE, compare=False)
+    _inverse_lut: ResponseLUT | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def projector_hw(self) -> tuple[int, int]:
@@ -60,6 +63,22 @@ class ProCamsCalibration:
     def to_output_space(self, capture: np.ndarray) -> np.ndarray:
         """A camera capture as projector output light per projector pixel, ``(H, W, 3)`` float64."""
         return self.color.camera_to_output(self.camera_map.warp(capture), self.black_image)
+
+    def check_projector_hw(self, height_width: tuple[int, ...], what: str = "the image") -> None:
+        """Raise one line unless ``height_width`` is the calibrated projector's size."""
+        H, W = self.projector_hw
+        if tuple(height_width) != (H, W):
+            raise EdofprojError(
+                f"{what} is {height_width[1]}x{height_width[0]} but the calibration was made for a {W}x{H} projector"
+            )
+
+    def to_projector_input(self, light: torch.Tensor) -> torch.Tensor:
+        """Projector output light ``(B, 3, H, W)`` (clamped to ``[0, 1]``) -> the projector input
+        that emits it, ``u = f^-1(o)`` (:meth:`ColorCalibration.inverse_response_lut` with
+        ``response_lut_size`` points per channel, built on first use)."""
+        if self._inverse_lut is None:
+            self._inverse_lut = self.color.inverse_response_lut(self.response_lut_size)
+        return self._inverse_lut(light)
 
     def save(self, path: str | Path) -> None:
         cm, color = self.camera_map, self.color

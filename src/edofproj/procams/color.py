@@ -39,10 +39,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from scipy.spatial import cKDTree
 
 from ..errors import EdofprojError
 
+RESPONSE_LUT_SIZE = 65
+"""Grid points per channel of :class:`ResponseLUT` (65^3 colours, 3.3 MB as float32)."""
 INTERIOR_INSET_FRACTION = 0.15
 LLE_REGULARIZATION = 1e-3
 EXACT_MATCH_DISTANCE = 1e-9
@@ -122,6 +125,50 @@ class ColorCalibration:
     def output_to_input(self, outputs: np.ndarray) -> np.ndarray:
         """The inverse response ``u = f^-1(o)`` at outputs ``(..., 3)`` (not clamped)."""
         return _interpolate(outputs, self.sample_outputs, self.sample_inputs, self.neighbours)
+
+    def inverse_response_lut(self, size: int = RESPONSE_LUT_SIZE) -> "ResponseLUT":
+        """:meth:`output_to_input` tabulated over outputs in ``[0, 1]^3``, clamped to ``[0, 1]``
+        (what a projector accepts): turns light the network asks for into projector input."""
+        return ResponseLUT.from_function(lambda o: np.clip(self.output_to_input(o), 0.0, 1.0), size)
+
+
+class ResponseLUT:
+    """A colour map ``[0, 1]^3 -> R^3`` tabulated on a ``S x S x S`` grid, read by trilinear interpolation.
+
+    ``table[i, j, k]`` is the map at ``(r, g, b) = (i, j, k) / (S - 1)``. Evaluating the local
+    linear interpolation of :class:`ColorCalibration` per pixel costs a nearest-neighbour search
+    and a ``k x k`` solve per distinct colour (seconds for a frame); the table costs that once
+    and then a frame is one :func:`torch.nn.functional.grid_sample` (milliseconds). Inputs are
+    clamped to ``[0, 1]`` first. Between grid points the error is that of linear interpolation,
+    ``h^2 |f''| / 8`` with ``h = 1 / (S - 1)``.
+    """
+
+    def __init__(self, table: np.ndarray) -> None:
+        table = np.asarray(table, dtype=np.float32)
+        if table.ndim != 4 or table.shape[-1] != 3 or len(set(table.shape[:3])) != 1:
+            raise EdofprojError(f"a response table must be (S, S, S, 3), got {table.shape}")
+        self.table = table
+        # grid_sample's 5-D input is (N, C, D, H, W) with grid (x, y, z) indexing (W, H, D): D = r, H = g, W = b
+        self._volume = torch.from_numpy(np.ascontiguousarray(table.transpose(3, 0, 1, 2)))[None]
+
+    @classmethod
+    def from_function(cls, function, size: int = RESPONSE_LUT_SIZE) -> "ResponseLUT":
+        """Tabulate ``function(values (..., 3)) -> (..., 3)`` on the grid."""
+        axis = np.linspace(0.0, 1.0, size)
+        grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1)
+        return cls(function(grid.reshape(-1, 3)).reshape(size, size, size, 3))
+
+    def __call__(self, images: torch.Tensor) -> torch.Tensor:
+        """The map at every pixel of ``images (B, 3, H, W)`` (float), same shape."""
+        B, C, H, W = images.shape
+        if C != 3:
+            raise EdofprojError(f"a colour map takes RGB images (B, 3, H, W), got {tuple(images.shape)}")
+        grid = images.detach().float().clamp(0.0, 1.0).permute(0, 2, 3, 1).flip(-1) * 2.0 - 1.0  # (B, H, W, [b, g, r])
+        volume = self._volume.to(images.device)
+        out = torch.nn.functional.grid_sample(
+            volume, grid.reshape(1, B, H, W, 3), mode="bilinear", padding_mode="border", align_corners=True
+        )  # (1, 3, B, H, W)
+        return out[0].permute(1, 0, 2, 3).to(images.dtype)
 
 
 def calibrate_color(

@@ -138,6 +138,38 @@ class VirtualProCams:
             raise EdofprojError("the example camera does not see the whole projector image; lower fill")
         return rig
 
+    @classmethod
+    def from_capture_folder(cls, folder: str | Path) -> "VirtualProCams":
+        """The rig that wrote the capture folder ``folder`` (:func:`simulate_captures`), rebuilt
+        from its ``ground_truth.json`` and ``ground_truth.npz`` (flat screens)."""
+        folder = Path(folder)
+        try:
+            info = json.loads((folder / GROUND_TRUTH_JSON).read_text(encoding="utf-8"))
+            with np.load(folder / GROUND_TRUTH_NPZ, allow_pickle=False) as data:
+                psf = data["psf"].astype(np.float64)
+            depth_mm = info.get("depth_mm")
+            return cls(
+                projector_hw=(int(info["projector_hw"][0]), int(info["projector_hw"][1])),
+                camera_hw=(int(info["camera_hw"][0]), int(info["camera_hw"][1])),
+                psf=psf,
+                homography=np.asarray(info["homography"]),
+                radial_k1=float(info["radial_k1"]),
+                gamma=_rgb_triple(info["gamma"]),
+                projector_black=float(info["projector_black"]),
+                mixing_matrix=np.asarray(info["mixing_matrix"]),
+                ambient=_rgb_triple(info["ambient"]),
+                noise_sigma=float(info["noise_sigma"]),
+                supersampling=int(info["supersampling"]),
+                depth_m=None if depth_mm is None else float(depth_mm) * 1e-3,
+                pixel_pitch_m=info.get("pixel_pitch_m"),
+            )
+        except FileNotFoundError as exc:
+            raise EdofprojError(
+                f"'{folder}' is not a folder written by 'edofproj procams simulate' (no {Path(str(exc.filename)).name})"
+            ) from None
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            raise EdofprojError(f"cannot rebuild the virtual ProCams from '{folder}': {exc}") from None
+
     # ------------------------------------------------------------------ radiometry
     def projector_output(self, image: np.ndarray) -> np.ndarray:
         """Linear light per channel: ``b + (1 - b) u^gamma`` for input ``u`` in ``[0, 1]``."""
@@ -272,6 +304,40 @@ class VirtualProCams:
         return np.round(np.clip(pixels, 0.0, 1.0) * 255.0) / np.float32(255.0)
 
     # ------------------------------------------------------------------ ground truth
+    def ideal_calibration(self, levels: int = 6, response_lut_size: int | None = None):
+        """The calibration a perfect measurement of this rig gives (no captures, no noise): the true
+        camera map, the effective mixing matrix, the black capture level ``M b 1 + a`` everywhere
+        and the normalized response ``u^gamma`` sampled on ``levels^3`` colours. For tests and
+        benchmarks of what comes after calibration."""
+        from .calibration import ProCamsCalibration
+        from .color import RESPONSE_LUT_SIZE, ColorCalibration
+        from .geometry import CameraMap
+
+        H, W = self.projector_hw
+        map_x, map_y = self.true_camera_map()
+        camera_map = CameraMap(
+            map_x=map_x,
+            map_y=map_y,
+            homography=self.homography,
+            dots_proj=np.zeros((0, 2)),
+            dots_cam=np.zeros((0, 2)),
+            camera_hw=self.camera_hw,
+        )
+        values = np.linspace(0.0, 1.0, levels)
+        inputs = np.stack(np.meshgrid(values, values, values, indexing="ij"), axis=-1).reshape(-1, 3)
+        color = ColorCalibration(
+            mixing_matrix=self.effective_mixing_matrix,
+            black_level=self.black_capture_level,
+            sample_inputs=inputs,
+            sample_outputs=self.normalized_response(inputs),
+        )
+        return ProCamsCalibration(
+            camera_map=camera_map,
+            color=color,
+            black_image=np.broadcast_to(self.black_capture_level, (H, W, 3)).copy(),
+            response_lut_size=RESPONSE_LUT_SIZE if response_lut_size is None else response_lut_size,
+        )
+
     def ground_truth_json(self) -> dict:
         return {
             "projector_hw": list(self.projector_hw),

@@ -1,0 +1,182 @@
+"""Camera backends: OpenCV ``VideoCapture``, a shell command, a watched folder, the virtual ProCams.
+
+* :class:`OpenCVCamera` -- ``opencv:0`` (a USB camera or webcam by index), ``opencv:PATH`` (a
+  video file, a stream URL, or an image sequence such as ``frames/img_%04d.png``). 8- and 16-bit
+  frames; BGR is turned into RGB. Exposure through ``CAP_PROP_EXPOSURE`` where the driver has it.
+* :class:`CommandCamera` -- ``cmd:TEMPLATE``: the template is split like a shell line
+  (:func:`shlex.split`, no shell runs) and ``{out}`` replaced by a file path in a private
+  temporary folder; after the command exits 0 the newest image file there is the frame
+  (tools that change the extension are fine). E.g.
+  ``cmd:gphoto2 --capture-image-and-download --force-overwrite --filename {out}``.
+* :class:`FolderCamera` -- ``folder:DIR``: a tethered camera writes files into ``DIR``; each
+  grab waits for the next new image file and for its size to stop changing.
+* :class:`VirtualCamera` -- ``virtual:DIR``: the virtual ProCams that wrote the capture folder
+  ``DIR`` (``edofproj procams simulate``), looking at what the display shows.
+
+Frames are linear RGB in ``[0, 1]`` only if the camera delivers linear data (RAW converted
+linearly, or a machine-vision camera with gamma 1); see docs/procams.md.
+"""
+
+from __future__ import annotations
+
+import glob
+import shlex
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ...errors import EdofprojError
+from ...imaging.image_io import IMAGE_EXTENSIONS, to_unit_float
+from ..capture_io import read_rgb
+from ..virtual import VirtualProCams
+from .base import Camera, Display
+
+
+def video_devices_found() -> str:
+    """The video devices the system lists (``/dev/video*`` on Linux), for error messages."""
+    devices = sorted(glob.glob("/dev/video*"))
+    return ", ".join(devices) if devices else "no /dev/video* device"
+
+
+class OpenCVCamera(Camera):
+    """A camera or video source opened with ``cv2.VideoCapture``."""
+
+    def __init__(self, source: str, exposure: float | None = None) -> None:
+        self.spec = f"opencv:{source}"
+        self.source: int | str = int(source) if source.isdigit() else source
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # we raise our own error
+        try:
+            self.capture = cv2.VideoCapture(self.source)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
+        if not self.capture.isOpened():
+            self.capture.release()
+            raise EdofprojError(
+                f"camera '{self.spec}' does not answer (OpenCV cannot open it); found: {video_devices_found()}"
+            )
+        self.exposure = exposure
+        if exposure is not None and not self.capture.set(cv2.CAP_PROP_EXPOSURE, float(exposure)):
+            raise EdofprojError(f"camera '{self.spec}' does not let OpenCV set its exposure")
+
+    def grab(self) -> np.ndarray:
+        ok, frame = self.capture.read()
+        if not ok or frame is None:
+            raise EdofprojError(f"camera '{self.spec}' returned no frame (disconnected, or the end of the sequence)")
+        if frame.ndim == 2:
+            frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+        return to_unit_float(cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB))
+
+    def close(self) -> None:
+        self.capture.release()
+
+    def settings(self) -> dict:
+        return {
+            "spec": self.spec,
+            "backend": "opencv",
+            "exposure": self.exposure,
+            "frame_hw": [
+                int(self.capture.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+                int(self.capture.get(cv2.CAP_PROP_FRAME_WIDTH)),
+            ],
+        }
+
+
+def _image_files(folder: Path) -> dict[Path, float]:
+    return {p: p.stat().st_mtime for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()}
+
+
+class CommandCamera(Camera):
+    """Runs a command that writes one image to ``{out}`` per grab (module docstring)."""
+
+    OUT_NAME = "frame.png"
+
+    def __init__(self, template: str, timeout_s: float = 120.0) -> None:
+        self.spec = f"cmd:{template}"
+        try:
+            self.tokens = shlex.split(template)
+        except ValueError as exc:
+            raise EdofprojError(f"camera command '{template}' cannot be split: {exc}") from None
+        if not self.tokens or not any("{out}" in t for t in self.tokens):
+            raise EdofprojError(f"camera command '{template}' must contain {{out}}, the file it writes")
+        self.timeout_s = timeout_s
+        self._folder = tempfile.TemporaryDirectory(prefix="edofproj-camera-")
+
+    def grab(self) -> np.ndarray:
+        folder = Path(self._folder.name)
+        for old in folder.iterdir():
+            old.unlink()
+        out = folder / self.OUT_NAME
+        command = [t.replace("{out}", str(out)) for t in self.tokens]
+        try:
+            result = subprocess.run(command, capture_output=True, text=True, timeout=self.timeout_s)
+        except FileNotFoundError:
+            raise EdofprojError(f"camera command '{self.tokens[0]}' not found (is it installed and on PATH?)") from None
+        except subprocess.TimeoutExpired:
+            raise EdofprojError(f"camera command timed out after {self.timeout_s:g} s: {' '.join(command)}") from None
+        if result.returncode != 0:
+            last = (result.stderr or result.stdout).strip().splitlines()
+            raise EdofprojError(f"camera command exited with {result.returncode}: {last[-1] if last else 'no message'}")
+        written = _image_files(folder)
+        if not written:
+            raise EdofprojError(f"camera command wrote no image file to {{out}} ({' '.join(command)})")
+        return read_rgb(max(written, key=written.__getitem__), what="camera frame")
+
+    def close(self) -> None:
+        self._folder.cleanup()
+
+    def settings(self) -> dict:
+        return {"spec": self.spec, "backend": "cmd", "timeout_s": self.timeout_s}
+
+
+class FolderCamera(Camera):
+    """Waits for each new image file a tethered camera writes into ``folder``."""
+
+    def __init__(self, folder: str | Path, timeout_s: float = 60.0, poll_s: float = 0.05) -> None:
+        self.folder = Path(folder)
+        self.spec = f"folder:{self.folder}"
+        if not self.folder.is_dir():
+            raise EdofprojError(f"camera folder '{self.folder}' does not exist")
+        self.timeout_s, self.poll_s = timeout_s, poll_s
+        self._seen = set(_image_files(self.folder))
+
+    def grab(self) -> np.ndarray:
+        deadline = time.monotonic() + self.timeout_s
+        while time.monotonic() < deadline:
+            new = sorted(set(_image_files(self.folder)) - self._seen, key=lambda p: p.stat().st_mtime)
+            if new:
+                path = new[0]
+                size = -1
+                while size != path.stat().st_size:  # still being written
+                    size = path.stat().st_size
+                    time.sleep(self.poll_s)
+                self._seen.add(path)
+                return read_rgb(path, what="camera frame")
+            time.sleep(self.poll_s)
+        raise EdofprojError(f"no new image appeared in camera folder '{self.folder}' within {self.timeout_s:g} s")
+
+    def settings(self) -> dict:
+        return {"spec": self.spec, "backend": "folder", "timeout_s": self.timeout_s}
+
+
+class VirtualCamera(Camera):
+    """The virtual ProCams' camera looking at what ``display`` shows (black before the first frame)."""
+
+    def __init__(self, rig: VirtualProCams, display: Display, seed: int = 0, spec: str = "virtual") -> None:
+        self.rig, self.display = rig, display
+        self.spec = spec
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+
+    def grab(self) -> np.ndarray:
+        shown = self.display.shown
+        if shown is None:
+            shown = np.zeros(self.rig.projector_hw + (3,), dtype=np.float32)
+        return self.rig.capture(shown, self.rng)
+
+    def settings(self) -> dict:
+        return {"spec": self.spec, "backend": "virtual", "seed": self.seed, "camera_hw": list(self.rig.camera_hw)}

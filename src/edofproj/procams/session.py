@@ -1,0 +1,159 @@
+"""A capture session: show every pattern of a manifest and capture it, resumably.
+
+The capture folder holds one capture per pattern under the pattern's file name (PNG, 8-bit,
+or 16-bit for a mean of several frames; each written atomically: temp file, then rename) and ``captures.json``::
+
+    {"source": "edofproj procams capture", "patterns": ".../manifest.json",
+     "projector_hw": [H, W], "camera_hw": [Hc, Wc], "depth_mm": Z,
+     "display": {...}, "camera": {...}, "settle_s": s, "average": N,
+     "captured": n, "total": N_patterns, "complete": true|false}
+
+An interrupted session (Ctrl-C, a camera that stops answering) keeps every capture already
+written; running it again skips them and continues. A folder is resumed only with the same
+pattern manifest, depth and number of frames averaged, and every capture must have the camera
+size of the first.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ..fileio import write_text_atomic
+from ..imaging.image_io import write_image
+from .capture_io import read_rgb, saturated_fraction, write_rgb_png
+from .devices import Camera, Display, GrabSettings, grab_frame
+from .devices.base import SATURATION_WARN_FRACTION
+from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
+from .virtual import CAPTURE_INFO_JSON
+
+CAPTURE_SOURCE = "edofproj procams capture"
+
+
+@dataclass
+class CaptureResult:
+    captured: int
+    skipped: int
+    total: int
+    camera_hw: tuple[int, int] | None
+
+
+def _load_info(out: Path) -> dict | None:
+    path = out / CAPTURE_INFO_JSON
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise EdofprojError(f"'{path}' is not valid JSON: {exc}") from None
+
+
+def _check_resume(out: Path, info: dict | None, manifest_path: Path, depth_mm: float | None) -> dict | None:
+    """The existing session's ``captures.json`` if ``out`` can be resumed, else raise; None if new."""
+    if info is None:
+        if out.is_dir() and any(out.iterdir()):
+            raise EdofprojError(
+                f"'{out}' is not empty and holds no {CAPTURE_INFO_JSON}: not a capture session to resume"
+            )
+        return None
+    if info.get("source") != CAPTURE_SOURCE:
+        raise EdofprojError(f"'{out}' was not written by 'edofproj procams capture' (source: {info.get('source')})")
+    if info.get("patterns") != str(manifest_path):
+        raise EdofprojError(f"'{out}' is a session of other patterns ({info.get('patterns')}): use another --out")
+    if info.get("depth_mm") != depth_mm:
+        raise EdofprojError(
+            f"'{out}' was captured at --depth-mm {info.get('depth_mm')}, not {depth_mm}: resume with the same depth"
+        )
+    return info
+
+
+def capture_patterns(
+    pattern_dir: str | Path,
+    out_dir: str | Path,
+    display: Display,
+    camera: Camera,
+    grab: GrabSettings = GrabSettings(),
+    depth_mm: float | None = None,
+    log: Callable[[str], None] | None = None,
+    stop_after: int | None = None,
+) -> CaptureResult:
+    """Show and capture every pattern of ``pattern_dir`` not yet in ``out_dir`` (module docstring).
+
+    ``stop_after``: capture at most this many new patterns (then return, as an interruption would).
+    """
+    manifest = PatternManifest.load(pattern_dir)
+    manifest_path = (Path(pattern_dir) / MANIFEST_NAME).resolve()
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise EdofprojError(f"'{out}' exists and is not a folder")
+    previous = _check_resume(out, _load_info(out), manifest_path, depth_mm)
+    if previous is not None and previous.get("average", grab.average) != grab.average:
+        raise EdofprojError(
+            f"'{out}' was captured with --average {previous.get('average')}, not {grab.average}: resume with the same"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    camera_hw = tuple(previous["camera_hw"]) if previous and previous.get("camera_hw") else None
+    info = {
+        "source": CAPTURE_SOURCE,
+        "patterns": str(manifest_path),
+        "projector_hw": [manifest.height, manifest.width],
+        "camera_hw": list(camera_hw) if camera_hw else None,
+        "depth_mm": depth_mm,
+        "display": display.settings(),
+        "camera": camera.settings(),
+        "settle_s": grab.settle_s,
+        "average": grab.average,
+        "total": len(manifest.entries),
+    }
+    done = [e for e in manifest.entries if (out / e.file).is_file()]
+    if done and camera_hw is None:
+        camera_hw = read_rgb(out / done[0].file, what="capture").shape[:2]
+    todo = [e for e in manifest.entries if not (out / e.file).is_file()]
+
+    def write_info(captured: int) -> None:
+        info.update(camera_hw=list(camera_hw) if camera_hw else None, captured=captured)
+        info["complete"] = captured == len(manifest.entries)
+        write_text_atomic(out / CAPTURE_INFO_JSON, json.dumps(info, indent=1) + "\n")
+
+    write_info(len(done))
+    if done and log is not None:
+        log(f"resuming: {len(done)} of {len(manifest.entries)} patterns already captured in {out}")
+    captured = 0
+    saturated: dict[str, float] = {}
+    try:
+        for entry in todo[:stop_after] if stop_after is not None else todo:
+            display.show(read_pattern(pattern_dir, entry, manifest))
+            frame = grab_frame(camera, grab, warn=False)
+            fraction = saturated_fraction(frame)
+            if fraction > SATURATION_WARN_FRACTION:
+                saturated[entry.file] = fraction
+            if camera_hw is None:
+                camera_hw = frame.shape[:2]
+            elif frame.shape[:2] != tuple(camera_hw):
+                raise EdofprojError(
+                    f"capture of '{entry.file}' is {frame.shape[1]}x{frame.shape[0]} pixels, the session's camera "
+                    f"{camera_hw[1]}x{camera_hw[0]}: did the camera's resolution change?"
+                )
+            if grab.average > 1:  # a mean of frames has more than 8 bits
+                write_image(out / entry.file, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=16)
+            else:
+                write_rgb_png(out / entry.file, frame)
+            captured += 1
+            if log is not None and (len(done) + captured) % 25 == 0:
+                log(f"  {len(done) + captured}/{len(manifest.entries)} captured")
+    finally:
+        write_info(len(done) + captured)
+        if saturated:
+            worst = max(saturated, key=saturated.__getitem__)
+            warnings.warn(
+                f"{len(saturated)} of {captured} captures have saturated pixels (worst '{worst}': "
+                f"{100 * saturated[worst]:.1f} % of its pixels); saturated light is not measured -- lower the exposure",
+                stacklevel=2,
+            )
+    return CaptureResult(captured=captured, skipped=len(done), total=len(manifest.entries), camera_hw=camera_hw)

@@ -1,0 +1,121 @@
+"""The live loop (show I, capture, rectify, compensate, show Î) through a virtual ProCams whose
+calibration is known exactly (tests/virtual_rigs.py): the chain of colour spaces, --frames,
+Ctrl-C, and the frame sources."""
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from edofproj.application.live import STAGES, fit_to_projector, frame_source, run_live
+from edofproj.errors import EdofprojError
+from edofproj.procams.devices import GrabSettings
+from edofproj.procams.devices.base import Camera
+from edofproj.procams.devices.cameras import VirtualCamera
+from edofproj.procams.devices.displays import MemoryDisplay
+from virtual_rigs import delta_psf, exact_calibration, straight_rig
+
+HW = (24, 32)
+
+
+def smooth_target(seed=0):
+    rng = np.random.default_rng(seed)
+    image = np.stack([gaussian_filter(rng.uniform(0, 1, HW), 3) for _ in range(3)], axis=-1)
+    return (0.1 + 0.8 * (image - image.min()) / np.ptp(image)).astype(np.float32)
+
+
+def identity_net(target, captured):
+    return target
+
+
+@pytest.fixture
+def rig_and_calibration():
+    rig = straight_rig(HW, delta_psf(), noise_sigma=0.0)
+    return rig, exact_calibration(rig)
+
+
+def test_target_light_comes_back_as_light(rig_and_calibration):
+    """With a delta PSF, showing f^-1(I) and rectifying the capture returns I: the inverse response,
+    the colour unmixing and the black level undo the rig's gamma, mixing, black and ambient light."""
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    target = smooth_target()
+    records = []
+    summary = run_live(
+        identity_net,
+        calibration,
+        display,
+        VirtualCamera(rig, display),
+        [("t", target)] * 5,
+        frames=3,
+        measure=True,
+        on_frame=records.append,
+    )
+    assert summary.frames == 3 and not summary.interrupted
+    assert set(summary.mean_stage_ms()) == set(STAGES) | {"check"}
+    assert summary.fps > 0
+    for record in records:
+        assert np.abs(record.uncompensated - target).mean() < 0.02
+        assert np.abs(record.compensated - target).mean() < 0.02
+        # what was shown is the projector input: the target through the inverse of u^2.2
+        assert np.abs(display.shown - target ** (1 / 2.2)).mean() < 0.03
+
+
+def test_ctrl_c_stops_the_loop_after_the_frames_done(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    virtual = VirtualCamera(rig, display)
+
+    class Interrupted(Camera):
+        spec = "interrupted"
+        grabs = 0
+
+        def grab(self):
+            self.grabs += 1
+            if self.grabs == 3:
+                raise KeyboardInterrupt
+            return virtual.grab()
+
+    target = smooth_target()
+    summary = run_live(identity_net, calibration, display, Interrupted(), [("t", target)] * 10)
+    assert summary.interrupted and summary.frames == 2
+    assert all(len(summary.stage_s[stage]) == 2 for stage in STAGES)
+
+
+def test_targets_of_another_size_are_refused(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    with pytest.raises(EdofprojError, match="calibration was made for a 32x24 projector"):
+        run_live(identity_net, calibration, display, VirtualCamera(rig, display), [("t", np.zeros((20, 32, 3)))])
+    with pytest.raises(EdofprojError, match="--average"):
+        GrabSettings(average=0)
+
+
+def test_frame_sources_cycle_images_and_fit_the_projector(tmp_path):
+    import cv2
+
+    for index in range(2):
+        cv2.imwrite(str(tmp_path / f"{index}.png"), np.full((48, 64, 3), 100 * index, np.uint8))
+    frames = frame_source(HW, images=str(tmp_path))
+    names = [next(frames)[0] for _ in range(5)]
+    assert names == ["0.png", "1.png", "0.png", "1.png", "0.png"]
+    name, frame = next(frame_source(HW, image=str(tmp_path / "1.png")))
+    assert frame.shape == HW + (3,)
+    np.testing.assert_allclose(frame, 100 / 255, atol=1e-6)
+    np.testing.assert_allclose(fit_to_projector(np.ones((6, 8, 3)), HW), 1.0)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(EdofprojError, match="holds no image"):
+        next(frame_source(HW, images=str(tmp_path / "empty")))
+
+
+def test_video_frames_are_read_in_order(tmp_path):
+    import cv2
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    if not writer.isOpened():
+        pytest.skip("OpenCV cannot write MJPG video here")
+    for level in (40, 200, 120):
+        writer.write(np.full((48, 64, 3), level, np.uint8))
+    writer.release()
+    levels = [float(frame.mean()) * 255 for _, frame in frame_source(HW, video=str(path))]
+    np.testing.assert_allclose(levels, [40, 200, 120], atol=3)
