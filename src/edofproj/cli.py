@@ -24,6 +24,8 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse with one-line errors."""
 
     def error(self, message):  # noqa: D401 - argparse API
+        """Exit with code 2 after one line on stderr, ``edofproj: error: MESSAGE (see 'PROG --help')``,
+        instead of argparse's usage block."""
         self.exit(2, f"edofproj: error: {message} (see '{self.prog} --help')\n")
 
 
@@ -34,6 +36,8 @@ def _one_line_warning(
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``edofproj`` argument parser: ``--version`` and a required subcommand, one per public module of
+    :mod:`edofproj.commands` (imported in name order, each adding its parser with ``register``)."""
     parser = OneLineParser(
         prog="edofproj", description="Extended-depth-of-field projectors with learned diffractive optics."
     )
@@ -51,6 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the command line ``argv`` (default ``sys.argv[1:]``) and return the exit code: the subcommand's
+    return value (0 for None); 2 with one ``edofproj: error:`` line on stderr for an
+    :class:`~edofproj.errors.EdofprojError` or a missing, directory or forbidden file (re-raised when
+    ``EDOFPROJ_DEBUG`` is set); 130 on Ctrl-C. Parse errors exit with code 2 (``SystemExit``), and
+    warnings print as one line ``edofproj: warning: ...``."""
     warnings.formatwarning = _one_line_warning
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -68,6 +68,9 @@ class TrainingJob:
 
 
 def train_command(config: str, job: TrainingJob) -> list[str]:
+    """The argument list of the job's training process: ``python -m edofproj.cli train --config CONFIG
+    --out RUN_DIR --steps STEPS --quiet --set train.threads=1`` followed by ``--set`` of each of the job's
+    overrides (later ones win), run with this interpreter."""
     sets = [item for override in ["train.threads=1"] + list(job.overrides) for item in ("--set", override)]
     return [
         sys.executable,
@@ -118,9 +121,15 @@ class ParallelTrainer:
         return self.default_rate_s
 
     def predicted_seconds(self, job: TrainingJob) -> float:
+        """Predicted wall time (s) of the whole job: ``setup_s + steps * rate * relative_cost``, with ``rate``
+        the :meth:`reference_rate_s`."""
         return job.setup_s + job.steps * self.reference_rate_s() * job.relative_cost
 
     def remaining_seconds(self, job: TrainingJob) -> float:
+        """Predicted seconds until ``job`` ends: :meth:`predicted_seconds` while pending, 0 once done, failed
+        or skipped. While running, ``(steps - done) * rate`` with the job's own measured seconds per step
+        once it has logged 3 steps (else the reference rate times its relative cost), plus what is left of
+        ``setup_s`` while it has logged no step."""
         if job.status == "pending":
             return self.predicted_seconds(job)
         if job.status != "running":
@@ -132,6 +141,8 @@ class ParallelTrainer:
 
     # -- processes -------------------------------------------------------------------------
     def start(self, job: TrainingJob) -> None:
+        """Start the job's training process (:func:`train_command`; one OpenMP/MKL thread), its output going
+        to ``log_dir/<run name>.log``, and mark it running."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = (self.log_dir / f"{job.run_dir.name}.log").open("w", encoding="utf-8")
         env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
@@ -140,6 +151,10 @@ class ParallelTrainer:
         job.status, job.started = "running", time.perf_counter()
 
     def poll(self, job: TrainingJob) -> None:
+        """Update a started job's status from its process: unchanged while it runs, ``done`` on exit code 0,
+        else ``failed`` with a note quoting the log's last line. A failed *required* job stops every
+        process and raises :class:`~edofproj.errors.EdofprojError` naming its log; a failed optional job
+        does not stop the others. Raises ``RuntimeError`` if the job was never started."""
         if job.process is None:
             raise RuntimeError(f"{job.run_dir.name}: polled before its training process was started")
         code = job.process.poll()
@@ -159,6 +174,8 @@ class ParallelTrainer:
             )
 
     def last_log_line(self, job: TrainingJob) -> str:
+        """The last non-blank line of the job's process log (stripped); ``"no log"`` if the log cannot be
+        read, ``"no output"`` if it is empty."""
         try:
             lines = [
                 line
@@ -202,6 +219,10 @@ class ParallelTrainer:
         return None
 
     def run(self) -> list[TrainingJob]:
+        """Train the jobs: keep up to ``workers`` processes running (starting the next job that
+        :meth:`next_job` allows), poll them every ``POLL_S`` seconds and report progress, until no job runs
+        or may start. Returns the jobs with their final status and notes. On any exception (a failed
+        required job, Ctrl-C) the processes are stopped and the exception re-raised."""
         try:
             while True:
                 running = [j for j in self.jobs if j.status == "running"]
@@ -223,6 +244,8 @@ class ParallelTrainer:
         return self.jobs
 
     def report(self) -> None:
+        """Update the progress display: steps done of the steps of the pending, running and done jobs, each
+        running or done job's ``method done/steps`` as detail, and :meth:`eta_s` as the stage's ETA."""
         active = [j for j in self.jobs if j.status in ("running", "done", "pending")]
         done = sum(min(j.steps_done(), j.steps) for j in active)
         total = sum(j.steps for j in active)

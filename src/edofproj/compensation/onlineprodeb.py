@@ -101,6 +101,9 @@ class MapExtractorUNet(nn.Module):
         return 2 ** (len(self.encoders) - 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """The map (N, 1, H, W) of an input (N, 3, H, W): encoder blocks with 2×2 max-pooling between them,
+        decoder blocks on the up-sampled features concatenated with the encoder's skip at each scale, and a
+        linear 1×1 head. H and W must be multiples of :attr:`multiple`."""
         skips = []
         for level, encoder in enumerate(self.encoders):
             if level > 0:
@@ -124,6 +127,7 @@ class ResidualBlock(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``x + conv3(LeakyReLU(conv3(x)))``; shape (N, width, H, W) in and out."""
         return x + self.body(x)
 
 
@@ -147,6 +151,8 @@ class CompensationGenerator(nn.Module):
         nn.init.zeros_(cast(torch.Tensor, self.tail.bias))
 
     def forward(self, target: torch.Tensor, defocus: torch.Tensor, luminance: torch.Tensor) -> torch.Tensor:
+        """The projector input ``target + tail(...)`` (N, 1, H, W) from the grayscale target and the two maps,
+        each (N, 1, H, W)."""
         features = self.first(self.head(torch.cat([target, defocus, luminance], dim=1)))
         features = self.second(self.inject(torch.cat([features, defocus, luminance], dim=1)))
         return target + self.tail(features)
@@ -174,6 +180,8 @@ class OnlineProDebNet(nn.Module):
 
     @classmethod
     def from_preset(cls, name: str = "default", leaky_slope: float = 0.2) -> "OnlineProDebNet":
+        """The network with the widths of a named preset of :data:`ONLINEPRODEB_PRESETS` (``default`` or
+        ``fast``). Raises :class:`~edofproj.errors.EdofprojError` for an unknown name."""
         if name not in ONLINEPRODEB_PRESETS:
             raise EdofprojError(f"unknown OnlineProDeb preset '{name}' (known: {', '.join(ONLINEPRODEB_PRESETS)})")
         return cls(**ONLINEPRODEB_PRESETS[name], leaky_slope=leaky_slope)
@@ -199,6 +207,10 @@ class OnlineProDebNet(nn.Module):
         return self.defocus_net(defocus_in)[..., :h, :w], self.luminance_net(luminance_in)[..., :h, :w]
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+        """The projector input (B, C, H, W) for the target ``I`` and its captured uncompensated projection
+        ``I*``, both (B, C, H, W), any H and W: every channel is a grayscale image; the extractors estimate the
+        defocus and luminance maps from ``(I, I*, 0)`` and the generator computes ``I + residual``. Raises
+        :class:`~edofproj.errors.EdofprojError` unless both are 4-D with equal shapes."""
         if target.ndim != 4 or target.shape != captured.shape:
             raise EdofprojError(
                 f"OnlineProDeb needs target and captured of equal shape (B, C, H, W), got "

@@ -69,6 +69,8 @@ class DOE(nn.Module):
         return self.finish(self.raw_height_map_m(x_m, y_m))
 
     def refractive_index(self, wavelength_m):
+        """Refractive index ``n(lambda)`` of the DOE's material (Sellmeier) at ``wavelength_m``
+        (metres; a float or an array, returned as a NumPy value of the same shape)."""
         return refractive_index(wavelength_m, self.material)
 
     def check_sampling(self, ring_width_m: float) -> None:
@@ -76,6 +78,8 @@ class DOE(nn.Module):
         cannot resolve the design. The default accepts any sampling."""
 
     def describe(self) -> str:
+        """One line for logs and reports: the design's name, its height levels (or "continuous") and
+        the design wavelength in nm. Subclasses prepend their own parameters."""
         levels = f"{self.levels} levels" if self.quantize else "continuous"
         return f"{self.name} ({levels}, lambda_d = {self.design_wavelength_m * 1e9:.0f} nm)"
 
@@ -94,4 +98,6 @@ class RadialDOE(DOE):
         return self.finish(self.raw_height_m(r_m))
 
     def raw_height_map_m(self, x_m: torch.Tensor, y_m: torch.Tensor) -> torch.Tensor:
+        """Unwrapped height (m) at pupil coordinates: ``raw_height_m(sqrt(x^2 + y^2))``, so that the
+        2-D engine can simulate a radial design; the result has the broadcast shape of ``x_m``, ``y_m``."""
         return self.raw_height_m(torch.sqrt(x_m**2 + y_m**2))

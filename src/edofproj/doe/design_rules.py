@@ -67,13 +67,18 @@ class MinimumFeatureRadialDOE(RadialDOE):
         return 0.5 * (starts + ends)
 
     def raw_height_m(self, r_m):
+        """Unwrapped height (m) ``h_inner(c_b(r))``: the inner DOE evaluated at the centre of the block that
+        contains each radius; shape of ``r_m``. Gradients reach the inner parameters through the centres."""
         centres = self.block_centres_m(r_m.dtype, r_m.device)
         return self.inner.raw_height_m(centres)[self.block_index(r_m)]
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if pupil samples ``ring_width_m`` apart are wider
+        than a block, naming the ``pupil_samples`` needed."""
         require_resolved_feature(self.block_m, ring_width_m, self.aperture_radius_m, "the minimum-feature blocks are")
 
     def describe(self):
+        """The inner DOE's description followed by the block width and the minimum feature (um)."""
         return (
             f"{self.inner.describe()}, constant over {self.block_m * 1e6:.2f} um blocks "
             f"(minimum feature {self.min_feature_m * 1e6:g} um)"

@@ -47,6 +47,7 @@ class LensOnly(RadialDOE):
         super().__init__(aperture_radius_m, design_wavelength_m, levels=None)
 
     def raw_height_m(self, r_m):
+        """Zero height at every radius (shape of ``r_m``)."""
         return torch.zeros_like(r_m)
 
 
@@ -67,15 +68,21 @@ class CubicPhasePlate(DOE):
         self.alpha_waves = float(alpha_waves)
 
     def raw_height_map_m(self, x_m, y_m):
+        """Unwrapped height (m) ``h = alpha ((x/R)^3 + (y/R)^3) h_2pi`` with ``h_2pi = lambda_d / (n(lambda_d) - 1)``,
+        i.e. ``2 pi alpha ((x/R)^3 + (y/R)^3)`` radians at ``lambda_d``; broadcast shape of ``x_m``, ``y_m``."""
         R = self.aperture_radius_m
         waves = self.alpha_waves * ((x_m / R) ** 3 + (y_m / R) ** 3)
         return waves * self.h2pi_m
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if the steepest phase step between samples
+        ``ring_width_m`` apart, ``2 pi * 3 |alpha| * ring_width_m / R`` (the gradient at the aperture edge),
+        exceeds ``MAX_PHASE_STEP_RAD`` (pi/2)."""
         step = 2 * math.pi * 3 * abs(self.alpha_waves) * ring_width_m / self.aperture_radius_m
         _check_phase_step(step, "cubic phase", ring_width_m)
 
     def describe(self):
+        """``cubic phase plate, alpha = ... waves;`` followed by :meth:`DOE.describe`."""
         return f"cubic phase plate, alpha = {self.alpha_waves:g} waves; " + super().describe()
 
 
@@ -102,14 +109,20 @@ class Axicon(RadialDOE):
         self.n_d_minus_1 = float(self.refractive_index(design_wavelength_m)) - 1.0
 
     def raw_height_m(self, r_m):
+        """Unwrapped height (m) ``h(r) = (-(P/2) r^2 + a r) / (n(lambda_d) - 1)``: the OPD of a lens of power
+        ``P`` (1/m) plus a cone of slope ``a`` (see the module docstring); shape of ``r_m``."""
         return (-0.5 * self.power * r_m**2 + self.slope * r_m) / self.n_d_minus_1
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if the phase step between samples ``ring_width_m``
+        apart, ``2 pi (|a| + |P| R) ring_width_m / lambda_d`` (the steepest OPD gradient), exceeds
+        ``MAX_PHASE_STEP_RAD`` (pi/2)."""
         gradient = abs(self.slope) + abs(self.power) * self.aperture_radius_m  # max |d OPD / dr|
         step = 2 * math.pi * gradient * ring_width_m / self.design_wavelength_m
         _check_phase_step(step, "axicon", ring_width_m)
 
     def describe(self):
+        """``axicon, focal line <near>-<far> mm;`` followed by :meth:`DOE.describe`."""
         return f"axicon, focal line {self.near_m * 1e3:.0f}-{self.far_m * 1e3:.0f} mm; " + super().describe()
 
 
@@ -135,17 +148,24 @@ class Multifocal(RadialDOE):
         self.curvatures = [-(1.0 / f - 1.0 / focus_distance_m) / (2.0 * (n_d - 1.0)) for f in self.foci_m]
 
     def raw_height_m(self, r_m):
+        """Unwrapped height (m) ``h(r) = c_i r^2`` in zone ``i`` (the equal-area zone containing ``r``), with
+        ``c_i = -(1/z_i - 1/v) / (2 (n(lambda_d) - 1))`` the curvature that refocuses from ``v`` to ``z_i``;
+        shape of ``r_m``. Radii beyond ``R`` belong to the outer zone."""
         edges = torch.as_tensor(self.zone_edges_m[1:-1], dtype=r_m.dtype, device=r_m.device)
         zone = torch.bucketize(r_m, edges)
         curv = torch.as_tensor(self.curvatures, dtype=r_m.dtype, device=r_m.device)[zone]
         return curv * r_m**2
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if the phase step between samples ``ring_width_m``
+        apart at the aperture edge of the strongest zone, ``2 pi * 2 max|c_i| (n_d - 1) R ring_width_m / lambda_d``,
+        exceeds ``MAX_PHASE_STEP_RAD`` (pi/2). (The height jumps between zones are not sampling limits.)"""
         n_d = float(self.refractive_index(self.design_wavelength_m))
         worst = max(abs(c) for c in self.curvatures) * 2 * (n_d - 1.0)
         step = 2 * math.pi * worst * self.aperture_radius_m * ring_width_m / self.design_wavelength_m
         _check_phase_step(step, "multifocal zone power", ring_width_m)
 
     def describe(self):
+        """``multifocal, zones focused at ... mm;`` followed by :meth:`DOE.describe`."""
         foci = ", ".join(f"{f * 1e3:.0f}" for f in self.foci_m)
         return f"multifocal, zones focused at {foci} mm; " + super().describe()

@@ -56,12 +56,17 @@ class RadialMLPDOE(RadialDOE):
         self.mlp = nn.Sequential(*blocks)
 
     def raw_height_m(self, r_m):
+        """Unwrapped height (m) ``h(r) = h_2pi sigmoid(F_theta(p(r / R)))`` (Eq. 10), in ``(0, h_2pi)``;
+        shape and dtype of ``r_m`` (the MLP runs in its parameters' dtype)."""
         param_dtype = self.mlp[0].weight.dtype
         u = (r_m / self.aperture_radius_m).to(param_dtype)
         out = self.mlp(positional_encoding(u, self.frequencies)).squeeze(-1)
         return (self.h2pi_m * torch.sigmoid(out)).to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if samples ``ring_width_m`` apart give fewer than 4
+        per period of the highest encoding frequency, ``2^(2-L) R``; the message names the ``pupil_samples``
+        needed. ``L = 0`` accepts any sampling."""
         if self.frequencies == 0:
             return
         # Highest encoding frequency 2^{L-1} pi / R  ->  period 2^{2-L} R; want >= 4 samples per period.
@@ -75,6 +80,7 @@ class RadialMLPDOE(RadialDOE):
             )
 
     def describe(self):
+        """``radial MLP, L = <frequencies>;`` followed by :meth:`DOE.describe`."""
         return f"radial MLP, L = {self.frequencies}; " + super().describe()
 
 
@@ -91,10 +97,14 @@ class FreeRadialDOE(RadialDOE):
         self.heights = nn.Parameter(torch.zeros(self.rings, dtype=torch.float64))
 
     def raw_height_m(self, r_m):
+        """Unwrapped height (m) ``h(r) = h_2pi * theta[floor(N r / R)]`` for ``N`` rings (radii beyond the
+        aperture take the outer ring's value); shape and dtype of ``r_m``."""
         idx = torch.clamp((r_m / self.aperture_radius_m * self.rings).long(), 0, self.rings - 1)
         return (self.heights * self.h2pi_m)[idx].to(r_m.dtype)
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if pupil samples ``ring_width_m`` apart are wider
+        than a ring, ``R / N``, naming the ``pupil_samples`` needed."""
         require_resolved_feature(
             self.aperture_radius_m / self.rings,
             ring_width_m,

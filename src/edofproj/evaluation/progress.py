@@ -41,6 +41,8 @@ class StageProgress:
         self._eta_override: float | None = None
 
     def start(self, stage: str, total: float, later_s: float = 0.0, detail: str = "") -> None:
+        """Begin ``stage`` of ``total`` units (0 done; the clock restarts) and show its line at once.
+        ``later_s``: estimated seconds of the stages still to come after this one; ``detail``: extra text."""
         self.stage, self.total, self.done, self.later_s, self.detail = (
             stage,
             max(float(total), 1e-9),
@@ -54,6 +56,8 @@ class StageProgress:
         self._show(force=True)
 
     def eta_s(self) -> float:
+        """Seconds left in the stage: the ``eta_s`` given to :meth:`set` if any, else
+        ``elapsed * (total - done) / done``; NaN before any progress."""
         if self._eta_override is not None:
             return self._eta_override
         elapsed = time.perf_counter() - self._stage_start
@@ -74,9 +78,12 @@ class StageProgress:
         self._show()
 
     def advance(self, amount: float = 1.0, detail: str | None = None) -> None:
+        """``set(done + amount, detail)``: the extrapolated ETA replaces any given one."""
         self.set(self.done + amount, detail)
 
     def finish(self, message: str = "") -> None:
+        """End the stage: mark it complete and write ``<command> | <stage>: done in mm:ss`` (and ``| message``)
+        as a final line."""
         elapsed = time.perf_counter() - self._stage_start
         self.done = self.total
         self._write(
@@ -90,6 +97,9 @@ class StageProgress:
 
     # -- output --------------------------------------------------------------------------
     def line(self) -> str:
+        """The progress line ``command | stage | detail | pp%  ETA mm:ss (all mm:ss)``: the percentage is capped
+        at 100, the detail only when set, the whole command's ETA (stage ETA + ``later_s``) only when
+        ``later_s > 0``."""
         percent = 100.0 * min(self.done / self.total, 1.0)
         eta = self.eta_s()
         total_eta = eta + self.later_s if eta == eta else float("nan")

@@ -23,22 +23,33 @@ from ..fileio import write_text_atomic
 
 @dataclass
 class Heading:
+    """A section heading. ``level`` 2 is a section (level 1 is the report's title): Markdown uses
+    ``max(2, level)`` hashes, HTML ``<h2>`` to ``<h4>`` (levels clipped to 2..4)."""
+
     text: str
     level: int = 2
 
 
 @dataclass
 class Paragraph:
+    """A paragraph of inline text (HTML-escaped; ``**bold**`` is translated)."""
+
     text: str
 
 
 @dataclass
 class Bullets:
+    """An unordered list, one inline-text item per bullet."""
+
     items: list[str]
 
 
 @dataclass
 class Table:
+    """A table of text cells: ``header`` (one name per column), ``rows`` (lists of cells) and an optional
+    ``caption`` shown above it. Columns after the first whose cells are all numbers (or ``NA``, ``-``,
+    empty) are right-aligned."""
+
     header: list[str]
     rows: list[list[str]]
     caption: str = ""
@@ -46,12 +57,17 @@ class Table:
 
 @dataclass
 class Figure:
+    """A PNG image file with a caption: linked by its path relative to the Markdown file, embedded as a
+    base64 ``data:`` URI in the HTML (the file must exist when the HTML is rendered)."""
+
     path: Path
     caption: str
 
 
 @dataclass
 class Preformatted:
+    """Verbatim text (a code block in Markdown, ``<pre>`` in HTML)."""
+
     text: str
 
 
@@ -103,10 +119,12 @@ class Report:
     blocks: list[Block] = field(default_factory=list)
 
     def add(self, block: Block) -> Block:
+        """Append ``block`` and return it (to keep a handle on a table filled later)."""
         self.blocks.append(block)
         return block
 
     def extend(self, blocks: Sequence[Block]) -> None:
+        """Append ``blocks`` in order."""
         self.blocks.extend(blocks)
 
     # -- Markdown ----------------------------------------------------------------------

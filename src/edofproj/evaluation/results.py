@@ -58,9 +58,12 @@ class MetricsTable:
 
     @property
     def columns(self) -> tuple[str, ...]:
+        """The key columns followed by the metric columns, in CSV order."""
         return self.keys + self.metrics
 
     def add(self, **row) -> None:
+        """Append a row given as ``column=value`` for every column (extra names are dropped). Raises
+        ``ValueError`` naming the missing columns."""
         missing = [c for c in self.columns if c not in row]
         if missing:
             raise ValueError(f"row misses columns {missing}")
@@ -68,21 +71,28 @@ class MetricsTable:
 
     # -- selection ---------------------------------------------------------------------
     def methods(self) -> list[str]:
+        """The ``method`` values, each once, in order of first appearance."""
         return list(dict.fromkeys(r["method"] for r in self.rows))
 
     def depths_mm(self) -> list[float]:
+        """The distinct ``depth_mm`` values (mm), ascending."""
         return sorted({float(r["depth_mm"]) for r in self.rows})
 
     def values(self, metric: str, **where) -> np.ndarray:
+        """The ``metric`` column (n,) of the rows matching every ``column=value`` of ``where``, in row order;
+        strings must be equal, numbers within 1e-6 (``depth_mm=300`` matches 300.0)."""
         return np.array(
             [float(r[metric]) for r in self.rows if all(_same(r[k], v) for k, v in where.items())], dtype=float
         )
 
     def mean(self, metric: str, **where) -> float:
+        """Mean of :meth:`values`; NaN when no row matches."""
         values = self.values(metric, **where)
         return float(values.mean()) if values.size else math.nan
 
     def per_depth_means(self, method: str, metric: str) -> dict[float, float]:
+        """``{z: m(z)}``: the mean of ``metric`` over the images of ``method`` at each depth ``z`` (mm) where
+        it has rows, depths ascending."""
         return {
             z: self.mean(metric, method=method, depth_mm=z)
             for z in self.depths_mm()
@@ -90,6 +100,9 @@ class MetricsTable:
         }
 
     def range_stats(self, method: str, metric: str, lo_mm: float, hi_mm: float) -> RangeStats:
+        """Mean and worst of the per-depth means over the depths ``Z`` in ``[lo_mm, hi_mm]`` (module docstring:
+        ``mean = (1/|Z|) sum m(z)``, worst = min, or max for a lower-is-better metric) with the worst depth
+        and ``|Z|``; all NaN and 0 depths when no depth is in range."""
         means = {z: m for z, m in self.per_depth_means(method, metric).items() if lo_mm - 1e-9 <= z <= hi_mm + 1e-9}
         if not means:
             return RangeStats(math.nan, math.nan, math.nan, 0)
@@ -99,6 +112,8 @@ class MetricsTable:
 
     # -- files ---------------------------------------------------------------------------
     def to_csv(self) -> str:
+        """The table as CSV text: a header of :attr:`columns`, then one line per row; strings as they are,
+        numbers with 6 significant digits, NaN as ``NA``."""
         buffer = io.StringIO()
         writer = csv.writer(buffer, lineterminator="\n")
         writer.writerow(self.columns)
@@ -107,10 +122,14 @@ class MetricsTable:
         return buffer.getvalue()
 
     def write_csv(self, path: str | Path) -> None:
+        """:meth:`to_csv` written atomically to ``path``."""
         write_text_atomic(path, self.to_csv())
 
     @classmethod
     def read_csv(cls, path: str | Path, keys: tuple[str, ...]) -> "MetricsTable":
+        """A table read from a CSV file whose first columns are ``keys``; the remaining columns are its
+        metrics. ``method`` and ``image`` stay strings, every other column is read as a float. Raises
+        :class:`~edofproj.errors.EdofprojError` if the file cannot be read or does not start with ``keys``."""
         try:
             with open(path, newline="", encoding="utf-8") as handle:
                 reader = csv.DictReader(handle)

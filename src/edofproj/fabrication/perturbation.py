@@ -45,6 +45,8 @@ class FabricationErrors:
 
     @classmethod
     def none(cls, masks: int) -> "FabricationErrors":
+        """The error-free draw for ``masks`` masks: every etch scale 1, no overlay shift, no decentre
+        (the as-fabricated DOE is then the nominal mask set)."""
         return cls(np.ones(masks), np.zeros((masks, 2)), np.zeros(2))
 
     @classmethod
@@ -59,6 +61,8 @@ class FabricationErrors:
         return cls(etch, shift, centre)
 
     def as_dict(self) -> dict:
+        """JSON-ready mapping: ``etch_scale`` (k values ``1 + e_j``), ``mask_shift_um`` (k pairs ``(dx_j, dy_j)``)
+        and ``decentre_um`` (``(cx, cy)``), shifts in micrometres."""
         return {
             "etch_scale": self.etch_scale.tolist(),
             "mask_shift_um": (self.mask_shift_m * 1e6).tolist(),
@@ -119,6 +123,9 @@ class FabricatedRadialDOE(_Fabricated, RadialDOE):
         return np.unique(edges[(edges > 0) & (edges < self.aperture_radius_m)])
 
     def raw_height_m(self, r_m):
+        """As-fabricated height (m) ``h(r) = (N - 1) s - sum_j d_j (1 + e_j) [r in an etched annulus of the
+        shifted mask j]`` (physical: not wrapped, not quantized); computed in float64, returned in the shape
+        and dtype of ``r_m``."""
         height = torch.full_like(r_m, self.top_m, dtype=torch.float64)
         r = r_m.to(torch.float64)
         for edges, depth in zip(self.flat_edges, self.depths_m):
@@ -126,6 +133,7 @@ class FabricatedRadialDOE(_Fabricated, RadialDOE):
         return height.to(r_m.dtype)
 
     def describe(self):
+        """The fixed line ``as-fabricated DOE (radial proxy)``."""
         return "as-fabricated DOE (radial proxy)"
 
 
@@ -140,6 +148,9 @@ class FabricatedDOE2D(_Fabricated, DOE):
         self.flat_edges = [_flat_edges(m) for m in masks]
 
     def raw_height_map_m(self, x_m, y_m):
+        """As-fabricated height (m) at pupil coordinates, the module's formula
+        ``h = (N - 1) s - sum_j d_j (1 + e_j) [(x - cx - dx_j, y - cy - dy_j) etched by mask j]`` (physical: not
+        wrapped, not quantized); computed in float64, returned in the broadcast shape and dtype of ``x_m``."""
         x = x_m.to(torch.float64) - float(self.errors.decentre_m[0])
         y = y_m.to(torch.float64) - float(self.errors.decentre_m[1])
         height = torch.full_like(x, self.top_m)
@@ -149,9 +160,12 @@ class FabricatedDOE2D(_Fabricated, DOE):
         return height.to(x_m.dtype)
 
     def check_sampling(self, ring_width_m):
+        """Raise :class:`~edofproj.errors.SamplingError` if pupil samples ``ring_width_m`` apart are wider than
+        the nominal profile's narrowest zone, naming the ``pupil_samples`` needed."""
         require_resolved_feature(
             self.nominal_zone_m, ring_width_m, self.aperture_radius_m, "the design's narrowest zone is"
         )
 
     def describe(self):
+        """The fixed line ``as-fabricated DOE (2-D)``."""
         return "as-fabricated DOE (2-D)"

@@ -45,6 +45,9 @@ class MaskCheck:
     below_cd: int
 
     def as_dict(self) -> dict:
+        """The mask's entry of ``fab_report.json``: index, GDS layer, etch depth (nm), ring count, the
+        narrowest feature's width (um), kind and radius of its centre (um; both None when the mask etches
+        nothing), and the number of features below the CD."""
         return {
             "mask": self.mask.index,
             "gds_layer": self.mask.gds_layer,
@@ -74,6 +77,8 @@ def check_mask(mask: MaskLayer, critical_dimension_m: float) -> MaskCheck:
 
 
 def check_masks(masks: list[MaskLayer], critical_dimension_m: float) -> list[MaskCheck]:
+    """:func:`check_mask` of every mask, in order. Raises :class:`~edofproj.errors.EdofprojError` unless the
+    critical dimension (m) is > 0."""
     if not critical_dimension_m > 0:
         raise EdofprojError(f"critical dimension {critical_dimension_m * 1e6:g} um must be > 0")
     return [check_mask(m, critical_dimension_m) for m in masks]

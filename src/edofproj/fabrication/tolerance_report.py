@@ -47,6 +47,10 @@ def _stats(values: np.ndarray, nominal: np.ndarray) -> dict:
 
 
 def table_columns(result: ToleranceResult) -> dict:
+    """The per-depth table as named columns, each an array of shape (Z,): ``depth_mm``, then the energy
+    concentration's ``nominal``, ``median``, ``p05``, ``p95``, ``min`` and ``max`` over the T trials, then
+    the same with an ``ssim_`` prefix when the result has SSIM trials. Raises
+    :class:`~edofproj.errors.EdofprojError` if it has SSIM trials but no nominal SSIM."""
     columns = {"depth_mm": result.depths_m * 1e3}
     columns.update(_stats(result.trials, result.nominal))
     if result.ssim_trials is not None:
@@ -57,6 +61,8 @@ def table_columns(result: ToleranceResult) -> dict:
 
 
 def csv_text(result: ToleranceResult) -> str:
+    """``tolerance.csv``: a header of the :func:`table_columns` names, then one row per depth, values with 6
+    significant digits."""
     columns = table_columns(result)
     rows = [",".join(columns)]
     for i in range(len(result.depths_m)):
@@ -65,6 +71,10 @@ def csv_text(result: ToleranceResult) -> str:
 
 
 def markdown_text(result: ToleranceResult, source: str) -> str:
+    """``tolerance.md``: the design ``source``, the error model's settings, the engine's model and the figure
+    of merit, a table per depth (nominal, median, 5 %, 95 % and worst energy concentration), the median and
+    5th-percentile relative change ``(trial - nominal) / nominal`` over all depths and trials, and the
+    compensated-SSIM table (or a line saying it was not computed)."""
     s = result.settings
     columns = table_columns(result)
     lines = [
@@ -114,6 +124,9 @@ def markdown_text(result: ToleranceResult, source: str) -> str:
 
 
 def json_data(result: ToleranceResult, source: str) -> dict:
+    """``tolerance.json`` as a JSON-ready mapping: the source, the settings, the model text, the depths (mm),
+    the nominal concentration (Z,) and per channel, every trial's concentration (T, Z) with its
+    :meth:`FabricationErrors.as_dict` draw, and the SSIM arrays (None when not evaluated)."""
     return {
         "source": source,
         "settings": vars(result.settings),
