@@ -53,6 +53,16 @@ def test_csv_round_trip(tmp_path):
     assert back.mean("ssim", method="doe+net") == pytest.approx(0.8)
 
 
+def test_csv_round_trip_keeps_nan_and_refuses_garbage(tmp_path):
+    table = table_from({"lens": {300.0: float("nan")}})
+    table.write_csv(tmp_path / "m.csv")
+    back = MetricsTable.read_csv(tmp_path / "m.csv", ("method", "depth_mm", "image"))
+    assert math.isnan(back.rows[0]["ssim"])
+    (tmp_path / "bad.csv").write_text("method,depth_mm,image,ssim\nlens,300,x,oops\n")
+    with pytest.raises(EdofprojError, match="line 2"):
+        MetricsTable.read_csv(tmp_path / "bad.csv", ("method", "depth_mm", "image"))
+
+
 def test_claims_hold_when_ours_wins_mean_and_worst():
     table = table_from(
         {

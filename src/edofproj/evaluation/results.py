@@ -128,8 +128,9 @@ class MetricsTable:
     @classmethod
     def read_csv(cls, path: str | Path, keys: tuple[str, ...]) -> "MetricsTable":
         """A table read from a CSV file whose first columns are ``keys``; the remaining columns are its
-        metrics. ``method`` and ``image`` stay strings, every other column is read as a float. Raises
-        :class:`~edofproj.errors.EdofprojError` if the file cannot be read or does not start with ``keys``."""
+        metrics. ``method`` and ``image`` stay strings, every other column is read as a float. ``NA`` reads back
+        as NaN. Raises :class:`~edofproj.errors.EdofprojError` if the file cannot be read, does not start
+        with ``keys`` or holds a value that is not a number."""
         try:
             with open(path, newline="", encoding="utf-8") as handle:
                 reader = csv.DictReader(handle)
@@ -140,9 +141,17 @@ class MetricsTable:
         if header[: len(keys)] != keys:
             raise EdofprojError(f"'{path}' is not a metrics table (columns {', '.join(header)})")
         table = cls(keys, header[len(keys) :])
-        for row in rows:
-            table.rows.append({k: (row[k] if k in ("method", "image") else float(row[k])) for k in header})
+        for line, row in enumerate(rows, start=2):
+            try:
+                table.rows.append({k: (row[k] if k in ("method", "image") else _number(row[k])) for k in header})
+            except (TypeError, ValueError):
+                raise EdofprojError(f"'{path}' line {line}: a value is not a number ({dict(row)})") from None
         return table
+
+
+def _number(text: str) -> float:
+    """A CSV cell as a float; ``NA`` (how :meth:`MetricsTable.to_csv` writes NaN) reads back as NaN."""
+    return math.nan if text == "NA" else float(text)
 
 
 def _same(a, b) -> bool:
