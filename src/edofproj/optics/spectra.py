@@ -4,7 +4,29 @@ Each RGB channel's PSF is the SPD-weighted sum of monochromatic PSFs,
 
     PSF_c = sum_k w_ck PSF_lambda_k,   w_ck = SPD_c(lambda_k) / sum_k SPD_c(lambda_k),
 
-over wavelengths sampled from 400 to 700 nm (paper: 30 nm steps, 11 samples).
+with two samplings (``spectrum.sampling``):
+
+* ``gauss`` (the default): each primary gets its own ``nodes_per_primary`` wavelengths, the
+  nodes and weights of the Gauss quadrature for its SPD (taken on a 1 nm grid over
+  ``wavelength_min_nm``-``wavelength_max_nm``; Golub-Welsch). The weighted sum then integrates
+  exactly any polynomial in lambda of degree ``2 n - 1`` against the SPD, so it follows each
+  primary's spectrum with a handful of wavelengths: channel ``c`` has weights only on its own
+  nodes, ``n_lambda = 3 n``.
+* ``uniform``: ``wavelength_min_nm, min + step, ... <= max`` shared by all channels (the paper:
+  400-700 nm in 30 nm steps).
+
+**Convergence check** (:func:`check_spectral_sampling`). A PSF pixel varies with wavelength
+through the phase ``2 pi OPD / lambda`` (OPD: the largest optical path difference across the
+pupil: defocus, DOE, aberrations) and the lambda-scaling of the pattern, so its shortest
+period in wavelength is about ``Lambda = lambda^2 / OPD``. The sampling's error on such a
+function is its error on the SPD's characteristic function,
+
+    e_c = max_{0 <= f <= 1/Lambda} | sum_k w_ck exp(2 pi i f lambda_k) - int SPD_c(lambda) exp(2 pi i f lambda) dlambda |,
+
+the integral taken on the 1 nm grid. ``e_c > SPECTRAL_TOLERANCE`` warns
+(:class:`~edofproj.errors.SpectralSamplingWarning`), naming the uniform step or the nodes per
+primary that pass. Measured (docs/experiments/2026-11-23-optics-realism.md): passing the check
+keeps the PSFs within 0.1 % L1 of the 1 nm sampling.
 
 The default SPDs are an assumption (the paper's measured ones are not published): three
 LED-like Gaussian peaks. Measured SPDs are read from a CSV ``wavelength_nm,r,g,b``.
@@ -12,14 +34,24 @@ LED-like Gaussian peaks. Measured SPDs are read from a CSV ``wavelength_nm,r,g,b
 
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, SpectralSamplingWarning
 
 WAVELENGTH_RANGE_NM = (350.0, 1000.0)
+SAMPLINGS = ("gauss", "uniform")
+#: the reference grid the sampling is judged against (and Gauss nodes are computed on)
+REFERENCE_STEP_NM = 1.0
+#: largest error of the sampled SPD's characteristic function (see the module docstring)
+SPECTRAL_TOLERANCE = 2e-3
+#: candidate steps (nm) and node counts named by the check
+CANDIDATE_STEPS_NM = (20.0, 15.0, 10.0, 8.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0)
+MAX_NODES_PER_PRIMARY = 12
 
 
 def check_wavelengths_nm(wavelengths_nm) -> np.ndarray:
@@ -92,10 +124,160 @@ class Spectrum:
         return cls(wavelengths_m=lam_nm * 1e-9, weights=spd / total)
 
     @classmethod
+    def gauss(cls, wavelengths_nm, spd: np.ndarray, nodes_per_primary: int) -> "Spectrum":
+        """Per-primary Gauss quadrature of ``spd (C, n)`` sampled at ``wavelengths_nm (n,)``:
+        ``C * nodes_per_primary`` wavelengths (sorted), channel ``c`` weighted on its own nodes."""
+        lam = check_wavelengths_nm(wavelengths_nm)
+        nodes, weights = [], []
+        for c, row in enumerate(np.asarray(spd, dtype=float)):
+            x, w = gauss_nodes(lam, row, nodes_per_primary)
+            nodes.append(x)
+            full = np.zeros((len(spd), len(x)))
+            full[c] = w
+            weights.append(full)
+        all_nodes = np.concatenate(nodes)
+        all_weights = np.concatenate(weights, axis=1)
+        order = np.argsort(all_nodes, kind="stable")
+        return cls(wavelengths_m=all_nodes[order] * 1e-9, weights=all_weights[:, order])
+
+    @classmethod
     def from_config(cls, spectrum_cfg) -> "Spectrum":
+        """The sampled spectrum of a :class:`~edofproj.config.SpectrumConfig` (``sampling``:
+        ``gauss`` or ``uniform``; see the module docstring)."""
+        if getattr(spectrum_cfg, "sampling", "uniform") == "gauss":
+            lam, spd = reference_spd(spectrum_cfg)
+            return cls.gauss(lam, spd, spectrum_cfg.nodes_per_primary)
         lam = sample_wavelengths_nm(
             spectrum_cfg.wavelength_min_nm, spectrum_cfg.wavelength_max_nm, spectrum_cfg.wavelength_step_nm
         )
         if spectrum_cfg.spd_csv:
             return cls.from_csv(spectrum_cfg.spd_csv, lam)
         return cls.led(lam, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm)
+
+
+def reference_spd(spectrum_cfg, step_nm: float = REFERENCE_STEP_NM) -> tuple[np.ndarray, np.ndarray]:
+    """The primaries' SPDs on the fine grid ``wavelength_min_nm..max`` in ``step_nm`` steps:
+    ``(wavelengths_nm (n,), spd (3, n))``, each row summing to 1."""
+    lam = sample_wavelengths_nm(spectrum_cfg.wavelength_min_nm, spectrum_cfg.wavelength_max_nm, step_nm)
+    if spectrum_cfg.spd_csv:
+        ref = Spectrum.from_csv(spectrum_cfg.spd_csv, lam)
+    else:
+        ref = Spectrum.led(lam, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm)
+    return lam, ref.weights
+
+
+def gauss_nodes(wavelengths_nm, weights, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes (nm) and weights (sum 1) of the ``n``-point Gauss quadrature for the discrete
+    measure ``weights`` on ``wavelengths_nm``: exact for polynomials of degree <= 2 n - 1.
+
+    Stieltjes procedure for the three-term recurrence ``p_{k+1} = (x - a_k) p_k - b_k p_{k-1}``
+    (in the standardized variable ``x = (lambda - mean) / std``), then Golub-Welsch: the nodes
+    are the eigenvalues of the Jacobi matrix, the weights the squared first components of its
+    eigenvectors. Fewer than ``n`` wavelengths with power: those wavelengths themselves."""
+    lam = np.asarray(wavelengths_nm, dtype=float)
+    w = np.clip(np.asarray(weights, dtype=float), 0.0, None)
+    if int(n) != n or n < 1:
+        raise EdofprojError(f"nodes per primary must be an integer >= 1, got {n}")
+    support = w > 0
+    if support.sum() <= n:
+        keep = np.nonzero(support)[0]
+        return lam[keep], w[keep] / w[keep].sum()
+    w = w / w.sum()
+    mean = float(np.sum(w * lam))
+    std = float(np.sqrt(np.sum(w * (lam - mean) ** 2)))
+    x = (lam - mean) / std
+    a, b = np.zeros(n), np.zeros(n)
+    p_prev, p = np.zeros_like(x), np.ones_like(x)
+    norm_prev = 1.0
+    for k in range(n):
+        norm = float(np.sum(w * p * p))
+        a[k] = np.sum(w * x * p * p) / norm
+        if k > 0:
+            b[k] = norm / norm_prev
+        p_prev, p = p, (x - a[k]) * p - (b[k] * p_prev if k > 0 else 0.0)
+        norm_prev = norm
+    jacobi = np.diag(a) + np.diag(np.sqrt(b[1:]), 1) + np.diag(np.sqrt(b[1:]), -1)
+    eigval, eigvec = np.linalg.eigh(jacobi)
+    return mean + std * eigval, eigvec[0] ** 2
+
+
+def pupil_path_difference_m(geometry, cfg) -> float:
+    """The largest optical path difference across the pupil for a config's depth range: the
+    defocus ``R^2 max|1/z - 1/v| / 2`` plus one wave of DOE at the design wavelength."""
+    z = np.array([cfg.psf.depth_min_mm, cfg.psf.depth_max_mm]) * 1e-3
+    defocus = geometry.aperture_radius_m**2 * float(np.max(np.abs(1 / z - 1 / geometry.focus_distance_m))) / 2
+    return defocus + cfg.doe.design_wavelength_nm * 1e-9
+
+
+def shortest_spectral_period_nm(wavelength_nm: float, path_difference_m: float) -> float:
+    """``Lambda = lambda^2 / OPD``: the shortest period in wavelength of a PSF pixel when the
+    largest optical path difference across the pupil is ``path_difference_m``."""
+    opd_nm = max(float(path_difference_m) * 1e9, float(wavelength_nm))  # at least one wave
+    return float(wavelength_nm) ** 2 / opd_nm
+
+
+def characteristic_error(spectrum: Spectrum, reference_nm, reference_spd, periods_nm) -> np.ndarray:
+    """Per channel, the largest error of the sampled SPD's characteristic function against the
+    reference ``(wavelengths_nm (n,), spd (C, n))``, over frequencies ``0..1/periods_nm[c]``."""
+    lam = spectrum.wavelengths_m * 1e9
+    ref_lam = np.asarray(reference_nm, dtype=float)
+    errors = []
+    for c in range(spectrum.n_channels):
+        f = np.linspace(0.0, 1.0 / periods_nm[c], 33)[:, None]
+        sampled = np.exp(2j * math.pi * f * lam[None, :]) @ spectrum.weights[c]
+        exact = np.exp(2j * math.pi * f * ref_lam[None, :]) @ reference_spd[c]
+        errors.append(float(np.max(np.abs(sampled - exact))))
+    return np.asarray(errors)
+
+
+def needed_sampling(spectrum_cfg, path_difference_m: float) -> str:
+    """What passes :func:`check_spectral_sampling`: the sampling's own setting to use."""
+    lam, spd = reference_spd(spectrum_cfg)
+    periods = _channel_periods(lam, spd, path_difference_m)
+    if getattr(spectrum_cfg, "sampling", "uniform") == "gauss":
+        for n in range(1, MAX_NODES_PER_PRIMARY + 1):
+            if np.all(characteristic_error(Spectrum.gauss(lam, spd, n), lam, spd, periods) <= SPECTRAL_TOLERANCE):
+                return f"spectrum.nodes_per_primary >= {n}"
+        return f"spectrum.nodes_per_primary > {MAX_NODES_PER_PRIMARY} or spectrum.sampling=uniform"
+    for step in CANDIDATE_STEPS_NM:
+        grid = sample_wavelengths_nm(spectrum_cfg.wavelength_min_nm, spectrum_cfg.wavelength_max_nm, step)
+        try:
+            sampled = _uniform(spectrum_cfg, grid)
+        except EdofprojError:
+            continue
+        if np.all(characteristic_error(sampled, lam, spd, periods) <= SPECTRAL_TOLERANCE):
+            return f"spectrum.wavelength_step_nm <= {step:g} (or spectrum.sampling=gauss)"
+    return "spectrum.wavelength_step_nm <= 1 (or spectrum.sampling=gauss)"
+
+
+def check_spectral_sampling(spectrum_cfg, spectrum: Spectrum, path_difference_m: float) -> np.ndarray:
+    """Warn (:class:`~edofproj.errors.SpectralSamplingWarning`) when ``spectrum`` undersamples a
+    primary for PSFs whose largest pupil path difference is ``path_difference_m`` (module
+    docstring); returns the per-channel errors."""
+    lam, spd = reference_spd(spectrum_cfg)
+    if spectrum.n_channels != len(spd):
+        return np.zeros(spectrum.n_channels)
+    errors = characteristic_error(spectrum, lam, spd, _channel_periods(lam, spd, path_difference_m))
+    if np.any(errors > SPECTRAL_TOLERANCE):
+        worst = int(np.argmax(errors))
+        names = ("red", "green", "blue") if len(errors) == 3 else tuple(str(i) for i in range(len(errors)))
+        warnings.warn(
+            f"the spectrum sampling undersamples the {names[worst]} primary (error {errors[worst]:.1e} > "
+            f"{SPECTRAL_TOLERANCE:g} for a {path_difference_m * 1e6:.1f} um pupil path difference): PSFs are off "
+            f"by more than 0.1 % L1; use {needed_sampling(spectrum_cfg, path_difference_m)}",
+            SpectralSamplingWarning,
+            stacklevel=3,
+        )
+    return errors
+
+
+def _channel_periods(lam_nm: np.ndarray, spd: np.ndarray, path_difference_m: float) -> np.ndarray:
+    """Per channel, ``Lambda`` at the channel's shortest wavelength holding 0.1 % of its power."""
+    lows = [lam_nm[np.searchsorted(np.cumsum(row), 1e-3)] for row in spd]
+    return np.array([shortest_spectral_period_nm(lo, path_difference_m) for lo in lows])
+
+
+def _uniform(spectrum_cfg, grid_nm: np.ndarray) -> Spectrum:
+    if spectrum_cfg.spd_csv:
+        return Spectrum.from_csv(spectrum_cfg.spd_csv, grid_nm)
+    return Spectrum.led(grid_nm, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm)
