@@ -4,16 +4,12 @@ Each RGB channel's PSF is the SPD-weighted sum of monochromatic PSFs,
 
     PSF_c = sum_k w_ck PSF_lambda_k,   w_ck = SPD_c(lambda_k) / sum_k SPD_c(lambda_k),
 
-with two samplings (``spectrum.sampling``):
-
-* ``gauss`` (the default): each primary gets its own ``nodes_per_primary`` wavelengths, the
-  nodes and weights of the Gauss quadrature for its SPD (taken on a 1 nm grid over
-  ``wavelength_min_nm``-``wavelength_max_nm``; Golub-Welsch). The weighted sum then integrates
-  exactly any polynomial in lambda of degree ``2 n - 1`` against the SPD, so it follows each
-  primary's spectrum with a handful of wavelengths: channel ``c`` has weights only on its own
-  nodes, ``n_lambda = 3 n``.
-* ``uniform``: ``wavelength_min_nm, min + step, ... <= max`` shared by all channels (the paper:
-  400-700 nm in 30 nm steps).
+over wavelengths sampled uniformly from ``wavelength_min_nm`` in ``wavelength_step_nm`` steps
+up to ``wavelength_max_nm`` (the paper: 400-700 nm in 30 nm steps), then **trimmed**: the
+samples at either end of the range carrying less than ``trim_power`` of every channel's power
+(together, per end and channel, at most ``trim_power / 2``) are dropped and the weights
+renormalized, so a converged step costs only the band where the primaries shine (the
+default 10 nm over 400-700 nm keeps 24 of 31 wavelengths).
 
 **Convergence check** (:func:`check_spectral_sampling`). A PSF pixel varies with wavelength
 through the phase ``2 pi OPD / lambda`` (OPD: the largest optical path difference across the
@@ -24,9 +20,9 @@ function is its error on the SPD's characteristic function,
     e_c = max_{0 <= f <= 1/Lambda} | sum_k w_ck exp(2 pi i f lambda_k) - int SPD_c(lambda) exp(2 pi i f lambda) dlambda |,
 
 the integral taken on the 1 nm grid. ``e_c > SPECTRAL_TOLERANCE`` warns
-(:class:`~edofproj.errors.SpectralSamplingWarning`), naming the uniform step or the nodes per
-primary that pass. Measured (docs/experiments/2026-11-23-optics-realism.md): passing the check
-keeps the PSFs within 0.1 % L1 of the 1 nm sampling.
+(:class:`~edofproj.errors.SpectralSamplingWarning`), naming the step that passes. Measured (docs/experiments/2026-11-23-optics-realism.md): passing the check
+keeps the PSFs within 0.1 % L1 of the 1 nm sampling (the default primaries need a step of
+10 nm: 20 nm changes the PSFs by 0.3 %, 30 nm by 3 % in red).
 
 The default SPDs are an assumption (the paper's measured ones are not published): three
 LED-like Gaussian peaks. Measured SPDs are read from a CSV ``wavelength_nm,r,g,b``.
@@ -44,14 +40,12 @@ import numpy as np
 from ..errors import EdofprojError, SpectralSamplingWarning
 
 WAVELENGTH_RANGE_NM = (350.0, 1000.0)
-SAMPLINGS = ("gauss", "uniform")
-#: the reference grid the sampling is judged against (and Gauss nodes are computed on)
+#: the reference grid the sampling is judged against
 REFERENCE_STEP_NM = 1.0
 #: largest error of the sampled SPD's characteristic function (see the module docstring)
-SPECTRAL_TOLERANCE = 2e-3
-#: candidate steps (nm) and node counts named by the check
+SPECTRAL_TOLERANCE = 1e-2
+#: candidate steps (nm) named by the check
 CANDIDATE_STEPS_NM = (20.0, 15.0, 10.0, 8.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0)
-MAX_NODES_PER_PRIMARY = 12
 
 
 def check_wavelengths_nm(wavelengths_nm) -> np.ndarray:
@@ -124,35 +118,24 @@ class Spectrum:
         return cls(wavelengths_m=lam_nm * 1e-9, weights=spd / total)
 
     @classmethod
-    def gauss(cls, wavelengths_nm, spd: np.ndarray, nodes_per_primary: int) -> "Spectrum":
-        """Per-primary Gauss quadrature of ``spd (C, n)`` sampled at ``wavelengths_nm (n,)``:
-        ``C * nodes_per_primary`` wavelengths (sorted), channel ``c`` weighted on its own nodes."""
-        lam = check_wavelengths_nm(wavelengths_nm)
-        nodes, weights = [], []
-        for c, row in enumerate(np.asarray(spd, dtype=float)):
-            x, w = gauss_nodes(lam, row, nodes_per_primary)
-            nodes.append(x)
-            full = np.zeros((len(spd), len(x)))
-            full[c] = w
-            weights.append(full)
-        all_nodes = np.concatenate(nodes)
-        all_weights = np.concatenate(weights, axis=1)
-        order = np.argsort(all_nodes, kind="stable")
-        return cls(wavelengths_m=all_nodes[order] * 1e-9, weights=all_weights[:, order])
-
-    @classmethod
     def from_config(cls, spectrum_cfg) -> "Spectrum":
-        """The sampled spectrum of a :class:`~edofproj.config.SpectrumConfig` (``sampling``:
-        ``gauss`` or ``uniform``; see the module docstring)."""
-        if getattr(spectrum_cfg, "sampling", "uniform") == "gauss":
-            lam, spd = reference_spd(spectrum_cfg)
-            return cls.gauss(lam, spd, spectrum_cfg.nodes_per_primary)
-        lam = sample_wavelengths_nm(
+        """The sampled, trimmed spectrum of a :class:`~edofproj.config.SpectrumConfig` (module docstring)."""
+        grid = sample_wavelengths_nm(
             spectrum_cfg.wavelength_min_nm, spectrum_cfg.wavelength_max_nm, spectrum_cfg.wavelength_step_nm
         )
-        if spectrum_cfg.spd_csv:
-            return cls.from_csv(spectrum_cfg.spd_csv, lam)
-        return cls.led(lam, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm)
+        return _uniform(spectrum_cfg, grid).trimmed(getattr(spectrum_cfg, "trim_power", 0.0))
+
+    def trimmed(self, trim_power: float) -> "Spectrum":
+        """Drop end samples holding, per end and channel, at most ``trim_power / 2`` of the
+        power; renormalize (wavelengths must be sorted)."""
+        if trim_power <= 0 or len(self.wavelengths_m) < 2:
+            return self
+        head = np.cumsum(self.weights, axis=1)
+        tail = np.cumsum(self.weights[:, ::-1], axis=1)[:, ::-1]
+        keep = np.any(head > trim_power / 2, axis=0) & np.any(tail > trim_power / 2, axis=0)
+        first, last = int(np.argmax(keep)), len(keep) - 1 - int(np.argmax(keep[::-1]))
+        weights = self.weights[:, first : last + 1]
+        return Spectrum(self.wavelengths_m[first : last + 1], weights / weights.sum(axis=1, keepdims=True))
 
 
 def reference_spd(spectrum_cfg, step_nm: float = REFERENCE_STEP_NM) -> tuple[np.ndarray, np.ndarray]:
@@ -164,41 +147,6 @@ def reference_spd(spectrum_cfg, step_nm: float = REFERENCE_STEP_NM) -> tuple[np.
     else:
         ref = Spectrum.led(lam, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm)
     return lam, ref.weights
-
-
-def gauss_nodes(wavelengths_nm, weights, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes (nm) and weights (sum 1) of the ``n``-point Gauss quadrature for the discrete
-    measure ``weights`` on ``wavelengths_nm``: exact for polynomials of degree <= 2 n - 1.
-
-    Stieltjes procedure for the three-term recurrence ``p_{k+1} = (x - a_k) p_k - b_k p_{k-1}``
-    (in the standardized variable ``x = (lambda - mean) / std``), then Golub-Welsch: the nodes
-    are the eigenvalues of the Jacobi matrix, the weights the squared first components of its
-    eigenvectors. Fewer than ``n`` wavelengths with power: those wavelengths themselves."""
-    lam = np.asarray(wavelengths_nm, dtype=float)
-    w = np.clip(np.asarray(weights, dtype=float), 0.0, None)
-    if int(n) != n or n < 1:
-        raise EdofprojError(f"nodes per primary must be an integer >= 1, got {n}")
-    support = w > 0
-    if support.sum() <= n:
-        keep = np.nonzero(support)[0]
-        return lam[keep], w[keep] / w[keep].sum()
-    w = w / w.sum()
-    mean = float(np.sum(w * lam))
-    std = float(np.sqrt(np.sum(w * (lam - mean) ** 2)))
-    x = (lam - mean) / std
-    a, b = np.zeros(n), np.zeros(n)
-    p_prev, p = np.zeros_like(x), np.ones_like(x)
-    norm_prev = 1.0
-    for k in range(n):
-        norm = float(np.sum(w * p * p))
-        a[k] = np.sum(w * x * p * p) / norm
-        if k > 0:
-            b[k] = norm / norm_prev
-        p_prev, p = p, (x - a[k]) * p - (b[k] * p_prev if k > 0 else 0.0)
-        norm_prev = norm
-    jacobi = np.diag(a) + np.diag(np.sqrt(b[1:]), 1) + np.diag(np.sqrt(b[1:]), -1)
-    eigval, eigvec = np.linalg.eigh(jacobi)
-    return mean + std * eigval, eigvec[0] ** 2
 
 
 def pupil_path_difference_m(geometry, cfg) -> float:
@@ -231,14 +179,9 @@ def characteristic_error(spectrum: Spectrum, reference_nm, reference_spd, period
 
 
 def needed_sampling(spectrum_cfg, path_difference_m: float) -> str:
-    """What passes :func:`check_spectral_sampling`: the sampling's own setting to use."""
+    """The largest of :data:`CANDIDATE_STEPS_NM` that passes :func:`check_spectral_sampling`."""
     lam, spd = reference_spd(spectrum_cfg)
     periods = _channel_periods(lam, spd, path_difference_m)
-    if getattr(spectrum_cfg, "sampling", "uniform") == "gauss":
-        for n in range(1, MAX_NODES_PER_PRIMARY + 1):
-            if np.all(characteristic_error(Spectrum.gauss(lam, spd, n), lam, spd, periods) <= SPECTRAL_TOLERANCE):
-                return f"spectrum.nodes_per_primary >= {n}"
-        return f"spectrum.nodes_per_primary > {MAX_NODES_PER_PRIMARY} or spectrum.sampling=uniform"
     for step in CANDIDATE_STEPS_NM:
         grid = sample_wavelengths_nm(spectrum_cfg.wavelength_min_nm, spectrum_cfg.wavelength_max_nm, step)
         try:
@@ -246,8 +189,8 @@ def needed_sampling(spectrum_cfg, path_difference_m: float) -> str:
         except EdofprojError:
             continue
         if np.all(characteristic_error(sampled, lam, spd, periods) <= SPECTRAL_TOLERANCE):
-            return f"spectrum.wavelength_step_nm <= {step:g} (or spectrum.sampling=gauss)"
-    return "spectrum.wavelength_step_nm <= 1 (or spectrum.sampling=gauss)"
+            return f"spectrum.wavelength_step_nm <= {step:g}"
+    return "spectrum.wavelength_step_nm <= 1"
 
 
 def check_spectral_sampling(spectrum_cfg, spectrum: Spectrum, path_difference_m: float) -> np.ndarray:
@@ -257,6 +200,16 @@ def check_spectral_sampling(spectrum_cfg, spectrum: Spectrum, path_difference_m:
     lam, spd = reference_spd(spectrum_cfg)
     if spectrum.n_channels != len(spd):
         return np.zeros(spectrum.n_channels)
+    cut = covering_range_nm(spectrum_cfg)
+    if cut is not None:
+        warnings.warn(
+            f"spectrum.wavelength_min_nm-wavelength_max_nm ({spectrum_cfg.wavelength_min_nm:g}-"
+            f"{spectrum_cfg.wavelength_max_nm:g} nm) cuts off part of a primary's spectrum: PSFs are off by more "
+            f"than 0.1 % L1; use {cut[0]:g}-{cut[1]:g} nm",
+            SpectralSamplingWarning,
+            stacklevel=3,
+        )
+        return np.full(spectrum.n_channels, np.inf)
     errors = characteristic_error(spectrum, lam, spd, _channel_periods(lam, spd, path_difference_m))
     if np.any(errors > SPECTRAL_TOLERANCE):
         worst = int(np.argmax(errors))
@@ -269,6 +222,23 @@ def check_spectral_sampling(spectrum_cfg, spectrum: Spectrum, path_difference_m:
             stacklevel=3,
         )
     return errors
+
+
+def covering_range_nm(spectrum_cfg, lost_power: float = 1e-3) -> tuple[float, float] | None:
+    """For the LED model, a 10 nm-rounded range holding all but ``lost_power`` of each primary
+    when the configured range does not (None when it does, or for measured SPDs)."""
+    if spectrum_cfg.spd_csv:
+        return None
+    lo_nm, hi_nm = WAVELENGTH_RANGE_NM
+    lam = sample_wavelengths_nm(lo_nm, hi_nm, REFERENCE_STEP_NM)
+    spd = Spectrum.led(lam, spectrum_cfg.peaks_nm, spectrum_cfg.fwhm_nm).weights
+    inside = (lam >= spectrum_cfg.wavelength_min_nm) & (lam <= spectrum_cfg.wavelength_max_nm)
+    if np.all(spd[:, inside].sum(axis=1) >= 1 - lost_power):
+        return None
+    cum = np.cumsum(spd, axis=1)
+    first = min(lam[np.searchsorted(row, lost_power / 2)] for row in cum)
+    last = max(lam[min(np.searchsorted(row, 1 - lost_power / 2), len(lam) - 1)] for row in cum)
+    return float(np.floor(first / 10) * 10), float(np.ceil(last / 10) * 10)
 
 
 def _channel_periods(lam_nm: np.ndarray, spd: np.ndarray, path_difference_m: float) -> np.ndarray:
