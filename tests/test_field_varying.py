@@ -82,3 +82,25 @@ def test_field_psf_grid_puts_each_points_aberration_at_its_node():
     assert torch.allclose(grid[0, 1], sim(None, [0.5]))
     with pytest.raises(EdofprojError, match="full grid"):
         field_grid_axes(FieldAberrations(points[:3], field.pupils[:3]))
+
+
+def test_per_patch_table_draws_field_points_and_interpolates_in_inverse_depth(tmp_path):
+    from edofproj.training.finetune import MeasuredPSFTable
+
+    rng = np.random.default_rng(3)
+    files, psfs = [], []
+    for depth in (0.4, 0.8):
+        psf = rng.uniform(0, 1, (2, 3, 5, 5)).astype(np.float32)  # two patches
+        np.savez(tmp_path / f"p{depth}.npz", psf=psf, depths_m=np.array([depth]))
+        files.append(tmp_path / f"p{depth}.npz")
+        psfs.append(psf)
+    table = MeasuredPSFTable.from_patch_files(files, seed=0)
+    z = 1 / (0.5 / 0.4 + 0.5 / 0.8)  # halfway in 1/z
+    out = table(np.full(64, z)).numpy()
+    halves = [0.5 * (psfs[0][p] + psfs[1][p]) for p in (0, 1)]
+    which = [int(np.argmin([np.abs(o - h).max() for h in halves])) for o in out]
+    assert all(np.allclose(o, halves[w], atol=1e-6) for o, w in zip(out, which))
+    assert 10 < sum(which) < 54  # both field points are drawn
+    np.savez(tmp_path / "bad.npz", psf=np.zeros((3, 3, 5, 5), np.float32), depths_m=np.array([0.6]))
+    with pytest.raises(EdofprojError, match="differ in patches"):
+        MeasuredPSFTable.from_patch_files(files + [tmp_path / "bad.npz"])
