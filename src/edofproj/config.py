@@ -65,7 +65,9 @@ class OpticsConfig:
                 f"{self.focus_mm} (paraxial model)"
             )
         if not isinstance(self.zernike_um, dict):
-            raise ConfigError(f"optics.zernike_um={self.zernike_um!r} must map Noll indices to micrometres, e.g. {{11: 0.05}}")
+            raise ConfigError(
+                f"optics.zernike_um={self.zernike_um!r} must map Noll indices to micrometres, e.g. {{11: 0.05}}"
+            )
         for j, c in self.zernike_um.items():
             if isinstance(j, bool) or not isinstance(j, int) or j < 1:
                 raise ConfigError(f"optics.zernike_um: Noll index {j!r} must be an integer >= 1")

@@ -81,10 +81,12 @@ def zernike(j: int, rho, theta=None):
         return math.sqrt(n + 1) * radial
     if theta is None:
         raise EdofprojError(f"Zernike Z{j} is not rotationally symmetric: it needs the pupil angle")
-    trig = torch.cos if isinstance(theta, torch.Tensor) else np.cos
-    if m < 0:
-        trig = torch.sin if isinstance(theta, torch.Tensor) else np.sin
-    return math.sqrt(2 * (n + 1)) * radial * trig(abs(m) * theta)
+    angle = abs(m) * theta
+    if isinstance(angle, torch.Tensor):
+        trig = torch.sin(angle) if m < 0 else torch.cos(angle)
+    else:
+        trig = np.sin(angle) if m < 0 else np.cos(angle)
+    return math.sqrt(2 * (n + 1)) * radial * trig
 
 
 def is_rotationally_symmetric(j: int) -> bool:
@@ -174,9 +176,9 @@ def _sample_map(wavefront_um: np.ndarray, x, y):
     v = ((y + 1) * S / 2 - 0.5).clamp(0, S - 1)  # row
     u0, v0 = u.floor().long().clamp(max=S - 2), v.floor().long().clamp(max=S - 2)
     fu, fv = u - u0, v - v0
-    return (
-        w[v0, u0] * (1 - fu) * (1 - fv) + w[v0, u0 + 1] * fu * (1 - fv) + w[v0 + 1, u0] * (1 - fu) * fv
-    ) + w[v0 + 1, u0 + 1] * fu * fv
+    return (w[v0, u0] * (1 - fu) * (1 - fv) + w[v0, u0 + 1] * fu * (1 - fv) + w[v0 + 1, u0] * (1 - fu) * fv) + w[
+        v0 + 1, u0 + 1
+    ] * fu * fv
 
 
 def pupil_phase_step_rad(phase: torch.Tensor) -> float:

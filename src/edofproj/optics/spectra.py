@@ -236,8 +236,8 @@ def covering_range_nm(spectrum_cfg, lost_power: float = 1e-3) -> tuple[float, fl
     if np.all(spd[:, inside].sum(axis=1) >= 1 - lost_power):
         return None
     cum = np.cumsum(spd, axis=1)
-    first = min(lam[np.searchsorted(row, lost_power / 2)] for row in cum)
-    last = max(lam[min(np.searchsorted(row, 1 - lost_power / 2), len(lam) - 1)] for row in cum)
+    first = min(float(lam[int(np.searchsorted(row, lost_power / 2))]) for row in cum)
+    last = max(float(lam[min(int(np.searchsorted(row, 1 - lost_power / 2)), len(lam) - 1)]) for row in cum)
     return float(np.floor(first / 10) * 10), float(np.ceil(last / 10) * 10)
 
 

@@ -107,7 +107,9 @@ class MeasuredPSFTable(nn.Module):
                 "estimate them with the same --patch and --window"
             )
         if len(np.unique(np.round(depths, 6))) != len(depths):
-            raise EdofprojError(f"the per-patch PSF files repeat a depth: {np.round(np.array(depths) * 1e3, 1).tolist()} mm")
+            raise EdofprojError(
+                f"the per-patch PSF files repeat a depth: {np.round(np.array(depths) * 1e3, 1).tolist()} mm"
+            )
         return cls(torch.stack(psfs), np.asarray(depths), seed)
 
     @property
@@ -176,7 +178,11 @@ def finetune(
     check_new_run_dir(out_dir)
     trained = load_run(run_dir)
     table_seed = trained.cfg.train.seed if seed is None else seed
-    table = MeasuredPSFTable.from_patch_files(psf_files, table_seed) if per_patch else MeasuredPSFTable.from_files(psf_files)
+    table = (
+        MeasuredPSFTable.from_patch_files(psf_files, table_seed)
+        if per_patch
+        else MeasuredPSFTable.from_files(psf_files)
+    )
     cfg = trained.cfg
     z_min, z_max = table.depth_range_m
     train_cfg = dataclasses.replace(
