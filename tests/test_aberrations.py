@@ -137,3 +137,22 @@ def test_config_keys_reach_the_simulator_and_are_validated(tmp_path):
     table.write_text("field_x,field_y,wavelength_nm,noll,coefficient_um\n0,0,550,11,0.05\n1,0,550,6,0.1\n")
     field = FieldAberrations.from_csv(table)
     assert len(field.pupils) == 2 and not field.pupils[1].radially_symmetric
+
+
+def test_a_measured_wavefront_map_of_astigmatism_matches_its_zernike(tmp_path):
+    from edofproj.optics.aberrations import load_wavefront_map_um
+
+    S = 201
+    u = (np.arange(S) + 0.5) / S * 2 - 1  # pixel centres spanning [-1, 1]
+    yy, xx = np.meshgrid(u, u, indexing="ij")
+    rho, theta = np.hypot(xx, yy), np.arctan2(yy, xx)
+    opd = np.where(rho <= 1, 0.2 * zernike(6, rho, theta), np.nan)
+    np.save(tmp_path / "w.npy", opd)
+    measured = PupilAberration(wavefront_map_um=load_wavefront_map_um(tmp_path / "w.npy"))
+    kw = dict(window=9, pupil_samples=256)
+    from_map = FourierPSFEngine(GEO, [LAM], aberration=measured, **kw).psf(None, [0.5])
+    from_zernike = FourierPSFEngine(GEO, [LAM], aberration=PupilAberration.from_zernike_um({6: 0.2}), **kw)
+    reference = from_zernike.psf(None, [0.5])
+    assert float((from_map - reference).abs().sum() / reference.sum()) < 2e-3
+    with pytest.raises(EdofprojError, match="engine 2d"):
+        _radial(aberration=measured).psf(None, [0.5])

@@ -168,17 +168,22 @@ class PupilAberration:
 
 
 def _sample_map(wavefront_um: np.ndarray, x, y):
-    """Bilinear samples of a square map spanning [-1, 1]^2 (pixel centres) at normalized (x, y);
-    NaN (outside the measured pupil) reads as 0."""
+    """Bilinear samples of a square map spanning [-1, 1]^2 (pixel centres) at normalized (x, y).
+    NaN entries (outside the measured pupil) are left out and the remaining corners' weights
+    renormalized, so the rim reads the measured values; a cell with no measured corner reads 0."""
+    valid = torch.as_tensor(np.isfinite(wavefront_um), dtype=torch.float64, device=x.device)
     w = torch.as_tensor(np.nan_to_num(wavefront_um, nan=0.0), dtype=torch.float64, device=x.device)
     S = w.shape[0]
     u = ((x + 1) * S / 2 - 0.5).clamp(0, S - 1)  # column
     v = ((y + 1) * S / 2 - 0.5).clamp(0, S - 1)  # row
     u0, v0 = u.floor().long().clamp(max=S - 2), v.floor().long().clamp(max=S - 2)
     fu, fv = u - u0, v - v0
-    return (w[v0, u0] * (1 - fu) * (1 - fv) + w[v0, u0 + 1] * fu * (1 - fv) + w[v0 + 1, u0] * (1 - fu) * fv) + w[
-        v0 + 1, u0 + 1
-    ] * fu * fv
+    total, weight = 0.0 * x, 0.0 * x
+    for dv, du, b in ((0, 0, (1 - fu) * (1 - fv)), (0, 1, fu * (1 - fv)), (1, 0, (1 - fu) * fv), (1, 1, fu * fv)):
+        m = valid[v0 + dv, u0 + du] * b
+        total = total + m * w[v0 + dv, u0 + du]
+        weight = weight + m
+    return torch.where(weight > 0, total / weight.clamp(min=1e-300), torch.zeros_like(total))
 
 
 def pupil_phase_step_rad(phase: torch.Tensor) -> float:

@@ -13,16 +13,17 @@ default 10 nm over 400-700 nm keeps 24 of 31 wavelengths).
 
 **Convergence check** (:func:`check_spectral_sampling`). A PSF pixel varies with wavelength
 through the phase ``2 pi OPD / lambda`` (OPD: the largest optical path difference across the
-pupil: defocus, DOE, aberrations) and the lambda-scaling of the pattern, so its shortest
+pupil: the depth range's defocus plus one wave of DOE) and the lambda-scaling of the pattern, so its shortest
 period in wavelength is about ``Lambda = lambda^2 / OPD``. The sampling's error on such a
 function is its error on the SPD's characteristic function,
 
     e_c = max_{0 <= f <= 1/Lambda} | sum_k w_ck exp(2 pi i f lambda_k) - int SPD_c(lambda) exp(2 pi i f lambda) dlambda |,
 
 the integral taken on the 1 nm grid. ``e_c > SPECTRAL_TOLERANCE`` warns
-(:class:`~edofproj.errors.SpectralSamplingWarning`), naming the step that passes. Measured (docs/experiments/2026-11-23-optics-realism.md): passing the check
-keeps the PSFs within 0.1 % L1 of the 1 nm sampling (the default primaries need a step of
-10 nm: 20 nm changes the PSFs by 0.3 %, 30 nm by 3 % in red).
+(:class:`~edofproj.errors.SpectralSamplingWarning`), naming the step that passes; so does a
+range that cuts off part of an LED primary. Measured (docs/experiments/2026-11-23-optics-realism.md):
+the default primaries need a step of 10 nm (PSFs within 0.06 % L1 of the 1 nm sampling); 20 nm
+changes them by up to 0.4 %, 30 nm by 3.4 % in red.
 
 The default SPDs are an assumption (the paper's measured ones are not published): three
 LED-like Gaussian peaks. Measured SPDs are read from a CSV ``wavelength_nm,r,g,b``.
