@@ -22,6 +22,10 @@ class BlurExceedsWindowWarning(UserWarning):
     """The geometric blur disk is wider than the PSF window: light outside it becomes haze."""
 
 
+class SpectralSamplingWarning(UserWarning):
+    """The wavelength sampling undersamples a primary's spectrum: the RGB PSFs are not converged."""
+
+
 def require(condition: bool, message: str, error: type = EdofprojError) -> None:
     """Raise ``error(message)`` unless ``condition`` holds."""
     if not condition:

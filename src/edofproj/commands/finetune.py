@@ -11,9 +11,17 @@ def register(subparsers) -> None:
     p.add_argument(
         "--psfs",
         nargs="+",
-        required=True,
+        default=None,
         metavar="PSF.npz",
         help="measured PSF files (edofproj psf format, e.g. from 'edofproj procams estimate-psf')",
+    )
+    p.add_argument(
+        "--patch-psfs",
+        nargs="+",
+        default=None,
+        metavar="PATCHES.npz",
+        help="per-patch PSF files ('estimate-psf --patch-psfs'), one per depth, instead of --psfs: "
+        "each training sample draws a patch (field point)",
     )
     p.add_argument("--steps", type=int, default=20, help="fine-tuning iterations (paper: 20)")
     p.add_argument("--out", default=None, help="new run directory (default: RUN-finetuned)")
@@ -26,11 +34,21 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
+    from ..errors import EdofprojError
     from ..training.finetune import finetune
 
+    if (args.psfs is None) == (args.patch_psfs is None):
+        raise EdofprojError("give --psfs or --patch-psfs (one of them)")
     out = args.out or str(Path(args.run.rstrip("/")).with_name(Path(args.run.rstrip("/")).name + "-finetuned"))
     result = finetune(
-        args.run, args.psfs, out, steps=args.steps, lr=args.lr, batch_size=args.batch_size, seed=args.seed
+        args.run,
+        args.psfs or args.patch_psfs,
+        out,
+        steps=args.steps,
+        lr=args.lr,
+        batch_size=args.batch_size,
+        seed=args.seed,
+        per_patch=args.patch_psfs is not None,
     )
     lo, hi = result.depth_range_m
     print(

@@ -19,7 +19,9 @@ Sampling checks (:class:`~edofproj.errors.SamplingError`, naming the parameter t
 * the defocus phase step between pupil samples at the rim, 2 pi R dx |1/z - 1/v| / lambda,
   stays below pi/2;
 * the FFT's periodic field of view holds the window plus the geometric blur (otherwise light
-  wraps around into the window): FOV_px >= K + D |1 - z/v| / q(z).
+  wraps around into the window): FOV_px >= K + D |1 - z/v| / q(z);
+* lens aberrations (:mod:`.aberrations`: any Zernike term, a measured wavefront map) add the
+  phase 2 pi W(x, y) / lambda, whose step between pupil samples also stays below pi/2.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import torch
 from scipy import fft as sfft
 
 from ..errors import EdofprojError, SamplingError
+from .aberrations import PupilAberration
 from .geometry import ProjectorGeometry
 from .radial_engine import (
     MAX_DEFOCUS_STEP_RAD,
@@ -61,7 +64,10 @@ class FourierPSFEngine:
         dtype: torch.dtype = torch.float64,
         device=None,
         depth_chunk: int = 2,
+        aberration: PupilAberration | None = None,
     ):
+        #: the lens's wavefront error (None: the ideal thin lens); may be swapped between calls
+        self.aberration = aberration
         self.geometry = geometry
         self.window = check_window(window)
         self.M = check_pupil_samples(pupil_samples)
@@ -118,6 +124,28 @@ class FourierPSFEngine:
         if doe is not None:
             doe.check_sampling(self.dx_m)
 
+    def aberration_phase(self, wavelength_m: float) -> torch.Tensor | float:
+        """``2 pi W(x, y) / lambda`` on the pupil grid, (M, M), or 0 without aberration."""
+        ab = self.aberration
+        if ab is None or ab.is_zero:
+            return 0.0
+        R = self.geometry.aperture_radius_m
+        rho = torch.sqrt(self.r2) / R
+        theta = torch.atan2(self.yy, self.xx)
+        phase = 2 * math.pi * ab.opd_m(rho, theta, wavelength_m) / wavelength_m
+        phase = torch.where(self.aperture, phase, torch.zeros_like(phase))
+        inside = self.aperture[:, 1:] & self.aperture[:, :-1]
+        step_x = (torch.diff(phase, dim=1).abs() * inside).max()
+        inside_y = self.aperture[1:, :] & self.aperture[:-1, :]
+        step = max(float(step_x), float((torch.diff(phase, dim=0).abs() * inside_y).max()))
+        if step > MAX_DEFOCUS_STEP_RAD:
+            need = int(math.ceil(self.M * step / MAX_DEFOCUS_STEP_RAD))
+            raise SamplingError(
+                f"pupil_samples={self.M} cannot resolve the aberration phase ({step:.2f} rad per sample, max "
+                f"{MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
+            )
+        return phase
+
     def psf(self, doe, depths_m) -> torch.Tensor:
         """Pixel-integrated PSFs, (n_depths, n_lambda, K, K), fractions of the pupil energy."""
         depths_m = check_depths(depths_m)
@@ -136,7 +164,7 @@ class FourierPSFEngine:
         out = []
         for li, lam in enumerate(self.wavelengths_m):
             n_minus_1 = 0.0 if doe is None else float(doe.refractive_index(lam)) - 1.0
-            doe_phase = 2 * math.pi * n_minus_1 * height / lam
+            doe_phase = 2 * math.pi * n_minus_1 * height / lam + self.aberration_phase(float(lam))
             N = self.fft_size[li]
             keep, B = self.binning[li]
             keep_t = torch.as_tensor(keep, device=self.device)

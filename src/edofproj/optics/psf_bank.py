@@ -21,9 +21,10 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
+from .aberrations import PupilAberration, aberration_from_config
 from .geometry import ProjectorGeometry
 from .radial_engine import RadialPSFEngine, check_depths, check_window
-from .spectra import Spectrum
+from .spectra import Spectrum, check_spectral_sampling, pupil_path_difference_m
 
 if TYPE_CHECKING:
     from .fourier_engine import FourierPSFEngine
@@ -113,6 +114,7 @@ class PSFSimulator:
         engine: str = "radial",
         dtype: torch.dtype = torch.float64,
         device=None,
+        aberration: PupilAberration | None = None,
     ):
         self.geometry = geometry
         self.spectrum = spectrum
@@ -121,11 +123,15 @@ class PSFSimulator:
         self.dtype = dtype
         self.engine: RadialPSFEngine | FourierPSFEngine
         if engine == "radial":
-            self.engine = RadialPSFEngine(geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device)
+            self.engine = RadialPSFEngine(
+                geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device, aberration=aberration
+            )
         elif engine == "2d":
             from .fourier_engine import FourierPSFEngine
 
-            self.engine = FourierPSFEngine(geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device)
+            self.engine = FourierPSFEngine(
+                geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device, aberration=aberration
+            )
         else:
             raise EdofprojError(f"unknown engine '{engine}' (known: radial, 2d)")
         self.channel_weights = torch.as_tensor(spectrum.weights, dtype=dtype, device=device)
@@ -168,10 +174,19 @@ def simulator_from_config(
 ) -> PSFSimulator:
     """A :class:`PSFSimulator` for a :class:`~edofproj.config.Config`."""
     geometry = ProjectorGeometry.from_config(cfg.optics)
-    spectrum = (
-        Spectrum.monochromatic(wavelength_nm) if wavelength_nm is not None else Spectrum.from_config(cfg.spectrum)
-    )
+    if wavelength_nm is not None:
+        spectrum = Spectrum.monochromatic(wavelength_nm)
+    else:
+        spectrum = Spectrum.from_config(cfg.spectrum)
+        check_spectral_sampling(cfg.spectrum, spectrum, pupil_path_difference_m(geometry, cfg))
     dtype = torch.float64 if cfg.psf.precision == "float64" else torch.float32
     return PSFSimulator(
-        geometry, spectrum, window or cfg.psf.window, cfg.psf.pupil_samples, engine or cfg.psf.engine, dtype, device
+        geometry,
+        spectrum,
+        window or cfg.psf.window,
+        cfg.psf.pupil_samples,
+        engine or cfg.psf.engine,
+        dtype,
+        device,
+        aberration=aberration_from_config(cfg.optics),
     )

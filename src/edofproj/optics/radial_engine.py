@@ -34,6 +34,10 @@ axis, where the in-focus Airy core is a fraction of a pixel). The pupil rings mu
 the defocus phase: its step per ring, 2 pi R dr |1/z - 1/v| / lambda, must stay below
 ``MAX_DEFOCUS_STEP_RAD``, else :class:`~edofproj.errors.SamplingError` names the
 ``pupil_samples`` needed.
+
+Lens aberrations (:mod:`.aberrations`, rotationally symmetric terms only) add the phase
+``2 pi W(r) / lambda`` at the ring centres; their step per ring must stay below
+``MAX_DEFOCUS_STEP_RAD`` too.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import torch
 from scipy.special import j0, j1
 
 from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
+from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
 
@@ -155,6 +160,7 @@ class RadialPSFEngine:
         pupil_samples: int = 1024,
         dtype: torch.dtype = torch.float64,
         device: torch.device | str | None = None,
+        aberration: PupilAberration | None = None,
     ):
         self.geometry = geometry
         self.window = check_window(window)
@@ -162,6 +168,8 @@ class RadialPSFEngine:
         self.wavelengths_m = np.atleast_1d(np.asarray(wavelengths_m, dtype=float))
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")
+        #: the lens's wavefront error (None: the ideal thin lens); may be swapped between calls
+        self.aberration = aberration
 
         R = geometry.aperture_radius_m
         D = geometry.aperture_diameter_m
@@ -237,8 +245,30 @@ class RadialPSFEngine:
                 doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64, device=self.device
             )
         doe_phase = 2 * math.pi * n_minus_1[:, None] * height[None, :] / lam[:, None]  # (L, M)
+        doe_phase = doe_phase + self.aberration_phase()
         alpha = math.pi * (1.0 / z - 1.0 / self.geometry.focus_distance_m)[None, :, None] / lam[:, None, None]
         return doe_phase[:, None, :] + alpha * r[None, None, :] ** 2, alpha
+
+    def aberration_phase(self) -> torch.Tensor | float:
+        """``2 pi W(r_m) / lambda`` at the ring centres, (n_lambda, n_rings), or 0 without aberration."""
+        ab = self.aberration
+        if ab is None or ab.is_zero:
+            return 0.0
+        if not ab.radially_symmetric:
+            raise EdofprojError(
+                "the radial engine takes only rotationally symmetric aberrations (Noll j = 1, 4, 11, 22, ...; "
+                "no wavefront map): use --engine 2d"
+            )
+        rho = self.ring_centres_t / self.geometry.aperture_radius_m
+        phase = torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
+        step = pupil_phase_step_rad(phase)
+        if step > MAX_DEFOCUS_STEP_RAD:
+            need = int(math.ceil(self.pupil_samples * step / MAX_DEFOCUS_STEP_RAD))
+            raise SamplingError(
+                f"pupil_samples={self.pupil_samples} cannot resolve the aberration phase ({step:.2f} rad per ring, "
+                f"max {MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
+            )
+        return phase
 
     def radial_intensity(self, doe, depths_m) -> torch.Tensor:
         """I at the radii ``rho_px_at(l)``: pupil-energy fraction per square pixel, (n_lambda, n_depths, n_nu)."""

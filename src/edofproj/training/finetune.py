@@ -8,6 +8,12 @@ interpolated linearly in inverse depth, in which the defocus blur is linear
 
     PSF(z) = (1 - t) PSF(z_i) + t PSF(z_{i+1}),   t = (1/z - 1/z_i) / (1/z_{i+1} - 1/z_i).
 
+**Per-patch PSFs** (``edofproj procams estimate-psf --patch-psfs``: one PSF per image patch,
+``psf (P, 3, K, K)``): with ``per_patch=True`` the table holds ``(n_depths, P, 3, K, K)`` and
+each training sample draws one patch -- a field point -- uniformly, so the network learns the
+PSFs across the image instead of their mean (a training crop is small against the field, so
+the PSF is taken as constant within it).
+
 Each step draws depths uniformly in the measured range and training crops, renders
 ``I* = project(I, PSF(z))``, and minimizes the run's loss on ``project(clamp(net(I, I*)), PSF(z))``,
 exactly as in joint training (:mod:`.end_to_end`). The result is a new run directory (the
@@ -39,12 +45,16 @@ from .trainer import loss_terms, seed_everything
 
 
 class MeasuredPSFTable(nn.Module):
-    """PSFs measured at arbitrary depths; ``table(depths_m) -> (B, C, K, K)`` interpolated in 1/z."""
+    """PSFs measured at arbitrary depths; ``table(depths_m) -> (B, C, K, K)`` interpolated in 1/z.
+
+    ``psf``: ``(n_depths, C, K, K)``, or ``(n_depths, P, C, K, K)`` per patch (field point), in
+    which case each sample draws a patch uniformly (``seed``)."""
 
     psf: torch.Tensor  # buffer
 
-    def __init__(self, psf: torch.Tensor, depths_m) -> None:
+    def __init__(self, psf: torch.Tensor, depths_m, seed: int = 0) -> None:
         super().__init__()
+        self.generator = torch.Generator().manual_seed(int(seed))
         depths_m = np.asarray(depths_m, dtype=np.float64)
         order = np.argsort(-depths_m)  # increasing inverse depth
         self.register_buffer("psf", psf[torch.as_tensor(order.copy())].float().clone())
@@ -72,6 +82,36 @@ class MeasuredPSFTable(nn.Module):
             raise EdofprojError(f"the measured PSF files repeat a depth: {np.round(depths_m * 1e3, 1).tolist()} mm")
         return cls(torch.cat(psfs), depths_m)
 
+    @classmethod
+    def from_patch_files(cls, paths, seed: int = 0) -> "MeasuredPSFTable":
+        """Load per-patch PSF files (``estimate-psf --patch-psfs``: ``psf (P, 3, K, K)`` and
+        ``depths_m (1,)``); they must share the window and the patch count."""
+        psfs, depths = [], []
+        for path in paths:
+            try:
+                with np.load(path, allow_pickle=False) as data:
+                    psf, depth = data["psf"], data["depths_m"]
+            except (OSError, ValueError, KeyError) as exc:
+                raise EdofprojError(f"cannot read per-patch PSF file '{path}': {exc}") from None
+            if psf.ndim != 4 or psf.shape[1] != 3 or psf.shape[-1] != psf.shape[-2] or np.size(depth) != 1:
+                raise EdofprojError(
+                    f"per-patch PSF file '{path}' must hold psf (P, 3, K, K) and one depth, got {psf.shape}"
+                )
+            if not np.all(np.isfinite(psf)):
+                raise EdofprojError(f"per-patch PSF file '{path}' contains NaN or infinite values")
+            psfs.append(torch.from_numpy(psf.astype(np.float32)))
+            depths.append(float(np.ravel(depth)[0]))
+        if len({p.shape for p in psfs}) != 1:
+            raise EdofprojError(
+                f"the per-patch PSF files differ in patches or window {sorted({tuple(p.shape) for p in psfs})}: "
+                "estimate them with the same --patch and --window"
+            )
+        if len(np.unique(np.round(depths, 6))) != len(depths):
+            raise EdofprojError(
+                f"the per-patch PSF files repeat a depth: {np.round(np.array(depths) * 1e3, 1).tolist()} mm"
+            )
+        return cls(torch.stack(psfs), np.asarray(depths), seed)
+
     @property
     def depth_range_m(self) -> tuple[float, float]:
         return float(self.depths_m.min()), float(self.depths_m.max())
@@ -84,13 +124,20 @@ class MeasuredPSFTable(nn.Module):
                 f"depths outside the measured {self.depths_m.min() * 1e3:.0f}-{self.depths_m.max() * 1e3:.0f} mm"
             )
         n = len(self.depths_m)
+        table = self.psf
+        if table.ndim == 5:  # per patch: one field point per sample
+            patch = torch.randint(table.shape[1], (len(inverse),), generator=self.generator)
+            table = table[:, patch]  # (n_depths, B, C, K, K)
+            pick = lambda index: table[index, torch.arange(len(inverse))]  # noqa: E731
+        else:
+            pick = lambda index: table[index]  # noqa: E731
         if n == 1:
-            return self.psf[[0] * len(inverse)]
+            return pick(torch.zeros(len(inverse), dtype=torch.long))
         upper = torch.searchsorted(self.inverse, inverse.clamp(lo, hi)).clamp(1, n - 1)
         lower = upper - 1
         t = ((inverse - self.inverse[lower]) / (self.inverse[upper] - self.inverse[lower])).clamp(0, 1)
         t = t.to(self.psf.dtype)[:, None, None, None]
-        return (1 - t) * self.psf[lower] + t * self.psf[upper]
+        return (1 - t) * pick(lower) + t * pick(upper)
 
 
 @dataclass
@@ -111,8 +158,12 @@ def finetune(
     batch_size: int | None = None,
     seed: int | None = None,
     progress: bool = True,
+    per_patch: bool = False,
 ) -> FinetuneResult:
     """Fine-tune the network of ``run_dir`` on measured PSFs; write a new run to ``out_dir``.
+
+    ``per_patch``: ``psf_files`` are per-patch files (``estimate-psf --patch-psfs``) and each
+    sample draws a patch (module docstring).
 
     ``lr`` defaults to the run's ``train.lr_net`` times its final decay fraction (where its
     schedule ended); ``batch_size`` and ``seed`` default to the run's.
@@ -125,8 +176,13 @@ def finetune(
     if out_dir.resolve() == Path(run_dir).resolve():
         raise EdofprojError("--out must differ from the run directory: fine-tuning never overwrites the run")
     check_new_run_dir(out_dir)
-    table = MeasuredPSFTable.from_files(psf_files)
     trained = load_run(run_dir)
+    table_seed = trained.cfg.train.seed if seed is None else seed
+    table = (
+        MeasuredPSFTable.from_patch_files(psf_files, table_seed)
+        if per_patch
+        else MeasuredPSFTable.from_files(psf_files)
+    )
     cfg = trained.cfg
     z_min, z_max = table.depth_range_m
     train_cfg = dataclasses.replace(
@@ -201,6 +257,7 @@ def finetune(
             "doe": {},
             "finetuned_from": str(run_dir),
             "measured_psfs": [str(p) for p in psf_files],
+            "per_patch": bool(per_patch),
             "measured_depths_m": table.depths_m.tolist(),
         },
     )
