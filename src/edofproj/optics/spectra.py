@@ -45,8 +45,12 @@ WAVELENGTH_RANGE_NM = (350.0, 1000.0)
 REFERENCE_STEP_NM = 1.0
 #: largest error of the sampled SPD's characteristic function (see the module docstring)
 SPECTRAL_TOLERANCE = 1e-2
+
 #: candidate steps (nm) named by the check
 CANDIDATE_STEPS_NM = (20.0, 15.0, 10.0, 8.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0)
+
+# A configuration's spectral sampling is the same for every PSF a command computes: say so once.
+warnings.filterwarnings("once", category=SpectralSamplingWarning)
 
 
 def check_wavelengths_nm(wavelengths_nm) -> np.ndarray:
