@@ -68,9 +68,28 @@ def pixel_ray_directions(height_px: int, width_px: int, geometry) -> np.ndarray:
     return directions
 
 
-def ray_engine_name() -> str:
-    """``embree`` when trimesh can use Embree, else ``numpy``."""
-    return "embree" if trimesh.ray.has_embree else "numpy"
+RAY_ENGINES = ("auto", "embree", "numpy")
+
+
+def ray_engine_name(engine: str = "auto") -> str:
+    """The engine ``engine`` resolves to: ``embree`` when asked or (``auto``) when trimesh can use it, else ``numpy``."""
+    if engine not in RAY_ENGINES:
+        raise EdofprojError(f"ray engine '{engine}' is not one of {', '.join(RAY_ENGINES)}")
+    if engine == "embree" and not trimesh.ray.has_embree:
+        raise EdofprojError("the embree ray engine needs the embreex package (pip install 'edofproj[scenes-fast]')")
+    if engine == "auto":
+        return "embree" if trimesh.ray.has_embree else "numpy"
+    return engine
+
+
+def _intersector(mesh: trimesh.Trimesh, engine: str):
+    if ray_engine_name(engine) == "embree":
+        from trimesh.ray.ray_pyembree import RayMeshIntersector as EmbreeIntersector
+
+        return EmbreeIntersector(mesh)
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    return RayMeshIntersector(mesh)
 
 
 def _scene_mesh(scene: Scene, geometry, height_px: int, width_px: int) -> tuple[trimesh.Trimesh, np.ndarray]:
@@ -96,11 +115,14 @@ def _scene_mesh(scene: Scene, geometry, height_px: int, width_px: int) -> tuple[
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False), owner
 
 
-def cast_scene(scene: Scene, height_px: int, width_px: int, geometry, stride: int = 1) -> SceneCast:
+def cast_scene(
+    scene: Scene, height_px: int, width_px: int, geometry, stride: int = 1, engine: str = "auto"
+) -> SceneCast:
     """Cast the rays of an ``H x W`` image (every ``stride``-th row and column) into ``scene``.
 
     Raises when no ray meets the scene (it lies outside the view) or when a ray enters a solid
     (a mesh not marked ``open``) and meets the inside of its surface: the mesh is not watertight.
+    ``engine``: ``auto``, ``embree`` or ``numpy`` (module docstring).
     """
     clock = time.perf_counter()
     directions = pixel_ray_directions(height_px, width_px, geometry)[::stride, ::stride]
@@ -108,7 +130,9 @@ def cast_scene(scene: Scene, height_px: int, width_px: int, geometry, stride: in
     mesh, owner = _scene_mesh(scene, geometry, height_px, width_px)
     rays = directions.reshape(-1, 3)
     origins = np.zeros_like(rays)
-    locations, ray_index, face_index = mesh.ray.intersects_location(origins, rays, multiple_hits=False)
+    locations, ray_index, face_index = _intersector(mesh, engine).intersects_location(
+        origins, rays, multiple_hits=False
+    )
 
     count = rays.shape[0]
     depth = np.full(count, np.nan)
@@ -155,5 +179,5 @@ def cast_scene(scene: Scene, height_px: int, width_px: int, geometry, stride: in
         hit=hit.reshape(shape),
         mesh_index=index.reshape(shape),
         seconds=time.perf_counter() - clock,
-        engine=ray_engine_name(),
+        engine=ray_engine_name(engine),
     )

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from ..imaging.depth_layers import render_depth_map
 from ..imaging.projection import project
 from .camera import camera_capture
 
@@ -63,6 +64,7 @@ class EndToEndProjector(nn.Module):
         noise_sigma: float = 0.0,
         quantize_capture: bool = False,
         mixed_precision: str = "none",
+        layers_m=None,
     ) -> None:
         super().__init__()
         if mixed_precision not in ("none", "bf16"):
@@ -72,13 +74,29 @@ class EndToEndProjector(nn.Module):
         self.noise_sigma = float(noise_sigma)
         self.quantize_capture = bool(quantize_capture)
         self.mixed_precision = mixed_precision
+        self.layers_m = layers_m  # depth layers for depth-varying screens (train.screens: varying)
 
     def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> Projections:
-        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``."""
-        psf = self.psf_source(depths_m).to(target.device)
-        captured = camera_capture(project(target, psf), noise, self.noise_sigma, self.quantize_capture)
+        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,) flat screens or (B, H, W) depth maps
+        (rendered by depth layers at ``layers_m``), ``noise`` standard normal like ``target``."""
+        if getattr(depths_m, "ndim", 1) == 3:
+            if self.layers_m is None:
+                raise ValueError("depth-map screens need the projector's layers_m")
+            layers, maps = self.layers_m, depths_m
+            layer_psf = self.psf_source(layers).to(target.device)
+
+            def form(x):
+                return render_depth_map(x, maps, layer_psf, layers=layers)
+
+        else:
+            psf = self.psf_source(depths_m).to(target.device)
+
+            def form(x):
+                return project(x, psf)
+
+        captured = camera_capture(form(target), noise, self.noise_sigma, self.quantize_capture)
         with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
             compensated = self.net(target, captured)
         compensated = compensated.float()
-        projected = project(compensated.clamp(0.0, 1.0), psf)
+        projected = form(compensated.clamp(0.0, 1.0))
         return Projections(captured, compensated, projected)
