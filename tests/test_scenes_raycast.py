@@ -108,6 +108,7 @@ def test_scene_file_poses_meshes(tmp_path, small_projector):
     assert cast.incidence_deg[cast.mesh_index == 0].min() == pytest.approx(45, abs=3)
 
 
+@pytest.mark.slow
 def test_builtin_scenes_span_their_stated_depths():
     geometry = ProjectorGeometry()
     stated = {
