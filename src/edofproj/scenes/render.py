@@ -42,10 +42,25 @@ def check_scene_depth_range(cast: SceneCast, near_m: float, far_m: float, what: 
         )
 
 
-def filled_depth_m(cast: SceneCast) -> np.ndarray:
-    """The depth map with missed pixels set to the nearest hit depth (their light is zero anyway), float64."""
-    depth = cast.depth_m.astype(np.float64)
-    return np.where(cast.hit, depth, np.nanmin(depth))
+def filled_depth_m(depth_map_m) -> np.ndarray:
+    """A depth map with its missed (NaN) pixels set to the nearest hit depth (their light is zero anyway), float64."""
+    depth = np.asarray(depth_map_m, dtype=np.float64)
+    hit = np.isfinite(depth)
+    if not np.any(hit):
+        raise EdofprojError("the depth map has no finite depth: nothing is hit")
+    return np.where(hit, depth, depth[hit].min())
+
+
+def render_masked_depth_map(
+    image: torch.Tensor,
+    depth_map_m,
+    psf_for_depths: Union[PSFForDepths, torch.Tensor],
+    layers: Union[int, Sequence[float], np.ndarray],
+) -> torch.Tensor:
+    """``m * L(m I, z)`` for a depth map ``(H, W)`` whose NaN pixels hit nothing (``m = 0``: light lost)."""
+    depth = np.asarray(depth_map_m, dtype=np.float64)
+    mask = torch.as_tensor(np.isfinite(depth), dtype=image.dtype, device=image.device)
+    return render_depth_map(image.clamp(0.0, 1.0) * mask, filled_depth_m(depth), psf_for_depths, layers=layers) * mask
 
 
 def scene_layers_m(cast: SceneCast, layers: int) -> np.ndarray:
@@ -81,8 +96,7 @@ def render_scene(
             f"the image {tuple(image.shape)} does not match the scene's ray cast {tuple(cast.hit.shape)} (H, W)"
         )
     depths = scene_layers_m(cast, layers) if isinstance(layers, (int, np.integer)) else np.asarray(layers, float)
-    mask = torch.as_tensor(cast.hit, dtype=image.dtype, device=image.device)
-    out = render_depth_map(image.clamp(0.0, 1.0) * mask, filled_depth_m(cast), psf_for_depths, layers=depths) * mask
+    out = render_masked_depth_map(image, cast.depth_m, psf_for_depths, depths)
     if falloff_reference_m is not None:
         gain = torch.as_tensor(relative_irradiance(cast, falloff_reference_m), dtype=image.dtype, device=image.device)
         out = out * gain
