@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import trimesh
 
 from edofproj.cli import main
 from edofproj.imaging import read_image, write_image
@@ -60,11 +59,14 @@ def test_scene_render_writes_projection_depth_and_figure(tmp_path, image_path, c
     assert (out / "figure.png").stat().st_size > 0
     assert "sphere_wall" in capsys.readouterr().out
     # render --depth-map reads the same array
-    assert main(
-        ["render", "--image", str(image_path), "--out", str(out / "again.png"), "--doe", "lens"]
-        + ["--depth-map", str(out / "depth.npy")]
-        + overrides()
-    ) == 0
+    assert (
+        main(
+            ["render", "--image", str(image_path), "--out", str(out / "again.png"), "--doe", "lens"]
+            + ["--depth-map", str(out / "depth.npy")]
+            + overrides()
+        )
+        == 0
+    )
 
 
 def write_mesh(path, mesh):

@@ -63,7 +63,9 @@ def test_depth_edge_each_source_pixel_carries_its_surface_psf(small_projector):
 
     # light from the near side alone, and from the far side alone, across the edge (middle row)
     only_near = render_scene(image * torch.as_tensor(left, dtype=torch.float32), cast, psfs, [0.4, 0.6])[0, 0, H // 2]
-    only_far = render_scene(image * torch.as_tensor(1 - left, dtype=torch.float32), cast, psfs, [0.4, 0.6])[0, 0, H // 2]
+    only_far = render_scene(image * torch.as_tensor(1 - left, dtype=torch.float32), cast, psfs, [0.4, 0.6])[
+        0, 0, H // 2
+    ]
     spill_into_far = int((only_near[W // 2 :] > 1e-6).sum())
     spill_into_near = int((only_far[: W // 2] > 1e-6).sum())
     assert spill_into_far == 5 and spill_into_near == 1  # the PSF radii
@@ -86,7 +88,9 @@ def test_missed_rays_lose_their_light(small_projector):
 def test_falloff_is_cos_theta_over_distance_squared(small_projector):
     """On a fronto-parallel plane at z: d = z |(u, v, 1)|, cos(theta) = 1 / |(u, v, 1)|."""
     z = 0.6
-    cast = cast_scene(Scene("wall", [SceneMesh("wall", fronto_parallel_plane(z, small_projector), True)]), H, W, small_projector)
+    cast = cast_scene(
+        Scene("wall", [SceneMesh("wall", fronto_parallel_plane(z, small_projector), True)]), H, W, small_projector
+    )
     u = (np.arange(W) + 0.5 - W / 2) / small_projector.throw_width_m
     v = (np.arange(H) + 0.5 - H / 2) / small_projector.throw_width_m
     norm = np.sqrt(u[None, :] ** 2 + v[:, None] ** 2 + 1)

@@ -18,7 +18,9 @@ from ._common import add_config_options, config_from_args
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "scene", help="projection mapping onto 3-D objects (meshes, built-in scenes)", description=__doc__.split("\n")[0]
+        "scene",
+        help="projection mapping onto 3-D objects (meshes, built-in scenes)",
+        description=__doc__.split("\n")[0],
     )
     actions = p.add_subparsers(dest="scene_action", metavar="ACTION", required=True)
     listing = actions.add_parser("list", help="the built-in scenes and the depths they span")
@@ -32,9 +34,13 @@ def register(subparsers) -> None:
         required=True,
         help="the design: lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file or a run directory",
     )
-    r.add_argument("--image", required=True, help="projector image (PNG/JPEG), resized to nothing: its size is the view")
+    r.add_argument(
+        "--image", required=True, help="projector image (PNG/JPEG), resized to nothing: its size is the view"
+    )
     r.add_argument("--out", required=True, help="simulated projection (.png, .tif, .jpg, .bmp)")
-    r.add_argument("--depth-out", default=None, help="also write the depth map: .npy float32 (H, W) in mm, NaN = no hit")
+    r.add_argument(
+        "--depth-out", default=None, help="also write the depth map: .npy float32 (H, W) in mm, NaN = no hit"
+    )
     r.add_argument("--figure", default=None, help="also write a figure (.png): image, depth, incidence, projection")
     r.add_argument(
         "--falloff",
@@ -53,12 +59,16 @@ def run_list(args) -> int:
     cfg = config_from_args(args)
     geometry = ProjectorGeometry.from_config(cfg.optics)
     stride = max(1, min(geometry.width_px, geometry.height_px) // 60)
-    print(f"built-in scenes, as seen at {geometry.height_px}x{geometry.width_px} px (throw ratio {geometry.throw_ratio:g}):")
+    print(
+        f"built-in scenes, as seen at {geometry.height_px}x{geometry.width_px} px (throw ratio {geometry.throw_ratio:g}):"
+    )
     for name in BUILTIN_SCENES:
         scene = builtin_scene(name, geometry)
         cast = cast_scene(scene, geometry.height_px, geometry.width_px, geometry, stride=stride)
         lo, hi = cast.depth_range_m()
-        print(f"  {name:<12} {lo * 1e3:5.0f}-{hi * 1e3:4.0f} mm, {cast.hit_fraction:4.0%} of pixels hit: {scene.description}")
+        print(
+            f"  {name:<12} {lo * 1e3:5.0f}-{hi * 1e3:4.0f} mm, {cast.hit_fraction:4.0%} of pixels hit: {scene.description}"
+        )
     return 0
 
 

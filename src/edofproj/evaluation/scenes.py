@@ -34,6 +34,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..metrics import ssim_map
+from .designs import OpticalDesign
 from .progress import StageProgress
 from .report import Table
 from .results import MetricsTable
@@ -144,7 +145,9 @@ def evaluate_scenes(
     table = MetricsTable(("method", "scene", "image"), ("psnr", "ssim"))
     evaluation = SceneEvaluation(out, run_path, list(casts), [m.name for m in prepared], table, {})
     evaluation.notes = list(builder.notes)
-    progress.start("scenes", len(casts) * len(images) * len(prepared), detail=f"{len(casts)} scenes at {height}x{width}")
+    progress.start(
+        "scenes", len(casts) * len(images) * len(prepared), detail=f"{len(casts)} scenes at {height}x{width}"
+    )
     with torch.inference_mode():
         for scene_name, cast in casts.items():
             lo, hi = cast.depth_range_m()
@@ -158,7 +161,7 @@ def evaluate_scenes(
                     evaluation.targets[scene_name] = (target * hit)[0].permute(1, 2, 0).cpu().numpy()
                 captured_by_design: dict[str, torch.Tensor] = {}
                 for method in prepared:
-                    design = method.design
+                    design: OpticalDesign = method.design  # type: ignore[assignment]
                     psf = design.psf(layers)
                     if design.key not in captured_by_design:
                         captured_by_design[design.key] = render_scene(target, cast, psf, layers)
@@ -208,7 +211,9 @@ def write_scene_files(evaluation: SceneEvaluation) -> None:
     figures = out / "figures"
     figures.mkdir(parents=True, exist_ok=True)
     evaluation.files["figure"] = figures / "eval_scenes.png"
-    plot_scene_grid(evaluation.targets, evaluation.examples, evaluation.scenes, evaluation.methods, evaluation.files["figure"])
+    plot_scene_grid(
+        evaluation.targets, evaluation.examples, evaluation.scenes, evaluation.methods, evaluation.files["figure"]
+    )
     evaluation.files["ssim_figure"] = figures / "eval_scene_ssim.png"
     plot_scene_ssim_maps(evaluation.examples, evaluation.scenes, evaluation.methods, evaluation.files["ssim_figure"])
     images = len({row["image"] for row in evaluation.table.rows})

@@ -72,9 +72,7 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
     """A triangle mesh from an OBJ, PLY, STL or GLB file (a GLB's nodes are flattened with their transforms)."""
     path = Path(path)
     if path.suffix.lower() not in MESH_EXTENSIONS:
-        raise EdofprojError(
-            f"mesh '{path}' has an unsupported extension (supported: {', '.join(MESH_EXTENSIONS)})"
-        )
+        raise EdofprojError(f"mesh '{path}' has an unsupported extension (supported: {', '.join(MESH_EXTENSIONS)})")
     if not path.is_file():
         raise EdofprojError(f"mesh file '{path}' does not exist")
     try:

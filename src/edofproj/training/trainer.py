@@ -293,7 +293,12 @@ class _Session:
         device = self.group.device
         if cfg.train.screens == "varying":
             depths = sample_depth_maps(
-                cfg.train.seed, step, self.shard, cfg.data.crop, cfg.psf.depth_min_mm * 1e-3, cfg.psf.depth_max_mm * 1e-3
+                cfg.train.seed,
+                step,
+                self.shard,
+                cfg.data.crop,
+                cfg.psf.depth_min_mm * 1e-3,
+                cfg.psf.depth_max_mm * 1e-3,
             )
         else:
             depths = sample_depths_m(
