@@ -147,7 +147,7 @@ def cast_scene(
         facing = np.einsum("ij,ij->i", n, d_unit)  # > 0: the ray meets the back of the face
         inside = facing > 0
         owners = owner[face_index]
-        solids = np.array([not m.open for m in scene.meshes] + [False] * (len(owner) and owner.max() + 1))
+        solids = np.array([not m.open for m in scene.meshes] + [False])  # the background plane is open
         bad = inside & solids[owners]
         if np.any(bad):
             which = scene.meshes[int(owners[bad][0])]
