@@ -1,8 +1,9 @@
 """Benchmark projection mapping onto a scene at 600 x 800 pixels: ray casting and rendering.
 
 For each built-in scene (or ``--scenes``): seconds to ray-cast one ray per projector pixel with
-each ray engine available to trimesh (``numpy``: its pure-NumPy intersector with an R-tree;
-``embree``: Embree through the ``embreex`` package, the ``scenes-fast`` extra), seconds to
+each ray engine (``pinhole``: edofproj's vectorized NumPy rasterizer; ``embree``: trimesh with
+Embree through the ``embreex`` package, the ``scenes-fast`` extra; ``numpy``: trimesh's own
+intersector, about a minute per scene, only with ``--engines``), seconds to
 simulate the PSFs of the depth layers (``imaging.depth_layers`` = 8, the cpu preset's lens), and
 seconds to render one image through the depth layers. Torch and the ray engines use
 ``--threads`` threads (default 2).
@@ -44,7 +45,7 @@ def main() -> None:
     cfg = load_config("cpu")
     geometry = ProjectorGeometry.from_config(cfg.optics)
     height, width = geometry.height_px, geometry.width_px
-    engines = args.engines.split(",") if args.engines else ["numpy"] + (["embree"] if trimesh.ray.has_embree else [])
+    engines = args.engines.split(",") if args.engines else ["pinhole"] + (["embree"] if trimesh.ray.has_embree else [])
     scenes = args.scenes.split(",") if args.scenes else list(BUILTIN_SCENES)
     doe = build_doe(cfg, "lens")
     simulator = simulator_from_config(cfg)

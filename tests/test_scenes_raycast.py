@@ -13,7 +13,7 @@ from edofproj.scenes import Scene, SceneMesh, cast_scene, load_scene
 from edofproj.scenes.builtin import BUILTIN_SCENES, builtin_scene, quad, sphere_mesh
 
 H, W = 24, 32
-ENGINES = ["numpy"] + (["embree"] if trimesh.ray.has_embree else [])
+ENGINES = ["pinhole", "numpy"] + (["embree"] if trimesh.ray.has_embree else [])
 
 
 @pytest.fixture
@@ -33,7 +33,7 @@ def ray_slopes(geometry):
 def test_plane_at_known_tilt(small_projector, engine, tilt_deg):
     """z = z0 + x tan(t) meets the ray (u z, v z, z) at z = z0 / (1 - u tan t); normal (sin t, 0, -cos t)."""
     z0, t = 0.5, math.radians(tilt_deg)
-    big = 1.0
+    big = 0.3  # covers the view at 0.5 m (0.33 x 0.25 m) and stays in front of the lens
     corners = [[x, y, z0 + x * math.tan(t)] for x, y in ((-big, -big), (big, -big), (big, big), (-big, big))]
     scene = Scene("plane", [SceneMesh("plane", quad(np.array(corners)), open=True)])
     cast = cast_scene(scene, H, W, small_projector, engine=engine)
@@ -74,6 +74,18 @@ def test_sphere_depth_and_normals(small_projector, engine):
     normal = (t[..., None] * d - centre) / radius
     angle = np.degrees(np.arccos(np.clip((cast.normal[sure] * normal[sure]).sum(-1), -1, 1)))
     assert angle.max() < 3.0  # facets of a subdivision-4 icosphere span about 2.4 degrees
+
+
+@pytest.mark.slow
+def test_engines_agree_on_a_built_in_scene():
+    """The pinhole rasterizer and trimesh's own intersector see the same depths (sphere in front of a wall)."""
+    geometry = ProjectorGeometry(width_px=W * 4, height_px=H * 4)
+    scene = builtin_scene("sphere_wall", geometry)
+    pinhole = cast_scene(scene, H * 4, W * 4, geometry, stride=2, engine="pinhole")
+    reference = cast_scene(scene, H * 4, W * 4, geometry, stride=2, engine="numpy")
+    assert (pinhole.hit == reference.hit).all()
+    np.testing.assert_allclose(pinhole.depth_m, reference.depth_m, rtol=1e-6)
+    assert (pinhole.mesh_index == reference.mesh_index).mean() > 0.99
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".glb"])
