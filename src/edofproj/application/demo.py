@@ -322,14 +322,17 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
 
     chosen = [m for m in methods if m in QUICK_SCENE_METHODS] if quick else list(methods)
     progress.note(f"scene {DEMO_SCENE}")
-    scenes = evaluate_scenes(
-        out / OURS_RUN_DIR,
-        [DEMO_SCENE],
-        out_dir=out,
-        methods=chosen,
-        baselines_dir=out,
-        overrides=["data.max_test_images=1"],
-    )
+    try:
+        scenes = evaluate_scenes(
+            out / OURS_RUN_DIR,
+            [DEMO_SCENE],
+            out_dir=out,
+            methods=chosen,
+            baselines_dir=out,
+            overrides=["data.max_test_images=1"],
+        )
+    except EdofprojError as exc:  # e.g. a configuration whose PSF range does not cover the scene
+        return [Heading("Projection onto a 3-D scene"), Paragraph(f"Scene `{DEMO_SCENE}` not scored: {exc}.")]
     low, high = scenes.depth_ranges_mm[DEMO_SCENE]
     table = scene_summary_table(scenes, "ssim")
     table.caption = "SSIM over the object's pixels"
