@@ -35,7 +35,9 @@ def register(subparsers) -> None:
         help="the design: lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file or a run directory",
     )
     r.add_argument(
-        "--image", required=True, help="projector image (PNG/JPEG), resized to nothing: its size is the view"
+        "--image",
+        required=True,
+        help="projector image (PNG/JPEG), used at its size: one ray per pixel (smaller than the panel: the view's centre)",
     )
     r.add_argument("--out", required=True, help="simulated projection (.png, .tif, .jpg, .bmp)")
     r.add_argument(
