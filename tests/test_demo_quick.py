@@ -54,10 +54,12 @@ def test_quick_demo_writes_a_complete_report(tmp_path, capsys):
         "Optics",
         "Training",
         "Timing",
+        "Projection onto a 3-D scene",
         "demo wall time",
     ):
         assert section in html, section
-    assert html.count("data:image/png;base64,") >= 7  # metric plots, comparison, tilted, PSF, DOE, training
+    assert html.count("data:image/png;base64,") >= 9  # metric plots, comparison, tilted, PSF, DOE, training, scene x2
+    assert (out / "scene_metrics.csv").is_file()
     markdown = (out / "report.md").read_text()
     assert "(figures/eval_psf_lens_vs_doe.png)" in markdown and (out / "figures" / "eval_psf_lens_vs_doe.png").is_file()
 

@@ -21,6 +21,7 @@ LAYERS = [
     {"optics"},
     {"doe"},
     {"imaging"},
+    {"scenes"},
     {"compensation"},
     {"perceptual"},
     {"metrics"},

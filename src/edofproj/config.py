@@ -399,7 +399,10 @@ class TrainConfig:
     convolutions run under bfloat16 autocast, while the PSF simulation, image formation, every
     FFT (the network's Fourier filter included) and the loss stay in float32 or float64.
     Checkpoints every ``checkpoint_every`` steps; the newest ``keep_checkpoints`` step files
-    are kept (0: all).
+    are kept (0: all). ``screens``: ``flat`` (one depth per crop, the paper) or ``varying``
+    (each crop on a random depth-varying screen: flat, tilted, a step or smooth relief,
+    :mod:`edofproj.scenes.random_screens`, rendered with ``imaging.depth_layers`` layers spanning
+    the PSF range).
     """
 
     steps: int = 400
@@ -422,8 +425,11 @@ class TrainConfig:
     threads: int = 0
     device: str = "auto"
     mixed_precision: str = "none"
+    screens: str = "flat"
 
     def validate(self) -> None:
+        if self.screens not in ("flat", "varying"):
+            raise ConfigError(f"train.screens={self.screens!r} must be flat or varying")
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1:
             raise ConfigError("train.steps, train.batch_size and train.checkpoint_every must be >= 1")
         if self.keep_checkpoints < 0:

@@ -94,8 +94,8 @@ def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels)
 
 
-def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean SSIM and mean contrast-structure term per image, both ``(B,)``.
+def _ssim_maps(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Local SSIM and contrast-structure maps ``(B, C, H - 2r, W - 2r)`` (``r`` the window's radius).
 
     With local Gaussian-weighted means ``mu``, variances ``sigma^2`` and covariance
     ``sigma_xy``, ``C1 = (K1 L)^2``, ``C2 = (K2 L)^2``, ``L = 1``:
@@ -118,7 +118,24 @@ def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tu
     c1, c2 = SSIM_K1**2, SSIM_K2**2
     contrast_structure = (2 * cov_xy + c2) / (var_x + var_y + c2)
     luminance = (2 * mu_x * mu_y + c1) / (mu_x * mu_x + mu_y * mu_y + c1)
-    return (luminance * contrast_structure).flatten(1).mean(1), contrast_structure.flatten(1).mean(1)
+    return luminance * contrast_structure, contrast_structure
+
+
+def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean SSIM and mean contrast-structure term per image, both ``(B,)`` (:func:`_ssim_maps`)."""
+    ssim_values, contrast_structure = _ssim_maps(pred, target)
+    return ssim_values.flatten(1).mean(1), contrast_structure.flatten(1).mean(1)
+
+
+def ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Local SSIM ``(B, H, W)`` averaged over the colours, NaN within the window's radius of the border
+    (where the window does not fit); its mean over the finite pixels is :func:`ssim`."""
+    _check_pair(pred, target, "ssim")
+    local = _ssim_maps(pred, target)[0].mean(1)
+    radius = (pred.shape[-2] - local.shape[-2]) // 2
+    out = torch.full((pred.shape[0], *pred.shape[-2:]), float("nan"), dtype=local.dtype, device=local.device)
+    out[:, radius : radius + local.shape[-2], radius : radius + local.shape[-1]] = local
+    return out
 
 
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

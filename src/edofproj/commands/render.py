@@ -3,7 +3,8 @@
 The PSFs come from a PSF file (``--psf``, written by ``edofproj psf``) or are simulated for
 a design (``--doe``). The screen is a plane at one depth, a tilted plane (``--tilt-deg``,
 ``--near-mm`` [``--far-mm``]) or any per-pixel depth map (``--depth-map``, a ``.npy`` array
-``(H, W)`` in millimetres); non-planar screens are rendered by depth layers
+``(H, W)`` in millimetres, NaN where the light meets nothing and is lost, as ``edofproj scene
+render --depth-out`` writes); non-planar screens are rendered by depth layers
 (:mod:`edofproj.imaging.depth_layers`). The output has the input's size.
 """
 
@@ -90,7 +91,7 @@ def check_arguments(args) -> None:
 
 
 def load_depth_map_m(path: str, image_hw: tuple[int, int]) -> np.ndarray:
-    """A ``.npy`` depth map in mm, checked against the image size; returned in metres."""
+    """A ``.npy`` depth map in mm (NaN: nothing hit), checked against the image size; returned in metres."""
     try:
         depth_mm = np.load(path, allow_pickle=False)
     except FileNotFoundError:
@@ -104,7 +105,9 @@ def load_depth_map_m(path: str, image_hw: tuple[int, int]) -> np.ndarray:
             f"depth map '{path}' has shape {depth_mm.shape}, expected the image's (H, W) = {tuple(image_hw)}"
         )
     depth_mm = depth_mm.astype(np.float64)
-    bad = ~np.isfinite(depth_mm) | (depth_mm <= 0)
+    bad = np.isinf(depth_mm) | (depth_mm <= 0)
+    if np.all(np.isnan(depth_mm)):
+        raise EdofprojError(f"depth map '{path}' is all NaN: the light meets nothing")
     if np.any(bad):
         raise EdofprojError(f"depth map '{path}' must be positive finite depths in mm; found {depth_mm[bad][0]:g}")
     return depth_mm * 1e-3
@@ -129,10 +132,11 @@ def simulator_for(cfg, doe):
 def run(args) -> int:
     import torch
 
-    from ..imaging import bank_layers, project, read_image, render_depth_map, write_image
+    from ..imaging import bank_layers, project, read_image, write_image
     from ..imaging.image_io import check_output_path
     from ..imaging.screens import tilted_plane_depth_map, tilted_plane_far_m, tilted_plane_tilt_deg
     from ..optics.geometry import ProjectorGeometry
+    from ..scenes.render import filled_depth_m, render_masked_depth_map
 
     check_arguments(args)
     check_output_path(args.out, args.bits)
@@ -144,7 +148,9 @@ def run(args) -> int:
     screen = ""
     if args.depth_map is not None:
         depth_map_m = load_depth_map_m(args.depth_map, (height, width))
-        screen = f"depth map {depth_map_m.min() * 1e3:.1f}-{depth_map_m.max() * 1e3:.1f} mm"
+        screen = f"depth map {np.nanmin(depth_map_m) * 1e3:.1f}-{np.nanmax(depth_map_m) * 1e3:.1f} mm"
+        if np.isnan(depth_map_m).any():
+            screen += f", {np.isnan(depth_map_m).mean():.0%} of pixels hit nothing"
     elif args.tilt_deg is not None:
         geometry = ProjectorGeometry.from_config(cfg.optics)
         near_m = args.near_mm * 1e-3
@@ -166,8 +172,8 @@ def run(args) -> int:
 
             bank = PSFBank.load(args.psf)
             if depth_map_m is not None:
-                depths, psf = bank_layers(bank, depth_map_m)
-                result = render_depth_map(image, depth_map_m, psf, layers=depths)
+                depths, psf = bank_layers(bank, filled_depth_m(depth_map_m))
+                result = render_masked_depth_map(image, depth_map_m, psf, depths)
                 source = f"{len(depths)} PSF layers from '{args.psf}'"
             else:
                 index = pick_depth_index(bank, args.depth_index, args.psf)
@@ -181,7 +187,7 @@ def run(args) -> int:
             simulator = simulator_for(cfg, doe)
             if depth_map_m is not None:
                 layers = int(cfg.imaging.depth_layers)
-                result = render_depth_map(image, depth_map_m, lambda depths: simulator(doe, depths), layers=layers)
+                result = render_masked_depth_map(image, depth_map_m, lambda depths: simulator(doe, depths), layers)
                 source = f"{doe.describe()}, up to {layers} depth layers"
             else:
                 result = project(image, simulator(doe, np.array([args.depth_mm * 1e-3])))

@@ -207,3 +207,39 @@ def plot_training_curves(curves: Sequence[tuple[str, list[dict]]], path: str | P
     ax.legend(fontsize=8)
     ax.set_title("Training curves (moving average; faint: per step)", fontsize=10)
     _save(fig, path)
+
+
+def plot_scene_grid(
+    targets: dict, examples: dict, scenes: Sequence[str], methods: Sequence[str], path: str | Path
+) -> None:
+    """Rows = scenes, columns = the target on the object and each method's display (PSNR/SSIM over the
+    object's pixels on each tile); ``examples[(scene, method)] = (display, ssim map, scores)``."""
+    rows = []
+    for scene in scenes:
+        tiles = [(m, examples[(scene, m)][0], examples[(scene, m)][2]) for m in methods if (scene, m) in examples]
+        rows.append((scene, targets[scene], tiles))
+    _image_grid(rows, path, "Projection onto scenes (P = PSNR dB, S = SSIM over the object's pixels; best in red)")
+
+
+def plot_scene_ssim_maps(examples: dict, scenes: Sequence[str], methods: Sequence[str], path: str | Path) -> None:
+    """Local SSIM (0 black to 1 white, grey off the object), rows = scenes, columns = methods."""
+    fig, axes = plt.subplots(
+        len(scenes), len(methods), figsize=(2.0 * len(methods), 1.6 * len(scenes) + 0.6), squeeze=False
+    )
+    for r, scene in enumerate(scenes):
+        for c, method in enumerate(methods):
+            ax = axes[r, c]
+            ax.set_facecolor("0.5")
+            if (scene, method) in examples:
+                _, local, scores = examples[(scene, method)]
+                ax.imshow(local, cmap="gray", vmin=0, vmax=1)
+                ax.set_xlabel(f"SSIM {scores['ssim']:.3f}", fontsize=8)
+            if r == 0:
+                ax.set_title(method, fontsize=9)
+            if c == 0:
+                ax.set_ylabel(scene, fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.suptitle("Local SSIM on the objects (white = 1)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path, dpi=110)

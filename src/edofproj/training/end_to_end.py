@@ -7,7 +7,8 @@ For a target image ``I`` and a screen depth ``z`` per sample:
     Î     = net(I, I*)                                  compensated projector input (unclamped)
     Î*    = project(Î, P)                               what the screen shows
 
-the closed loop of :mod:`edofproj.compensation.closed_loop` on a flat screen, where
+the closed loop of :mod:`edofproj.compensation.closed_loop` on a flat screen (for depth maps
+``(B, H, W)``, ``project`` is the depth-layer renderer), where
 ``project(x, P) = clamp(x, 0, 1) ⊛ P + (1 - ΣP) mean(clamp(x, 0, 1))`` (:func:`edofproj.imaging.projection.project`):
 the projector emits only light in [0, 1], and light outside the PSF window is a uniform haze.
 The loss ``L(Î*, I)`` (Eq. 12) is taken by the caller. Everything is differentiable with
@@ -28,7 +29,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..compensation.closed_loop import LoopImages, closed_loop, flat_screen
+from ..compensation.closed_loop import ForwardModel, LoopImages, closed_loop, flat_screen
+from ..imaging.depth_layers import render_depth_map
 from .camera import camera_capture
 
 
@@ -54,6 +56,7 @@ class EndToEndProjector(nn.Module):
         noise_sigma: float = 0.0,
         quantize_capture: bool = False,
         mixed_precision: str = "none",
+        layers_m=None,
     ) -> None:
         super().__init__()
         if mixed_precision not in ("none", "bf16"):
@@ -63,6 +66,7 @@ class EndToEndProjector(nn.Module):
         self.noise_sigma = float(noise_sigma)
         self.quantize_capture = bool(quantize_capture)
         self.mixed_precision = mixed_precision
+        self.layers_m = layers_m  # depth layers for depth-varying screens (train.screens: varying)
 
     def _compensate(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
         with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
@@ -70,13 +74,21 @@ class EndToEndProjector(nn.Module):
         return compensated.float()
 
     def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> LoopImages:
-        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,), ``noise`` standard normal like ``target``.
+        """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,) flat screens or (B, H, W) depth maps
+        (rendered by depth layers at ``layers_m``), ``noise`` standard normal like ``target``.
 
         Returns the loop's images ``(captured I*, compensated Î, projected Î*)``.
         """
-        psf = self.psf_source(depths_m).to(target.device)
+        if getattr(depths_m, "ndim", 1) == 3:
+            if self.layers_m is None:
+                raise ValueError("depth-map screens need the projector's layers_m")
+            layers, maps = self.layers_m, depths_m
+            layer_psf = self.psf_source(layers).to(target.device)
+            forward: ForwardModel = lambda image: render_depth_map(image, maps, layer_psf, layers=layers)  # noqa: E731
+        else:
+            forward = flat_screen(self.psf_source(depths_m).to(target.device))
 
         def observe(image: torch.Tensor) -> torch.Tensor:
             return camera_capture(image, noise, self.noise_sigma, self.quantize_capture)
 
-        return closed_loop(target, flat_screen(psf), self._compensate, observe)
+        return closed_loop(target, forward, self._compensate, observe)

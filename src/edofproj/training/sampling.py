@@ -117,3 +117,17 @@ def sample_noise(seed: int, step: int, shard: BatchShard, shape: tuple[int, ...]
     return torch.stack(
         [torch.randn(shape, generator=sample_generator(seed, step, i, NOISE_STREAM)) for i in shard.indices]
     )
+
+
+def sample_depth_maps(
+    seed: int, step: int, shard: BatchShard, size_px: int, depth_min_m: float, depth_max_m: float
+) -> np.ndarray:
+    """Random depth-varying screens ``(shard.size, size, size)`` in metres (``train.screens: varying``),
+    one per sample from its depth stream (:func:`edofproj.scenes.random_screens.random_depth_map`)."""
+    from ..scenes.random_screens import random_depth_map
+
+    maps = [
+        random_depth_map(sample_generator(seed, step, i, DEPTH_STREAM), size_px, size_px, depth_min_m, depth_max_m)[0]
+        for i in shard.indices
+    ]
+    return np.stack(maps)

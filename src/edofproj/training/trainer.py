@@ -68,7 +68,7 @@ from .distributed import (
 from .end_to_end import EndToEndProjector, SimulatedPSF
 from .losses import build_loss
 from .psf_table import DepthPSFTable
-from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
+from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise
 
 #: Depths shown in ``figures/psf_depths.png``.
 FIGURE_DEPTHS = 6
@@ -183,8 +183,18 @@ class _Session:
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
         start_from_wiener(cfg, self.net, psf_source)
+        layers_m = None
+        if cfg.train.screens == "varying":
+            from ..imaging.depth_layers import layer_depths_m
+
+            layers_m = layer_depths_m(cfg.psf.depth_min_m, cfg.psf.depth_max_m, max(2, cfg.imaging.depth_layers))
         self.model = EndToEndProjector(
-            psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture, cfg.train.mixed_precision
+            psf_source,
+            self.net,
+            cfg.train.noise_sigma,
+            cfg.train.quantize_capture,
+            cfg.train.mixed_precision,
+            layers_m,
         )
 
         self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
@@ -279,15 +289,25 @@ class _Session:
         """One step on the global batch; returns (loss, mse, perceptual) averaged over the processes."""
         cfg, step = self.cfg, self.step + 1
         device = self.group.device
-        depths = sample_depths_m(
-            cfg.train.seed,
-            step,
-            self.shard,
-            cfg.psf.depth_min_m,
-            cfg.psf.depth_max_m,
-            cfg.train.depth_sampling,
-            cfg.train.depth_spacing,
-        )
+        if cfg.train.screens == "varying":
+            depths = sample_depth_maps(
+                cfg.train.seed,
+                step,
+                self.shard,
+                cfg.data.crop,
+                cfg.psf.depth_min_m,
+                cfg.psf.depth_max_m,
+            )
+        else:
+            depths = sample_depths_m(
+                cfg.train.seed,
+                step,
+                self.shard,
+                cfg.psf.depth_min_m,
+                cfg.psf.depth_max_m,
+                cfg.train.depth_sampling,
+                cfg.train.depth_spacing,
+            )
         images = sample_images(self.source, cfg.train.seed, step, self.shard, cfg.data.crop).to(device)
         noise = None
         if cfg.train.noise_sigma > 0:
