@@ -10,7 +10,7 @@ import pytest
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.bars import ssim_bars, wall_time_bar
-from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, method_spec, select_methods
+from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
@@ -86,8 +86,22 @@ def test_wall_time_bar():
 def test_range_table_marks_the_best_value_in_bold():
     table = table_from({"lens": {300.0: 0.5}, "doe+net": {300.0: 0.8}})
     rendered = range_table(table, (300, 800), ["ssim"])
-    assert rendered.rows[1][1] == "**0.8000**" and rendered.rows[0][1] == "0.5000"
+    assert rendered.rows[1][2] == "**0.8000**" and rendered.rows[0][2] == "0.5000"
     assert "0.8000" in format_text_table(rendered) and "**" not in format_text_table(rendered)
+
+
+def test_range_table_puts_blind_methods_first_and_bolds_the_best_of_each_group():
+    table = table_from({"doe+wiener": {300.0: 0.9}, "lens": {300.0: 0.5}, "doe+net": {300.0: 0.8}})
+    rendered = range_table(table, (300, 800), ["ssim"], frame_ms={"doe+net": 12.345, "lens": 0.01})
+    assert [row[0] for row in rendered.rows] == ["lens", "doe+net", "doe+wiener"]
+    assert [row[1] for row in rendered.rows] == ["blind", "blind", "PSF of each depth"]
+    assert [row[2] for row in rendered.rows] == ["0.5000", "**0.8000**", "**0.9000**"]
+    assert rendered.header[-1] == "ms/frame" and [row[-1] for row in rendered.rows] == ["0.01", "12.3", "-"]
+
+
+def test_only_wiener_and_cls_are_non_blind():
+    non_blind = {spec.name for spec in METHODS if not spec.blind}
+    assert non_blind == {"lens+wiener", "lens+cls", "doe+wiener"}
 
 
 def test_method_registry():
@@ -99,6 +113,7 @@ def test_method_registry():
         "lens+onlineprodeb",
         "doe",
         "doe+wiener",
+        "doe+ensemble",
         "doe+net",
         "cubic+net",
         "axicon+net",

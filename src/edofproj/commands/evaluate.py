@@ -93,7 +93,7 @@ def run(args) -> int:
     paths = write_documents(
         evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=bars_section(bars)
     )
-    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"])))
+    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     if evaluation.perceptual_missing:

@@ -73,7 +73,7 @@ def methods_section(ev) -> list:
 
 
 def results_tables(ev) -> list:
-    blocks = [range_table(ev.table, ev.range_mm)]
+    blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms)]
     for metric in ev.table.metrics:
         blocks.append(depth_table(ev.table, metric, ev.range_mm))
     return blocks
@@ -114,7 +114,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.extend(overview(ev))
     report.extend(list(preface))
     report.add(Heading("Summary"))
-    report.add(range_table(ev.table, ev.range_mm))
+    report.add(range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms))
     figures = ev.figures
     report.add(Heading("Quality against depth"))
     for metric in ev.table.metrics:
