@@ -31,6 +31,11 @@ def register(subparsers) -> None:
         help="score the PNG/JPEG images below DIR instead of the run's held-out test images",
     )
     p.add_argument(
+        "--validation",
+        action="store_true",
+        help="score the built-in validation set (varied content, never training or test images) instead",
+    )
+    p.add_argument(
         "--depths-mm",
         default=None,
         help="flat-screen depths, comma-separated or start:stop:step (default: 300-800 every 50, plus 250 and 900)",
@@ -82,6 +87,7 @@ def run(args) -> int:
         args.run,
         out_dir=args.out,
         images_dir=args.images,
+        validation=args.validation,
         depths_mm=depths,
         methods=methods,
         baselines_dir=args.baselines,

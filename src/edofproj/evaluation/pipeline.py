@@ -88,6 +88,8 @@ class Evaluation:
     #: Median milliseconds per compensated frame of each method (:func:`.timing.time_methods`).
     frame_ms: dict[str, float] = field(default_factory=dict)
     timing_threads: int = 0
+    #: Which images were scored: ``test`` (held out), ``validation`` or ``folder`` (``--images``).
+    image_set: str = "test"
 
 
 # --------------------------------------------------------------------------- runs
@@ -281,13 +283,15 @@ def evaluate_run(
     progress: StageProgress | None = None,
     device: str | torch.device = "cpu",
     timing: bool = True,
+    validation: bool = False,
 ) -> Evaluation:
     """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run).
 
     ``device``: where the images, PSFs and networks are run (``cpu`` or ``cuda``); the PSFs are
     simulated on the CPU, and the tables do not depend on the device beyond float32 rounding.
     ``timing``: time each method's compensation of one frame (the first image, at the in-focus
-    depth; :func:`.timing.time_methods`)."""
+    depth; :func:`.timing.time_methods`). ``validation``: score the built-in validation set
+    (:mod:`edofproj.data.validation`) instead of the test images."""
     import time
 
     from ..data import evaluation_images
@@ -308,7 +312,19 @@ def evaluate_run(
     cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
     range_mm = score_range_mm(cfg)
-    images = evaluation_images(cfg, images_dir)
+    if validation and images_dir is not None:
+        raise EdofprojError("--validation and --images are two image sets: give one")
+    if validation:
+        from ..data.validation import validation_images
+
+        size = cfg.evaluation.image_size
+        images = validation_images(
+            (int(size[0]), int(size[1])) if size else None,
+            cfg.evaluation.image_scaling,
+            int(cfg.data.max_test_images or 0),
+        )
+    else:
+        images = evaluation_images(cfg, images_dir)
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(
@@ -376,6 +392,7 @@ def evaluate_run(
         baseline_runs=builder.baseline_runs,
         frame_ms=frame_ms,
         timing_threads=torch.get_num_threads(),
+        image_set="validation" if validation else ("folder" if images_dir is not None else "test"),
     )
     write_tables(evaluation)
     progress.start("figures", 1)
