@@ -14,7 +14,7 @@ from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.evaluation.summary import format_text_table, range_table
+from edofproj.evaluation.summary import format_text_table, image_spread_table, range_table
 
 
 def table_from(ssim_by_method: dict[str, dict[float, float]]) -> MetricsTable:
@@ -183,3 +183,18 @@ def test_scheduler_skips_optional_jobs_that_cannot_fit(tmp_path):
     jobs[1].status = "running"
     assert trainer.next_job() is None
     assert jobs[2].status == "skipped" and "time budget" in jobs[2].note
+
+
+def test_image_spread_table_gives_the_spread_over_images_and_the_paired_difference():
+    table = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    values = {"doe+net": {"a": (0.9, 0.8), "b": (0.7, 0.7)}, "doe+wiener": {"a": (0.8, 0.8), "b": (0.75, 0.75)}}
+    for method, images in values.items():
+        for image, (near, far) in images.items():
+            table.add(method=method, depth_mm=300.0, image=image, ssim=near)
+            table.add(method=method, depth_mm=800.0, image=image, ssim=far)
+            table.add(method=method, depth_mm=900.0, image=image, ssim=0.0)  # outside the range
+    rows = {row[0]: row for row in image_spread_table(table, (300, 800)).rows}
+    # doe+net per image: a 0.85, b 0.70 -> mean 0.775, sd |0.85 - 0.70| / sqrt(2)
+    assert rows["doe+net"][1] == f"0.7750 ± {0.15 / math.sqrt(2):.4f}" and rows["doe+net"][2] == "0.7000 (b)"
+    # differences a: +0.05, b: -0.05 -> mean 0, sd 0.0707, better on 1 of 2
+    assert rows["doe+wiener"][3] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"

@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
+import numpy as np
+
 from .report import Table
 from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
 
@@ -113,6 +115,44 @@ def _fmt_ms(ms: float) -> str:
     if math.isnan(ms):
         return "-"
     return f"{ms:.2f}" if ms < 10 else f"{ms:.1f}" if ms < 100 else f"{ms:.0f}"
+
+
+def image_spread_table(
+    table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim", reference: str = "doe+net"
+) -> Table:
+    """How much the images disagree: per method, the mean over ``range_mm`` of each image
+    ``m_i``, summarized as mean ± sample standard deviation over the images, the lowest image,
+    and (against ``reference``) the mean ± standard deviation of the per-image difference
+    ``m_i(reference) - m_i(method)`` with the number of images where the reference is better."""
+    lo, hi = range_mm
+    methods = grouped_methods(table.methods())
+    per_image = {m: table.per_image_range_means(m, metric, lo, hi) for m in methods}
+    label = METRIC_LABELS.get(metric, metric)
+    rows = []
+    for method in methods:
+        values = per_image[method]
+        if not values:
+            continue
+        array = np.array(list(values.values()))
+        lowest = min(values, key=values.__getitem__)
+        cells = [method, f"{array.mean():.4f} ± {_std(array):.4f}", f"{values[lowest]:.4f} ({lowest})"]
+        ref = per_image.get(reference, {})
+        shared = [i for i in values if i in ref]
+        if method != reference and shared:
+            diff = np.array([ref[i] - values[i] for i in shared])
+            cells.append(f"{diff.mean():+.4f} ± {_std(diff):.4f} ({int((diff > 0).sum())}/{len(shared)})")
+        else:
+            cells.append("")
+        rows.append(cells)
+    return Table(
+        ["method", f"mean {label} ± sd over images", "lowest image", f"{reference} minus method (images better)"],
+        rows,
+        f"{label} per image (mean over {lo:.0f}-{hi:.0f} mm), spread over the images: sample standard deviation",
+    )
+
+
+def _std(values: np.ndarray) -> float:
+    return float(values.std(ddof=1)) if values.size > 1 else 0.0
 
 
 def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float]) -> Table:

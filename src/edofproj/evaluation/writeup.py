@@ -14,7 +14,7 @@ from .bars import Bar
 from .methods import METHOD_NAMES
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
 from .results import METRIC_LABELS
-from .summary import depth_table, range_table, tilted_table
+from .summary import depth_table, image_spread_table, range_table, tilted_table
 
 SUMMARY_NAME = "summary.md"
 REPORT_MD_NAME = "report.md"
@@ -91,7 +91,7 @@ def methods_section(ev) -> list:
 
 
 def results_tables(ev) -> list:
-    blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms)]
+    blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms), image_spread_table(ev.table, ev.range_mm)]
     for metric in ev.table.metrics:
         blocks.append(depth_table(ev.table, metric, ev.range_mm))
     return blocks
@@ -133,6 +133,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.extend(list(preface))
     report.add(Heading("Summary"))
     report.add(range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms))
+    report.add(image_spread_table(ev.table, ev.range_mm))
     figures = ev.figures
     report.add(Heading("Quality against depth"))
     for metric in ev.table.metrics:
@@ -144,7 +145,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
                     f"test images (scored depth range shaded).",
                 )
             )
-    report.extend(results_tables(ev)[1:])
+    report.extend(results_tables(ev)[2:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
     if "comparison" in figures:
         report.add(
