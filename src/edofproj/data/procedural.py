@@ -84,8 +84,8 @@ def textured_dead_leaves_image(
     ``(1 + shading S + a_l T)`` -- ``S`` a smooth field (``beta = 3``), ``T`` a fine texture
     (``beta = 1.5``), ``a_l ~ U(texture_range)`` drawn per leaf."""
     labels = dead_leaves_labels(height, width, min_radius, max_radius, generator)
-    used, inverse = np.unique(labels, return_inverse=True)
-    inverse = torch.from_numpy(inverse.reshape(height, width))
+    used, inverse_flat = np.unique(labels, return_inverse=True)
+    inverse = torch.from_numpy(inverse_flat.reshape(height, width))
     picks = torch.randint(0, len(palette), (used.size,), generator=generator)
     colours = torch.from_numpy(np.array(palette, dtype=np.float32))[picks]  # (leaves, 3)
     low, high = texture_range
