@@ -18,7 +18,7 @@ pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 #: A tiny but physically valid setup: 384 pupil samples resolve the defocus phase at 300 mm.
 TINY = TINY_EVALUATION
-METHODS = "lens,lens+wiener,lens+cls,lens+net,doe,doe+wiener,doe+net"
+METHODS = "lens,lens+wiener,lens+cls,lens+net,doe,doe+wiener,doe+ensemble,doe+net"
 
 
 @pytest.fixture(scope="module")
@@ -60,6 +60,8 @@ def test_evaluate_writes_every_file(evaluated):
         assert (evaluated / "figures" / name).stat().st_size > 1000, name
     html = (evaluated / "report.html").read_text()
     assert "data:image/png;base64," in html and 'src="figures/' not in html
+    summary = (evaluated / "summary.md").read_text()
+    assert "ms/frame" in summary and "PSF of each depth" in summary and "sd over images" in summary
     assert "](figures/eval_comparison.png)" in (evaluated / "report.md").read_text()
 
 

@@ -10,11 +10,11 @@ import pytest
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.claims import ssim_claims, wall_time_claim
-from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, method_spec, select_methods
+from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.evaluation.summary import format_text_table, range_table
+from edofproj.evaluation.summary import format_text_table, image_spread_table, range_table
 
 
 def table_from(ssim_by_method: dict[str, dict[float, float]]) -> MetricsTable:
@@ -96,8 +96,22 @@ def test_wall_time_claim():
 def test_range_table_marks_the_best_value_in_bold():
     table = table_from({"lens": {300.0: 0.5}, "doe+net": {300.0: 0.8}})
     rendered = range_table(table, (300, 800), ["ssim"])
-    assert rendered.rows[1][1] == "**0.8000**" and rendered.rows[0][1] == "0.5000"
+    assert rendered.rows[1][2] == "**0.8000**" and rendered.rows[0][2] == "0.5000"
     assert "0.8000" in format_text_table(rendered) and "**" not in format_text_table(rendered)
+
+
+def test_range_table_puts_blind_methods_first_and_bolds_the_best_of_each_group():
+    table = table_from({"doe+wiener": {300.0: 0.9}, "lens": {300.0: 0.5}, "doe+net": {300.0: 0.8}})
+    rendered = range_table(table, (300, 800), ["ssim"], frame_ms={"doe+net": 12.345, "lens": 0.01})
+    assert [row[0] for row in rendered.rows] == ["lens", "doe+net", "doe+wiener"]
+    assert [row[1] for row in rendered.rows] == ["blind", "blind", "PSF of each depth"]
+    assert [row[2] for row in rendered.rows] == ["0.5000", "**0.8000**", "**0.9000**"]
+    assert rendered.header[-1] == "ms/frame" and [row[-1] for row in rendered.rows] == ["0.01", "12.3", "-"]
+
+
+def test_only_wiener_and_cls_are_non_blind():
+    non_blind = {spec.name for spec in METHODS if not spec.blind}
+    assert non_blind == {"lens+wiener", "lens+cls", "doe+wiener"}
 
 
 def test_method_registry():
@@ -109,6 +123,7 @@ def test_method_registry():
         "lens+onlineprodeb",
         "doe",
         "doe+wiener",
+        "doe+ensemble",
         "doe+net",
         "cubic+net",
         "axicon+net",
@@ -178,3 +193,18 @@ def test_scheduler_skips_optional_jobs_that_cannot_fit(tmp_path):
     jobs[1].status = "running"
     assert trainer.next_job() is None
     assert jobs[2].status == "skipped" and "time budget" in jobs[2].note
+
+
+def test_image_spread_table_gives_the_spread_over_images_and_the_paired_difference():
+    table = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    values = {"doe+net": {"a": (0.9, 0.8), "b": (0.7, 0.7)}, "doe+wiener": {"a": (0.8, 0.8), "b": (0.75, 0.75)}}
+    for method, images in values.items():
+        for image, (near, far) in images.items():
+            table.add(method=method, depth_mm=300.0, image=image, ssim=near)
+            table.add(method=method, depth_mm=800.0, image=image, ssim=far)
+            table.add(method=method, depth_mm=900.0, image=image, ssim=0.0)  # outside the range
+    rows = {row[0]: row for row in image_spread_table(table, (300, 800)).rows}
+    # doe+net per image: a 0.85, b 0.70 -> mean 0.775, sd |0.85 - 0.70| / sqrt(2)
+    assert rows["doe+net"][1] == f"0.7750 ± {0.15 / math.sqrt(2):.4f}" and rows["doe+net"][2] == "0.7000 (b)"
+    # differences a: +0.05, b: -0.05 -> mean 0, sd 0.0707, better on 1 of 2
+    assert rows["doe+wiener"][3] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"

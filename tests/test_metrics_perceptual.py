@@ -184,7 +184,7 @@ def test_missing_backbone_weights_name_the_file_and_how_to_get_it(empty_hub):
     with pytest.raises(PerceptualWeightsMissing) as info:
         metrics.dists()
     message = str(info.value)
-    assert "vgg16-397923af.pth" in message and "torchvision.models.vgg16(weights='DEFAULT')" in message
+    assert "vgg16-397923af.pth" in message and "edofproj weights fetch --backbone vgg16" in message
     assert str(empty_hub / "torch_home" / "hub" / "checkpoints") in message
     assert "\n" not in message
     with pytest.raises(PerceptualWeightsMissing, match="alexnet-owt-7be5be79.pth"):

@@ -325,6 +325,8 @@ class DataConfig:
     (then ``folder`` is used for training in full). ``max_test_images``: 0 keeps all.
     Dead leaves: disk radii with density ~ r^-3 between the two radii (pixels);
     ``dead_leaves_fraction`` > 0 mixes that share of dead-leaves images into a photo source.
+    ``procedural`` (source) / ``procedural_fraction``: textured dead leaves and smooth random
+    fields (:mod:`edofproj.data.procedural`), alone or mixed into photographs.
     """
 
     source: str = "builtin"
@@ -336,9 +338,10 @@ class DataConfig:
     dead_leaves_min_radius_px: float = 1.0
     dead_leaves_max_radius_px: float = 128.0
     dead_leaves_fraction: float = 0.0
+    procedural_fraction: float = 0.0
 
     def validate(self) -> None:
-        choices = ("builtin", "dead-leaves", "folder")
+        choices = ("builtin", "dead-leaves", "folder", "procedural")
         if self.source not in choices:
             raise ConfigError(_unknown_choice("data.source", self.source, choices))
         if self.source == "folder" and not self.folder:
@@ -353,10 +356,18 @@ class DataConfig:
             raise ConfigError(f"data.max_test_images={self.max_test_images} must be >= 0 (0: all)")
         if not (0.0 <= self.dead_leaves_fraction <= 1.0):
             raise ConfigError(f"data.dead_leaves_fraction={self.dead_leaves_fraction} must be in [0, 1]")
-        if self.dead_leaves_fraction > 0 and self.source == "dead-leaves":
+        if (self.dead_leaves_fraction > 0 or self.procedural_fraction > 0) and self.source in (
+            "dead-leaves",
+            "procedural",
+        ):
             raise ConfigError(
-                "data.dead_leaves_fraction mixes dead leaves into photographs: use it with "
-                "data.source=builtin or folder"
+                "data.dead_leaves_fraction and data.procedural_fraction mix synthetic images into "
+                "photographs: use them with data.source=builtin or folder"
+            )
+        if not (0.0 <= self.procedural_fraction <= 1.0) or self.dead_leaves_fraction + self.procedural_fraction > 1.0:
+            raise ConfigError(
+                f"data.procedural_fraction={self.procedural_fraction} must be in [0, 1], and with "
+                f"data.dead_leaves_fraction={self.dead_leaves_fraction} sum to at most 1"
             )
         _positive(self, "dead_leaves_min_radius_px", "data.dead_leaves_min_radius_px")
         if not (self.dead_leaves_min_radius_px >= 0.5):

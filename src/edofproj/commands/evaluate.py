@@ -37,6 +37,11 @@ def register(subparsers) -> None:
         help="score the PNG/JPEG images below DIR instead of the run's held-out test images",
     )
     p.add_argument(
+        "--validation",
+        action="store_true",
+        help="score the built-in validation set (varied content, never training or test images) instead",
+    )
+    p.add_argument(
         "--depths-mm",
         default=None,
         help="flat-screen depths, comma-separated or start:stop:step (default: 300-800 every 50, plus 250 and 900)",
@@ -135,6 +140,7 @@ def run(args) -> int:
         args.run,
         out_dir=args.out,
         images_dir=args.images,
+        validation=args.validation,
         depths_mm=depths,
         methods=methods,
         baselines_dir=args.baselines,
@@ -146,7 +152,7 @@ def run(args) -> int:
     paths = write_documents(
         evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
     )
-    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"])))
+    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     if evaluation.perceptual_missing:

@@ -2,7 +2,7 @@
 
 For the built-in set and the default ``test_fraction = 0.3`` the 4 test images are
 stereo_motorcycle, chelsea, gravel, coffee; the 8 training images are hubble_deep_field, retina,
-grace_hopper, rocket, brick, astronaut, immunohistochemistry, grass. ``dead-leaves`` is tested on
+grace_hopper, rocket, brick, astronaut, immunohistochemistry, grass. ``dead-leaves`` and ``procedural`` are tested on
 the built-in test photographs; ``folder`` on ``data.test_folder`` when given, else on its
 held-out share.
 
@@ -60,7 +60,7 @@ def fit_to_size(pixels: np.ndarray, size: int | tuple[int, int]) -> np.ndarray:
 
 
 def _test_entries(data_cfg) -> list[tuple[str, Callable[[], np.ndarray]]]:
-    if data_cfg.source in ("builtin", "dead-leaves"):
+    if data_cfg.source in ("builtin", "dead-leaves", "procedural"):
         _, test = builtin_split(data_cfg.test_fraction)
         return [(name, partial(load_builtin_photo, name)) for name in test]
     root = Path(data_cfg.test_folder or data_cfg.folder)

@@ -23,13 +23,21 @@ name                 optics            compensation
                                        simulated lens-only data (a separate run)
 ``doe``              the run's DOE     none
 ``doe+wiener``       the run's DOE     Wiener, NSR tuned for this design
+``doe+ensemble``     the run's DOE     one depth-ensemble Wiener filter for every depth (blind:
+                                       the filter the real-time network starts from), NSR
+                                       tuned on training images
 ``doe+net``          the run's DOE     the run's jointly trained U-Net (ours)
 ``cubic+net``        cubic phase plate the U-Net trained with that plate (a separate run)
 ``axicon+net``       axicon            the U-Net trained with that axicon (a separate run)
 ==================== ================= =====================================================
 
-The networks are blind: they see ``I`` and the simulated capture ``I*`` (their second input,
-as in training), never the PSF. Wiener and CLS are non-blind: they are given ``p_z``.
+**Blind and non-blind.** A *blind* method knows nothing of the screen's depth or PSF at run
+time: no compensation, the networks (they see ``I`` and the simulated capture ``I*``, their
+second input as in training, never the PSF) and ``doe+ensemble`` (one fixed filter for the
+whole depth range). A *non-blind* method is given the exact PSF ``p_z`` of the depth it
+compensates: Wiener (``*+wiener``) and constrained least squares (``*+cls``). A projector that
+does not measure the screen's depth can only run a blind method; the non-blind ones are an
+upper reference, not a competitor on equal terms (:attr:`MethodSpec.blind`).
 Separate runs are found as sub-directories of a *baselines* directory, named by
 :data:`BASELINE_RUN_DIRS` (``lens+net`` -> ``lens_net``, ...), and are trained with the
 evaluated run's configuration plus :attr:`MethodSpec.train_overrides`.
@@ -55,7 +63,7 @@ class MethodSpec:
 
     ``optics``: ``"lens"`` (the bare lens), ``"run"`` (the evaluated run's DOE) or
     ``"baseline"`` (the DOE of the separate run ``run_dir``). ``compensation``: ``"none"``,
-    ``"wiener"``, ``"cls"`` or ``"net"`` (the network of the evaluated run when ``run_dir`` is
+    ``"wiener"``, ``"cls"``, ``"ensemble"`` (one depth-ensemble Wiener filter) or ``"net"`` (the network of the evaluated run when ``run_dir`` is
     None, else of ``run_dir``). ``train_overrides``: config overrides that turn the evaluated
     run's configuration into this baseline's training run.
     """
@@ -70,6 +78,15 @@ class MethodSpec:
     @property
     def needs_separate_run(self) -> bool:
         return self.run_dir is not None
+
+    @property
+    def blind(self) -> bool:
+        """True when the method runs without knowing the screen's depth or PSF (module docstring)."""
+        return self.compensation not in NON_BLIND_COMPENSATIONS
+
+
+#: Compensations that are given the exact PSF of each depth.
+NON_BLIND_COMPENSATIONS = frozenset({"wiener", "cls"})
 
 
 METHODS: tuple[MethodSpec, ...] = (
@@ -94,6 +111,12 @@ METHODS: tuple[MethodSpec, ...] = (
     ),
     MethodSpec("doe", "run", "none", "learned DOE, no compensation"),
     MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution"),
+    MethodSpec(
+        "doe+ensemble",
+        "run",
+        "ensemble",
+        "learned DOE + one depth-ensemble Wiener filter for every depth (blind linear baseline)",
+    ),
     MethodSpec("doe+net", "run", "net", "learned DOE + jointly trained U-Net (ours)"),
     MethodSpec(
         "cubic+net",
@@ -167,6 +190,38 @@ class ConstrainedCompensation:
         return box_constrained_deconvolution(target, psf, iterations=self.iterations)
 
 
+class EnsembleWienerCompensation:
+    """``x = clamp(g * I, 0, 1)``: one fixed linear filter for every depth, blind to the depth.
+
+    ``g`` is :func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel` of PSFs
+    ``(N, C, K, K)`` spanning the depth range (the filter the real-time network starts from),
+    ``G = sum_z conj(H_z) / (sum_z |H_z|^2 + N NSR)``, kept to ``(2 radius + 1)^2`` taps on a
+    ``grid``-px frame. The target is reflect-padded by ``radius`` before the convolution, as the
+    Wiener baseline is, so the image borders are not darkened by zero padding.
+    """
+
+    def __init__(self, psfs, nsr: float, radius: int, grid: int = 256) -> None:
+        from ..compensation.wiener import depth_ensemble_wiener_kernel
+
+        if isinstance(psfs, torch.Tensor):
+            psfs = psfs.detach().cpu().numpy()
+        self.nsr = float(nsr)
+        self.radius = int(radius)
+        self.kernel = torch.as_tensor(
+            depth_ensemble_wiener_kernel(psfs, self.nsr, radius=self.radius, grid=grid), dtype=torch.float32
+        ).unsqueeze(0)
+
+    def __call__(self, target, captured, psf):
+        import torch.nn.functional as F
+
+        from ..imaging.convolution import convolve_same
+
+        r = self.radius
+        padded = F.pad(target, (r, r, r, r), mode="reflect")
+        filtered = convolve_same(padded, self.kernel.to(target.device))
+        return filtered[..., r:-r, r:-r].clamp(0.0, 1.0) if r else filtered.clamp(0.0, 1.0)
+
+
 class NetworkCompensation:
     """``x = net(I, I*)``: a blind compensation network (it never sees the PSF)."""
 
@@ -224,3 +279,38 @@ def tune_nsr(design, train_images: torch.Tensor, cfg) -> tuple[float, dict[float
     depths_m = np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3
     metric = ssim if cfg.evaluation.wiener_tuning_metric == "ssim" else "psnr"
     return tune_wiener_nsr(train_images, design.psf(depths_m), project, metric=metric)
+
+
+def ensemble_depths_m(cfg, count: int = 32) -> np.ndarray:
+    """``count`` depths (m) of the scored range, uniform in 1/z (uniform in defocus), for the
+    depth-ensemble filter."""
+    near_mm, far_mm = score_range_mm(cfg)
+    return 1.0 / np.linspace(1.0 / (near_mm * 1e-3), 1.0 / (far_mm * 1e-3), int(count))
+
+
+def ensemble_radius(cfg) -> int:
+    """Half-width of the depth-ensemble filter: the PSF window (``psf.window``) on each side."""
+    return int(cfg.psf.window)
+
+
+def tune_ensemble_nsr(design, train_images: torch.Tensor, cfg, candidates=None) -> tuple[float, dict[float, float]]:
+    """The NSR of the depth-ensemble filter of ``design`` that maximizes the mean
+    ``evaluation.wiener_tuning_metric`` of the compensated projection of the *training* crops over
+    ``evaluation.wiener_tuning_depths`` depths of the scored range (as :func:`tune_nsr`)."""
+    from ..compensation.wiener import DEFAULT_NSR_CANDIDATES, psnr
+    from ..imaging.projection import project
+    from ..metrics import ssim
+
+    near_mm, far_mm = score_range_mm(cfg)
+    tuning = design.psf(np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3)
+    ensemble = design.psf(ensemble_depths_m(cfg))
+    metric = ssim if cfg.evaluation.wiener_tuning_metric == "ssim" else psnr
+    scores: dict[float, float] = {}
+    with torch.no_grad():
+        for nsr in candidates if candidates is not None else DEFAULT_NSR_CANDIDATES:
+            compensate = EnsembleWienerCompensation(ensemble, float(nsr), ensemble_radius(cfg))
+            x = compensate(train_images, train_images, ensemble[:1])
+            total = sum(float(metric(project(x, p.unsqueeze(0)), train_images).mean()) for p in tuning)
+            scores[float(nsr)] = total / len(tuning)
+    best = max(scores, key=scores.__getitem__)
+    return best, scores

@@ -32,14 +32,18 @@ from ..errors import EdofprojError
 from .designs import OpticalDesign
 from .methods import (
     ConstrainedCompensation,
+    EnsembleWienerCompensation,
     MethodSpec,
     NetworkCompensation,
     PreparedMethod,
     WienerCompensation,
+    ensemble_depths_m,
+    ensemble_radius,
     no_compensation,
     score_range_mm,
     select_methods,
     training_crops,
+    tune_ensemble_nsr,
     tune_nsr,
 )
 from .progress import StageProgress
@@ -81,6 +85,11 @@ class Evaluation:
     files: dict[str, Path] = field(default_factory=dict)
     figures: dict[str, Path] = field(default_factory=dict)
     seconds: float = math.nan
+    #: Median milliseconds per compensated frame of each method (:func:`.timing.time_methods`).
+    frame_ms: dict[str, float] = field(default_factory=dict)
+    timing_threads: int = 0
+    #: Which images were scored: ``test`` (held out), ``validation`` or ``folder`` (``--images``).
+    image_set: str = "test"
 
 
 # --------------------------------------------------------------------------- runs
@@ -162,14 +171,23 @@ class MethodBuilder:
     def run_design(self) -> OpticalDesign:
         return self.design("run", "doe", self.run.doe)
 
+    def train_images(self) -> torch.Tensor:
+        if self._train_images is None:
+            self._train_images = training_crops(
+                self.cfg, self.cfg.evaluation.wiener_tuning_images, seed=self.cfg.train.seed
+            ).to(self.device)
+        return self._train_images
+
     def tuned_nsr(self, design: OpticalDesign) -> float:
         if design.key not in self.nsr:
-            if self._train_images is None:
-                self._train_images = training_crops(
-                    self.cfg, self.cfg.evaluation.wiener_tuning_images, seed=self.cfg.train.seed
-                ).to(self.device)
-            self.nsr[design.key], _ = tune_nsr(design, self._train_images, self.cfg)
+            self.nsr[design.key], _ = tune_nsr(design, self.train_images(), self.cfg)
         return self.nsr[design.key]
+
+    def tuned_ensemble_nsr(self, design: OpticalDesign) -> float:
+        key = f"{design.key}+ensemble"
+        if key not in self.nsr:
+            self.nsr[key], _ = tune_ensemble_nsr(design, self.train_images(), self.cfg)
+        return self.nsr[key]
 
     def baseline(self, spec: MethodSpec) -> TrainedRun | None:
         """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
@@ -221,6 +239,17 @@ class MethodBuilder:
                 f"NSR {nsr:.3g}, tuned for {self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops "
                 f"at {near_mm:.0f}-{far_mm:.0f} mm"
             )
+        elif spec.compensation == "ensemble":
+            nsr = self.tuned_ensemble_nsr(design)
+            radius = ensemble_radius(self.cfg)
+            depths_m = ensemble_depths_m(self.cfg)
+            compensate = EnsembleWienerCompensation(design.psf(depths_m), nsr, radius)
+            near_mm, far_mm = score_range_mm(self.cfg)
+            detail = (
+                f"{len(depths_m)} depths uniform in 1/z over {near_mm:.0f}-{far_mm:.0f} mm, "
+                f"{2 * radius + 1}x{2 * radius + 1} taps, NSR {nsr:.3g} tuned for "
+                f"{self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops"
+            )
         elif spec.compensation == "cls":
             compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
@@ -253,11 +282,16 @@ def evaluate_run(
     overrides: Sequence[str] = (),
     progress: StageProgress | None = None,
     device: str | torch.device = "cpu",
+    timing: bool = True,
+    validation: bool = False,
 ) -> Evaluation:
     """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run).
 
     ``device``: where the images, PSFs and networks are run (``cpu`` or ``cuda``); the PSFs are
-    simulated on the CPU, and the tables do not depend on the device beyond float32 rounding."""
+    simulated on the CPU, and the tables do not depend on the device beyond float32 rounding.
+    ``timing``: time each method's compensation of one frame (the first image, at the in-focus
+    depth; :func:`.timing.time_methods`). ``validation``: score the built-in validation set
+    (:mod:`edofproj.data.validation`) instead of the test images."""
     import time
 
     from ..data import evaluation_images
@@ -278,7 +312,19 @@ def evaluate_run(
     cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
     range_mm = score_range_mm(cfg)
-    images = evaluation_images(cfg, images_dir)
+    if validation and images_dir is not None:
+        raise EdofprojError("--validation and --images are two image sets: give one")
+    if validation:
+        from ..data.validation import validation_images
+
+        size = cfg.evaluation.image_size
+        images = validation_images(
+            (int(size[0]), int(size[1])) if size else None,
+            cfg.evaluation.image_scaling,
+            int(cfg.data.max_test_images or 0),
+        )
+    else:
+        images = evaluation_images(cfg, images_dir)
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(
@@ -318,6 +364,14 @@ def evaluate_run(
     comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual, device)
     progress.finish()
 
+    frame_ms: dict[str, float] = {}
+    if timing:
+        from .timing import time_methods
+
+        progress.start("timing", 1, detail="milliseconds per compensated frame")
+        frame_ms = time_methods(prepared, images[0][1].to(device), cfg.optics.focus_mm * 1e-3)
+        progress.finish()
+
     evaluation = Evaluation(
         out_dir=out,
         run=run,
@@ -336,6 +390,9 @@ def evaluate_run(
         perceptual=list(perceptual),
         perceptual_missing=missing,
         baseline_runs=builder.baseline_runs,
+        frame_ms=frame_ms,
+        timing_threads=torch.get_num_threads(),
+        image_set="validation" if validation else ("folder" if images_dir is not None else "test"),
     )
     write_tables(evaluation)
     progress.start("figures", 1)

@@ -110,6 +110,14 @@ class MetricsTable:
         worst_depth = pick(means, key=means.__getitem__)
         return RangeStats(float(np.mean(list(means.values()))), means[worst_depth], worst_depth, len(means))
 
+    def per_image_range_means(self, method: str, metric: str, lo_mm: float, hi_mm: float) -> dict[str, float]:
+        """``{image: mean of the metric over the depths in [lo, hi]}`` for one method."""
+        values: dict[str, list[float]] = {}
+        for row in self.rows:
+            if row["method"] == method and lo_mm - 1e-9 <= float(row["depth_mm"]) <= hi_mm + 1e-9:
+                values.setdefault(str(row["image"]), []).append(float(row[metric]))
+        return {image: float(np.mean(v)) for image, v in values.items()}
+
     # -- files ---------------------------------------------------------------------------
     def to_csv(self) -> str:
         """The table as CSV text: a header of :attr:`columns`, then one line per row; strings as they are,

@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
+import numpy as np
+
 from .report import Table
 from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
 
@@ -39,28 +41,118 @@ def _cells(metric: str, values: list[float], extra: list[str] | None = None) -> 
     return cells
 
 
-def range_table(table: MetricsTable, range_mm: tuple[float, float], metrics: Sequence[str] | None = None) -> Table:
-    """Rows = methods; columns = mean and worst depth of each metric over ``range_mm`` (best in bold)."""
+def method_kind(name: str) -> str:
+    """``"blind"`` or ``"non-blind"`` for a method name (:attr:`MethodSpec.blind`); ``""`` if unknown."""
+    from .methods import METHOD_NAMES, method_spec
+
+    if name not in METHOD_NAMES:
+        return ""
+    return "blind" if method_spec(name).blind else "non-blind"
+
+
+def grouped_methods(methods: Sequence[str]) -> list[str]:
+    """``methods`` with the blind ones first, then the non-blind ones (order kept within each)."""
+    order = {"blind": 0, "non-blind": 1, "": 2}
+    return sorted(methods, key=lambda m: order[method_kind(m)])
+
+
+def range_table(
+    table: MetricsTable,
+    range_mm: tuple[float, float],
+    metrics: Sequence[str] | None = None,
+    frame_ms: dict[str, float] | None = None,
+) -> Table:
+    """Rows = methods, blind ones first; columns = what the method knows at run time, the mean and
+    worst depth of each metric over ``range_mm`` (the best of each group in bold) and, with
+    ``frame_ms``, the milliseconds per compensated frame."""
     metrics = list(metrics or table.metrics)
-    methods = table.methods()
+    methods = grouped_methods(table.methods())
+    kinds = [method_kind(m) for m in methods]
+    groups = {kind: [i for i, k in enumerate(kinds) if k == kind] for kind in dict.fromkeys(kinds)}
     lo, hi = range_mm
     columns: list[list[str]] = []
-    header = ["method"]
+    header = ["method", "knows"]
     for metric in metrics:
         stats = [table.range_stats(m, metric, lo, hi) for m in methods]
         label = METRIC_LABELS.get(metric, metric)
         header += [f"mean {label}", f"worst {label} (depth)"]
-        columns.append(_cells(metric, [s.mean for s in stats]))
+        columns.append(_grouped_cells(metric, [s.mean for s in stats], groups))
         columns.append(
-            _cells(metric, [s.worst for s in stats], [f"({s.worst_depth_mm:.0f})" if s.depths else "" for s in stats])
+            _grouped_cells(
+                metric,
+                [s.worst for s in stats],
+                groups,
+                [f"({s.worst_depth_mm:.0f})" if s.depths else "" for s in stats],
+            )
         )
-    rows = [[method] + [col[i] for col in columns] for i, method in enumerate(methods)]
+    if frame_ms:
+        header.append("ms/frame")
+        columns.append([_fmt_ms(frame_ms.get(m, math.nan)) for m in methods])
+    knows = {"blind": "blind", "non-blind": "PSF of each depth", "": ""}
+    rows = [[method, knows[kinds[i]]] + [col[i] for col in columns] for i, method in enumerate(methods)]
     return Table(
         header,
         rows,
         f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
-        f"images; worst = lowest, or highest for LPIPS/DISTS; best of each column in bold)",
+        f"images; worst = lowest, or highest for LPIPS/DISTS). Blind methods know nothing of the depth "
+        f"or the PSF at run time; non-blind ones are given the exact PSF of each depth. Best of each "
+        f"group in bold.",
     )
+
+
+def _grouped_cells(
+    metric: str, values: list[float], groups: dict[str, list[int]], extra: list[str] | None = None
+) -> list[str]:
+    cells = [""] * len(values)
+    for indices in groups.values():
+        part = _cells(metric, [values[i] for i in indices], [extra[i] for i in indices] if extra else None)
+        for i, cell in zip(indices, part):
+            cells[i] = cell
+    return cells
+
+
+def _fmt_ms(ms: float) -> str:
+    if math.isnan(ms):
+        return "-"
+    return f"{ms:.2f}" if ms < 10 else f"{ms:.1f}" if ms < 100 else f"{ms:.0f}"
+
+
+def image_spread_table(
+    table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim", reference: str = "doe+net"
+) -> Table:
+    """How much the images disagree: per method, the mean over ``range_mm`` of each image
+    ``m_i``, summarized as mean ± sample standard deviation over the images, the lowest image,
+    and (against ``reference``) the mean ± standard deviation of the per-image difference
+    ``m_i(reference) - m_i(method)`` with the number of images where the reference is better."""
+    lo, hi = range_mm
+    methods = grouped_methods(table.methods())
+    per_image = {m: table.per_image_range_means(m, metric, lo, hi) for m in methods}
+    label = METRIC_LABELS.get(metric, metric)
+    rows = []
+    for method in methods:
+        values = per_image[method]
+        if not values:
+            continue
+        array = np.array(list(values.values()))
+        lowest = min(values, key=values.__getitem__)
+        cells = [method, f"{array.mean():.4f} ± {_std(array):.4f}", f"{values[lowest]:.4f} ({lowest})"]
+        ref = per_image.get(reference, {})
+        shared = [i for i in values if i in ref]
+        if method != reference and shared:
+            diff = np.array([ref[i] - values[i] for i in shared])
+            cells.append(f"{diff.mean():+.4f} ± {_std(diff):.4f} ({int((diff > 0).sum())}/{len(shared)})")
+        else:
+            cells.append("")
+        rows.append(cells)
+    return Table(
+        ["method", f"mean {label} ± sd over images", "lowest image", f"{reference} minus method (images better)"],
+        rows,
+        f"{label} per image (mean over {lo:.0f}-{hi:.0f} mm), spread over the images: sample standard deviation",
+    )
+
+
+def _std(values: np.ndarray) -> float:
+    return float(values.std(ddof=1)) if values.size > 1 else 0.0
 
 
 def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float]) -> Table:

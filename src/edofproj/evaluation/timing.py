@@ -275,6 +275,44 @@ def network_onnx_case(onnx_path, method: str, device: str = "cpu", threads: int 
     return Case(method, "onnxruntime", device, build)
 
 
+# --------------------------------------------------------------------------- evaluated methods
+
+
+def time_methods(
+    methods: Sequence, image: torch.Tensor, depth_m: float, repeats: int = 3, slow_ms: float = 2000.0
+) -> dict[str, float]:
+    """Median milliseconds of each evaluated method's compensation of one frame, as evaluated.
+
+    ``methods``: :class:`~edofproj.evaluation.methods.PreparedMethod` objects; ``image`` ``(3, H, W)``
+    (or ``(1, 3, H, W)``), the frame; ``depth_m``: the depth whose PSF the method is given (the
+    simulated capture ``I*`` is made with it and is not timed). Each method runs once untimed
+    (caches, lazy initialization), then ``repeats`` times; a method whose first timed frame takes
+    longer than ``slow_ms`` is timed on that frame alone. Every compensation is called exactly as
+    the sweep calls it: a non-blind Wiener filter is computed for each frame (its PSF follows the
+    depth), the depth-ensemble filter and the networks are fixed.
+    """
+    from ..imaging.projection import project
+
+    target = image if image.ndim == 4 else image.unsqueeze(0)
+    sync = torch.cuda.synchronize if target.is_cuda else None
+    times: dict[str, float] = {}
+    for method in methods:
+        psf = method.design.psf([depth_m]).to(target.device)
+        with torch.inference_mode():
+            captured = project(target, psf)
+
+            def frame(method=method, captured=captured, psf=psf):
+                return method.compensate(target, captured, psf)
+
+            first = measure_ms(frame, repeats=1, warmup=1, synchronize=sync)
+            slow = first[0] >= slow_ms
+            more = (
+                measure_ms(frame, repeats=repeats - 1, warmup=0, synchronize=sync) if repeats > 1 and not slow else []
+            )
+        times[method.name] = statistics.median(first + more)
+    return times
+
+
 # --------------------------------------------------------------------------- reporting
 
 

@@ -14,11 +14,18 @@ from .claims import Claim
 from .methods import METHOD_NAMES
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
 from .results import METRIC_LABELS
-from .summary import depth_table, range_table, tilted_table
+from .summary import depth_table, image_spread_table, range_table, tilted_table
 
 SUMMARY_NAME = "summary.md"
 REPORT_MD_NAME = "report.md"
 REPORT_HTML_NAME = "report.html"
+
+#: How the overview names each image set of an evaluation.
+IMAGE_SET_LABELS = {
+    "test": "held-out test",
+    "validation": "validation (never training or test images)",
+    "folder": "given",
+}
 
 REIMPLEMENTATION_NOTE = (
     "lens+onlineprodeb is our PyTorch re-implementation of OnlineProDeb (Kageyama, Iwai, Sato, TVCG 2022), "
@@ -40,7 +47,8 @@ def overview(ev) -> list:
             f"{lo:.0f}-{hi:.0f} mm."
         ),
         Paragraph(
-            f"Scored on {len(ev.images)} held-out image(s) ({images}) of {size[0]}x{size[1]} px, at "
+            f"Scored on {len(ev.images)} {IMAGE_SET_LABELS.get(ev.image_set, 'held-out')} image(s) ({images}) "
+            f"of {size[0]}x{size[1]} px, at "
             f"{len(ev.depths_mm)} flat-screen depths ({', '.join(f'{z:.0f}' for z in ev.depths_mm)} mm) and on a "
             f"tilted screen. Every projector input is clamped to [0, 1] and projected through the same image "
             f"formation (FFT convolution with the simulated RGB PSF plus the haze of the light outside the PSF "
@@ -65,15 +73,25 @@ def methods_section(ev) -> list:
             f"{', '.join(m.upper() for m in ev.perceptual_missing)}; their columns are omitted, not zero."
         )
     notes.append(
-        "Wiener and CLS are non-blind (given the exact PSF of the depth); on the tilted screen they get the "
-        "PSF of the screen's middle column. The networks are blind."
+        "Blind methods know nothing of the screen's depth or PSF at run time: no compensation, the networks "
+        "(they see the target and the uncompensated capture) and doe+ensemble (one fixed filter for the whole "
+        "depth range). Non-blind methods, Wiener and CLS, are given the exact PSF of each depth (on the tilted "
+        "screen, the PSF of its middle column): an upper reference for a projector that measures depth."
     )
+    if ev.frame_ms:
+        notes.append(
+            f"ms/frame: median milliseconds of each method's compensation of one "
+            f"{ev.images[0][1].shape[-2]}x{ev.images[0][1].shape[-1]} frame as evaluated "
+            f"({ev.timing_threads} CPU thread(s) unless run on a GPU): the non-blind Wiener filter is computed for "
+            f"each frame (its PSF follows the depth), CLS runs {ev.cfg.evaluation.cls_iterations} iterations, "
+            f"doe+ensemble and the networks are fixed."
+        )
     blocks += [Heading("Notes", 3), Bullets(notes)]
     return blocks
 
 
 def results_tables(ev) -> list:
-    blocks = [range_table(ev.table, ev.range_mm)]
+    blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms), image_spread_table(ev.table, ev.range_mm)]
     for metric in ev.table.metrics:
         blocks.append(depth_table(ev.table, metric, ev.range_mm))
     return blocks
@@ -117,7 +135,8 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.extend(overview(ev))
     report.extend(list(preface))
     report.add(Heading("Summary"))
-    report.add(range_table(ev.table, ev.range_mm))
+    report.add(range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms))
+    report.add(image_spread_table(ev.table, ev.range_mm))
     figures = ev.figures
     report.add(Heading("Quality against depth"))
     for metric in ev.table.metrics:
@@ -129,7 +148,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
                     f"test images (scored depth range shaded).",
                 )
             )
-    report.extend(results_tables(ev)[1:])
+    report.extend(results_tables(ev)[2:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
     if "comparison" in figures:
         report.add(

@@ -1,6 +1,6 @@
-"""Where the pretrained weights of the perceptual metrics come from.
+"""Where the pretrained weights of the perceptual metrics come from, and how to fetch them.
 
-Nothing is downloaded. Two kinds of files are needed:
+Nothing is downloaded implicitly. Two kinds of files are needed:
 
 * **ImageNet backbones** in torchvision's format (``vgg16-397923af.pth``,
   ``alexnet-owt-7be5be79.pth``). Searched in ``weights_dir`` (when given), then in torch's hub
@@ -15,14 +15,26 @@ Nothing is downloaded. Two kinds of files are needed:
 
 A missing file raises :class:`PerceptualWeightsMissing` naming the file, where to put it and
 how to get it, so callers can report the metric as unavailable.
+
+**Fetching the backbones** (``edofproj weights fetch``, :func:`fetch_backbone_weights`): each file
+of :data:`BACKBONE_DOWNLOADS` is streamed from PyTorch's download server into a temporary file
+beside its destination (default: the hub cache, where :func:`backbone_weights_path` looks), its
+SHA-256 is computed on the way and compared with the published one, and only a matching file is
+renamed into place. A checksum mismatch or an interrupted download leaves nothing behind. A file
+already present with the right checksum is kept.
 """
 
 from __future__ import annotations
 
+import hashlib
+import http.client
 import importlib.util
 import os
+import urllib.error
+import urllib.request
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional, Sequence
 
 import torch
 
@@ -48,6 +60,34 @@ TORCHMETRICS_DATA_FILES = {
 }
 
 PathLike = str | os.PathLike
+
+#: Where torchvision publishes its ImageNet weights (``<base>/<file name>``).
+TORCHVISION_DOWNLOAD_BASE = "https://download.pytorch.org/models"
+
+
+@dataclass(frozen=True)
+class WeightDownload:
+    """One published weight file: its name and full SHA-256 (torchvision's file names carry the
+    first 8 hex digits of it)."""
+
+    backbone: str
+    filename: str
+    sha256: str
+
+
+#: The backbone files LPIPS (alexnet, vgg16) and DISTS (vgg16) read, with their published SHA-256.
+BACKBONE_DOWNLOADS = {
+    "vgg16": WeightDownload(
+        "vgg16", TORCHVISION_WEIGHT_FILES["vgg16"], "397923af8e79cdbb6a7127f12361acd7a2f83e06b05044ddf496e83de57a5bf0"
+    ),
+    "alexnet": WeightDownload(
+        "alexnet",
+        TORCHVISION_WEIGHT_FILES["alexnet"],
+        "7be5be791159472b1fbf3c69796f7cb30dca7ad8466c2df70058c37116cdee02",
+    ),
+}
+
+FETCH_COMMAND = "edofproj weights fetch"
 
 
 def hub_checkpoint_dir() -> Path:
@@ -78,9 +118,8 @@ def backbone_weights_path(backbone: str, weights_dir: Optional[PathLike] = None)
             return folder / name
     where = " or ".join(f"'{folder}'" for folder in folders)
     raise PerceptualWeightsMissing(
-        f"missing ImageNet weights '{name}': put it in {where} (on a machine with internet, "
-        f"python -c \"import torchvision; torchvision.models.{backbone}(weights='DEFAULT')\" "
-        f"downloads it to {hub_checkpoint_dir()})"
+        f"missing ImageNet weights '{name}': run `{FETCH_COMMAND} --backbone {backbone}` "
+        f"(downloads it to {hub_checkpoint_dir()} and checks its SHA-256), or put it in {where}"
     )
 
 
@@ -116,3 +155,101 @@ def load_state_dict_file(path: PathLike) -> dict:
     if not isinstance(state, dict):
         raise EdofprojError(f"weight file '{path}' does not hold a state dict")
     return state
+
+
+# --------------------------------------------------------------------------- fetching
+
+
+def file_sha256(path: PathLike, chunk_bytes: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file, read in chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(chunk_bytes), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class FetchResult:
+    """What :func:`fetch_backbone_weights` did for one file: ``downloaded`` or ``present``."""
+
+    backbone: str
+    path: Path
+    status: str
+    sha256: str
+
+
+def download_verified(
+    url: str, target: PathLike, sha256: str, timeout_s: float = 60.0, chunk_bytes: int = 1 << 20
+) -> Path:
+    """Stream ``url`` into ``target`` only if its SHA-256 is ``sha256``.
+
+    The bytes go to a temporary file beside ``target`` (:func:`edofproj.fileio.atomic_path`) and
+    are hashed on the way; the file is renamed onto ``target`` only when the download completed
+    (as many bytes as the server announced) and the digest matches. Otherwise the temporary file
+    is removed, ``target`` is left as it was, and :class:`EdofprojError` says why.
+    """
+    from ..fileio import atomic_path
+
+    target = Path(target)
+    expected = sha256.lower()
+    try:
+        with atomic_path(target) as tmp:
+            digest = hashlib.sha256()
+            received = 0
+            with urllib.request.urlopen(url, timeout=timeout_s) as response, open(tmp, "wb") as out:
+                announced = response.headers.get("Content-Length")
+                for chunk in iter(lambda: response.read(chunk_bytes), b""):
+                    digest.update(chunk)
+                    out.write(chunk)
+                    received += len(chunk)
+            if announced is not None and received != int(announced):
+                raise EdofprojError(
+                    f"download of {url} stopped after {received} of {announced} bytes; nothing was kept"
+                )
+            if digest.hexdigest() != expected:
+                raise EdofprojError(
+                    f"{url}: SHA-256 {digest.hexdigest()} is not the published {expected}; the file was not kept"
+                )
+    except (urllib.error.URLError, http.client.HTTPException, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", None) or exc
+        raise EdofprojError(f"cannot download {url}: {reason}; nothing was kept".splitlines()[0]) from None
+    return target
+
+
+def fetch_backbone_weights(
+    backbones: Sequence[str] = tuple(BACKBONE_DOWNLOADS),
+    dest_dir: Optional[PathLike] = None,
+    base_url: str = TORCHVISION_DOWNLOAD_BASE,
+    progress: Optional[Callable[[str], None]] = None,
+    timeout_s: float = 60.0,
+) -> list[FetchResult]:
+    """Download the ImageNet backbone files of ``backbones`` into ``dest_dir`` (default: the hub
+    cache :func:`hub_checkpoint_dir`, where the metrics look) from ``<base_url>/<file name>``,
+    each checked against its published SHA-256 (:func:`download_verified`). A file already there
+    with the right digest is kept (status ``present``); one with another digest is replaced."""
+    unknown = [b for b in backbones if b not in BACKBONE_DOWNLOADS]
+    if unknown or not backbones:
+        raise EdofprojError(
+            f"unknown backbone(s) {', '.join(unknown) or '(none given)'} (allowed: {', '.join(BACKBONE_DOWNLOADS)})"
+        )
+    folder = Path(dest_dir) if dest_dir is not None else hub_checkpoint_dir()
+    if folder.exists() and not folder.is_dir():
+        raise EdofprojError(f"'{folder}' exists and is not a directory")
+    say = progress or (lambda message: None)
+    results = []
+    for backbone in dict.fromkeys(backbones):
+        item = BACKBONE_DOWNLOADS[backbone]
+        target = folder / item.filename
+        if target.is_file():
+            if file_sha256(target) == item.sha256:
+                say(f"{item.filename}: already present with the published SHA-256 ({target})")
+                results.append(FetchResult(backbone, target, "present", item.sha256))
+                continue
+            say(f"{item.filename}: the file at {target} has another SHA-256; downloading it again")
+        url = f"{base_url.rstrip('/')}/{item.filename}"
+        say(f"{item.filename}: downloading {url}")
+        download_verified(url, target, item.sha256, timeout_s=timeout_s)
+        say(f"{item.filename}: SHA-256 verified, saved to {target}")
+        results.append(FetchResult(backbone, target, "downloaded", item.sha256))
+    return results

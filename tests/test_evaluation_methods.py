@@ -1,0 +1,83 @@
+"""The depth-ensemble Wiener baseline (doe+ensemble) and the per-method frame timing."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from edofproj.compensation.wiener import wiener_deconvolve
+from edofproj.evaluation.methods import (
+    ConstrainedCompensation,
+    EnsembleWienerCompensation,
+    PreparedMethod,
+    method_spec,
+    no_compensation,
+)
+from edofproj.evaluation.timing import time_methods
+from edofproj.imaging.projection import project
+
+
+def gaussian_psf(sigma: float, size: int = 9, energy: float = 0.97) -> np.ndarray:
+    delta = np.zeros((size, size))
+    delta[size // 2, size // 2] = 1.0
+    psf = ndimage.gaussian_filter(delta, sigma)
+    return np.repeat((energy * psf / psf.sum())[None], 3, axis=0)
+
+
+def smooth_image(seed: int = 0, size: int = 64) -> torch.Tensor:
+    noise = np.random.default_rng(seed).uniform(0, 1, (3, size, size))
+    return torch.from_numpy(ndimage.gaussian_filter(noise, (0, 2, 2)) * 0.8 + 0.1).float()[None]
+
+
+def test_ensemble_of_one_depth_is_the_wiener_filter_of_that_depth():
+    """With one PSF, G = conj(H) / (|H|^2 + NSR): the same as Wiener deconvolution (both reflect
+    the borders), up to the kernel cut."""
+    psf = gaussian_psf(1.0)
+    image = smooth_image()
+    ensemble = EnsembleWienerCompensation(psf[None], nsr=1e-2, radius=20, grid=128)
+    ours = ensemble(image, image, torch.from_numpy(psf)[None])
+    reference = wiener_deconvolve(image, torch.from_numpy(psf).float(), 1e-2)
+    torch.testing.assert_close(ours[..., 10:-10, 10:-10], reference[..., 10:-10, 10:-10], atol=2e-3, rtol=0)
+
+
+def test_ensemble_is_one_filter_for_every_depth_and_beats_no_compensation_there():
+    psfs = np.stack([gaussian_psf(s) for s in (0.8, 1.4, 2.0)])
+    noise = np.random.default_rng(1).uniform(0, 1, (3, 64, 64))
+    image = torch.from_numpy(ndimage.gaussian_filter(noise, (0, 0.7, 0.7)) * 0.6 + 0.2).float()[None]
+    ensemble = EnsembleWienerCompensation(torch.from_numpy(psfs), nsr=1e-3, radius=12, grid=64)
+    outputs = [ensemble(image, image, torch.from_numpy(p)[None]) for p in psfs]
+    assert all(torch.equal(outputs[0], out) for out in outputs[1:])  # blind: the PSF argument is unused
+    for p in psfs:
+        psf = torch.from_numpy(p).float()[None]
+        compensated = float(((project(outputs[0], psf) - image) ** 2).mean())
+        plain = float(((project(image, psf) - image) ** 2).mean())
+        assert compensated < 0.95 * plain
+
+
+def test_doe_ensemble_is_blind_and_uses_the_runs_doe():
+    spec = method_spec("doe+ensemble")
+    assert spec.blind and spec.optics == "run" and spec.compensation == "ensemble"
+    assert not method_spec("doe+wiener").blind and method_spec("doe+net").blind
+
+
+def test_time_methods_times_every_method_as_evaluated():
+    psf = torch.from_numpy(gaussian_psf(1.2)).float()
+    design = types.SimpleNamespace(psf=lambda depths: psf[None].repeat(len(depths), 1, 1, 1))
+    calls = []
+
+    def counting(target, captured, psf_):
+        calls.append(captured.shape)
+        return target
+
+    methods = [
+        PreparedMethod(method_spec("doe"), design, no_compensation),
+        PreparedMethod(method_spec("lens+cls"), design, ConstrainedCompensation(30)),
+        PreparedMethod(method_spec("doe+net"), design, counting),
+    ]
+    times = time_methods(methods, smooth_image()[0], 0.5, repeats=3)
+    assert list(times) == ["doe", "lens+cls", "doe+net"] and all(t >= 0 for t in times.values())
+    assert times["lens+cls"] > times["doe"]
+    assert len(calls) == 4 and calls[0] == (1, 3, 64, 64)  # one untimed call, then 3 timed
