@@ -166,7 +166,7 @@ def check_compensation(out: Path, summary: dict) -> None:
     rows = summary["rows"]
     assert rows
     for row in rows:
-        for key in ("ssim_uncompensated", "ssim_compensated"):
+        for key in ("ssim_lens", "ssim_uncompensated", "ssim_compensated"):
             assert math.isfinite(row[key]) and 0 < row[key] <= 1
         assert 0 <= row["clipped_fraction"] < 1
     run = load_run(summary["run"])

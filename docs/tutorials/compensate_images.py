@@ -6,7 +6,8 @@ Loads a trained run (``--run``: the run of tutorial 2, ``runs/demo/doe_net`` fro
 demo``, ...; without it, a short run is trained first), and for each image and screen depth runs
 the closed loop of the library -- simulate the uncompensated projection ``I*``, compute the
 projector input ``x = net(I, I*)``, project it -- writes the projector image and the simulated
-preview, and prints the SSIM of the projection with and without compensation.
+preview, and prints the SSIM of the projection with and without compensation, and of the bare
+lens for comparison.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from edofproj.config import load_config
 from edofproj.data import evaluation_images
 from edofproj.evaluation.designs import OpticalDesign
 from edofproj.fileio import atomic_path, write_text_atomic
+from edofproj.imaging import project
 from edofproj.imaging.image_io import read_image, write_image
 from edofproj.metrics import ssim
 from edofproj.runs import load_run
@@ -86,21 +88,25 @@ def main() -> None:
         images = evaluation_images(run.cfg)
     depths_mm = args.depth_mm or ([300.0, 800.0] if args.small else [300.0, 500.0, 800.0])
 
-    # 3. The PSFs of the run's DOE at those depths (the design's engine, simulated once).
+    # 3. The PSFs of the run's DOE at those depths (the design's engine, simulated once), and for
+    #    comparison those of the bare lens (no DOE, no compensation).
     design = OpticalDesign("run", "doe", run.doe, run.cfg)
     psfs = design.psf(np.array(depths_mm) * 1e-3)  # (n_depths, 3, K, K)
+    lens_psfs = OpticalDesign("lens", "lens", None, run.cfg).psf(np.array(depths_mm) * 1e-3)
 
     # 4. The closed loop per image and depth: I* = A(I), x = net(I, I*), shown = A(x).
     rows = []
     panels = []
     for name, image in images:
         target = image.unsqueeze(0)
-        for depth, psf in zip(depths_mm, psfs):
+        for depth, psf, lens_psf in zip(depths_mm, psfs, lens_psfs):
             with torch.inference_mode():
                 loop = closed_loop(target, flat_screen(psf[None]), run.net)
+                lens_only = project(target, lens_psf[None])
             stem = f"{Path(name).stem}_{depth:.0f}mm"
             write_image(out / f"projector_{stem}.png", loop.emitted[0])  # what to send to the projector
             write_image(out / f"preview_{stem}.png", loop.projected[0])  # what the screen would show
+            lens = float(ssim(lens_only, target))
             before = float(ssim(loop.captured, target))
             after = float(ssim(loop.projected, target))
             clipped = float((loop.compensated != loop.emitted).float().mean())
@@ -108,13 +114,14 @@ def main() -> None:
                 {
                     "image": name,
                     "depth_mm": depth,
+                    "ssim_lens": lens,
                     "ssim_uncompensated": before,
                     "ssim_compensated": after,
                     "clipped_fraction": clipped,
                 }
             )
             print(
-                f"{name:<24} {depth:5.0f} mm  SSIM {before:.4f} -> {after:.4f}  "
+                f"{name:<24} {depth:5.0f} mm  SSIM lens {lens:.4f}, DOE {before:.4f} -> compensated {after:.4f}  "
                 f"({100 * clipped:.1f} % of the projector values clipped to [0, 1])"
             )
             if len(panels) < len(depths_mm):
@@ -123,8 +130,8 @@ def main() -> None:
     for depth in depths_mm:
         mine = [r for r in rows if r["depth_mm"] == depth]
         print(
-            f"mean over {len(mine)} images at {depth:.0f} mm: SSIM "
-            f"{np.mean([r['ssim_uncompensated'] for r in mine]):.4f} -> "
+            f"mean over {len(mine)} images at {depth:.0f} mm: SSIM lens {np.mean([r['ssim_lens'] for r in mine]):.4f}, "
+            f"DOE {np.mean([r['ssim_uncompensated'] for r in mine]):.4f} -> compensated "
             f"{np.mean([r['ssim_compensated'] for r in mine]):.4f}"
         )
     plot_panels(panels, out / "compensation.png")
