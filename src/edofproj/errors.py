@@ -22,6 +22,11 @@ class BlurExceedsWindowWarning(UserWarning):
     """The geometric blur disk is wider than the PSF window: light outside it becomes haze."""
 
 
+class RecoveryWarning(UserWarning):
+    """edofproj recovered from an earlier fault (a stale lock taken over, temporary files of an
+    interrupted write removed, a corrupt checkpoint skipped); the message says what it did."""
+
+
 def require(condition: bool, message: str, error: type = EdofprojError) -> None:
     """Raise ``error(message)`` unless ``condition`` holds."""
     if not condition:

@@ -64,12 +64,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..evaluation.bars import ssim_bars
     from ..evaluation.methods import method_spec
-    from ..evaluation.pipeline import evaluate_run
+    from ..evaluation.pipeline import require_trained_run
     from ..evaluation.progress import StageProgress
-    from ..evaluation.summary import format_text_table, range_table
-    from ..evaluation.writeup import bars_section, write_documents
+    from ..locking import directory_lock
     from ..training.distributed import choose_device
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
@@ -78,6 +76,18 @@ def run(args) -> int:
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
     progress = StageProgress("evaluate", enabled=not args.quiet)
+    require_trained_run(args.run)
+    # one writer per output directory: a run being trained, or evaluated by another process, is refused
+    with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
+        return _evaluate_locked(args, methods, depths, device, progress)
+
+
+def _evaluate_locked(args, methods, depths, device, progress) -> int:
+    from ..evaluation.bars import ssim_bars
+    from ..evaluation.pipeline import evaluate_run
+    from ..evaluation.summary import format_text_table, range_table
+    from ..evaluation.writeup import bars_section, write_documents
+
     evaluation = evaluate_run(
         args.run,
         out_dir=args.out,

@@ -278,7 +278,16 @@ def evaluate_run(
     cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
     range_mm = score_range_mm(cfg)
-    images = evaluation_images(cfg, images_dir)
+    with warnings.catch_warnings(record=True) as skipped:
+        warnings.simplefilter("always")
+        images = evaluation_images(cfg, images_dir)
+    # skipped images become notes: printed like the other notes and named in the report
+    image_notes = [str(w.message) for w in skipped if str(w.message).startswith("skipping")]
+    for warning in skipped:
+        if str(warning.message) not in image_notes:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    if image_notes:
+        image_notes.append(f"{len(images)} image(s) scored; {len(image_notes)} skipped as unreadable")
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(
@@ -296,6 +305,7 @@ def evaluate_run(
         progress.advance(1, detail=spec.name)
     if not prepared:
         raise EdofprojError("no method could be evaluated: " + "; ".join(builder.notes))
+    builder.notes.extend(image_notes)
     for note in builder.notes:
         progress.note(note)
 

@@ -30,7 +30,9 @@ from torch import nn
 
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
+from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
+from ..optics.psf_checks import validate_psf
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
@@ -45,6 +47,7 @@ class MeasuredPSFTable(nn.Module):
 
     def __init__(self, psf: torch.Tensor, depths_m) -> None:
         super().__init__()
+        validate_psf(psf, depths_m, source="the measured PSFs", measured=True)
         depths_m = np.asarray(depths_m, dtype=np.float64)
         order = np.argsort(-depths_m)  # increasing inverse depth
         self.register_buffer("psf", psf[torch.as_tensor(order.copy())].float().clone())
@@ -124,7 +127,12 @@ def finetune(
     out_dir = Path(out_dir)
     if out_dir.resolve() == Path(run_dir).resolve():
         raise EdofprojError("--out must differ from the run directory: fine-tuning never overwrites the run")
-    check_new_run_dir(out_dir)
+    with directory_lock(out_dir, "edofproj finetune", "--out"):
+        check_new_run_dir(out_dir, hint="fine-tuning writes a new run directory: choose another --out")
+        return _finetune(run_dir, psf_files, out_dir, steps, lr, batch_size, seed, progress)
+
+
+def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, progress) -> FinetuneResult:
     table = MeasuredPSFTable.from_files(psf_files)
     trained = load_run(run_dir)
     cfg = trained.cfg
