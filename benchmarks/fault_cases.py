@@ -120,15 +120,22 @@ class Cases:
     # -- the cases ----------------------------------------------------------------
     def case_1(self) -> None:
         out = self.work / "collide"
-        args = ["train", "--out", out, "--quiet", *sets(TINY_TRAINING + ["train.steps=40", "train.checkpoint_every=10"])]
+        args = [
+            "train",
+            "--out",
+            out,
+            "--quiet",
+            *sets(TINY_TRAINING + ["train.steps=40", "train.checkpoint_every=10"]),
+        ]
         first = start(args, self.work)
         time.sleep(0.5)
         second = start(args, self.work)
         (_, err1), (_, err2) = first.communicate(), second.communicate()
+        refused = err2 if second.returncode else err1
         self.row(
             "1",
             "two `train` on one `--out` at once",
-            f"exit {first.returncode} and {second.returncode}; second: {last_line(err2) or 'no message'}",
+            f"exit {first.returncode} and {second.returncode}; {last_line(refused) or 'no message'}",
         )
 
     def case_2(self) -> None:
@@ -226,9 +233,7 @@ class Cases:
 
         text = self.work / "text.npz"
         text.write_text("this is not an archive\n")
-        code, line = cli(
-            ["render", "--image", self.image(), "--psf", text, "--out", self.work / "r9.png"], self.work
-        )
+        code, line = cli(["render", "--image", self.image(), "--psf", text, "--out", self.work / "r9.png"], self.work)
         self.row("9b", "a text file given as `--psf x.npz`", f"exit {code}: {line}")
 
         mismatch = self.work / "net_mismatch"
@@ -266,7 +271,9 @@ class Cases:
 
     def case_10(self) -> None:
         run = self.trained_run()
-        first = start(["evaluate", run, "--quiet", "--methods", "doe,doe+net", "--out", self.work / "eval10"], self.work)
+        first = start(
+            ["evaluate", run, "--quiet", "--methods", "doe,doe+net", "--out", self.work / "eval10"], self.work
+        )
         time.sleep(1.0)
         code, line = cli(["evaluate", run, "--quiet", "--methods", "doe", "--out", self.work / "eval10"], self.work)
         first.communicate()
@@ -276,7 +283,13 @@ class Cases:
         import signal
 
         run = self.work / "killed"
-        args = ["train", "--out", run, "--quiet", *sets(TINY_TRAINING + ["train.steps=200", "train.checkpoint_every=2"])]
+        args = [
+            "train",
+            "--out",
+            run,
+            "--quiet",
+            *sets(TINY_TRAINING + ["train.steps=200", "train.checkpoint_every=2"]),
+        ]
         proc = start(args, self.work)
         deadline = time.time() + 120
         while time.time() < deadline and not (run / "checkpoints" / "last.pt").is_file():
@@ -299,7 +312,9 @@ class Cases:
         truncated = self.work / "truncated_psf.npz"
         data = psf.read_bytes()
         truncated.write_bytes(data[: len(data) // 2])
-        code, line = cli(["render", "--image", self.image(), "--psf", truncated, "--out", self.work / "r12.png"], self.work)
+        code, line = cli(
+            ["render", "--image", self.image(), "--psf", truncated, "--out", self.work / "r12.png"], self.work
+        )
         self.row("12", "truncated PSF file into `render`", f"exit {code}: {line}")
         design = self.work / "truncated_doe.npz"
         data = self.design().read_bytes()
@@ -307,13 +322,22 @@ class Cases:
         code, line = cli(["psf", "--doe", design, "--depth-mm", 500, "--out", self.work / "p12.npz"], self.work)
         self.row("12", "truncated design file into `psf`", f"exit {code}: {line}")
         even = self.edited_npz(psf, self.work / "even_psf.npz", psf=lambda p: p[..., :-1, :-1])
-        code, line = cli(["render", "--image", self.image(), "--psf", even, "--depth-index", 0, "--out", self.work / "r.png"], self.work)
+        code, line = cli(
+            ["render", "--image", self.image(), "--psf", even, "--depth-index", 0, "--out", self.work / "r.png"],
+            self.work,
+        )
         self.row("12", "PSF file with an even (14x14) window", f"exit {code}: {line}")
         bright = self.edited_npz(psf, self.work / "bright_psf.npz", psf=lambda p: 3 * p)
-        code, line = cli(["render", "--image", self.image(), "--psf", bright, "--depth-index", 0, "--out", self.work / "r.png"], self.work)
+        code, line = cli(
+            ["render", "--image", self.image(), "--psf", bright, "--depth-index", 0, "--out", self.work / "r.png"],
+            self.work,
+        )
         self.row("12", "PSF file with 3x the pupil's energy", f"exit {code}: {line}")
         lost = self.edited_npz(psf, self.work / "depths_psf.npz", depths_m=lambda d: d[:1])
-        code, line = cli(["render", "--image", self.image(), "--psf", lost, "--depth-index", 0, "--out", self.work / "r.png"], self.work)
+        code, line = cli(
+            ["render", "--image", self.image(), "--psf", lost, "--depth-index", 0, "--out", self.work / "r.png"],
+            self.work,
+        )
         self.row("12", "PSF file with 2 PSFs and 1 depth", f"exit {code}: {line}")
 
 

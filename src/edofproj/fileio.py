@@ -98,7 +98,9 @@ def read_arrays(path: str | os.PathLike, what: str = "file") -> dict[str, np.nda
             return {name: loaded[name] for name in loaded.files}
     except ValueError as exc:
         if "pickle" in str(exc):
-            raise EdofprojError(f"{what} '{path}' holds Python objects, not plain arrays: it was not written by edofproj") from None
+            raise EdofprojError(
+                f"{what} '{path}' holds Python objects, not plain arrays: it was not written by edofproj"
+            ) from None
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
     except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None

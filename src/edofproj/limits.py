@@ -81,8 +81,9 @@ def _cgroup_room() -> int | None:
             base = Path("/sys/fs/cgroup") / relative
             limit, usage = _read_int(base / "memory.max"), _read_int(base / "memory.current")
             if limit is None:  # inside a namespace the process's own group is the root
-                limit, usage = _read_int(Path("/sys/fs/cgroup/memory.max")), _read_int(
-                    Path("/sys/fs/cgroup/memory.current")
+                limit, usage = (
+                    _read_int(Path("/sys/fs/cgroup/memory.max")),
+                    _read_int(Path("/sys/fs/cgroup/memory.current")),
                 )
         elif "memory" in parts[1].split(","):
             base = Path("/sys/fs/cgroup/memory")

@@ -176,7 +176,12 @@ class DirectoryLock:
             if previous is not None:
                 local = previous.get("host") == socket.gethostname()
                 pid = int(previous.get("pid", -1))
-                if fcntl is None and local and pid != os.getpid() and _process_alive(pid, previous.get("process_start")):
+                if (
+                    fcntl is None
+                    and local
+                    and pid != os.getpid()
+                    and _process_alive(pid, previous.get("process_start"))
+                ):
                     os.close(fd)
                     raise self._refuse(previous)
                 if pid != os.getpid() or not local:

@@ -132,8 +132,8 @@ def run(args) -> int:
     from ..imaging import bank_layers, project, read_image, render_depth_map, write_image
     from ..imaging.image_io import check_output_path, image_file_size
     from ..imaging.projection import projection_bytes
-    from ..limits import check_memory
     from ..imaging.screens import tilted_plane_depth_map, tilted_plane_far_m, tilted_plane_tilt_deg
+    from ..limits import check_memory
     from ..optics.geometry import ProjectorGeometry
 
     check_arguments(args)

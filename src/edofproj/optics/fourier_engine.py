@@ -30,8 +30,8 @@ import numpy as np
 import torch
 from scipy import fft as sfft
 
-from ..limits import check_memory
 from ..errors import EdofprojError, SamplingError
+from ..limits import check_memory
 from .geometry import ProjectorGeometry
 from .radial_engine import (
     MAX_DEFOCUS_STEP_RAD,

@@ -81,7 +81,9 @@ def validate_psf(
     finite = np.isfinite(array)
     if not finite.all():
         i, c = np.argwhere(~finite.all(axis=(-1, -2)))[0]
-        raise EdofprojError(f"{source}: NaN or infinite values (depth {_where(i, depths)}, channel {_channel(c, channels)}){hint}")
+        raise EdofprojError(
+            f"{source}: NaN or infinite values (depth {_where(i, depths)}, channel {_channel(c, channels)}){hint}"
+        )
 
     energy = array.sum(axis=(-1, -2))  # (n, C)
     peak = array.max(axis=(-1, -2))
@@ -95,7 +97,9 @@ def validate_psf(
             where = f"depth {_where(i, depths)}, channel {_channel(c, channels)}"
             if not peak[i, c] > 0 or not energy[i, c] > 0:
                 what = "all zero" if np.all(array[i, c] == 0) else f"in-window energy {energy[i, c]:.3g}"
-                raise EdofprojError(f"{source} holds no light at {where} ({what}): a PSF's energy must be in (0, 1]{hint}")
+                raise EdofprojError(
+                    f"{source} holds no light at {where} ({what}): a PSF's energy must be in (0, 1]{hint}"
+                )
             if energy[i, c] > 1 + energy_tolerance:
                 raise EdofprojError(
                     f"{source}: in-window energy {energy[i, c]:.4g} at {where} exceeds 1 (the light through "

@@ -45,8 +45,8 @@ import numpy as np
 import torch
 from scipy.special import j0, j1
 
-from ..limits import check_memory
 from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
+from ..limits import check_memory
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
 
@@ -282,7 +282,9 @@ class RadialPSFEngine:
         depths_m = check_depths(depths_m)
         warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
         check_memory(
-            radial_engine_bytes(len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, len(depths_m))
+            radial_engine_bytes(
+                len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, len(depths_m)
+            )
             - radial_engine_bytes(len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, 0),
             f"PSFs at {len(depths_m)} depths in a {self.window}-px window",
             "simulate fewer depths at once or use a smaller psf.window",

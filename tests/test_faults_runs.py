@@ -1,0 +1,141 @@
+"""Fault tier: training runs under ``kill -9``, concurrent writers and damaged checkpoints (CLI subprocesses)."""
+
+from __future__ import annotations
+
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from edofproj.locking import LOCK_NAME
+from tiny_configs import TINY_TRAINING
+
+pytestmark = pytest.mark.slow  # CLI subprocesses that train
+
+STEPS = 8
+CONFIG = TINY_TRAINING + [
+    f"train.steps={STEPS}",
+    "train.checkpoint_every=1",
+    "train.batch_size=1",
+    "train.keep_checkpoints=0",
+]
+
+
+def _command(out: Path, *extra: str) -> list[str]:
+    sets = [a for o in CONFIG for a in ("--set", o)]
+    return [sys.executable, "-m", "edofproj.cli", "train", "--out", str(out), "--quiet", *sets, *extra]
+
+
+def _env() -> dict:
+    return dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=os.pathsep.join(sys.path))
+
+
+def _run(args: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run(args, env=_env(), capture_output=True, text=True, timeout=300)
+
+
+def _logged_steps(run: Path) -> int:
+    log = run / "train_log.csv"
+    return max(len(log.read_text().splitlines()) - 1, 0) if log.is_file() else 0
+
+
+def _final_state(run: Path) -> dict:
+    return torch.load(run / "checkpoints" / "last.pt", weights_only=True)
+
+
+def _assert_same_run(run: Path, reference: Path) -> None:
+    mine, theirs = _final_state(run), _final_state(reference)
+    assert mine["step"] == theirs["step"] == STEPS
+    for part in ("net", "doe"):
+        assert mine[part].keys() == theirs[part].keys()
+        for key in mine[part]:
+            assert torch.equal(mine[part][key], theirs[part][key]), f"{part}.{key} differs"
+    log, reference_log = (p / "train_log.csv" for p in (run, reference))
+    losses = [line.split(",")[1] for line in log.read_text().splitlines()[1:]]
+    reference_losses = [line.split(",")[1] for line in reference_log.read_text().splitlines()[1:]]
+    assert losses == reference_losses
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("faults") / "reference"
+    result = _run(_command(out))
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+def test_kill_9_at_random_steps_then_resume_ends_bit_identical(reference, tmp_path):
+    run = tmp_path / "killed"
+    rng = random.Random(19)
+    kills = 0
+    args = _command(run)
+    while True:
+        proc = subprocess.Popen(args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        target = max(_logged_steps(run) + rng.randint(2, 4), 2)  # a checkpoint exists after step 1
+        while proc.poll() is None and _logged_steps(run) < target:
+            time.sleep(0.01)
+        time.sleep(rng.uniform(0.0, 0.3))  # anywhere in the step: the sampling, the update, the checkpoint
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+            kills += 1
+        _, err = proc.communicate()
+        assert proc.returncode in (0, -signal.SIGKILL), err
+        if proc.returncode == 0 and _final_state(run)["step"] == STEPS:
+            break
+        args = _command(run, "--resume")
+    assert kills >= 2
+    assert not (run / LOCK_NAME).exists()
+    assert not [p for p in (run / "checkpoints").iterdir() if p.name.startswith(".")]  # no temp files left
+    _assert_same_run(run, reference)
+
+
+def test_a_second_train_on_the_same_out_is_refused_and_the_first_completes(reference, tmp_path):
+    run = tmp_path / "contested"
+    first = subprocess.Popen(_command(run), env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not (run / LOCK_NAME).exists() and time.time() < deadline:
+        time.sleep(0.01)
+    second = _run(_command(run))
+    _, first_err = first.communicate(timeout=300)
+    assert first.returncode == 0, first_err
+    assert second.returncode == 2
+    message = second.stderr.strip()
+    assert message.count("\n") == 0 and "is being written by edofproj train" in message and str(first.pid) in message
+    _assert_same_run(run, reference)
+
+
+def test_resume_removes_temp_files_and_falls_back_past_a_truncated_last_checkpoint(reference, tmp_path):
+    run = tmp_path / "damaged"
+    shutil.copytree(reference, run)
+    checkpoints = run / "checkpoints"
+    last = checkpoints / "last.pt"
+    data = last.read_bytes()
+    stale = checkpoints / ".last.pt.tmp-ab12cd34.pt"
+    stale.write_bytes(data[: len(data) // 2])  # what kill -9 during a save leaves behind
+    last.write_bytes(data[: len(data) // 3])
+    (checkpoints / f"step_{STEPS:06d}.pt").write_bytes(b"")  # the newest step file is damaged too
+    result = _run(_command(run, "--resume"))
+    assert result.returncode == 0, result.stderr
+    assert "removed 1 temporary file(s) of interrupted writes" in result.stderr
+    assert f"last.pt' cannot be read (truncated or damaged): using 'step_{STEPS - 1:06d}.pt'" in result.stderr
+    assert not stale.exists()
+    _assert_same_run(run, reference)
+
+
+def test_a_garbage_checkpoint_is_refused_without_unsafe_advice(reference, tmp_path):
+    run = tmp_path / "garbage"
+    shutil.copytree(reference, run)
+    for path in (run / "checkpoints").glob("*.pt"):
+        path.write_bytes(os.urandom(2000))
+    result = _run(_command(run, "--resume"))
+    assert result.returncode == 2
+    message = result.stderr.strip()
+    assert message.count("\n") == 0 and "truncated, damaged or not an edofproj checkpoint" in message
+    assert "weights_only" not in message
