@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -184,6 +186,20 @@ def test_the_memory_available_is_known_here_and_capped_by_the_environment(monkey
     assert available_memory_bytes() == 1_000_000
 
 
+def test_an_address_space_limit_caps_the_memory_available(tmp_path):
+    """Under ``ulimit -v`` the room left below the limit counts (checked in a child process)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import resource; from edofproj.limits import available_memory_bytes as a;"
+        "resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, resource.RLIM_INFINITY)); print(a())"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    assert 0 < int(out) < 3 * 2**30
+
+
 def test_a_request_beyond_the_memory_says_what_it_needs_and_what_to_change(monkeypatch):
     monkeypatch.setenv(ENV_LIMIT, str(2**30))
     check_memory(2**29, "half a GiB", "nothing")
@@ -216,7 +232,7 @@ def test_pattern_sets_are_refused_before_they_are_drawn():
 
     spec = PatternSpec(width=100000, height=100000)
     assert spec.memory_bytes() > 10 * 2**40  # 227 patterns of 10^10 px
-    with pytest.raises(MemoryLimitError, match="227 patterns of 100000x100000 px"):
+    with pytest.raises(MemoryLimitError, match="a set of 227 patterns of 100000x100000 px needs about 25.0 TiB"):
         spec.validate()
 
 

@@ -21,17 +21,17 @@ HOLD_LOCK = textwrap.dedent(
     """
     import sys, time
     from edofproj.locking import DirectoryLock
-    lock = DirectoryLock(sys.argv[1], "holder").acquire()
+    lock = DirectoryLock(sys.argv[1], "holder", beside=len(sys.argv) > 2).acquire()
     print("locked", flush=True)
     time.sleep(60)
     """
 )
 
 
-def _holder(directory):
+def _holder(directory, beside=False):
     """A child process that takes ``directory``'s lock and sleeps (killed by the test)."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", HOLD_LOCK, str(directory)],
+        [sys.executable, "-c", HOLD_LOCK, str(directory)] + (["beside"] if beside else []),
         stdout=subprocess.PIPE,
         text=True,
         env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)),
@@ -162,3 +162,38 @@ def test_a_concurrent_writer_waits_for_nothing_it_is_refused_at_once(tmp_path):
     finally:
         holder.kill()
         holder.wait()
+
+
+# ----------------------------------------------------------------------------- capture folders
+
+
+def test_a_capture_folder_being_written_is_refused_to_a_second_writer(tmp_path):
+    from edofproj.procams.capture_io import atomic_folder
+
+    target = tmp_path / "captures"
+    holder = _holder(target, beside=True)
+    try:
+        with pytest.raises(DirectoryLockedError, match="holder"):
+            with atomic_folder(target):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not target.exists()
+
+
+def test_unfinished_capture_folders_of_a_killed_writer_are_removed(tmp_path):
+    from edofproj.procams.capture_io import atomic_folder
+
+    target = tmp_path / "captures"
+    unfinished = [tmp_path / ".captures.ab12cd34", tmp_path / ".captures.old.zz99yy88"]
+    other = tmp_path / ".other.ab12cd34"
+    for folder in unfinished + [other]:
+        folder.mkdir()
+        (folder / "x.png").write_bytes(b"x")
+    with pytest.warns(RecoveryWarning, match="removed 2 unfinished folder"):
+        with atomic_folder(target) as tmp:
+            (tmp / "capture.png").write_bytes(b"png")
+    assert (target / "capture.png").is_file() and other.is_dir()
+    assert not any(f.exists() for f in unfinished)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".other.ab12cd34", "captures"])  # lock file gone

@@ -12,6 +12,7 @@ The memory available is the smallest of
   physical pages from ``os.sysconf`` where there is no ``/proc``;
 * the free room of this process's cgroup (``memory.max - memory.current``, cgroup v2; or the v1
   ``memory.limit_in_bytes - memory.usage_in_bytes``), the limit of a container or job slot;
+* the room left below this process's address-space limit (``ulimit -v``), when it has one;
 * ``EDOFPROJ_MEMORY_BYTES`` when set: the memory edofproj may use (e.g. on a shared machine).
 """
 
@@ -96,9 +97,27 @@ def _cgroup_room() -> int | None:
     return min(rooms) if rooms else None
 
 
+def _address_space_room() -> int | None:
+    """``RLIMIT_AS`` (``ulimit -v``) less this process's current virtual size, or None without a limit."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmSize:"):
+                return max(soft - int(line.split()[1]) * 1024, 0)
+    except (OSError, ValueError, IndexError):
+        pass
+    return soft
+
+
 def available_memory_bytes() -> int | None:
     """The memory this process may still allocate (module docstring), or None when unknown."""
-    candidates = [_meminfo_available() or _sysconf_available(), _cgroup_room()]
+    candidates = [_meminfo_available() or _sysconf_available(), _cgroup_room(), _address_space_room()]
     override = os.environ.get(ENV_LIMIT, "").strip()
     if override:
         try:

@@ -13,11 +13,15 @@ owner exits in any way (``kill -9`` included). So:
 
 Use it as a context manager::
 
-    with directory_lock(run_dir, "train"):
+    with directory_lock(run_dir, "edofproj train", "--out"):
         ...  # write into run_dir
 
-The lock file starts with a dot and is ignored by :func:`is_lock_file` users (e.g. the check
-that a new run directory is empty). It is removed when the lock is released.
+A directory that is written elsewhere and then renamed into place (a capture folder written by
+:func:`edofproj.procams.capture_io.atomic_folder`) is locked with ``beside=True``: the lock file
+is then ``<parent>/.<name>.edofproj.lock``, which the rename does not carry away.
+
+Lock files start with a dot; :func:`is_lock_file` tells them apart (e.g. the check that a new
+run directory is empty skips them). A lock file is removed when its lock is released.
 """
 
 from __future__ import annotations
@@ -48,7 +52,8 @@ class DirectoryLockedError(EdofprojError):
 
 def is_lock_file(path: str | os.PathLike) -> bool:
     """True for a directory lock file (skip it when listing a directory's contents)."""
-    return Path(path).name == LOCK_NAME
+    name = Path(path).name
+    return name == LOCK_NAME or (name.startswith(".") and name.endswith(LOCK_NAME))
 
 
 def _process_start_ticks(pid: int) -> int | None:
@@ -90,9 +95,12 @@ def _describe(owner: dict[str, Any]) -> str:
     return f"{what} (PID {owner.get('pid', '?')} on host {owner.get('host', '?')}{since_text})"
 
 
-def read_lock_owner(directory: str | os.PathLike) -> dict[str, Any] | None:
+def read_lock_owner(directory: str | os.PathLike, beside: bool = False) -> dict[str, Any] | None:
     """The owner recorded in ``directory``'s lock file, or None when there is none or it is unreadable."""
-    path = Path(directory) / LOCK_NAME
+    return DirectoryLock(directory, beside=beside)._read_owner()
+
+
+def _read_owner_file(path: Path) -> dict[str, Any] | None:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError:
@@ -108,9 +116,14 @@ class DirectoryLock:
     """The write lock of one directory (module docstring). ``what`` names the writer in messages
     (e.g. ``"train"``); ``option`` names the user's option for the directory (e.g. ``"--out"``)."""
 
-    def __init__(self, directory: str | os.PathLike, what: str = "edofproj", option: str = "") -> None:
+    def __init__(
+        self, directory: str | os.PathLike, what: str = "edofproj", option: str = "", beside: bool = False
+    ) -> None:
         self.directory = Path(directory)
-        self.path = self.directory / LOCK_NAME
+        self.beside = beside
+        self.path = (
+            self.directory.parent / f".{self.directory.name}{LOCK_NAME}" if beside else self.directory / LOCK_NAME
+        )
         self.what = what
         self.option = option
         self._fd: int | None = None
@@ -120,13 +133,13 @@ class DirectoryLock:
     def held(self) -> bool:
         return self._fd is not None
 
+    def _read_owner(self) -> dict[str, Any] | None:
+        return _read_owner_file(self.path)
+
     def _refuse(self, owner: dict[str, Any] | None) -> DirectoryLockedError:
         who = _describe(owner) if owner else "another edofproj process"
         name = f"{self.option} '{self.directory}'" if self.option else f"'{self.directory}'"
-        return DirectoryLockedError(
-            f"{name} is being written by {who}: wait for it to finish or use another directory "
-            f"(if no such process runs, delete '{self.path}')"
-        )
+        return DirectoryLockedError(f"{name} is being written by {who}: wait for it to finish or use another directory")
 
     def _owner_record(self) -> dict[str, Any]:
         pid = os.getpid()
@@ -147,8 +160,11 @@ class DirectoryLock:
         if self.directory.exists() and not self.directory.is_dir():
             raise EdofprojError(f"'{self.directory}' exists and is not a directory")
         try:
-            self._created = not self.directory.exists()
-            self.directory.mkdir(parents=True, exist_ok=True)
+            if self.beside:
+                self.directory.parent.mkdir(parents=True, exist_ok=True)
+            else:
+                self._created = not self.directory.exists()
+                self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise EdofprojError(f"cannot create '{self.directory}': {exc.strerror or exc}") from None
         for _ in range(20):
@@ -163,7 +179,7 @@ class DirectoryLock:
                     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except OSError:
                     os.close(fd)
-                    raise self._refuse(read_lock_owner(self.directory)) from None
+                    raise self._refuse(self._read_owner()) from None
                 # the file may have been released and removed between open and flock: retry on a fresh one
                 try:
                     same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
@@ -172,7 +188,7 @@ class DirectoryLock:
                 if not same:
                     os.close(fd)
                     continue
-            previous = read_lock_owner(self.directory)
+            previous = self._read_owner()
             if previous is not None:
                 local = previous.get("host") == socket.gethostname()
                 pid = int(previous.get("pid", -1))
@@ -220,8 +236,11 @@ class DirectoryLock:
 
 
 @contextlib.contextmanager
-def directory_lock(directory: str | os.PathLike, what: str = "edofproj", option: str = "") -> Iterator[DirectoryLock]:
-    """``with directory_lock(path, "train", "--out"):`` hold ``path``'s write lock (:class:`DirectoryLock`)."""
-    lock = DirectoryLock(directory, what, option)
+def directory_lock(
+    directory: str | os.PathLike, what: str = "edofproj", option: str = "", beside: bool = False
+) -> Iterator[DirectoryLock]:
+    """``with directory_lock(path, "edofproj train", "--out"):`` hold ``path``'s write lock
+    (:class:`DirectoryLock`; ``beside``: the lock file sits beside the directory)."""
+    lock = DirectoryLock(directory, what, option, beside)
     with lock:
         yield lock

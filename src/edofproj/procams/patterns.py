@@ -88,7 +88,7 @@ class PatternSpec:
             raise EdofprojError(f"--color-levels {self.color_levels} must be in 2..17")
         check_memory(
             self.memory_bytes(),
-            f"{self.pattern_count} patterns of {self.width}x{self.height} px",
+            f"a set of {self.pattern_count} patterns of {self.width}x{self.height} px",
             "use a smaller --width/--height (or fewer --bernoulli and --color-levels)",
         )
 
