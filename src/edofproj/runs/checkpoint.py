@@ -138,7 +138,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         size = path.stat().st_size
         raise EdofprojError(
             f"cannot read checkpoint '{path}' ({size} bytes, {type(exc).__name__}): it is truncated, damaged "
-            "or not an edofproj checkpoint; use another checkpoint of the run (checkpoints/step_*.pt)"
+            "or not an edofproj checkpoint"
         ) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise EdofprojError(f"'{path}' is not an edofproj training checkpoint")
@@ -156,7 +156,8 @@ def load_newest_intact_checkpoint(
     try:
         return load_checkpoint(last, map_location), last
     except EdofprojError as first_error:
-        for candidate in reversed(list_step_checkpoints(directory)):
+        candidates = list_step_checkpoints(directory)
+        for candidate in reversed(candidates):
             try:
                 state = load_checkpoint(candidate, map_location)
             except EdofprojError:
@@ -169,6 +170,10 @@ def load_newest_intact_checkpoint(
                 stacklevel=2,
             )
             return state, candidate
+        if candidates:
+            raise EdofprojError(
+                f"{first_error}, and none of the {len(candidates)} step_*.pt files beside it can be read either"
+            ) from None
         raise first_error from None
 
 
