@@ -255,3 +255,20 @@ def test_an_image_too_large_for_the_memory_is_refused_from_its_header(tmp_path, 
 def test_an_empty_override_is_refused_instead_of_becoming_none():
     with pytest.raises(ConfigError, match="override 'train.steps=' has no value"):
         apply_overrides(Config(), ["train.steps="])
+
+
+def test_a_device_argument_for_the_cpu_uses_the_machine_memory(monkeypatch):
+    from edofproj.limits import available_device_memory_bytes
+
+    monkeypatch.setenv(ENV_LIMIT, "123456")
+    assert available_device_memory_bytes(torch.device("cpu")) == available_device_memory_bytes(None) == 123456
+    with pytest.raises(MemoryLimitError, match="of memory, more than"):
+        check_memory(10**6, "x", "y", device=torch.device("cpu"))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_a_cuda_request_is_checked_against_the_gpu_memory():
+    free, total = torch.cuda.mem_get_info()
+    check_memory(free // 2, "half the free GPU memory", "nothing", device=torch.device("cuda"))
+    with pytest.raises(MemoryLimitError, match="of GPU memory"):
+        check_memory(2 * total, "twice the GPU", "use a smaller request", device=torch.device("cuda"))

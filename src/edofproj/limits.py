@@ -128,16 +128,30 @@ def available_memory_bytes() -> int | None:
     return min(known) if known else None
 
 
-def check_memory(needed_bytes: float, what: str, change: str) -> None:
-    """Raise :class:`MemoryLimitError` when ``needed_bytes`` exceeds the memory available.
+def available_device_memory_bytes(device=None) -> int | None:
+    """Free memory of a CUDA ``device`` (``torch.cuda.mem_get_info``); for the CPU (or None), the
+    memory of :func:`available_memory_bytes`."""
+    if device is not None and getattr(device, "type", str(device).split(":")[0]) == "cuda":
+        import torch
+
+        free, _ = torch.cuda.mem_get_info(device)
+        override = available_memory_bytes() if os.environ.get(ENV_LIMIT, "").strip() else None
+        return min(int(free), override) if override is not None else int(free)
+    return available_memory_bytes()
+
+
+def check_memory(needed_bytes: float, what: str, change: str, device=None) -> None:
+    """Raise :class:`MemoryLimitError` when ``needed_bytes`` exceeds the memory available (on
+    ``device``: a CUDA device's free memory, else the machine's).
 
     ``what`` names the request (``"a 100001-px PSF window"``), ``change`` what to do instead
     (``"use a smaller psf.window"``). Unknown available memory: nothing is checked."""
     if not math.isfinite(needed_bytes):
         raise MemoryLimitError(f"{what} needs an unbounded amount of memory: {change}")
-    available = available_memory_bytes()
+    available = available_device_memory_bytes(device)
     if available is not None and needed_bytes > available:
+        where = "GPU memory" if device is not None and "cuda" in str(device) else "memory"
         raise MemoryLimitError(
-            f"{what} needs about {format_bytes(needed_bytes)} of memory, more than the "
+            f"{what} needs about {format_bytes(needed_bytes)} of {where}, more than the "
             f"{format_bytes(available)} available: {change}"
         )

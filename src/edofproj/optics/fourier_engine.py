@@ -87,6 +87,7 @@ class FourierPSFEngine:
             fourier_engine_bytes(self.M, self.window, len(self.wavelengths_m), depth_chunk, n_depths=1),
             f"the 2-D PSF engine (pupil_samples {self.M}, window {self.window} px)",
             "use fewer psf.pupil_samples (or the radial engine for a radially symmetric design)",
+            device=self.device,
         )
         coords = (np.arange(self.M) - self.M / 2 + 0.5) * self.dx_m
         self.x_t = torch.as_tensor(coords, dtype=torch.float64, device=self.device)
@@ -144,6 +145,7 @@ class FourierPSFEngine:
             fourier_engine_bytes(self.M, self.window, len(self.wavelengths_m), self.depth_chunk, len(depths_m)),
             f"2-D PSFs at {len(depths_m)} depths (pupil_samples {self.M}, window {self.window} px)",
             "simulate fewer depths at once, or use fewer psf.pupil_samples",
+            device=self.device,
         )
         if doe is None:
             height = torch.zeros_like(self.r2)

@@ -195,7 +195,7 @@ class RadialPSFEngine:
             f"the radial PSF engine (window {self.window} px, pupil_samples {self.pupil_samples}, "
             f"{len(self.wavelengths_m)} wavelengths)",
             "use a smaller psf.window (the blur diameter plus a margin is enough) or fewer wavelengths",
-        )
+        )  # the tables are built on the host (NumPy) first
         weights = []
         for scale in px_per_nu:
             w, index = hat_pixel_weights(self.nu * scale, self.window)
@@ -288,6 +288,7 @@ class RadialPSFEngine:
             - radial_engine_bytes(len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, 0),
             f"PSFs at {len(depths_m)} depths in a {self.window}-px window",
             "simulate fewer depths at once or use a smaller psf.window",
+            device=self.device,
         )
         intensity = self.radial_intensity(doe, depths_m)  # (L, Z, n_rho)
         unique = torch.matmul(intensity, self.pixel_weights)  # (L, Z, n_unique)

@@ -32,7 +32,6 @@ from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
-from ..optics.psf_checks import validate_psf
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
@@ -47,7 +46,6 @@ class MeasuredPSFTable(nn.Module):
 
     def __init__(self, psf: torch.Tensor, depths_m) -> None:
         super().__init__()
-        validate_psf(psf, depths_m, source="the measured PSFs", measured=True)
         depths_m = np.asarray(depths_m, dtype=np.float64)
         order = np.argsort(-depths_m)  # increasing inverse depth
         self.register_buffer("psf", psf[torch.as_tensor(order.copy())].float().clone())
