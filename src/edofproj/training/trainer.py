@@ -397,8 +397,15 @@ def _train(
             remove_interrupted_writes(run_dir)
         checkpoints = run_dir / CHECKPOINT_DIR
         if not last_checkpoint_path(run_dir).is_file() and not any(checkpoints.glob("step_*.pt")):
-            raise EdofprojError(f"--resume: '{run_dir}' has no checkpoint to continue from ({CHECKPOINT_DIR}/last.pt)")
-        checkpoint, _ = load_newest_intact_checkpoint(checkpoints)
+            # the run stopped before its first checkpoint (its config matches): nothing to lose, start over
+            warnings.warn(
+                f"--resume: '{run_dir}' stopped before its first checkpoint: training it from step 0",
+                RecoveryWarning,
+                stacklevel=2,
+            )
+            checkpoint = None
+        else:
+            checkpoint, _ = load_newest_intact_checkpoint(checkpoints)
     else:
         check_new_run_dir(run_dir)
         checkpoint = None
