@@ -17,7 +17,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "src" / "edofproj"
 
 #: Layers, lowest first: each entry is a layer's top-level modules and packages of ``edofproj``.
 LAYERS = [
-    {"errors", "fileio", "config", "presets"},  # foundation
+    {"errors", "fileio", "config", "presets", "locking", "limits"},  # foundation
     {"optics"},
     {"doe"},
     {"imaging"},

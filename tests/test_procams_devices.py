@@ -15,6 +15,7 @@ import torch
 
 from edofproj.errors import EdofprojError
 from edofproj.imaging.image_io import read_image_array, to_unit_float
+from edofproj.locking import DirectoryLockedError, directory_lock
 from edofproj.procams.capture_io import write_rgb_png
 from edofproj.procams.color import ColorCalibration, ResponseLUT
 from edofproj.procams.devices import GrabSettings, grab_frame, open_camera, open_display
@@ -258,6 +259,22 @@ def test_capture_session_refuses_other_folders_and_camera_sizes(tmp_path, patter
     bigger = VirtualProCams.example((16, 20), delta_psf(), camera_scale=2.0)
     with pytest.raises(EdofprojError, match="the session's camera 20x16"):
         capture_patterns(folder, out, display, VirtualCamera(bigger, display))
+
+
+def test_capture_session_is_one_writer_per_folder(tmp_path, pattern_dir):
+    folder, manifest, _ = pattern_dir
+    display = MemoryDisplay()
+    camera = VirtualCamera(straight_rig((16, 20), delta_psf()), display)
+    out = tmp_path / "captures"
+    capture_patterns(folder, out, display, camera, stop_after=1)
+    stale = out / ".bernoulli_00.png.tmp-abcd1234.png"  # a write a killed session left behind
+    stale.write_bytes(b"partial")
+    with directory_lock(out, "another capture session", "--out"):
+        with pytest.raises(DirectoryLockedError, match="another capture session"):
+            capture_patterns(folder, out, display, camera)
+    result = capture_patterns(folder, out, display, camera)
+    assert result.captured == len(manifest.entries) - 1
+    assert not stale.exists() and not any(p.name.startswith(".") for p in out.iterdir())  # lock released too
 
 
 # --------------------------------------------------------------------------- inverse response

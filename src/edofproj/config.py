@@ -25,6 +25,7 @@ from typing import Any, Optional
 import yaml
 
 from .errors import ConfigError
+from .limits import check_memory
 
 #: Metres per millimetre. Configs and options speak millimetres; the code computes in metres, and
 #: the conversion happens here, in the ``*_m`` properties of the sections, and nowhere else.
@@ -188,6 +189,10 @@ class DOEConfig:
             raise ConfigError("doe.min_feature_um must be >= 0")
 
 
+#: Bytes per window pixel of the smallest PSF simulation (3 colours x float64 x 3 copies).
+PSF_WINDOW_BYTES_PER_PIXEL = 72
+
+
 @dataclass
 class PSFConfig:
     """PSF simulation: engine, window, pupil sampling, depth range.
@@ -218,6 +223,19 @@ class PSFConfig:
             raise ConfigError(f"psf.window={self.window} must be odd and >= 3")
         if self.pupil_samples < 16:
             raise ConfigError(f"psf.pupil_samples={self.pupil_samples} must be >= 16")
+        # the least any simulation with these settings holds: three K x K float64 PSFs per colour,
+        # and for the 2-D engine one (2M)^2 complex128 FFT (the engines check their full estimates)
+        check_memory(
+            PSF_WINDOW_BYTES_PER_PIXEL * self.window**2,
+            f"psf.window={self.window}",
+            "use a smaller psf.window (the largest blur diameter in pixels plus a margin is enough)",
+        )
+        if self.engine == "2d":
+            check_memory(
+                16 * (2 * self.pupil_samples) ** 2,
+                f"psf.pupil_samples={self.pupil_samples} with the 2-D engine",
+                "use fewer psf.pupil_samples",
+            )
         _positive(self, "depth_min_mm", "psf.depth_min_mm")
         if self.depth_max_mm < self.depth_min_mm:
             raise ConfigError("psf.depth_max_mm must be >= psf.depth_min_mm")
@@ -710,6 +728,8 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
         if "=" not in item:
             raise ConfigError(f"override '{item}' must look like section.key=value")
         dotted, raw = item.split("=", 1)
+        if not raw.strip():
+            raise ConfigError(f"override '{item}' has no value: give one, e.g. {dotted.strip()}=VALUE (null for none)")
         keys = dotted.strip().split(".")
         node = data
         for depth, key in enumerate(keys[:-1]):

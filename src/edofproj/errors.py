@@ -26,6 +26,11 @@ class SpectralSamplingWarning(UserWarning):
     """The wavelength sampling undersamples a primary's spectrum: the RGB PSFs are not converged."""
 
 
+class RecoveryWarning(UserWarning):
+    """edofproj recovered from an earlier fault (a stale lock taken over, temporary files of an
+    interrupted write removed, a corrupt checkpoint skipped); the message says what it did."""
+
+
 def require(condition: bool, message: str, error: type = EdofprojError) -> None:
     """Raise ``error(message)`` unless ``condition`` holds."""
     if not condition:

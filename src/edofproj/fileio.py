@@ -1,17 +1,37 @@
 """Atomic file writing: write to a temporary file beside the target, then rename.
 
-A command that fails half-way therefore never leaves a half-written output file.
+A command that fails half-way therefore never leaves a half-written output file. A process
+killed half-way (``kill -9``, power loss) leaves its temporary file ``.<name>.tmp-XXXXXXXX<suffix>``
+behind; :func:`remove_stale_temp_files` removes those of a directory the caller has locked
+(:mod:`edofproj.locking`), so no other process can be writing them.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+
+from .errors import EdofprojError
+
+TEMP_MARKER = ".tmp-"
+#: Temporary files of :func:`atomic_path`: ``.<target>.tmp-<8 random chars><suffix>`` (and the
+#: ``.<target>.<8 random chars><suffix>`` names of earlier versions).
+TEMP_PATTERN = re.compile(r"^\.(?P<target>.+?)\.(?:tmp-)?[a-z0-9_]{8}(?:\.[A-Za-z0-9]+)+$")
+
+
+def _write_error(target: Path, exc: OSError) -> EdofprojError:
+    """A one-line error about writing ``target`` (never the temporary file's name)."""
+    reason = exc.strerror or type(exc).__name__
+    hint = f": is '{target.parent}' writable?" if isinstance(exc, PermissionError) else ""
+    return EdofprojError(f"cannot write '{target}': {reason}{hint}")
 
 
 @contextlib.contextmanager
@@ -23,12 +43,15 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     target is left untouched.
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{target.name}.",
-        suffix=suffix if suffix is not None else (target.suffix or ".tmp"),
-        dir=target.parent,
-    )
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{target.name}{TEMP_MARKER}",
+            suffix=suffix if suffix is not None else (target.suffix or ".tmp"),
+            dir=target.parent,
+        )
+    except OSError as exc:
+        raise _write_error(target, exc) from None
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -36,7 +59,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     tmp_path = Path(tmp)
     try:
         yield tmp_path
-        os.replace(tmp_path, target)
+        try:
+            os.replace(tmp_path, target)
+        except OSError as exc:
+            raise _write_error(target, exc) from None
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
@@ -50,6 +76,36 @@ def save_npz_atomic(path: str | os.PathLike, **arrays) -> None:
             np.savez_compressed(handle, **arrays)
 
 
+def read_arrays(path: str | os.PathLike, what: str = "file") -> dict[str, np.ndarray]:
+    """All arrays of a ``.npz`` archive (or the one array of a ``.npy`` file, as ``{"": array}``),
+    read eagerly, with one-line errors that name ``what`` and the file: missing, not a NumPy
+    file, truncated or damaged, or holding Python objects (never loaded: they could run code)."""
+    path = Path(path)
+    if not path.is_file():
+        raise EdofprojError(f"{what} '{path}' does not exist" + (" (it is a directory)" if path.is_dir() else ""))
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(6)
+    except OSError as exc:
+        raise EdofprojError(f"cannot read {what} '{path}': {exc.strerror or exc}") from None
+    if not (head.startswith(b"PK") or head.startswith(b"\x93NUMPY")):
+        raise EdofprojError(f"{what} '{path}' is not a NumPy .npz/.npy file")
+    try:
+        loaded = np.load(path, allow_pickle=False)
+        if isinstance(loaded, np.ndarray):
+            return {"": loaded}
+        with loaded:
+            return {name: loaded[name] for name in loaded.files}
+    except ValueError as exc:
+        if "pickle" in str(exc):
+            raise EdofprojError(
+                f"{what} '{path}' holds Python objects, not plain arrays: it was not written by edofproj"
+            ) from None
+        raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
+        raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
+
+
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     """Write a text file atomically."""
     with atomic_path(path) as tmp:
@@ -60,3 +116,20 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write a binary file atomically."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
+
+
+def remove_stale_temp_files(directory: str | os.PathLike, recursive: bool = False) -> list[Path]:
+    """Delete the temporary files that interrupted atomic writes left in ``directory`` (and, with
+    ``recursive``, its subdirectories); returns them. Call it only while holding the directory's
+    lock (:mod:`edofproj.locking`): another writer's temporary file would be deleted too."""
+    root = Path(directory)
+    if not root.is_dir():
+        return []
+    candidates = root.rglob(".*") if recursive else root.glob(".*")
+    removed = []
+    for path in sorted(candidates):
+        if path.is_file() and not path.is_symlink() and TEMP_PATTERN.match(path.name):
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed

@@ -122,12 +122,10 @@ def run_scenes(args) -> int:
 def run(args) -> int:
     if args.scenes:
         return run_scenes(args)
-    from ..evaluation.claims import ssim_claims
     from ..evaluation.methods import method_spec
-    from ..evaluation.pipeline import evaluate_run
+    from ..evaluation.pipeline import require_trained_run
     from ..evaluation.progress import StageProgress
-    from ..evaluation.summary import format_text_table, range_table
-    from ..evaluation.writeup import claims_section, write_documents
+    from ..locking import directory_lock
     from ..training.distributed import choose_device
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
@@ -136,6 +134,18 @@ def run(args) -> int:
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
     progress = StageProgress("evaluate", enabled=not args.quiet)
+    require_trained_run(args.run)
+    # one writer per output directory: a run being trained, or evaluated by another process, is refused
+    with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
+        return _evaluate_locked(args, methods, depths, device, progress)
+
+
+def _evaluate_locked(args, methods, depths, device, progress) -> int:
+    from ..evaluation.claims import ssim_claims
+    from ..evaluation.pipeline import evaluate_run
+    from ..evaluation.summary import format_text_table, range_table
+    from ..evaluation.writeup import claims_section, write_documents
+
     evaluation = evaluate_run(
         args.run,
         out_dir=args.out,

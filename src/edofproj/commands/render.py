@@ -133,14 +133,24 @@ def run(args) -> int:
     import torch
 
     from ..imaging import bank_layers, project, read_image, write_image
-    from ..imaging.image_io import check_output_path
+    from ..imaging.image_io import check_output_path, image_file_size
+    from ..imaging.projection import projection_bytes
     from ..imaging.screens import tilted_plane_depth_map, tilted_plane_far_m, tilted_plane_tilt_deg
+    from ..limits import check_memory
     from ..optics.geometry import ProjectorGeometry
     from ..scenes.render import filled_depth_m, render_masked_depth_map
 
     check_arguments(args)
     check_output_path(args.out, args.bits)
     cfg = config_from_args(args)
+    size = image_file_size(args.image)
+    if size is not None:
+        layers = 1 if args.depth_map is None and args.tilt_deg is None else int(cfg.imaging.depth_layers)
+        check_memory(
+            projection_bytes(size[0], size[1], cfg.psf.window, layers),
+            f"rendering the {size[1]}x{size[0]} image '{args.image}'",
+            "scale the image down first",
+        )
     image = read_image(args.image)[None]
     height, width = image.shape[-2:]
 

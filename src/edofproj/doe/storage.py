@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..fileio import save_npz_atomic
+from ..fileio import read_arrays, save_npz_atomic
 from .base import DOE, RadialDOE, require_resolved_feature
 from .quantization import quantize_levels
 
@@ -138,17 +138,74 @@ def save_doe(doe: DOE, path: str | Path, samples: int = 1024) -> None:
             )
 
 
-def load_doe(path: str | Path) -> DOE:
-    """Load a design written by :func:`save_doe`."""
+COMMON_KEYS = ("format", "kind", "levels", "design_wavelength_m", "material", "aperture_radius_m", "description")
+KIND_KEYS = {"radial": ("ring_edges_m", "height_m"), "map": ("height_map_m", "pitch_m")}
+
+
+def _scalar(data: dict[str, np.ndarray], key: str, path: Path) -> float:
+    value = data[key]
+    if value.size != 1 or value.dtype.kind not in "fiu":
+        raise EdofprojError(f"DOE file '{path}': {key} must be one number, got shape {value.shape} ({value.dtype})")
+    return float(value.reshape(-1)[0])
+
+
+def validate_design(data: dict[str, np.ndarray], path: str | Path) -> None:
+    """Raise a one-line error unless the arrays of a design file are a consistent design.
+
+    Keys: :data:`COMMON_KEYS` plus, for ``kind = radial``, ``ring_edges_m (n+1)`` and
+    ``height_m (n)`` (``level (n)`` when present), for ``kind = map``, ``height_map_m (N, N)``
+    and ``pitch_m``. Ring edges are finite, start at ``r >= 0`` and strictly increase; heights
+    are finite; the aperture radius, design wavelength and pitch are positive.
+    """
     path = Path(path)
-    try:
-        data = np.load(path, allow_pickle=False)
-        kind = str(data["kind"])
-        fmt = str(data["format"])
-    except (OSError, ValueError, KeyError) as exc:
-        raise EdofprojError(f"cannot read DOE file '{path}': {exc}") from None
-    if fmt != FORMAT:
-        raise EdofprojError(f"'{path}' is not an edofproj DOE file (format {fmt!r})")
+    hint = "write designs with 'edofproj train' or edofproj.doe.save_doe"
+    if "format" not in data or str(data["format"]) != FORMAT:
+        found = repr(str(data["format"])) if "format" in data else "no format key"
+        raise EdofprojError(f"'{path}' is not an edofproj DOE file ({found}); {hint}")
+    kind = str(data["kind"]) if "kind" in data else ""
+    if kind not in KIND_KEYS:
+        raise EdofprojError(f"DOE file '{path}' has an unknown kind {kind!r} (radial or map); {hint}")
+    missing = [key for key in COMMON_KEYS + KIND_KEYS[kind] if key not in data]
+    if missing:
+        raise EdofprojError(f"DOE file '{path}' lacks {', '.join(missing)}; {hint}")
+    for key in ("aperture_radius_m", "design_wavelength_m") + (("pitch_m",) if kind == "map" else ()):
+        value = _scalar(data, key, path)
+        if not (np.isfinite(value) and value > 0):
+            raise EdofprojError(f"DOE file '{path}': {key} = {value:g} must be positive and finite")
+    levels = _scalar(data, "levels", path)
+    if levels < 0 or levels != int(levels):
+        raise EdofprojError(f"DOE file '{path}': levels = {levels:g} must be a whole number >= 0 (0: not quantized)")
+    if kind == "radial":
+        edges, height = data["ring_edges_m"], data["height_m"]
+        if edges.ndim != 1 or height.ndim != 1 or len(height) < 1 or len(edges) != len(height) + 1:
+            raise EdofprojError(
+                f"DOE file '{path}': {len(height) if height.ndim == 1 else height.shape} heights need "
+                f"one more ring edge, got {len(edges) if edges.ndim == 1 else edges.shape} ring edges; {hint}"
+            )
+        if "level" in data and data["level"].shape != height.shape:
+            raise EdofprojError(f"DOE file '{path}': {data['level'].shape[0]} levels for {len(height)} rings")
+        if edges.dtype.kind not in "fiu" or not np.all(np.isfinite(edges)):
+            raise EdofprojError(f"DOE file '{path}': ring_edges_m must be finite numbers")
+        if edges[0] < 0 or not np.all(np.diff(edges) > 0):
+            bad = int(np.argmax(np.diff(edges) <= 0)) if edges[0] >= 0 else 0
+            raise EdofprojError(
+                f"DOE file '{path}': ring edges must start at r >= 0 and increase strictly "
+                f"(edge {bad}: {edges[bad]:.6g} m, edge {bad + 1}: {edges[min(bad + 1, len(edges) - 1)]:.6g} m)"
+            )
+    else:
+        height = data["height_map_m"]
+        if height.ndim != 2 or height.shape[0] != height.shape[1] or height.shape[0] < 1:
+            raise EdofprojError(f"DOE file '{path}': height_map_m must be a square (N, N) map, got {height.shape}")
+    if height.dtype.kind not in "fiu" or not np.all(np.isfinite(height)):
+        raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
+
+
+def load_doe(path: str | Path) -> DOE:
+    """Load a design written by :func:`save_doe` (checked by :func:`validate_design`)."""
+    path = Path(path)
+    data = read_arrays(path, "DOE file")
+    validate_design(data, path)
+    kind = str(data["kind"])
     levels = int(data["levels"]) or None
     common = dict(
         aperture_radius_m=float(data["aperture_radius_m"]),
@@ -158,13 +215,5 @@ def load_doe(path: str | Path) -> DOE:
         description=str(data["description"]),
     )
     if kind == "radial":
-        height = data["height_m"]
-        if not np.all(np.isfinite(height)):
-            raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
-        return TabulatedRadialDOE(data["ring_edges_m"], height, **common)
-    if kind == "map":
-        height = data["height_map_m"]
-        if not np.all(np.isfinite(height)):
-            raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
-        return TabulatedDOE2D(height, float(data["pitch_m"]), **common)
-    raise EdofprojError(f"DOE file '{path}' has an unknown kind {kind!r}")
+        return TabulatedRadialDOE(data["ring_edges_m"], data["height_m"], **common)
+    return TabulatedDOE2D(data["height_map_m"], float(data["pitch_m"]), **common)

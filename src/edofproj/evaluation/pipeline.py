@@ -314,17 +314,26 @@ def evaluate_run(
     range_mm = score_range_mm(cfg)
     if validation and images_dir is not None:
         raise EdofprojError("--validation and --images are two image sets: give one")
-    if validation:
-        from ..data.validation import validation_images
+    with warnings.catch_warnings(record=True) as skipped:
+        warnings.simplefilter("always")
+        if validation:
+            from ..data.validation import validation_images
 
-        size = cfg.evaluation.image_size
-        images = validation_images(
-            (int(size[0]), int(size[1])) if size else None,
-            cfg.evaluation.image_scaling,
-            int(cfg.data.max_test_images or 0),
-        )
-    else:
-        images = evaluation_images(cfg, images_dir)
+            size = cfg.evaluation.image_size
+            images = validation_images(
+                (int(size[0]), int(size[1])) if size else None,
+                cfg.evaluation.image_scaling,
+                int(cfg.data.max_test_images or 0),
+            )
+        else:
+            images = evaluation_images(cfg, images_dir)
+    # skipped images become notes: printed like the other notes and named in the report
+    image_notes = [str(w.message) for w in skipped if str(w.message).startswith("skipping")]
+    for warning in skipped:
+        if str(warning.message) not in image_notes:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    if image_notes:
+        image_notes.append(f"{len(images)} image(s) scored; {len(image_notes)} skipped as unreadable")
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(
@@ -342,6 +351,7 @@ def evaluate_run(
         progress.advance(1, detail=spec.name)
     if not prepared:
         raise EdofprojError("no method could be evaluated: " + "; ".join(builder.notes))
+    builder.notes.extend(image_notes)
     for note in builder.notes:
         progress.note(note)
 

@@ -22,6 +22,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import write_bytes_atomic
+from ..limits import check_memory
 
 WRITE_BITS = {".png": (8, 16), ".tif": (8, 16), ".tiff": (8, 16), ".jpg": (8,), ".jpeg": (8,), ".bmp": (8,)}
 """Output extensions and the bit depths each supports."""
@@ -61,8 +62,47 @@ def _quiet_opencv():
         cv2.utils.logging.setLogLevel(level)
 
 
+#: Bytes per pixel of reading an image into a float tensor: the decoded 8/16-bit BGR pixels, their
+#: RGB copy, the float32 array and the tensor (16-bit worst case: 6 + 6 + 12 + 12).
+READ_BYTES_PER_PIXEL = 36
+
+
+def image_size_from_header(data: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` read from the file header alone (no pixels decoded), or None."""
+    from PIL import Image
+
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None  # reading the header of a huge image is what we want here
+    try:
+        with Image.open(io.BytesIO(data)) as picture:
+            width, height = picture.size
+    except Exception:  # noqa: BLE001 - any header Pillow cannot read: OpenCV decides below
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+    return int(height), int(width)
+
+
+def image_file_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """``(height, width)`` of an image file from its header (None when it cannot be read)."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(1 << 20)
+    except OSError:
+        return None
+    return image_size_from_header(head)
+
+
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
-    """Decode encoded image bytes to an RGB ``uint8`` or ``uint16`` array ``(H, W, 3)``."""
+    """Decode encoded image bytes to an RGB ``uint8`` or ``uint16`` array ``(H, W, 3)``
+    (refused, before decoding, when its pixels would not fit in the memory available)."""
+    size = image_size_from_header(data)
+    if size is not None:
+        check_memory(
+            READ_BYTES_PER_PIXEL * size[0] * size[1],
+            f"reading the {size[1]}x{size[0]} image '{name}'",
+            "scale the image down first",
+        )
     raw = np.frombuffer(data, dtype=np.uint8)
     with _quiet_opencv():
         pixels = cv2.imdecode(raw, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH) if raw.size else None

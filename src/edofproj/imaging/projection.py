@@ -60,3 +60,17 @@ def project(image: torch.Tensor, psf: torch.Tensor, haze: bool = True) -> torch.
     if haze:
         out = out + haze_term(clamped, psf)
     return out
+
+
+#: Measured bytes per padded pixel of ``render``: a flat screen, and each extra depth layer
+#: (peak RSS of ``edofproj render`` at 1000x1000 and 2000x3000 px, window 33, less the ~330 MiB of
+#: the loaded libraries; docs/experiments/2026-11-23-fault-injection.md).
+PROJECTION_BYTES_PER_PIXEL = 80
+LAYER_BYTES_PER_PIXEL = 30
+
+
+def projection_bytes(height: int, width: int, window: int, layers: int = 1) -> int:
+    """Memory to project one ``height x width`` RGB image with ``window``-px PSFs on ``layers``
+    depth layers (1: a flat screen): ``(80 + 30 (layers - 1)) (H + K - 1)(W + K - 1)`` bytes."""
+    padded = (int(height) + window - 1) * (int(width) + window - 1)
+    return (PROJECTION_BYTES_PER_PIXEL + LAYER_BYTES_PER_PIXEL * max(int(layers) - 1, 0)) * padded

@@ -33,6 +33,7 @@ import torch
 from scipy import fft as sfft
 
 from ..errors import EdofprojError, SamplingError
+from ..limits import check_memory
 from .aberrations import PupilAberration
 from .geometry import ProjectorGeometry
 from .radial_engine import (
@@ -50,6 +51,17 @@ def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.n
     lo = np.maximum(a - 0.5, centres_px[None, :] - cell_px / 2)
     hi = np.minimum(a + 0.5, centres_px[None, :] + cell_px / 2)
     return np.clip(hi - lo, 0.0, None) / cell_px
+
+
+def fourier_engine_bytes(pupil_samples: int, window: int, n_wavelengths: int, depth_chunk: int, n_depths: int) -> int:
+    """Bytes the 2-D engine holds: about eight ``M x M`` float64 grids (coordinates, ``r^2``, the
+    aperture, heights, phases), per chunk of depths the ``N x N`` complex128 FFT (``N ~ 2M``) three
+    times over (field, spectrum, shifted copy), and the ``K x K`` PSFs of all depths (x2)."""
+    m = int(pupil_samples)
+    n = 2 * m
+    grids = 8 * 8 * m * m
+    fft = 16 * 3 * max(min(depth_chunk, n_depths), 1) * n * n
+    return grids + fft + 8 * 2 * n_depths * n_wavelengths * window * window
 
 
 class FourierPSFEngine:
@@ -77,6 +89,12 @@ class FourierPSFEngine:
         self.depth_chunk = depth_chunk
 
         self.dx_m = geometry.aperture_diameter_m / self.M
+        check_memory(
+            fourier_engine_bytes(self.M, self.window, len(self.wavelengths_m), depth_chunk, n_depths=1),
+            f"the 2-D PSF engine (pupil_samples {self.M}, window {self.window} px)",
+            "use fewer psf.pupil_samples (or the radial engine for a radially symmetric design)",
+            device=self.device,
+        )
         coords = (np.arange(self.M) - self.M / 2 + 0.5) * self.dx_m
         self.x_t = torch.as_tensor(coords, dtype=torch.float64, device=self.device)
         yy, xx = torch.meshgrid(self.x_t, self.x_t, indexing="ij")
@@ -151,6 +169,12 @@ class FourierPSFEngine:
         depths_m = check_depths(depths_m)
         warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
         self._check_sampling(doe, depths_m)
+        check_memory(
+            fourier_engine_bytes(self.M, self.window, len(self.wavelengths_m), self.depth_chunk, len(depths_m)),
+            f"2-D PSFs at {len(depths_m)} depths (pupil_samples {self.M}, window {self.window} px)",
+            "simulate fewer depths at once, or use fewer psf.pupil_samples",
+            device=self.device,
+        )
         if doe is None:
             height = torch.zeros_like(self.r2)
         else:

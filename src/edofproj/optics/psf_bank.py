@@ -20,9 +20,10 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..fileio import save_npz_atomic
+from ..fileio import read_arrays, save_npz_atomic
 from .aberrations import PupilAberration, aberration_from_config
 from .geometry import ProjectorGeometry
+from .psf_checks import validate_psf
 from .radial_engine import RadialPSFEngine, check_depths, check_window
 from .spectra import Spectrum, check_spectral_sampling, pupil_path_difference_m
 
@@ -76,19 +77,23 @@ class PSFBank:
 
     @classmethod
     def load(cls, path: str | Path) -> "PSFBank":
-        try:
-            data = np.load(path, allow_pickle=False)
-            psf = data["psf"]
-            depths = data["depths_m"]
-            pitch = data["pixel_pitch_m"]
-        except (OSError, ValueError, KeyError) as exc:
-            raise EdofprojError(f"cannot read PSF file '{path}': {exc}") from None
-        if psf.ndim != 4 or psf.shape[-1] != psf.shape[-2] or psf.shape[-1] % 2 == 0:
-            raise EdofprojError(f"PSF file '{path}': psf must be (n_depths, C, K, K) with K odd, got {psf.shape}")
-        if psf.shape[0] != len(depths):
-            raise EdofprojError(f"PSF file '{path}': {psf.shape[0]} PSFs but {len(depths)} depths")
-        if not np.all(np.isfinite(psf)):
-            raise EdofprojError(f"PSF file '{path}' contains NaN or infinite values")
+        data = read_arrays(path, "PSF file")
+        missing = [key for key in ("psf", "depths_m", "pixel_pitch_m") if key not in data]
+        if missing:
+            raise EdofprojError(
+                f"PSF file '{path}' lacks {', '.join(missing)}: write PSF files with 'edofproj psf' "
+                "or 'edofproj procams estimate-psf'"
+            )
+        psf, depths, pitch = data["psf"], data["depths_m"], data["pixel_pitch_m"]
+        if psf.dtype.kind not in "fiu" or depths.dtype.kind not in "fiu":
+            raise EdofprojError(f"PSF file '{path}': psf and depths_m must be numbers")
+        validate_psf(
+            psf,
+            depths,
+            source=f"PSF file '{path}'",
+            measured=True,
+            fix="write it with 'edofproj psf' or 'edofproj procams estimate-psf'",
+        )
         return cls(
             psf=torch.from_numpy(psf.astype(np.float32)),
             depths_m=np.asarray(depths, dtype=float),
@@ -150,6 +155,13 @@ class PSFSimulator:
         depths_m = check_depths(depths_m)
         with torch.no_grad():
             psf = self(doe, depths_m)
+        validate_psf(
+            psf,
+            depths_m,
+            source=f"the simulated PSF of {doe.describe() if doe is not None else 'the lens'}",
+            measured=False,
+            fix="check psf.window and psf.pupil_samples",
+        )
         return PSFBank(
             psf=psf,
             depths_m=depths_m,

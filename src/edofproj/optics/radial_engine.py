@@ -50,6 +50,7 @@ import torch
 from scipy.special import j0, j1
 
 from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
+from ..limits import check_memory
 from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
@@ -126,6 +127,21 @@ def bessel_j123(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return b1, b2, b3
 
 
+def radial_engine_bytes(n_nu: int, n_rings: int, n_wavelengths: int, window: int, n_depths: int) -> int:
+    """Bytes the radial engine holds (float64): its tables and one call for ``n_depths`` depths.
+
+    Tables: the pixel weights ``(L, n_nu, n_unique)`` (and their NumPy original), ``n_unique =
+    (h + 1)(h + 2) / 2`` pixels of one octant for ``h = K // 2``; the ring moments ``(M, 3 n_nu)``
+    and about ten ``(n_nu, M + 1)`` temporaries that build them. A call: the pupil phase
+    ``(L, Z, M)`` (cos, sin), the ring sums ``(L, Z, 3 n_nu)`` (x2), the intensity and its pixel
+    integrals ``(L, Z, n_unique)``, the ``K x K`` PSFs (x2 for the transposed copy)."""
+    half = window // 2
+    n_unique = (half + 1) * (half + 2) // 2
+    tables = 8 * ((n_wavelengths + 1) * n_nu * n_unique + 13 * n_rings * n_nu)
+    per_depth = 8 * n_wavelengths * (3 * n_rings + 8 * n_nu + n_unique + 2 * window * window)
+    return tables + n_depths * per_depth
+
+
 def normalized_radius_grid(
     nu_max: float, fine_until: float, fine_step: float = 1 / 64, coarse_step: float = 1 / 4
 ) -> np.ndarray:
@@ -182,6 +198,12 @@ class RadialPSFEngine:
         self.rho_max_px = (self.window // 2 + 0.5) * math.sqrt(2) + 0.05
         px_per_nu = self.wavelengths_m * geometry.throw_width_m / D  # (L,) pixels per diffraction unit
         self.nu = normalized_radius_grid(self.rho_max_px / px_per_nu.min(), fine_until=1.0 / px_per_nu.min())
+        check_memory(
+            radial_engine_bytes(len(self.nu), n_rings, len(self.wavelengths_m), self.window, n_depths=1),
+            f"the radial PSF engine (window {self.window} px, pupil_samples {self.pupil_samples}, "
+            f"{len(self.wavelengths_m)} wavelengths)",
+            "use a smaller psf.window (the blur diameter plus a margin is enough) or fewer wavelengths",
+        )  # the tables are built on the host (NumPy) first
         weights = []
         for scale in px_per_nu:
             w, index = hat_pixel_weights(self.nu * scale, self.window)
@@ -289,6 +311,15 @@ class RadialPSFEngine:
         """Pixel-integrated PSFs, (n_depths, n_lambda, K, K); each value is a fraction of the pupil energy."""
         depths_m = check_depths(depths_m)
         warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
+        check_memory(
+            radial_engine_bytes(
+                len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, len(depths_m)
+            )
+            - radial_engine_bytes(len(self.nu), len(self.ring_centres_m), len(self.wavelengths_m), self.window, 0),
+            f"PSFs at {len(depths_m)} depths in a {self.window}-px window",
+            "simulate fewer depths at once or use a smaller psf.window",
+            device=self.device,
+        )
         intensity = self.radial_intensity(doe, depths_m)  # (L, Z, n_rho)
         unique = torch.matmul(intensity, self.pixel_weights)  # (L, Z, n_unique)
         K = self.window

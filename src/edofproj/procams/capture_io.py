@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Iterable, Iterator
 
 import numpy as np
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, RecoveryWarning
 from ..imaging.image_io import read_image_array, to_unit_float, write_image
+from ..locking import directory_lock
 
 SATURATION_LEVEL = 1.0 - 0.5 / 255.0
 """A value counts as saturated within half an 8-bit step of the sensor's top."""
@@ -80,26 +83,44 @@ def atomic_folder(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
 
     An existing non-empty ``path`` is refused (before any work) unless ``overwrite``; then it
     is replaced only after the new folder is complete. On failure nothing at ``path`` changes.
+    One writer at a time: the folder is locked (:mod:`edofproj.locking`, the lock file beside
+    it) while it is written, and temporary folders that a killed writer left are removed first.
     """
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise EdofprojError(f"'{target}' exists and is not a folder")
-    if target.is_dir() and any(target.iterdir()) and not overwrite:
-        raise EdofprojError(f"folder '{target}' exists and is not empty (use --overwrite to replace it)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
-    try:
-        yield tmp
-        if target.is_dir():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
-            os.replace(target, old / "previous")
-            os.replace(tmp, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with directory_lock(target, "edofproj procams", beside=True):
+        if target.is_dir() and any(target.iterdir()) and not overwrite:
+            raise EdofprojError(f"folder '{target}' exists and is not empty (use --overwrite to replace it)")
+        _remove_stale_temp_folders(target)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+        try:
+            yield tmp
+            if target.is_dir():
+                old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
+                os.replace(target, old / "previous")
+                os.replace(tmp, target)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, target)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+
+def _remove_stale_temp_folders(target: Path) -> None:
+    """The ``.<name>.XXXXXXXX`` and ``.<name>.old.XXXXXXXX`` folders of :func:`atomic_folder` beside
+    ``target`` (only called while holding ``target``'s lock: no live writer owns them)."""
+    pattern = re.compile(rf"^\.{re.escape(target.name)}\.(?:old\.)?[a-z0-9_]{{8}}$")
+    stale = [p for p in target.parent.iterdir() if p.is_dir() and pattern.match(p.name)]
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    if stale:
+        warnings.warn(
+            f"removed {len(stale)} unfinished folder(s) of an interrupted write beside '{target}'",
+            RecoveryWarning,
+            stacklevel=3,
+        )
 
 
 __all__ = ["read_rgb", "write_rgb_png", "read_captures", "saturated_fraction", "atomic_folder", "SATURATION_LEVEL"]

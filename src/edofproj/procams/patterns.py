@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import EdofprojError
+from ..limits import check_memory
 from .capture_io import read_rgb
 
 MANIFEST_NAME = "manifest.json"
@@ -85,6 +86,21 @@ class PatternSpec:
             raise EdofprojError(f"--dot-radius {self.dot_radius_px} must be >= 1 px")
         if not (2 <= self.color_levels <= 17):
             raise EdofprojError(f"--color-levels {self.color_levels} must be in 2..17")
+        check_memory(
+            self.memory_bytes(),
+            f"a set of {self.pattern_count} patterns of {self.width}x{self.height} px",
+            "use a smaller --width/--height (or fewer --bernoulli and --color-levels)",
+        )
+
+    @property
+    def pattern_count(self) -> int:
+        """Bernoulli patterns, the dot grid, three primaries, white, black and the colour samples."""
+        return self.bernoulli_count + 6 + self.color_levels**3
+
+    def memory_bytes(self) -> int:
+        """The set is built in memory: each pattern ``(H, W, 3)`` float32 (12 bytes per pixel),
+        plus the int64 draw of one Bernoulli pattern (24) and its 8-bit PNG encoding (6)."""
+        return (12 * self.pattern_count + 30) * self.width * self.height
 
 
 @dataclass

@@ -57,6 +57,7 @@ import torch
 from ..errors import EdofprojError
 from ..imaging import convolve_same
 from ..optics.psf_bank import PSFBank
+from ..optics.psf_checks import validate_psf
 from .calibration import ProCamsCalibration, warn_if_saturated
 from .patterns import PatternManifest
 
@@ -250,6 +251,12 @@ def measure_psf(
     pattern_out = np.stack([calibration.color.input_to_output(patterns[f]) for f in files])
     capture_out = np.stack([calibration.color.camera_to_output(warped[f], calibration.black_image) for f in files])
     estimate = estimate_psf(pattern_out, capture_out, window, patch, eps_rel, iterations)
+    validate_psf(
+        estimate.psf[None],
+        source="the measured PSF",
+        measured=True,
+        fix="check the colour calibration and that the captures match the patterns",
+    )
     energy = estimate.energy_in_window
     if np.any(energy > 1.05) or np.any(energy < 0.05):
         warnings.warn(

@@ -25,8 +25,9 @@ from typing import Callable
 import numpy as np
 
 from ..errors import EdofprojError
-from ..fileio import write_text_atomic
+from ..fileio import remove_stale_temp_files, write_text_atomic
 from ..imaging.image_io import write_image
+from ..locking import directory_lock
 from .capture_io import read_rgb, saturated_fraction, write_rgb_png
 from .devices import Camera, Display, GrabSettings, grab_frame
 from .devices.base import SATURATION_WARN_FRACTION
@@ -98,62 +99,65 @@ def capture_patterns(
             f"'{out}' was captured with --average {previous.get('average')}, not {grab.average}: resume with the same"
         )
     out.mkdir(parents=True, exist_ok=True)
-    camera_hw = tuple(previous["camera_hw"]) if previous and previous.get("camera_hw") else None
-    info = {
-        "source": CAPTURE_SOURCE,
-        "patterns": str(manifest_path),
-        "projector_hw": [manifest.height, manifest.width],
-        "camera_hw": list(camera_hw) if camera_hw else None,
-        "depth_mm": depth_mm,
-        "display": display.settings(),
-        "camera": camera.settings(),
-        "settle_s": grab.settle_s,
-        "average": grab.average,
-        "total": len(manifest.entries),
-    }
-    done = [e for e in manifest.entries if (out / e.file).is_file()]
-    if done and camera_hw is None:
-        camera_hw = read_rgb(out / done[0].file, what="capture").shape[:2]
-    todo = [e for e in manifest.entries if not (out / e.file).is_file()]
+    # one capture session per folder; temporary files of an interrupted write are removed under the lock
+    with directory_lock(out, "edofproj procams capture", "--out"):
+        remove_stale_temp_files(out)
+        camera_hw = tuple(previous["camera_hw"]) if previous and previous.get("camera_hw") else None
+        info = {
+            "source": CAPTURE_SOURCE,
+            "patterns": str(manifest_path),
+            "projector_hw": [manifest.height, manifest.width],
+            "camera_hw": list(camera_hw) if camera_hw else None,
+            "depth_mm": depth_mm,
+            "display": display.settings(),
+            "camera": camera.settings(),
+            "settle_s": grab.settle_s,
+            "average": grab.average,
+            "total": len(manifest.entries),
+        }
+        done = [e for e in manifest.entries if (out / e.file).is_file()]
+        if done and camera_hw is None:
+            camera_hw = read_rgb(out / done[0].file, what="capture").shape[:2]
+        todo = [e for e in manifest.entries if not (out / e.file).is_file()]
 
-    def write_info(captured: int) -> None:
-        info.update(camera_hw=list(camera_hw) if camera_hw else None, captured=captured)
-        info["complete"] = captured == len(manifest.entries)
-        write_text_atomic(out / CAPTURE_INFO_JSON, json.dumps(info, indent=1) + "\n")
+        def write_info(captured: int) -> None:
+            info.update(camera_hw=list(camera_hw) if camera_hw else None, captured=captured)
+            info["complete"] = captured == len(manifest.entries)
+            write_text_atomic(out / CAPTURE_INFO_JSON, json.dumps(info, indent=1) + "\n")
 
-    write_info(len(done))
-    if done and log is not None:
-        log(f"resuming: {len(done)} of {len(manifest.entries)} patterns already captured in {out}")
-    captured = 0
-    saturated: dict[str, float] = {}
-    try:
-        for entry in todo[:stop_after] if stop_after is not None else todo:
-            display.show(read_pattern(pattern_dir, entry, manifest))
-            frame = grab_frame(camera, grab, warn=False)
-            fraction = saturated_fraction(frame)
-            if fraction > SATURATION_WARN_FRACTION:
-                saturated[entry.file] = fraction
-            if camera_hw is None:
-                camera_hw = frame.shape[:2]
-            elif frame.shape[:2] != tuple(camera_hw):
-                raise EdofprojError(
-                    f"capture of '{entry.file}' is {frame.shape[1]}x{frame.shape[0]} pixels, the session's camera "
-                    f"{camera_hw[1]}x{camera_hw[0]}: did the camera's resolution change?"
+        write_info(len(done))
+        if done and log is not None:
+            log(f"resuming: {len(done)} of {len(manifest.entries)} patterns already captured in {out}")
+        captured = 0
+        saturated: dict[str, float] = {}
+        try:
+            for entry in todo[:stop_after] if stop_after is not None else todo:
+                display.show(read_pattern(pattern_dir, entry, manifest))
+                frame = grab_frame(camera, grab, warn=False)
+                fraction = saturated_fraction(frame)
+                if fraction > SATURATION_WARN_FRACTION:
+                    saturated[entry.file] = fraction
+                if camera_hw is None:
+                    camera_hw = frame.shape[:2]
+                elif frame.shape[:2] != tuple(camera_hw):
+                    raise EdofprojError(
+                        f"capture of '{entry.file}' is {frame.shape[1]}x{frame.shape[0]} pixels, the session's camera "
+                        f"{camera_hw[1]}x{camera_hw[0]}: did the camera's resolution change?"
+                    )
+                if grab.average > 1:  # a mean of frames has more than 8 bits
+                    write_image(out / entry.file, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=16)
+                else:
+                    write_rgb_png(out / entry.file, frame)
+                captured += 1
+                if log is not None and (len(done) + captured) % 25 == 0:
+                    log(f"  {len(done) + captured}/{len(manifest.entries)} captured")
+        finally:
+            write_info(len(done) + captured)
+            if saturated:
+                worst = max(saturated, key=saturated.__getitem__)
+                warnings.warn(
+                    f"{len(saturated)} of {captured} captures have saturated pixels (worst '{worst}': "
+                    f"{100 * saturated[worst]:.1f} % of its pixels); saturated light is not measured -- lower the exposure",
+                    stacklevel=2,
                 )
-            if grab.average > 1:  # a mean of frames has more than 8 bits
-                write_image(out / entry.file, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=16)
-            else:
-                write_rgb_png(out / entry.file, frame)
-            captured += 1
-            if log is not None and (len(done) + captured) % 25 == 0:
-                log(f"  {len(done) + captured}/{len(manifest.entries)} captured")
-    finally:
-        write_info(len(done) + captured)
-        if saturated:
-            worst = max(saturated, key=saturated.__getitem__)
-            warnings.warn(
-                f"{len(saturated)} of {captured} captures have saturated pixels (worst '{worst}': "
-                f"{100 * saturated[worst]:.1f} % of its pixels); saturated light is not measured -- lower the exposure",
-                stacklevel=2,
-            )
-    return CaptureResult(captured=captured, skipped=len(done), total=len(manifest.entries), camera_hw=camera_hw)
+        return CaptureResult(captured=captured, skipped=len(done), total=len(manifest.entries), camera_hw=camera_hw)

@@ -12,7 +12,9 @@ A checkpoint (``torch.save`` of a plain dictionary, loadable with ``weights_only
 * ``config``: the resolved configuration, for reference.
 
 Files are written atomically (temporary file + rename): ``checkpoints/step_XXXXXX.pt`` and a
-copy ``checkpoints/last.pt``; only the newest ``keep`` step files are kept.
+copy ``checkpoints/last.pt``; only the newest ``keep`` step files are kept. When ``last.pt``
+cannot be read, :func:`load_newest_intact_checkpoint` falls back to the newest step file that
+can, and says so (a :class:`~edofproj.errors.RecoveryWarning`).
 """
 
 from __future__ import annotations
@@ -20,13 +22,14 @@ from __future__ import annotations
 import random
 import re
 import shutil
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, RecoveryWarning
 from ..fileio import atomic_path
 
 FORMAT = "edofproj-checkpoint-v1"
@@ -131,8 +134,74 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a bad file for the user
-        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise EdofprojError(f"cannot read checkpoint '{path}': {first_line}") from None
+        # never repeat the library's advice (it suggests weights_only=False, which runs code from the file)
+        size = path.stat().st_size
+        raise EdofprojError(
+            f"cannot read checkpoint '{path}' ({size} bytes, {type(exc).__name__}): it is truncated, damaged "
+            "or not an edofproj checkpoint"
+        ) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise EdofprojError(f"'{path}' is not an edofproj training checkpoint")
     return state
+
+
+def load_newest_intact_checkpoint(
+    directory: str | Path, map_location: str | torch.device = "cpu"
+) -> tuple[dict[str, Any], Path]:
+    """``(state, path)`` of ``directory/last.pt``, or, when that cannot be read, of the newest
+    ``step_XXXXXX.pt`` that can (with a :class:`~edofproj.errors.RecoveryWarning` naming both).
+    Raises the error about ``last.pt`` when no checkpoint can be read."""
+    directory = Path(directory)
+    last = directory / LAST_NAME
+    try:
+        return load_checkpoint(last, map_location), last
+    except EdofprojError as first_error:
+        candidates = list_step_checkpoints(directory)
+        for candidate in reversed(candidates):
+            try:
+                state = load_checkpoint(candidate, map_location)
+            except EdofprojError:
+                continue
+            problem = "is missing" if not last.is_file() else "cannot be read (truncated or damaged)"
+            warnings.warn(
+                f"'{last}' {problem}: using '{candidate.name}' (step {int(state['step'])}), "
+                "the newest intact checkpoint",
+                RecoveryWarning,
+                stacklevel=2,
+            )
+            return state, candidate
+        if candidates:
+            raise EdofprojError(
+                f"{first_error}, and none of the {len(candidates)} step_*.pt files beside it can be read either"
+            ) from None
+        raise first_error from None
+
+
+def load_state_checked(module: torch.nn.Module, state: dict[str, Any], what: str) -> None:
+    """``module.load_state_dict(state)``, or a one-line error saying what differs: missing and
+    unexpected parameter names and the first shape mismatch (``what`` names the checkpoint)."""
+    own = module.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    shapes = [
+        f"{k} is {tuple(state[k].shape)} in the checkpoint but {tuple(own[k].shape)} in the network"
+        for k in own
+        if k in state and hasattr(state[k], "shape") and tuple(state[k].shape) != tuple(own[k].shape)
+    ]
+    problems = []
+    if missing:
+        problems.append(f"{len(missing)} parameter(s) missing from the checkpoint (e.g. {missing[0]})")
+    if unexpected:
+        problems.append(f"{len(unexpected)} unknown to the network (e.g. {unexpected[0]})")
+    if shapes:
+        problems.append(f"{len(shapes)} of different shape ({shapes[0]})")
+    if not problems:
+        try:
+            module.load_state_dict(state)
+            return
+        except (RuntimeError, KeyError, ValueError) as exc:
+            problems.append(type(exc).__name__)
+    raise EdofprojError(
+        f"{what} does not fit the {type(module).__name__} built from the config: {'; '.join(problems)}; "
+        "the net.* settings must be those the checkpoint was trained with"
+    )

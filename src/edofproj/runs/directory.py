@@ -13,7 +13,8 @@ from ..config import Config, dump_config, load_config, to_dict
 from ..doe import DOE, build_run_doe, load_doe
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
-from .checkpoint import LAST_NAME, load_checkpoint
+from ..locking import is_lock_file
+from .checkpoint import LAST_NAME, load_newest_intact_checkpoint, load_state_checked
 
 CONFIG_NAME = "config.yaml"
 DOE_NAME = "doe.npz"
@@ -38,13 +39,14 @@ def last_checkpoint_path(run_dir: str | Path) -> Path:
 # ----------------------------------------------------------------------------- starting / resuming
 
 
-def check_new_run_dir(run_dir: str | Path) -> None:
-    """Refuse to start a fresh run in a directory that already holds files."""
+def check_new_run_dir(run_dir: str | Path, hint: str = "use --resume to continue that run, or another --out") -> None:
+    """Refuse to start a fresh run in a directory that already holds files (its lock file aside);
+    ``hint`` says what to do instead."""
     path = Path(run_dir)
     if path.exists() and not path.is_dir():
         raise EdofprojError(f"--out '{path}' exists and is not a directory")
-    if path.is_dir() and any(path.iterdir()):
-        raise EdofprojError(f"--out '{path}' is not empty: use --resume to continue that run, or another --out")
+    if path.is_dir() and any(not is_lock_file(p) for p in path.iterdir()):
+        raise EdofprojError(f"--out '{path}' is not empty: {hint}")
 
 
 def saved_config(run_dir: str | Path, overrides=()) -> Config:
@@ -108,14 +110,9 @@ def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
     if not run_dir.is_dir():
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
     cfg = saved_config(run_dir)
-    checkpoint = load_checkpoint(last_checkpoint_path(run_dir), map_location=map_location)
+    checkpoint, checkpoint_path = load_newest_intact_checkpoint(run_dir / CHECKPOINT_DIR, map_location=map_location)
     net = build_network(cfg.net)
-    try:
-        net.load_state_dict(checkpoint["net"])
-    except RuntimeError as exc:
-        raise EdofprojError(
-            f"the checkpoint of '{run_dir}' does not fit its net config: {str(exc).splitlines()[0]}"
-        ) from None
+    load_state_checked(net, checkpoint["net"], f"the checkpoint '{checkpoint_path}'")
     net.eval()
     doe_file = run_dir / DOE_NAME
     if doe_file.is_file():
@@ -123,6 +120,6 @@ def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
     else:
         doe = build_run_doe(cfg)
         if checkpoint.get("doe"):
-            doe.load_state_dict(checkpoint["doe"])
+            load_state_checked(doe, checkpoint["doe"], f"the DOE of checkpoint '{checkpoint_path}'")
     doe.eval()
     return TrainedRun(cfg=cfg, doe=doe, net=net, run_dir=run_dir, step=int(checkpoint["step"]))

@@ -36,6 +36,7 @@ from torch import nn
 
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
+from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
@@ -175,7 +176,12 @@ def finetune(
     out_dir = Path(out_dir)
     if out_dir.resolve() == Path(run_dir).resolve():
         raise EdofprojError("--out must differ from the run directory: fine-tuning never overwrites the run")
-    check_new_run_dir(out_dir)
+    with directory_lock(out_dir, "edofproj finetune", "--out"):
+        check_new_run_dir(out_dir, hint="fine-tuning writes a new run directory: choose another --out")
+        return _finetune(run_dir, psf_files, out_dir, steps, lr, batch_size, seed, progress, per_patch)
+
+
+def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, progress, per_patch) -> FinetuneResult:
     trained = load_run(run_dir)
     table_seed = trained.cfg.train.seed if seed is None else seed
     table = (

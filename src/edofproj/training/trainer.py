@@ -25,6 +25,7 @@ one-line error naming the step; the last good checkpoint is kept.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import math
 import random
@@ -42,7 +43,9 @@ from ..compensation.registry import build_network
 from ..config import Config, to_dict
 from ..data import build_training_source
 from ..doe import build_run_doe, save_doe
-from ..errors import BlurExceedsWindowWarning, EdofprojError
+from ..errors import BlurExceedsWindowWarning, EdofprojError, RecoveryWarning
+from ..fileio import remove_stale_temp_files
+from ..locking import directory_lock
 from ..optics.psf_bank import design_engine, simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
 from ..runs import (
@@ -54,7 +57,13 @@ from ..runs import (
     last_checkpoint_path,
     write_run_config,
 )
-from ..runs.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
+from ..runs.checkpoint import (
+    capture_rng_state,
+    load_newest_intact_checkpoint,
+    load_state_checked,
+    restore_rng_state,
+    save_checkpoint,
+)
 from ..runs.figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
 from ..runs.log import TrainingLog, read_log
 from .distributed import (
@@ -252,10 +261,10 @@ class _Session:
         }
 
     def restore(self, checkpoint: dict) -> None:
+        if self.doe_trained:
+            load_state_checked(self.doe, checkpoint.get("doe", {}), "the checkpoint's DOE")
+        load_state_checked(self.net, checkpoint.get("net", {}), "the checkpoint's network")
         try:
-            if self.doe_trained:
-                self.doe.load_state_dict(checkpoint["doe"])
-            self.net.load_state_dict(checkpoint["net"])
             self.optimizer.load_state_dict(checkpoint["optimizer"])
             self.scheduler.load_state_dict(checkpoint["scheduler"])
         except (RuntimeError, KeyError, ValueError) as exc:
@@ -372,13 +381,31 @@ def train(
     Returns a :class:`TrainingResult`.
     """
     run_dir = Path(out_dir)
+    if resume and not run_dir.is_dir():
+        raise EdofprojError(f"--resume: the run directory '{run_dir}' does not exist")
     if cfg.train.threads > 0:
         torch.set_num_threads(cfg.train.threads)
     group = setup_process_group(cfg.train.device)
     try:
-        return _train(cfg, run_dir, resume, stop_after, progress, group)
+        # rank 0 writes the run directory: it holds the directory's lock while it runs
+        lock = directory_lock(run_dir, "edofproj train", "--out") if group.is_main else contextlib.nullcontext()
+        with lock:
+            return _train(cfg, run_dir, resume, stop_after, progress, group)
     finally:
         teardown_process_group(group)
+
+
+def remove_interrupted_writes(run_dir: Path) -> None:
+    """Delete the temporary files that a killed session left in the (locked) run directory."""
+    removed = remove_stale_temp_files(run_dir, recursive=True)
+    if removed:
+        names = ", ".join(str(p.relative_to(run_dir)) for p in removed[:3])
+        more = f" and {len(removed) - 3} more" if len(removed) > 3 else ""
+        warnings.warn(
+            f"removed {len(removed)} temporary file(s) of interrupted writes from '{run_dir}': {names}{more}",
+            RecoveryWarning,
+            stacklevel=2,
+        )
 
 
 def _train(
@@ -386,9 +413,19 @@ def _train(
 ) -> TrainingResult:
     if resume:
         check_resume_config(run_dir, cfg)
-        if not last_checkpoint_path(run_dir).is_file():
-            raise EdofprojError(f"--resume: '{run_dir}' has no checkpoint to continue from ({CHECKPOINT_DIR}/last.pt)")
-        checkpoint = load_checkpoint(last_checkpoint_path(run_dir))
+        if group.is_main:
+            remove_interrupted_writes(run_dir)
+        checkpoints = run_dir / CHECKPOINT_DIR
+        if not last_checkpoint_path(run_dir).is_file() and not any(checkpoints.glob("step_*.pt")):
+            # the run stopped before its first checkpoint (its config matches): nothing to lose, start over
+            warnings.warn(
+                f"--resume: '{run_dir}' stopped before its first checkpoint: training it from step 0",
+                RecoveryWarning,
+                stacklevel=2,
+            )
+            checkpoint = None
+        else:
+            checkpoint, _ = load_newest_intact_checkpoint(checkpoints)
     else:
         check_new_run_dir(run_dir)
         checkpoint = None

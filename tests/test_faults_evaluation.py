@@ -1,0 +1,89 @@
+"""Fault tier: a trained run meets locked outputs, skipped images, a mismatched network, bad measured PSFs."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.cli import main
+from edofproj.config import load_config
+from edofproj.locking import directory_lock
+from edofproj.optics.psf_bank import PSFBank
+from tiny_configs import TINY_EVALUATION
+
+pytestmark = pytest.mark.slow  # trains a run
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from edofproj.training.trainer import train
+
+    out = tmp_path_factory.mktemp("faults") / "run"
+    train(load_config(None, TINY_EVALUATION), out, progress=False)
+    return out
+
+
+def _psf_file(path, psf):
+    PSFBank(psf=torch.from_numpy(psf), depths_m=np.array([0.4, 0.6]), pixel_pitch_m=np.full(2, 1e-3)).save(path)
+    return path
+
+
+def test_evaluate_names_the_skipped_image_in_its_report(run, tmp_path, capsys):
+    import cv2
+
+    images = tmp_path / "images"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("c.png", "d.png"):  # sorted after broken.png (data.max_test_images=2 stops at two)
+        cv2.imwrite(str(images / name), (rng.random((48, 64, 3)) * 255).astype(np.uint8))
+    (images / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(50))
+    out = tmp_path / "ev"
+    args = ["evaluate", str(run), "--images", str(images), "--out", str(out), "--methods", "doe", "--quiet"]
+    assert main(args) == 0
+    for document in ("summary.md", "report.md"):
+        text = (out / document).read_text()
+        assert "broken.png" in text and "2 image(s) scored; 1 skipped as unreadable" in text
+    assert "broken.png" in capsys.readouterr().err
+
+
+def test_evaluate_refuses_an_output_another_process_writes(run, tmp_path, capsys):
+    out = tmp_path / "ev"
+    with directory_lock(out, "edofproj evaluate"):
+        code = main(["evaluate", str(run), "--out", str(out), "--methods", "doe", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--out" in err and "is being written by edofproj evaluate" in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_network_not_matching_its_checkpoint_names_the_difference(run, tmp_path, capsys):
+    changed = tmp_path / "changed"
+    shutil.copytree(run, changed)
+    config = (changed / "config.yaml").read_text()
+    assert "  - 4\n  - 8\n" in config
+    (changed / "config.yaml").write_text(config.replace("  - 4\n  - 8\n", "  - 6\n  - 8\n", 1))
+    assert main(["evaluate", str(changed), "--methods", "doe+net", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "of different shape" in err and "in the checkpoint but" in err and "net.* settings" in err
+
+
+def test_finetune_refuses_an_all_zero_measured_psf_and_writes_nothing(run, tmp_path, capsys):
+    zero = _psf_file(tmp_path / "zero.npz", np.zeros((2, 3, 15, 15), np.float32))
+    out = tmp_path / "ft"
+    assert main(["finetune", str(run), "--psfs", str(zero), "--steps", "1", "--out", str(out)]) == 2
+    assert "holds no light" in capsys.readouterr().err and not out.exists()
+
+
+def test_finetune_into_a_used_directory_does_not_suggest_resume(run, tmp_path, capsys):
+    out = tmp_path / "used"
+    out.mkdir()
+    (out / "x.txt").write_text("x")
+    psf = np.zeros((2, 3, 15, 15), np.float32)
+    psf[:, :, 7, 7] = 0.9
+    good = _psf_file(tmp_path / "good.npz", psf)
+    assert main(["finetune", str(run), "--psfs", str(good), "--steps", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "choose another --out" in err and "--resume" not in err
