@@ -31,6 +31,7 @@ import torch
 from ..compensation.constrained import box_constrained_deconvolution
 from ..compensation.wiener import TorchWienerCompensator, WienerCompensator
 from ..errors import EdofprojError
+from ..imaging.projection import project
 
 FrameFunction = Callable[[], object]
 
@@ -291,8 +292,6 @@ def time_methods(
     the sweep calls it: a non-blind Wiener filter is computed for each frame (its PSF follows the
     depth), the depth-ensemble filter and the networks are fixed.
     """
-    from ..imaging.projection import project
-
     target = image if image.ndim == 4 else image.unsqueeze(0)
     sync = torch.cuda.synchronize if target.is_cuda else None
     times: dict[str, float] = {}
