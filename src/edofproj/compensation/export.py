@@ -132,7 +132,7 @@ def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int
 
 
 def _run_onnx(path: Path):
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     declared = {i.name for i in session.get_inputs()}  # an input the network ignores is pruned

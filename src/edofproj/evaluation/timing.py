@@ -233,7 +233,7 @@ def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
 def onnx_available(device: str) -> bool:
     """Whether ONNX Runtime is installed and can run on ``device`` (``cpu`` or ``cuda``)."""
     try:
-        import onnxruntime
+        import onnxruntime  # optional: the export extra
     except ImportError:
         return False
     return device == "cpu" or "CUDAExecutionProvider" in onnxruntime.get_available_providers()
@@ -241,7 +241,7 @@ def onnx_available(device: str) -> bool:
 
 def onnx_providers(device: str) -> list[str]:
     """ONNX Runtime execution providers for ``device`` (raises if CUDA is not available)."""
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     if device == "cpu":
         return ["CPUExecutionProvider"]
@@ -254,7 +254,7 @@ def network_onnx_case(onnx_path, method: str, device: str = "cpu", threads: int 
     """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime. ``onnx_path``:
     one file for every frame size, or ``path_for(height, width)`` for exports made for one frame
     size (networks with a Fourier filter, :func:`edofproj.compensation.export.fixed_size_onnx`)."""
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     options = onnxruntime.SessionOptions()
     if threads:

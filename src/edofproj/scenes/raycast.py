@@ -169,6 +169,7 @@ def pinhole_first_hits(
 
 def _intersector(mesh: trimesh.Trimesh, engine: str):
     if ray_engine_name(engine) == "embree":
+        # optional: the scenes-fast extra (embreex)
         from trimesh.ray.ray_pyembree import RayMeshIntersector as EmbreeIntersector
 
         return EmbreeIntersector(mesh)
