@@ -100,7 +100,7 @@ def _cgroup_room() -> int | None:
 def _address_space_room() -> int | None:
     """``RLIMIT_AS`` (``ulimit -v``) less this process's current virtual size, or None without a limit."""
     try:
-        import resource
+        import resource  # optional: POSIX only
     except ImportError:  # pragma: no cover - not POSIX
         return None
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
@@ -132,7 +132,7 @@ def available_device_memory_bytes(device=None) -> int | None:
     """Free memory of a CUDA ``device`` (``torch.cuda.mem_get_info``); for the CPU (or None), the
     memory of :func:`available_memory_bytes`."""
     if device is not None and getattr(device, "type", str(device).split(":")[0]) == "cuda":
-        import torch
+        import torch  # start-up: the foundation layer (config, limits) loads without torch
 
         free, _ = torch.cuda.mem_get_info(device)
         override = available_memory_bytes() if os.environ.get(ENV_LIMIT, "").strip() else None

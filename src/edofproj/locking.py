@@ -38,8 +38,8 @@ from typing import Any, Iterator
 
 from .errors import EdofprojError, RecoveryWarning
 
-try:  # POSIX
-    import fcntl
+try:
+    import fcntl  # optional: POSIX only (no file locks on Windows)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 

@@ -25,18 +25,22 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
+
+import torch
 
 from ..config import load_config
 from ..errors import EdofprojError
+from ..evaluation import timing
 from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
+from ..evaluation.pipeline import Evaluation, evaluate_run
 from ..evaluation.progress import StageProgress, format_duration
-from ..evaluation.report import Heading, Paragraph, Table
+from ..evaluation.report import Figure, Heading, Paragraph, Table
+from ..evaluation.scenes import evaluate_scenes, scene_summary_table
+from ..evaluation.summary import format_text_table, range_table
+from ..evaluation.writeup import claims_section, write_documents
 from .schedule import ParallelTrainer, TrainingJob
-
-if TYPE_CHECKING:
-    from ..evaluation.pipeline import Evaluation
 
 OURS_RUN_DIR = "doe_net"
 #: The scene the demo's report adds (:mod:`edofproj.scenes.builtin`).
@@ -174,10 +178,6 @@ def jobs_table(jobs: Sequence[TrainingJob]) -> Table:
 
 def timing_rows(evaluation, settings: DemoSettings) -> list:
     """Milliseconds per compensated 3-channel frame of the evaluated methods (median)."""
-    import torch
-
-    from ..evaluation import timing
-
     cases = []
     run_design = evaluation.designs.get("run")
     focus_m = evaluation.cfg.optics.focus_m
@@ -243,11 +243,6 @@ def run_demo(
     progress: StageProgress | None = None,
 ) -> DemoResult:
     """Run the demo into ``out`` (module docstring); returns what it measured and wrote."""
-    import torch
-
-    from ..evaluation.pipeline import evaluate_run
-    from ..evaluation.writeup import claims_section, write_documents
-
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
     budget = float(budget_s) if budget_s is not None else settings.budget_s
@@ -317,9 +312,6 @@ def run_demo(
 
 def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: StageProgress) -> list:
     """Score the methods on :data:`DEMO_SCENE` (first held-out image) and return the report's blocks."""
-    from ..evaluation.report import Figure
-    from ..evaluation.scenes import evaluate_scenes, scene_summary_table
-
     chosen = [m for m in methods if m in QUICK_SCENE_METHODS] if quick else list(methods)
     progress.note(f"scene {DEMO_SCENE}")
     try:
@@ -351,8 +343,6 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
 
 
 def demo_finished_message(result: DemoResult) -> str:
-    from ..evaluation.summary import format_text_table, range_table
-
     lines = [format_text_table(range_table(result.evaluation.table, result.evaluation.range_mm, ["ssim", "psnr"])), ""]
     lines += [f"claim ({c.key}) {c.verdict}: {c.statement} -- {c.measured}" for c in result.claims]
     lines += [

@@ -22,6 +22,8 @@ file with ``torch.jit.load`` may print PyTorch's deprecation warning.
 from __future__ import annotations
 
 import copy
+import importlib
+import logging
 import warnings
 from pathlib import Path
 
@@ -46,8 +48,6 @@ ONNX_PACKAGES = ("onnx", "onnxruntime", "onnxscript")
 def require_onnx(fourier: bool = False) -> None:
     """Raise a one-line error naming every missing package of the ``export`` extra (``onnxscript``
     only matters for networks with a Fourier filter, ``fourier=True``)."""
-    import importlib
-
     missing = []
     for name in ONNX_PACKAGES if fourier else ONNX_PACKAGES[:2]:
         try:
@@ -99,8 +99,6 @@ def _write_onnx(net: torch.nn.Module, path: Path, height: int, width: int) -> No
 
 def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width: int) -> None:
     """``torch.export`` -> ONNX (the FFTs become ``DFT`` nodes) for one ``height x width`` frame."""
-    import logging
-
     torch_logger = logging.getLogger("torch")
     level = torch_logger.level
     torch_logger.setLevel(logging.ERROR)  # notes about unrelated operator libraries (e.g. torchvision)
@@ -134,7 +132,7 @@ def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int
 
 
 def _run_onnx(path: Path):
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     declared = {i.name for i in session.get_inputs()}  # an input the network ignores is pruned

@@ -17,17 +17,15 @@ target). ``net.architecture`` in a config names one of :data:`NETWORKS`:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable, NamedTuple
+from typing import Callable, NamedTuple
 
 from torch import nn
 
+from ..config import NetConfig
 from ..errors import EdofprojError
 from .multirate import MultirateCompensationNet
 from .onlineprodeb import OnlineProDebNet
 from .unet import CompensationUNet, width_preset
-
-if TYPE_CHECKING:
-    from ..config import NetConfig
 
 
 def _describe_unet(net_cfg) -> str:

@@ -24,7 +24,10 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
+import skimage.data
 import torch
+from matplotlib import cbook
+from PIL import Image, UnidentifiedImageError
 
 from ..errors import EdofprojError
 from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
@@ -36,8 +39,6 @@ FOLDER_CACHE_BYTES = 512 * 2**20  # decoded folder images kept in memory, at mos
 
 def _skimage_photo(name: str) -> Callable[[], np.ndarray]:
     def load() -> np.ndarray:
-        import skimage.data
-
         pixels = getattr(skimage.data, name)()
         return pixels[0] if isinstance(pixels, tuple) else pixels  # stereo_motorcycle: (left, right, disparity)
 
@@ -46,8 +47,6 @@ def _skimage_photo(name: str) -> Callable[[], np.ndarray]:
 
 def _matplotlib_sample(filename: str) -> Callable[[], np.ndarray]:
     def load() -> np.ndarray:
-        from matplotlib import cbook
-
         return read_image_array(cbook.get_sample_data(filename, asfileobj=False))
 
     return load
@@ -208,8 +207,6 @@ def find_image_files(folder: str | Path) -> list[Path]:
 
 def probe_image_size(path: Path) -> tuple[int, int] | None:
     """``(height, width)`` from the file header (Pillow, no decoding), or None if unreadable."""
-    from PIL import Image, UnidentifiedImageError
-
     try:
         with Image.open(path) as picture:
             width, height = picture.size

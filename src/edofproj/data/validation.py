@@ -21,17 +21,21 @@ scores a run on them.
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 from typing import Callable
 
 import numpy as np
+import skimage.data
 import torch
+from matplotlib import cbook
 
 from ..errors import EdofprojError
 from ..imaging.image_io import read_image_array, to_unit_float
 from .dead_leaves import dead_leaves_image, natural_color_palette
 from .photos import as_rgb
 from .procedural import smooth_field_image, textured_dead_leaves_image
+from .test_images import fit_image
 
 #: Seed of the procedural validation images (no training run is seeded with it by default).
 VALIDATION_SEED = 20261123
@@ -40,8 +44,6 @@ PROCEDURAL_SIZE = 384
 
 
 def _skimage(name: str) -> np.ndarray:
-    import skimage.data
-
     pixels = np.asarray(getattr(skimage.data, name)())
     if pixels.dtype == bool:
         return pixels.astype(np.uint8) * 255
@@ -51,8 +53,6 @@ def _skimage(name: str) -> np.ndarray:
 
 
 def _matplotlib(filename: str) -> np.ndarray:
-    from matplotlib import cbook
-
     return read_image_array(cbook.get_sample_data(filename, asfileobj=False))
 
 
@@ -99,10 +99,6 @@ def validation_images(
     """``[(name, (3, H, W) float32 in [0, 1])]`` of the validation set (sorted by name), each
     brought to ``size`` by ``scaling``; ``limit`` > 0 keeps the first ones. An image that cannot
     be loaded on this installation is skipped with a warning."""
-    import warnings
-
-    from .test_images import fit_image
-
     images: list[tuple[str, torch.Tensor]] = []
     for name in sorted(VALIDATION_SOURCES):
         if limit and len(images) >= limit:

@@ -50,8 +50,21 @@ from typing import Callable, Sequence
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
+from ..compensation.constrained import box_constrained_deconvolution
+from ..compensation.wiener import (
+    DEFAULT_NSR_CANDIDATES,
+    depth_ensemble_wiener_kernel,
+    psnr,
+    tune_wiener_nsr,
+    wiener_deconvolve,
+)
+from ..data import build_training_source
 from ..errors import EdofprojError
+from ..imaging.convolution import convolve_same
+from ..imaging.projection import project
+from ..metrics import ssim
 
 #: ``compensate(target, captured, psf) -> projector input``, tensors ``(1, 3, H, W)`` and ``(1, 3, K, K)``.
 Compensator = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
@@ -173,8 +186,6 @@ class WienerCompensation:
         self.nsr = float(nsr)
 
     def __call__(self, target, captured, psf):
-        from ..compensation.wiener import wiener_deconvolve
-
         return wiener_deconvolve(target, psf, self.nsr)
 
 
@@ -185,8 +196,6 @@ class ConstrainedCompensation:
         self.iterations = int(iterations)
 
     def __call__(self, target, captured, psf):
-        from ..compensation.constrained import box_constrained_deconvolution
-
         return box_constrained_deconvolution(target, psf, iterations=self.iterations)
 
 
@@ -201,8 +210,6 @@ class EnsembleWienerCompensation:
     """
 
     def __init__(self, psfs, nsr: float, radius: int, grid: int = 256) -> None:
-        from ..compensation.wiener import depth_ensemble_wiener_kernel
-
         if isinstance(psfs, torch.Tensor):
             psfs = psfs.detach().cpu().numpy()
         self.nsr = float(nsr)
@@ -212,10 +219,6 @@ class EnsembleWienerCompensation:
         ).unsqueeze(0)
 
     def __call__(self, target, captured, psf):
-        import torch.nn.functional as F
-
-        from ..imaging.convolution import convolve_same
-
         r = self.radius
         padded = F.pad(target, (r, r, r, r), mode="reflect")
         filtered = convolve_same(padded, self.kernel.to(target.device))
@@ -251,8 +254,6 @@ class PreparedMethod:
 
 def training_crops(cfg, count: int, seed: int = 0) -> torch.Tensor:
     """``count`` training crops ``(count, 3, crop, crop)`` of the run's training source (never test images)."""
-    from ..data import build_training_source
-
     source = build_training_source(cfg.data, cfg.train.seed)
     generator = torch.Generator().manual_seed(int(seed))
     return source.sample(int(count), cfg.data.crop, generator)
@@ -271,10 +272,6 @@ def tune_nsr(design, train_images: torch.Tensor, cfg) -> tuple[float, dict[float
     """The Wiener NSR of ``design`` that maximizes the mean ``evaluation.wiener_tuning_metric``
     (SSIM or PSNR) of the compensated projection of the *training* crops over
     ``evaluation.wiener_tuning_depths`` depths of the scored range."""
-    from ..compensation.wiener import tune_wiener_nsr
-    from ..imaging.projection import project
-    from ..metrics import ssim
-
     near_mm, far_mm = score_range_mm(cfg)
     depths_m = np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3
     metric = ssim if cfg.evaluation.wiener_tuning_metric == "ssim" else "psnr"
@@ -297,10 +294,6 @@ def tune_ensemble_nsr(design, train_images: torch.Tensor, cfg, candidates=None) 
     """The NSR of the depth-ensemble filter of ``design`` that maximizes the mean
     ``evaluation.wiener_tuning_metric`` of the compensated projection of the *training* crops over
     ``evaluation.wiener_tuning_depths`` depths of the scored range (as :func:`tune_nsr`)."""
-    from ..compensation.wiener import DEFAULT_NSR_CANDIDATES, psnr
-    from ..imaging.projection import project
-    from ..metrics import ssim
-
     near_mm, far_mm = score_range_mm(cfg)
     tuning = design.psf(np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3)
     ensemble = design.psf(ensemble_depths_m(cfg))

@@ -18,18 +18,26 @@ A method whose run does not exist is skipped with a note, unless it was asked fo
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from ..compensation.registry import describe_network
 from ..config import Config, apply_overrides, to_dict
+from ..data import evaluation_images
+from ..data.validation import validation_images
+from ..doe import build_doe
 from ..errors import EdofprojError
+from ..runs import CONFIG_NAME, TrainedRun, last_checkpoint_path, load_run
+from ..runs.figures import plot_doe_profile
+from ..runs.log import read_log
 from .designs import OpticalDesign
+from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
 from .methods import (
     ConstrainedCompensation,
     EnsembleWienerCompensation,
@@ -47,10 +55,10 @@ from .methods import (
     tune_nsr,
 )
 from .progress import StageProgress
+from .psf_plots import plot_psf_comparison
 from .results import MetricsTable
-
-if TYPE_CHECKING:
-    from ..runs import TrainedRun
+from .sweep import PERCEPTUAL_COLUMNS, example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
+from .timing import time_methods
 
 FIGURES_DIR = "figures"
 METRICS_NAME = "metrics.csv"
@@ -97,8 +105,6 @@ class Evaluation:
 
 def require_trained_run(run_dir: str | Path) -> Path:
     """The run directory, or a one-line error when it is missing or has no checkpoint."""
-    from ..runs import CONFIG_NAME, last_checkpoint_path
-
     path = Path(run_dir)
     if not path.is_dir():
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
@@ -146,8 +152,6 @@ class MethodBuilder:
     def __init__(
         self, run: TrainedRun, cfg: Config, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu"
     ) -> None:
-        from ..doe import build_doe
-
         self.device = torch.device(device)
         self.run = run
         self.cfg = cfg
@@ -191,8 +195,6 @@ class MethodBuilder:
 
     def baseline(self, spec: MethodSpec) -> TrainedRun | None:
         """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
-        from ..runs import last_checkpoint_path, load_run
-
         if spec.run_dir is None:
             raise EdofprojError(f"method {spec.name} has no separate run")
         path = self.baselines_dir / spec.run_dir
@@ -292,12 +294,6 @@ def evaluate_run(
     ``timing``: time each method's compensation of one frame (the first image, at the in-focus
     depth; :func:`.timing.time_methods`). ``validation``: score the built-in validation set
     (:mod:`edofproj.data.validation`) instead of the test images."""
-    import time
-
-    from ..data import evaluation_images
-    from ..runs import load_run
-    from .sweep import example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
-
     clock = time.perf_counter()
     specs = select_methods(methods)  # unknown names fail before any work
     run_path = require_trained_run(run_dir)
@@ -317,8 +313,6 @@ def evaluate_run(
     with warnings.catch_warnings(record=True) as skipped:
         warnings.simplefilter("always")
         if validation:
-            from ..data.validation import validation_images
-
             size = cfg.evaluation.image_size
             images = validation_images(
                 (int(size[0]), int(size[1])) if size else None,
@@ -356,7 +350,6 @@ def evaluate_run(
         progress.note(note)
 
     perceptual = {name: metric.to(device) for name, metric in load_perceptual_metrics(cfg.loss.weights_dir).items()}
-    from .sweep import PERCEPTUAL_COLUMNS
 
     missing = [c for c in PERCEPTUAL_COLUMNS if c not in perceptual]
 
@@ -376,8 +369,6 @@ def evaluate_run(
 
     frame_ms: dict[str, float] = {}
     if timing:
-        from .timing import time_methods
-
         progress.start("timing", 1, detail="milliseconds per compensated frame")
         frame_ms = time_methods(prepared, images[0][1].to(device), cfg.optics.focus_mm * 1e-3)
         progress.finish()
@@ -429,11 +420,6 @@ def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
 
 def write_figures(ev: Evaluation) -> None:
     """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
-    from ..runs.figures import plot_doe_profile
-    from ..runs.log import read_log
-    from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
-    from .psf_plots import plot_psf_comparison
-
     figures = ev.out_dir / FIGURES_DIR
     figures.mkdir(parents=True, exist_ok=True)
     for metric in ev.table.metrics:
@@ -470,8 +456,6 @@ def write_figures(ev: Evaluation) -> None:
     panels = []
     lens = ev.designs.get("lens")
     if lens is None:
-        from ..doe import build_doe
-
         lens = OpticalDesign("lens", "lens", build_doe(ev.cfg, "lens"), ev.cfg)
     run_design = ev.designs.get("run") or OpticalDesign("run", "doe", ev.run.doe, ev.cfg)
     panels.append(("lens", lens.doe, lens.bank(depths_m)))

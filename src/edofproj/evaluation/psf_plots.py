@@ -3,10 +3,14 @@ and the DOE height profiles."""
 
 from __future__ import annotations
 
-import numpy as np
-import torch
+import matplotlib
 
-from ..fileio import atomic_path
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from ..fileio import atomic_path  # noqa: E402
 
 
 def psf_to_rgb(psf_chw: np.ndarray, gamma: float = 0.5) -> np.ndarray:
@@ -26,11 +30,6 @@ def plot_psf_comparison(panels, out_path, title: str | None = None) -> None:
     energy in the window under each tile). Last row: centre-row profiles (green channel,
     fraction of pupil energy per pixel, log scale) and the height profiles.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     depths_mm = panels[0][2].depths_m * 1e3
     n_depths = len(depths_mm)
     n_designs = len(panels)

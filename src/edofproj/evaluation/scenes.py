@@ -32,9 +32,19 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ..config import apply_overrides
+from ..data import evaluation_images
 from ..errors import EdofprojError
+from ..fileio import write_text_atomic
 from ..metrics import ssim_map
+from ..optics.geometry import ProjectorGeometry
+from ..runs import load_run
+from ..scenes import BUILTIN_SCENES, cast_scene, check_scene_depth_range, load_scene, render_scene
+from ..scenes.render import scene_layers_m
 from .designs import OpticalDesign
+from .figures import plot_scene_grid, plot_scene_ssim_maps
+from .methods import select_methods
+from .pipeline import MethodBuilder, evaluation_config, require_trained_run
 from .progress import StageProgress
 from .report import Table
 from .results import MetricsTable
@@ -74,8 +84,6 @@ def masked_scores(display: torch.Tensor, target: torch.Tensor, hit: torch.Tensor
 
 def resolve_scene_names(names: Sequence[str]) -> list[str]:
     """Expand ``builtin`` to every built-in scene; keep the rest (names or files) in order."""
-    from ..scenes import BUILTIN_SCENES
-
     resolved: list[str] = []
     for name in names:
         for item in list(BUILTIN_SCENES) if name == ALL_BUILTIN else [name]:
@@ -98,15 +106,6 @@ def evaluate_scenes(
     device: str | torch.device = "cpu",
 ) -> SceneEvaluation:
     """Score the run's methods on the scenes (module docstring); files go to ``out_dir`` (default: the run)."""
-    from ..config import apply_overrides
-    from ..data import evaluation_images
-    from ..optics.geometry import ProjectorGeometry
-    from ..runs import load_run
-    from ..scenes import cast_scene, check_scene_depth_range, load_scene, render_scene
-    from ..scenes.render import scene_layers_m
-    from .methods import select_methods
-    from .pipeline import MethodBuilder, evaluation_config, require_trained_run
-
     clock = time.perf_counter()
     specs = select_methods(methods)
     run_path = require_trained_run(run_dir)
@@ -201,9 +200,6 @@ def markdown_table(table: Table) -> str:
 
 
 def write_scene_files(evaluation: SceneEvaluation) -> None:
-    from ..fileio import write_text_atomic
-    from .figures import plot_scene_grid, plot_scene_ssim_maps
-
     out = evaluation.out_dir
     out.mkdir(parents=True, exist_ok=True)
     evaluation.files["metrics"] = out / SCENE_METRICS_NAME

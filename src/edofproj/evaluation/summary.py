@@ -15,6 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .methods import METHOD_NAMES, method_spec
 from .report import Table
 from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
 
@@ -43,8 +44,6 @@ def _cells(metric: str, values: list[float], extra: list[str] | None = None) -> 
 
 def method_kind(name: str) -> str:
     """``"blind"`` or ``"non-blind"`` for a method name (:attr:`MethodSpec.blind`); ``""`` if unknown."""
-    from .methods import METHOD_NAMES, method_spec
-
     if name not in METHOD_NAMES:
         return ""
     return "blind" if method_spec(name).blind else "non-blind"

@@ -31,6 +31,7 @@ import torch
 from ..compensation.constrained import box_constrained_deconvolution
 from ..compensation.wiener import TorchWienerCompensator, WienerCompensator
 from ..errors import EdofprojError
+from ..imaging.projection import project
 
 FrameFunction = Callable[[], object]
 
@@ -232,7 +233,7 @@ def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
 def onnx_available(device: str) -> bool:
     """Whether ONNX Runtime is installed and can run on ``device`` (``cpu`` or ``cuda``)."""
     try:
-        import onnxruntime
+        import onnxruntime  # optional: the export extra
     except ImportError:
         return False
     return device == "cpu" or "CUDAExecutionProvider" in onnxruntime.get_available_providers()
@@ -240,7 +241,7 @@ def onnx_available(device: str) -> bool:
 
 def onnx_providers(device: str) -> list[str]:
     """ONNX Runtime execution providers for ``device`` (raises if CUDA is not available)."""
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     if device == "cpu":
         return ["CPUExecutionProvider"]
@@ -253,7 +254,7 @@ def network_onnx_case(onnx_path, method: str, device: str = "cpu", threads: int 
     """An exported network (inputs ``target``, ``captured``) run by ONNX Runtime. ``onnx_path``:
     one file for every frame size, or ``path_for(height, width)`` for exports made for one frame
     size (networks with a Fourier filter, :func:`edofproj.compensation.export.fixed_size_onnx`)."""
-    import onnxruntime
+    import onnxruntime  # optional: the export extra
 
     options = onnxruntime.SessionOptions()
     if threads:
@@ -291,8 +292,6 @@ def time_methods(
     the sweep calls it: a non-blind Wiener filter is computed for each frame (its PSF follows the
     depth), the depth-ensemble filter and the networks are fixed.
     """
-    from ..imaging.projection import project
-
     target = image if image.ndim == 4 else image.unsqueeze(0)
     sync = torch.cuda.synchronize if target.is_cuda else None
     times: dict[str, float] = {}

@@ -17,15 +17,12 @@ plain engine on the same rings.
 from __future__ import annotations
 
 import copy
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
+from ..optics.fourier_engine import FourierPSFEngine
 from ..optics.radial_engine import RadialPSFEngine
-
-if TYPE_CHECKING:
-    from ..optics.fourier_engine import FourierPSFEngine
 
 MIN_RING_M = 1e-10
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -22,13 +21,11 @@ import torch
 from ..errors import EdofprojError
 from ..fileio import read_arrays, save_npz_atomic
 from .aberrations import PupilAberration, aberration_from_config
+from .fourier_engine import FourierPSFEngine
 from .geometry import ProjectorGeometry
 from .psf_checks import validate_psf
 from .radial_engine import RadialPSFEngine, check_depths, check_window
 from .spectra import Spectrum, check_spectral_sampling, pupil_path_difference_m
-
-if TYPE_CHECKING:
-    from .fourier_engine import FourierPSFEngine
 
 
 @dataclass
@@ -132,8 +129,6 @@ class PSFSimulator:
                 geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device, aberration=aberration
             )
         elif engine == "2d":
-            from .fourier_engine import FourierPSFEngine
-
             self.engine = FourierPSFEngine(
                 geometry, spectrum.wavelengths_m, window, pupil_samples, dtype, device, aberration=aberration
             )

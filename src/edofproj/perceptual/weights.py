@@ -39,6 +39,7 @@ from typing import Callable, Optional, Sequence
 import torch
 
 from ..errors import EdofprojError
+from ..fileio import atomic_path
 
 
 class PerceptualWeightsMissing(EdofprojError):
@@ -189,8 +190,6 @@ def download_verified(
     (as many bytes as the server announced) and the digest matches. Otherwise the temporary file
     is removed, ``target`` is left as it was, and :class:`EdofprojError` says why.
     """
-    from ..fileio import atomic_path
-
     target = Path(target)
     expected = sha256.lower()
     try:

@@ -39,8 +39,13 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
+from ..fileio import save_npz_atomic
 from ..imaging import haze_term, layer_weights, project, render_depth_map
+from ..optics.psf_bank import PSFBank
+from .calibration import ProCamsCalibration
 from .capture_io import atomic_folder, write_rgb_png
+from .color import RESPONSE_LUT_SIZE, ColorCalibration
+from .geometry import CameraMap
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
 
 DEFAULT_MIXING_MATRIX = np.array([[0.62, 0.12, 0.04], [0.10, 0.60, 0.10], [0.03, 0.12, 0.58]])
@@ -309,10 +314,6 @@ class VirtualProCams:
         camera map, the effective mixing matrix, the black capture level ``M b 1 + a`` everywhere
         and the normalized response ``u^gamma`` sampled on ``levels^3`` colours. For tests and
         benchmarks of what comes after calibration."""
-        from .calibration import ProCamsCalibration
-        from .color import RESPONSE_LUT_SIZE, ColorCalibration
-        from .geometry import CameraMap
-
         H, W = self.projector_hw
         map_x, map_y = self.true_camera_map()
         camera_map = CameraMap(
@@ -371,9 +372,6 @@ def simulate_captures(
     ``true_psf.npz`` (the PSF in the ``edofproj psf`` format, flat screens only) and
     ``captures.json`` (``{"depth_mm": ...}``, the screen distance, as a lab log would).
     """
-    from ..fileio import save_npz_atomic
-    from ..optics.psf_bank import PSFBank
-
     manifest = PatternManifest.load(pattern_dir)
     if (manifest.height, manifest.width) != tuple(rig.projector_hw):
         raise EdofprojError(

@@ -85,7 +85,7 @@ class TrainingLog:
 def _tensorboard_writer(directory: Path):
     """A ``SummaryWriter`` when TensorBoard is installed, else None."""
     try:
-        from torch.utils.tensorboard import SummaryWriter
+        from torch.utils.tensorboard import SummaryWriter  # optional: TensorBoard
     except ImportError:
         return None
     return SummaryWriter(log_dir=str(directory))

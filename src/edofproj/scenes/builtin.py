@@ -29,13 +29,12 @@ import numpy as np
 import trimesh
 
 from ..errors import EdofprojError
+from ..optics.geometry import ProjectorGeometry
 from .scene import Scene, SceneMesh
 
 
 def _geometry(geometry):
     if geometry is None:
-        from ..optics.geometry import ProjectorGeometry
-
         return ProjectorGeometry()
     return geometry
 

@@ -37,8 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from trimesh.ray.ray_triangle import RayMeshIntersector
 
 from ..errors import EdofprojError
+from .builtin import fronto_parallel_plane
 from .scene import Scene
 
 
@@ -167,18 +169,16 @@ def pinhole_first_hits(
 
 def _intersector(mesh: trimesh.Trimesh, engine: str):
     if ray_engine_name(engine) == "embree":
+        # optional: the scenes-fast extra (embreex)
         from trimesh.ray.ray_pyembree import RayMeshIntersector as EmbreeIntersector
 
         return EmbreeIntersector(mesh)
-    from trimesh.ray.ray_triangle import RayMeshIntersector
 
     return RayMeshIntersector(mesh)
 
 
 def _scene_mesh(scene: Scene, geometry, height_px: int, width_px: int) -> tuple[trimesh.Trimesh, np.ndarray]:
     """All meshes (and the background) as one mesh, and each face's mesh index."""
-    from .builtin import fronto_parallel_plane
-
     parts = [m.mesh for m in scene.meshes]
     if scene.background_m is not None:
         panel = type(geometry)(

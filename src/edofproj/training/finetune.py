@@ -33,7 +33,9 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
+from tqdm import tqdm
 
+from ..data import build_training_source
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 from ..locking import directory_lock
@@ -41,6 +43,7 @@ from ..optics.psf_bank import PSFBank
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
+from .losses import build_loss
 from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from .trainer import loss_terms, seed_everything
 
@@ -206,9 +209,6 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
     )
     seed_everything(cfg.train.seed)
 
-    from ..data import build_training_source
-    from .losses import build_loss
-
     net = trained.net
     net.train()
     for p in net.parameters():
@@ -223,8 +223,6 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
     rows = []
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=steps, unit="step", dynamic_ncols=True, desc="finetune")
     clock = time.perf_counter()
     for step in range(1, steps + 1):

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
+from ..scenes.random_screens import random_depth_map
 
 IMAGE_STREAM = 0
 DEPTH_STREAM = 1
@@ -124,8 +125,6 @@ def sample_depth_maps(
 ) -> np.ndarray:
     """Random depth-varying screens ``(shard.size, size, size)`` in metres (``train.screens: varying``),
     one per sample from its depth stream (:func:`edofproj.scenes.random_screens.random_depth_map`)."""
-    from ..scenes.random_screens import random_depth_map
-
     maps = [
         random_depth_map(sample_generator(seed, step, i, DEPTH_STREAM), size_px, size_px, depth_min_m, depth_max_m)[0]
         for i in shard.indices

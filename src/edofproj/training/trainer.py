@@ -38,13 +38,17 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+from tqdm import tqdm
 
 from ..compensation.registry import build_network
+from ..compensation.wiener import depth_ensemble_wiener_kernel
 from ..config import Config, to_dict
 from ..data import build_training_source
 from ..doe import build_run_doe, save_doe
 from ..errors import BlurExceedsWindowWarning, EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files
+from ..imaging.depth_layers import layer_depths_m
 from ..locking import directory_lock
 from ..optics.psf_bank import design_engine, simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
@@ -124,7 +128,6 @@ def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> Non
     initialize_linear_path = getattr(net, "initialize_linear_path", None)
     if cfg.net.init_nsr <= 0 or not isinstance(psf_source, DepthPSFTable) or initialize_linear_path is None:
         return
-    from ..compensation.wiener import depth_ensemble_wiener_kernel
 
     kernels = depth_ensemble_wiener_kernel(
         psf_source.psf.detach().cpu().numpy(), cfg.net.init_nsr, radius=cfg.net.space_to_depth
@@ -194,8 +197,6 @@ class _Session:
         start_from_wiener(cfg, self.net, psf_source)
         layers_m = None
         if cfg.train.screens == "varying":
-            from ..imaging.depth_layers import layer_depths_m
-
             layers_m = layer_depths_m(cfg.psf.depth_min_m, cfg.psf.depth_max_m, max(2, cfg.imaging.depth_layers))
         self.model = EndToEndProjector(
             psf_source,
@@ -232,8 +233,6 @@ class _Session:
         self.last_checkpoint_step = 0
         self.wrapped: nn.Module = self.model
         if group.distributed:
-            from torch.nn.parallel import DistributedDataParallel
-
             # buffers (a PSF table) are identical on every rank: no need to sync them each step
             no_buffer_sync: dict[str, Any] = (
                 {"forward_sync_buffers": False}
@@ -447,8 +446,6 @@ def _train(
     log = TrainingLog(run_dir, resume_step=start) if group.is_main else None
     bar = None
     if group.is_main and progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=end, initial=start, unit="step", dynamic_ncols=True, desc=cfg.name)
     loss = math.nan
     try:

@@ -10,7 +10,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from ...errors import EdofprojError
+from ..virtual import VirtualProCams
 from .base import Camera, Display
+from .cameras import CommandCamera, FolderCamera, OpenCVCamera, VirtualCamera
+from .displays import FileDisplay, MemoryDisplay
+from .window import PygameDisplay
 
 
 class DeviceKind(NamedTuple):
@@ -48,8 +52,6 @@ def _split(spec: str, role: str) -> tuple[str, str]:
 
 def open_display(spec: str) -> Display:
     """The display named by ``spec`` (:data:`DEVICE_TABLE`)."""
-    from .displays import FileDisplay, MemoryDisplay
-
     kind, argument = _split(spec, "display")
     if kind == "memory":
         return MemoryDisplay()
@@ -57,7 +59,6 @@ def open_display(spec: str) -> Display:
         if not argument:
             raise EdofprojError("display 'file:' needs a path, e.g. file:shown.png")
         return FileDisplay(argument)
-    from .window import PygameDisplay
 
     try:
         index = int(argument or 0)
@@ -68,8 +69,6 @@ def open_display(spec: str) -> Display:
 
 def open_camera(spec: str, display: Display | None = None, exposure: float | None = None, seed: int = 0) -> Camera:
     """The camera named by ``spec``; ``display`` is what a virtual camera looks at."""
-    from .cameras import CommandCamera, FolderCamera, OpenCVCamera, VirtualCamera
-
     kind, argument = _split(spec, "camera")
     if exposure is not None and kind != "opencv":
         raise EdofprojError(f"--exposure is set through OpenCV only; set it on the camera itself for '{kind}:'")
@@ -83,7 +82,6 @@ def open_camera(spec: str, display: Display | None = None, exposure: float | Non
         return CommandCamera(argument)
     if kind == "folder":
         return FolderCamera(argument)
-    from ..virtual import VirtualProCams
 
     if display is None:
         raise EdofprojError("a virtual camera needs the display it looks at")

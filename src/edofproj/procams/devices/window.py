@@ -27,7 +27,7 @@ from .base import Display
 def _pygame():
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     try:
-        import pygame
+        import pygame  # optional: the projector extra
     except ImportError:
         raise EdofprojError(
             "display 'screen:N' needs pygame: pip install 'edofproj[projector]' (or use --display file:PATH)"
