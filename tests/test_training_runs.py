@@ -13,7 +13,7 @@ from edofproj.cli import main
 from edofproj.compensation.registry import build_network
 from edofproj.config import Config, apply_overrides, dump_config, load_config, to_dict
 from edofproj.doe import build_run_doe, load_doe
-from edofproj.errors import EdofprojError
+from edofproj.errors import EdofprojError, RecoveryWarning
 from edofproj.runs import load_run
 from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.runs.log import COLUMNS
@@ -155,9 +155,14 @@ def test_refuses_to_overwrite_and_to_resume_with_another_config(straight_run, tm
         train(cfg, run_dir, progress=False)
     with pytest.raises(EdofprojError, match="lr_net"):
         train(tiny_config("train.lr_net=0.01"), run_dir, resume=True, progress=False)
-    with pytest.raises(EdofprojError, match="no checkpoint"):
-        (tmp_path / "config.yaml").write_text(dump_config(cfg))
-        train(cfg, tmp_path, resume=True, progress=False)
+    with pytest.raises(EdofprojError):  # nothing to resume: no run's config.yaml
+        train(cfg, tmp_path / "never-trained", resume=True, progress=False)
+    stopped_early = tmp_path / "stopped-early"  # killed before its first checkpoint: only its config.yaml
+    stopped_early.mkdir()
+    (stopped_early / "config.yaml").write_text(dump_config(cfg))
+    with pytest.warns(RecoveryWarning, match="before its first checkpoint: training it from step 0"):
+        restarted = train(cfg, stopped_early, resume=True, progress=False)
+    assert (restarted.start_step, restarted.step) == (0, 8)
     done = train(cfg, run_dir, resume=True, progress=False)  # nothing left to do
     assert (done.start_step, done.step) == (8, 8)
 
