@@ -218,6 +218,19 @@ class MethodBuilder:
         self.baseline_runs[spec.name] = baseline
         return baseline
 
+    def build_all(self, specs, progress: StageProgress) -> list[PreparedMethod]:
+        """Every method of ``specs`` that can be built here (the others leave a note), advancing ``progress``
+        once per method; raises :class:`EdofprojError` when none can."""
+        prepared = []
+        for spec in specs:
+            method = self.build(spec)
+            if method is not None:
+                prepared.append(method)
+            progress.advance(1, detail=spec.name)
+        if not prepared:
+            raise EdofprojError("no method could be evaluated: " + "; ".join(self.notes))
+        return prepared
+
     def build(self, spec: MethodSpec) -> PreparedMethod | None:
         baseline = self.baseline(spec) if spec.needs_separate_run else None
         if spec.needs_separate_run and baseline is None:
@@ -337,14 +350,7 @@ def evaluate_run(
         explicit=bool(methods),
         device=device,
     )
-    prepared = []
-    for spec in specs:
-        method = builder.build(spec)
-        if method is not None:
-            prepared.append(method)
-        progress.advance(1, detail=spec.name)
-    if not prepared:
-        raise EdofprojError("no method could be evaluated: " + "; ".join(builder.notes))
+    prepared = builder.build_all(specs, progress)
     builder.notes.extend(image_notes)
     for note in builder.notes:
         progress.note(note)

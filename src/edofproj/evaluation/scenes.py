@@ -132,14 +132,7 @@ def evaluate_scenes(
         run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent, bool(methods), device
     )
     progress.start("preparing methods", len(specs))
-    prepared = []
-    for spec in specs:
-        method = builder.build(spec)
-        if method is not None:
-            prepared.append(method)
-        progress.advance(1, detail=spec.name)
-    if not prepared:
-        raise EdofprojError("no method could be evaluated: " + "; ".join(builder.notes))
+    prepared = builder.build_all(specs, progress)
 
     table = MetricsTable(("method", "scene", "image"), ("psnr", "ssim"))
     evaluation = SceneEvaluation(out, run_path, list(casts), [m.name for m in prepared], table, {})

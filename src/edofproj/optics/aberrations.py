@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, SamplingError
 
 
 def noll_to_nm(j: int) -> tuple[int, int]:
@@ -193,6 +193,17 @@ def pupil_phase_step_rad(phase: torch.Tensor) -> float:
     if phase.ndim >= 2 and phase.shape[-2] > 1:
         steps.append(torch.diff(phase, dim=-2).abs().max())
     return float(max(steps)) if steps else 0.0
+
+
+def check_aberration_sampling(step_rad: float, pupil_samples: int, per: str, max_step_rad: float) -> None:
+    """Refuse an aberration whose phase changes by more than ``max_step_rad`` between neighbouring pupil
+    samples (``per``: "sample" or "ring"), naming the ``pupil_samples`` that resolve it."""
+    if step_rad > max_step_rad:
+        need = int(math.ceil(pupil_samples * step_rad / max_step_rad))
+        raise SamplingError(
+            f"pupil_samples={pupil_samples} cannot resolve the aberration phase ({step_rad:.2f} rad per {per}, "
+            f"max {max_step_rad:.2f}): use pupil_samples >= {need + need % 2}"
+        )
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from scipy import fft as sfft
 
 from ..errors import EdofprojError, SamplingError
 from ..limits import check_memory
-from .aberrations import PupilAberration
+from .aberrations import PupilAberration, check_aberration_sampling
 from .geometry import ProjectorGeometry
 from .radial_engine import (
     MAX_DEFOCUS_STEP_RAD,
@@ -156,12 +156,7 @@ class FourierPSFEngine:
         step_x = (torch.diff(phase, dim=1).abs() * inside).max()
         inside_y = self.aperture[1:, :] & self.aperture[:-1, :]
         step = max(float(step_x), float((torch.diff(phase, dim=0).abs() * inside_y).max()))
-        if step > MAX_DEFOCUS_STEP_RAD:
-            need = int(math.ceil(self.M * step / MAX_DEFOCUS_STEP_RAD))
-            raise SamplingError(
-                f"pupil_samples={self.M} cannot resolve the aberration phase ({step:.2f} rad per sample, max "
-                f"{MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
-            )
+        check_aberration_sampling(step, self.M, "sample", MAX_DEFOCUS_STEP_RAD)
         return phase
 
     def psf(self, doe, depths_m) -> torch.Tensor:

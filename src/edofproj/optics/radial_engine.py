@@ -51,7 +51,7 @@ from scipy.special import j0, j1
 
 from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
 from ..limits import check_memory
-from .aberrations import PupilAberration, pupil_phase_step_rad
+from .aberrations import PupilAberration, check_aberration_sampling, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
 
@@ -284,12 +284,7 @@ class RadialPSFEngine:
         rho = self.ring_centres_t / self.geometry.aperture_radius_m
         phase = torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
         step = pupil_phase_step_rad(phase)
-        if step > MAX_DEFOCUS_STEP_RAD:
-            need = int(math.ceil(self.pupil_samples * step / MAX_DEFOCUS_STEP_RAD))
-            raise SamplingError(
-                f"pupil_samples={self.pupil_samples} cannot resolve the aberration phase ({step:.2f} rad per ring, "
-                f"max {MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
-            )
+        check_aberration_sampling(step, self.pupil_samples, "ring", MAX_DEFOCUS_STEP_RAD)
         return phase
 
     def radial_intensity(self, doe, depths_m) -> torch.Tensor:
