@@ -35,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="a smoke run of about 30 s: few steps, tiny images; it checks that everything runs and judges nothing",
+        help="a smoke run of about a minute: few steps, tiny images; it checks that everything runs and judges nothing",
     )
     p.add_argument(
         "--out", default="runs/demo", metavar="DIR", help="output directory (new or empty; default runs/demo)"
