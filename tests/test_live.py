@@ -112,8 +112,7 @@ def test_video_frames_are_read_in_order(tmp_path):
 
     path = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    if not writer.isOpened():
-        pytest.skip("OpenCV cannot write MJPG video here")
+    assert writer.isOpened()  # opencv-python-headless ships its own MJPG encoder
     for level in (40, 200, 120):
         writer.write(np.full((48, 64, 3), level, np.uint8))
     writer.release()

@@ -10,22 +10,7 @@ from edofproj.config import ConfigError, LossConfig
 from edofproj.errors import EdofprojError
 from edofproj.perceptual import PerceptualWeightsMissing
 from edofproj.training.losses import CompensationLoss, build_loss
-
-VGG16_CONVS = [
-    (0, 64, 3),
-    (2, 64, 64),
-    (5, 128, 64),
-    (7, 128, 128),
-    (10, 256, 128),
-    (12, 256, 256),
-    (14, 256, 256),
-    (17, 512, 256),
-    (19, 512, 512),
-    (21, 512, 512),
-    (24, 512, 512),
-    (26, 512, 512),
-    (28, 512, 512),
-]
+from fake_backbones import torchvision_style_state
 
 
 def photo_pair(size=128, noise=0.1, seed=0):
@@ -104,13 +89,7 @@ def test_dists_loss_without_weights_raises_unless_unused(tmp_path, monkeypatch):
 
 def test_dists_loss_with_weights_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty"))
-    gen = torch.Generator().manual_seed(0)
-    state = {}
-    for index, out_ch, in_ch in VGG16_CONVS:
-        std = (2 / (9 * in_ch)) ** 0.5
-        state[f"features.{index}.weight"] = torch.randn(out_ch, in_ch, 3, 3, generator=gen) * std
-        state[f"features.{index}.bias"] = torch.zeros(out_ch)
-    torch.save(state, tmp_path / "vgg16-397923af.pth")
+    torch.save(torchvision_style_state("vgg16"), tmp_path / "vgg16-397923af.pth")
     loss = build_loss(LossConfig(perceptual="dists", weights_dir=str(tmp_path)))
     pred, target = photo_pair(32)
     assert loss(target, target).item() == pytest.approx(0.0, abs=1e-6)

@@ -113,6 +113,24 @@ def run_error(capsys, argv):
     return lines[0]
 
 
+def estimate_psf_args(session, captures, out) -> list[str]:
+    """``procams estimate-psf`` of ``captures`` with the session's patterns and calibration."""
+    return [
+        "procams",
+        "estimate-psf",
+        "--patterns",
+        str(session / "patterns"),
+        "--captures",
+        str(captures),
+        "--calib",
+        str(session / "calib.npz"),
+        "--out",
+        str(out),
+        "--window",
+        WINDOW,
+    ]
+
+
 def test_measured_psf_file_follows_the_psf_contract(session):
     data = np.load(session / "psf.npz")
     assert data["psf"].dtype == np.float32 and data["psf"].shape == (1, 3, 21, 21)
@@ -161,20 +179,7 @@ def test_wrong_capture_size_says_expected_and_got(session, tmp_path, capsys):
     captures = linked_copy(session / "captures", tmp_path / "c", replace={"bernoulli_02.png": small})
     message = run_error(
         capsys,
-        [
-            "procams",
-            "estimate-psf",
-            "--patterns",
-            str(session / "patterns"),
-            "--captures",
-            str(captures),
-            "--calib",
-            str(session / "calib.npz"),
-            "--out",
-            str(tmp_path / "psf.npz"),
-            "--window",
-            WINDOW,
-        ],
+        estimate_psf_args(session, captures, tmp_path / "psf.npz"),
     )
     assert "'bernoulli_02.png' is 400x300 pixels, expected 512x384" in message
     assert not (tmp_path / "psf.npz").exists()
@@ -228,20 +233,7 @@ def test_depth_must_be_known(session, tmp_path, capsys):
     captures = linked_copy(session / "captures", tmp_path / "c", drop=("captures.json",))
     message = run_error(
         capsys,
-        [
-            "procams",
-            "estimate-psf",
-            "--patterns",
-            str(session / "patterns"),
-            "--captures",
-            str(captures),
-            "--calib",
-            str(session / "calib.npz"),
-            "--out",
-            str(tmp_path / "psf.npz"),
-            "--window",
-            WINDOW,
-        ],
+        estimate_psf_args(session, captures, tmp_path / "psf.npz"),
     )
     assert "give --depth-mm" in message
 

@@ -13,14 +13,14 @@ from ..errors import EdofprojError
 def add_config_options(parser: argparse.ArgumentParser) -> None:
     """``--config FILE|PRESET`` and repeatable ``--set section.key=value``."""
     parser.add_argument("--config", default=None, help="YAML config file or preset name (cpu, paper, realtime)")
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a config key, e.g. --set train.steps=100 (repeatable)",
-    )
+    add_set_option(parser)
+
+
+def add_set_option(
+    parser: argparse.ArgumentParser, help: str = "override a config key, e.g. --set train.steps=100 (repeatable)"
+) -> None:
+    """The repeatable ``--set section.key=value`` (into ``args.overrides``)."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=help)
 
 
 def config_from_args(args: argparse.Namespace, extra_overrides=()) -> Config:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import parse_name_list
+from ._common import add_set_option, parse_name_list
 
 
 def _positive_float(text: str) -> float:
@@ -46,14 +46,7 @@ def register(subparsers) -> None:
         default=None,
         help="only these methods (comma-separated; must include doe+net); their runs are then all trained",
     )
-    p.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a config key of every run, e.g. --set train.steps=300 (repeatable)",
-    )
+    add_set_option(p, help="override a config key of every run, e.g. --set train.steps=300 (repeatable)")
     p.add_argument(
         "--budget-min",
         type=_positive_float,

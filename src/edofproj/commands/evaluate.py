@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import parse_name_list, parse_number_list
+from ._common import add_set_option, parse_name_list, parse_number_list
 
 
 def register(subparsers) -> None:
@@ -55,14 +55,7 @@ def register(subparsers) -> None:
         "(default: RUN's parent)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="write the results here instead of into RUN")
-    p.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override an evaluation key, e.g. --set evaluation.image_size=[384,512] (repeatable)",
-    )
+    add_set_option(p, help="override an evaluation key, e.g. --set evaluation.image_size=[384,512] (repeatable)")
     p.add_argument(
         "--device",
         choices=("auto", "cpu", "cuda"),
