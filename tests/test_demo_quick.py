@@ -74,3 +74,31 @@ def test_demo_refuses_a_non_empty_output(tmp_path, capsys):
 def test_demo_needs_our_method(tmp_path, capsys):
     assert main(["demo", "--quick", "--out", str(tmp_path / "d"), "--methods", "lens,lens+net"]) == 2
     assert "doe+net" in capsys.readouterr().err
+
+
+def test_quick_demo_starts_from_the_shipped_reference_model(tmp_path, capsys):
+    """``--pretrained``: doe_net/ is the built-in run (not trained again), evaluated with the demo's
+    evaluation keys; lens+net is trained beside it; the compensated DOE beats the bare DOE."""
+    from edofproj.runs import load_run
+
+    out = tmp_path / "demo"
+    args = ["demo", "--quick", "--quiet", "--pretrained", "--out", str(out), "--methods", "doe,doe+net,lens+net"]
+    for item in ["train.steps=3", "train.checkpoint_every=3", "net.widths=[4,8]", "evaluation.depths_mm=[300,800]"]:
+        args += ["--set", item]
+    assert main(args) == 0
+    capsys.readouterr()
+    shipped, copied = load_run("builtin:cpu-doe-net"), load_run(out / "doe_net")
+    assert copied.step == shipped.step > 3
+    assert copied.cfg.evaluation.depths_mm == [300.0, 800.0] and copied.cfg.train == shipped.cfg.train
+    assert load_run(out / "lens_net").step == 3
+    report = (out / "report.md").read_text()
+    assert "--pretrained" in report and "builtin:cpu-doe-net" in report and "pretrained" in report
+
+    with open(out / "metrics.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    ssim = {}
+    for row in rows:
+        ssim.setdefault((row["method"], row["depth_mm"]), []).append(float(row["ssim"]))
+    for depth in ("300", "800"):
+        mean = {m: sum(ssim[(m, depth)]) / len(ssim[(m, depth)]) for m in ("doe", "doe+net")}
+        assert mean["doe+net"] > mean["doe"] + 0.05, (depth, mean)

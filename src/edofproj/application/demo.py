@@ -22,6 +22,7 @@ into a smoke run of about two minutes; its numbers are not meant to be judged.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,17 +30,18 @@ from typing import Sequence
 
 import torch
 
-from ..config import load_config
+from ..config import apply_overrides, load_config
 from ..errors import EdofprojError
 from ..evaluation import timing
 from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
-from ..evaluation.pipeline import Evaluation, evaluate_run
+from ..evaluation.pipeline import EVALUATION_OVERRIDE_PREFIXES, Evaluation, evaluate_run, require_trained_run
 from ..evaluation.progress import StageProgress, format_duration
 from ..evaluation.report import Figure, Heading, Paragraph, Table
 from ..evaluation.scenes import evaluate_scenes, scene_summary_table
 from ..evaluation.summary import format_text_table, range_table
 from ..evaluation.writeup import claims_section, write_documents
+from ..runs import load_run, saved_config, write_run_config
 from .schedule import ParallelTrainer, TrainingJob
 
 OURS_RUN_DIR = "doe_net"
@@ -120,11 +122,16 @@ def cubic_evaluation_depths(cfg) -> int:
 
 
 def demo_jobs(
-    out: Path, settings: DemoSettings, cfg, methods: Sequence[str] | None, user_overrides: Sequence[str]
+    out: Path,
+    settings: DemoSettings,
+    cfg,
+    methods: Sequence[str] | None,
+    user_overrides: Sequence[str],
+    train_ours: bool = True,
 ) -> list[TrainingJob]:
-    """The training runs of a demo: ours and lens+net required, the others optional (or required
-    when named in ``methods``). The cubic plate's cost includes its PSF table and the 2-D PSFs
-    its evaluation will need."""
+    """The training runs of a demo: ours (unless ``train_ours`` is false: a pretrained run stands for
+    it) and lens+net required, the others optional (or required when named in ``methods``). The
+    cubic plate's cost includes its PSF table and the 2-D PSFs its evaluation will need."""
     steps = cfg.train.steps
     common = list(settings.overrides) + list(user_overrides)
     wanted = set(methods) if methods else None
@@ -136,7 +143,8 @@ def demo_jobs(
             TrainingJob(method, out / run_dir, common + list(extra), steps, required, cost, setup + setup_extra)
         )
 
-    add(OURS, OURS_RUN_DIR, [], True)
+    if train_ours:
+        add(OURS, OURS_RUN_DIR, [], True)
     baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
     for method in baseline_methods:
         spec = method_spec(method)
@@ -154,8 +162,19 @@ def demo_jobs(
     return jobs
 
 
-def jobs_table(jobs: Sequence[TrainingJob]) -> Table:
+def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" = None) -> Table:
     rows = []
+    if pretrained is not None:
+        rows.append(
+            [
+                OURS,
+                OURS_RUN_DIR,
+                f"{pretrained.steps}/{pretrained.steps}",
+                "-",
+                "pretrained",
+                f"copied from {pretrained.source}",
+            ]
+        )
     for job in jobs:
         done = job.steps_done()
         seconds = job.training_seconds()
@@ -214,6 +233,26 @@ def timing_section(results, threads: int) -> list:
     ]
 
 
+@dataclass(frozen=True)
+class PretrainedOurs:
+    """A trained run that stands for ``doe+net`` in a demo: where it came from and its steps."""
+
+    source: str
+    steps: int
+
+
+def copy_pretrained(source: str | Path, run_dir: Path, overrides: Sequence[str]) -> PretrainedOurs:
+    """Copy the trained run ``source`` (a directory or ``builtin:NAME``) to ``run_dir``, applying the
+    evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``) to its
+    configuration; the rest of the configuration is what the run was trained with."""
+    source_dir = require_trained_run(source)
+    shutil.copytree(source_dir, run_dir, ignore=shutil.ignore_patterns(".*"))
+    evaluation_keys = [o for o in overrides if o.split("=", 1)[0].strip().startswith(EVALUATION_OVERRIDE_PREFIXES)]
+    if evaluation_keys:
+        write_run_config(run_dir, apply_overrides(saved_config(run_dir), evaluation_keys))
+    return PretrainedOurs(str(source), int(load_run(run_dir).step))
+
+
 def _check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise EdofprojError(f"--out '{out}' exists and is not a directory")
@@ -241,8 +280,12 @@ def run_demo(
     budget_s: float | None = None,
     timing: bool = True,
     progress: StageProgress | None = None,
+    pretrained: str | Path | None = None,
 ) -> DemoResult:
-    """Run the demo into ``out`` (module docstring); returns what it measured and wrote."""
+    """Run the demo into ``out`` (module docstring); returns what it measured and wrote.
+
+    ``pretrained``: a trained run (directory or ``builtin:NAME``) copied to ``doe_net/`` instead of
+    training ``doe+net``; the baselines are trained as usual."""
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
     budget = float(budget_s) if budget_s is not None else settings.budget_s
@@ -257,10 +300,15 @@ def run_demo(
         raise EdofprojError("the demo uses built-in data; data.source=folder needs data.folder")
     progress = progress or StageProgress("demo", enabled=False)
 
-    jobs = demo_jobs(out, settings, cfg, methods, overrides)
+    if pretrained is not None:
+        require_trained_run(pretrained)  # fails before anything is written
+    jobs = demo_jobs(out, settings, cfg, methods, overrides, train_ours=pretrained is None)
     later = settings.evaluation_estimate_s + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
     deadline = clock + budget - later - REPORT_MARGIN_S
     out.mkdir(parents=True, exist_ok=True)
+    ours = None
+    if pretrained is not None:
+        ours = copy_pretrained(pretrained, out / OURS_RUN_DIR, list(settings.overrides) + list(overrides))
     progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
     trainer = ParallelTrainer(jobs, config, out / LOG_DIR, workers, deadline, progress, later_s=later)
     trainer.run()
@@ -293,12 +341,18 @@ def run_demo(
     preface = [
         Heading("Demo"),
         Paragraph(
-            f"`edofproj demo{' --quick' if quick else ''}`: preset '{config}', {cfg.train.steps} training "
-            f"steps per run, built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
+            f"`edofproj demo{' --quick' if quick else ''}{' --pretrained' if ours else ''}`: preset '{config}', "
+            + (
+                f"{OURS} the trained run {ours.source} ({ours.steps} steps, trained beforehand), the other runs "
+                f"{cfg.train.steps} training steps each"
+                if ours
+                else f"{cfg.train.steps} training steps per run"
+            )
+            + f", built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
             f"up to the report, budget {format_duration(budget)}."
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
         ),
-        jobs_table(jobs),
+        jobs_table(jobs, ours),
     ] + claims_section(claims)
     paths = write_documents(
         evaluation,

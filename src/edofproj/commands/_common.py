@@ -6,6 +6,7 @@ import argparse
 
 import numpy as np
 
+from ..builtin_runs import resolve_run_dir
 from ..config import Config, load_config
 from ..errors import EdofprojError
 
@@ -21,6 +22,18 @@ def add_set_option(
 ) -> None:
     """The repeatable ``--set section.key=value`` (into ``args.overrides``)."""
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=help)
+
+
+def run_directory(text: str) -> str:
+    """``type=`` of a RUN argument: a run directory, or a built-in run ``builtin:NAME`` (its
+    packaged directory; :mod:`edofproj.builtin_runs`)."""
+    try:
+        return str(resolve_run_dir(text))
+    except EdofprojError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+RUN_HELP_SUFFIX = " or a built-in run (builtin:cpu-doe-net)"
 
 
 def config_from_args(args: argparse.Namespace, extra_overrides=()) -> Config:

@@ -23,7 +23,7 @@ from ..compensation.registry import network_from_widths
 from ..errors import EdofprojError
 from ..evaluation.timing import disk_psf
 from ..fileio import write_text_atomic
-from ._common import parse_name_list
+from ._common import RUN_HELP_SUFFIX, parse_name_list, run_directory
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
 DEFAULT_SIZES = "256x256,600x800,768x1024"
@@ -44,7 +44,12 @@ def register(subparsers) -> None:
     p.add_argument("--sizes", default=DEFAULT_SIZES, help=f"frame sizes HxW, comma-separated (default {DEFAULT_SIZES})")
     p.add_argument("--repeats", type=int, default=10, help="timed frames per case and size (median reported)")
     p.add_argument("--warmup", type=int, default=2, help="untimed frames before timing")
-    p.add_argument("--run", default=None, help="time the trained network of this run directory")
+    p.add_argument(
+        "--run",
+        default=None,
+        type=run_directory,
+        help="time the trained network of this run directory" + RUN_HELP_SUFFIX,
+    )
     p.add_argument(
         "--widths",
         default=None,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 from ..errors import EdofprojError
+from ._common import RUN_HELP_SUFFIX, run_directory
 
 
 def register(subparsers) -> None:
@@ -30,7 +31,7 @@ def register(subparsers) -> None:
         help="compute the projector image for a target with a trained network",
         description=__doc__.split("\n")[0],
     )
-    p.add_argument("run", metavar="RUN", help="trained run directory")
+    p.add_argument("run", metavar="RUN", type=run_directory, help="trained run directory" + RUN_HELP_SUFFIX)
     p.add_argument("--image", required=True, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument(

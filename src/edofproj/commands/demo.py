@@ -6,7 +6,9 @@ Trains the ``cpu`` preset jointly (DOE + U-Net, ``doe_net/``) and the same U-Net
 (``lens_net/``), plus the axicon, cubic-plate and OnlineProDeb baselines when they fit the
 budget (15 minutes; ``--quick``: a 2-minute smoke run), evaluates every method on the held-out
 photographs and writes ``report.html`` (self-contained), ``report.md`` with ``figures/``,
-``summary.md`` and ``metrics.csv`` into ``--out``. See :mod:`edofproj.application.demo`.
+``summary.md`` and ``metrics.csv`` into ``--out``. ``--pretrained`` starts from the reference model
+shipped with the package (``builtin:cpu-doe-net``) instead of training ``doe+net``. See
+:mod:`edofproj.application.demo`.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 import argparse
 
 from ._common import add_set_option, parse_name_list
+
+DEFAULT_PRETRAINED = "builtin:cpu-doe-net"
 
 
 def _positive_float(text: str) -> float:
@@ -60,6 +64,15 @@ def register(subparsers) -> None:
         default=2,
         help="training processes in parallel, one thread each (default 2)",
     )
+    p.add_argument(
+        "--pretrained",
+        nargs="?",
+        const=DEFAULT_PRETRAINED,
+        default=None,
+        metavar="RUN",
+        help=f"start from a trained doe+net run instead of training it (default {DEFAULT_PRETRAINED}, the "
+        "reference model shipped with the package); the baselines are trained as usual",
+    )
     p.add_argument("--no-timing", action="store_true", help="skip the per-frame timing stage")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
@@ -80,6 +93,7 @@ def run(args) -> int:
         budget_s=args.budget_min * 60 if args.budget_min else None,
         timing=not args.no_timing,
         progress=StageProgress("demo", enabled=not args.quiet),
+        pretrained=args.pretrained,
     )
     print(demo_finished_message(result))
     return 0

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import add_set_option, parse_name_list, parse_number_list
+from ._common import RUN_HELP_SUFFIX, add_set_option, parse_name_list, parse_number_list, run_directory
 
 
 def register(subparsers) -> None:
@@ -29,7 +29,12 @@ def register(subparsers) -> None:
         help="score a trained run and its baselines across depth (metrics, report)",
         description=__doc__.split("\n")[0],
     )
-    p.add_argument("run", metavar="RUN", help="trained run directory (config.yaml, checkpoints/last.pt)")
+    p.add_argument(
+        "run",
+        metavar="RUN",
+        type=run_directory,
+        help="trained run directory (config.yaml, checkpoints/last.pt)" + RUN_HELP_SUFFIX,
+    )
     p.add_argument(
         "--images",
         default=None,
@@ -115,6 +120,7 @@ def run_scenes(args) -> int:
 def run(args) -> int:
     if args.scenes:
         return run_scenes(args)
+    from ..builtin_runs import require_output_outside
     from ..evaluation.methods import method_spec
     from ..evaluation.pipeline import require_trained_run
     from ..evaluation.progress import StageProgress
@@ -128,6 +134,8 @@ def run(args) -> int:
     device = choose_device(args.device, option="--device")
     progress = StageProgress("evaluate", enabled=not args.quiet)
     require_trained_run(args.run)
+    if not args.out:
+        require_output_outside(args.run, "--out")
     # one writer per output directory: a run being trained, or evaluated by another process, is refused
     with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
         return _evaluate_locked(args, methods, depths, device, progress)

@@ -18,13 +18,14 @@ from ..compensation.export import (
     verification_sizes,
 )
 from ..errors import EdofprojError
+from ._common import RUN_HELP_SUFFIX, run_directory
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export", help="export a run's compensation network to ONNX or TorchScript", description=__doc__.split("\n")[0]
     )
-    p.add_argument("run", metavar="RUN", help="a training run directory (runs/<name>)")
+    p.add_argument("run", metavar="RUN", type=run_directory, help="a training run directory" + RUN_HELP_SUFFIX)
     p.add_argument("--format", choices=EXPORT_FORMATS, default="onnx", help="output format (default: onnx)")
     p.add_argument("--out", default=None, help="output file (default: RUN/net.onnx or RUN/net.torchscript.pt)")
     p.add_argument("--height", type=int, default=256, help="example frame height for tracing (default 256)")
@@ -34,6 +35,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from ..builtin_runs import require_output_outside
     from ..runs import last_checkpoint_path, load_run
 
     run_dir = Path(args.run)
@@ -43,6 +45,8 @@ def run(args) -> int:
         raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(run_dir)}): train it first")
     if args.format == "onnx":
         require_onnx()
+    if not args.out:
+        require_output_outside(run_dir, "--out")
     out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
     trained = load_run(run_dir)
     worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from ._common import RUN_HELP_SUFFIX, run_directory
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "finetune", help="fine-tune the network on measured PSFs (paper Sec. 5.3)", description=__doc__.split("\n")[0]
     )
-    p.add_argument("run", help="a trained run directory")
+    p.add_argument("run", type=run_directory, help="a trained run directory" + RUN_HELP_SUFFIX)
     p.add_argument(
         "--psfs",
         nargs="+",
@@ -24,7 +26,9 @@ def register(subparsers) -> None:
         "each training sample draws a patch (field point)",
     )
     p.add_argument("--steps", type=int, default=20, help="fine-tuning iterations (paper: 20)")
-    p.add_argument("--out", default=None, help="new run directory (default: RUN-finetuned)")
+    p.add_argument(
+        "--out", default=None, help="new run directory (default: RUN-finetuned; runs/NAME-finetuned for builtin:NAME)"
+    )
     p.add_argument("--lr", type=float, default=None, help="learning rate (default: where the run's schedule ended)")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--seed", type=int, default=None)
@@ -34,12 +38,15 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
+    from ..builtin_runs import is_builtin_run_dir
     from ..errors import EdofprojError
     from ..training.finetune import finetune
 
     if (args.psfs is None) == (args.patch_psfs is None):
         raise EdofprojError("give --psfs or --patch-psfs (one of them)")
-    out = args.out or str(Path(args.run.rstrip("/")).with_name(Path(args.run.rstrip("/")).name + "-finetuned"))
+    run_path = Path(args.run.rstrip("/"))
+    default_parent = Path("runs") if is_builtin_run_dir(run_path) else run_path.parent
+    out = args.out or str(default_parent / (run_path.name + "-finetuned"))
     result = finetune(
         args.run,
         args.psfs or args.patch_psfs,

@@ -12,6 +12,7 @@ headless through the virtual ProCams of a 'procams simulate' folder.
 from __future__ import annotations
 
 from ..errors import EdofprojError
+from ._common import RUN_HELP_SUFFIX, run_directory
 
 
 def register(subparsers) -> None:
@@ -20,7 +21,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "live", help="live compensation: show, capture, rectify, compensate, show", description=__doc__.split("\n")[0]
     )
-    p.add_argument("run", metavar="RUN", help="trained (or fine-tuned) run directory")
+    p.add_argument(
+        "run", metavar="RUN", type=run_directory, help="trained (or fine-tuned) run directory" + RUN_HELP_SUFFIX
+    )
     p.add_argument("--calib", required=True, help="calibration .npz (from 'procams calibrate')")
     add_device_options(p)
     source = p.add_mutually_exclusive_group(required=True)

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from ._common import add_config_options, parse_number_list
+from ._common import RUN_HELP_SUFFIX, add_config_options, parse_number_list, run_directory
 
 
 def register(subparsers) -> None:
@@ -19,7 +19,12 @@ def register(subparsers) -> None:
         "tolerance.md, tolerance.json and tolerance.png into the run directory (or beside the design "
         "file, or --out). Defaults come from the fabrication config section.",
     )
-    parser.add_argument("source", metavar="RUN|DESIGN_FILE", help="run directory with doe.npz, or a DOE .npz file")
+    parser.add_argument(
+        "source",
+        metavar="RUN|DESIGN_FILE",
+        type=run_directory,
+        help="run directory with doe.npz" + RUN_HELP_SUFFIX + ", or a DOE .npz file",
+    )
     parser.add_argument("--trials", type=int, default=None, help="Monte Carlo trials (default 20)")
     parser.add_argument(
         "--etch-error-pct",
@@ -68,12 +73,15 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..builtin_runs import require_output_outside
     from ..fabrication.inputs import DesignInput
     from ..fabrication.profile import RadialProfile
     from ..fabrication.tolerance import ToleranceSettings, run_tolerance
     from ..fabrication.tolerance_report import write_outputs
 
     design = DesignInput.resolve(args.source)
+    if not args.out:
+        require_output_outside(design.doe_file.parent, "--out")
     cfg = design.config(args.config, args.overrides)
     fab = cfg.fabrication
 

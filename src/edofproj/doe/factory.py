@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from ..builtin_runs import resolve_run_dir
 from ..errors import EdofprojError
 from .base import DOE
 from .design_rules import apply_design_rules
@@ -21,8 +22,9 @@ RUN_DOE_FILE = "doe.npz"
 
 
 def resolve_doe_file(spec: str) -> Path:
-    """The DOE file named by ``spec``: a ``.npz`` file or a run directory containing ``doe.npz``."""
-    path = Path(spec)
+    """The DOE file named by ``spec``: a ``.npz`` file or a run directory containing ``doe.npz``
+    (a path, or a built-in run ``builtin:NAME``)."""
+    path = resolve_run_dir(spec)
     if path.is_dir():
         candidate = path / RUN_DOE_FILE
         if not candidate.is_file():

@@ -27,6 +27,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ..builtin_runs import require_output_outside, resolve_run_dir
 from ..compensation.registry import describe_network
 from ..config import Config, apply_overrides, to_dict
 from ..data import evaluation_images
@@ -104,8 +105,9 @@ class Evaluation:
 
 
 def require_trained_run(run_dir: str | Path) -> Path:
-    """The run directory, or a one-line error when it is missing or has no checkpoint."""
-    path = Path(run_dir)
+    """The run directory (a path or ``builtin:NAME``), or a one-line error when it is missing or has
+    no checkpoint."""
+    path = resolve_run_dir(run_dir)
     if not path.is_dir():
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
     if not (path / CONFIG_NAME).is_file():
@@ -314,6 +316,8 @@ def evaluate_run(
         depths_mm = [float(z) for z in depths_mm]
         if not depths_mm or any(not (math.isfinite(z) and z > 0) for z in depths_mm):
             raise EdofprojError(f"--depths-mm needs positive depths, got {depths_mm}")
+    if out_dir is None:
+        require_output_outside(run_path, "an output directory (--out)")
     out = Path(out_dir) if out_dir is not None else run_path
     progress = progress or StageProgress("evaluate", enabled=False)
 

@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ..builtin_runs import require_output_outside
 from ..config import apply_overrides
 from ..data import evaluation_images
 from ..errors import EdofprojError
@@ -109,6 +110,8 @@ def evaluate_scenes(
     clock = time.perf_counter()
     specs = select_methods(methods)
     run_path = require_trained_run(run_dir)
+    if out_dir is None:
+        require_output_outside(run_path, "an output directory (--out)")
     out = Path(out_dir) if out_dir is not None else run_path
     progress = progress or StageProgress("evaluate", enabled=False)
     run = load_run(run_path)

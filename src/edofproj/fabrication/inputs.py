@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..builtin_runs import resolve_run_dir
 from ..config import Config, load_config
 from ..doe.factory import resolve_doe_file
 
@@ -25,7 +26,8 @@ class DesignInput:
     @classmethod
     def resolve(cls, spec: str) -> "DesignInput":
         doe_file = resolve_doe_file(spec)
-        run_dir = Path(spec) if Path(spec).is_dir() else None
+        path = resolve_run_dir(spec)
+        run_dir = path if path.is_dir() else None
         return cls(doe_file, run_dir)
 
     def config(self, config_arg: str | None = None, overrides=()) -> Config:

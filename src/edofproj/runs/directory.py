@@ -8,6 +8,7 @@ from pathlib import Path
 
 from torch import nn
 
+from ..builtin_runs import resolve_run_dir
 from ..compensation.registry import build_network
 from ..config import Config, dump_config, load_config, to_dict
 from ..doe import DOE, build_run_doe, load_doe
@@ -33,7 +34,7 @@ RESUMABLE_KEYS = (
 
 
 def last_checkpoint_path(run_dir: str | Path) -> Path:
-    return Path(run_dir) / CHECKPOINT_DIR / LAST_NAME
+    return resolve_run_dir(run_dir) / CHECKPOINT_DIR / LAST_NAME
 
 
 # ----------------------------------------------------------------------------- starting / resuming
@@ -51,7 +52,7 @@ def check_new_run_dir(run_dir: str | Path, hint: str = "use --resume to continue
 
 def saved_config(run_dir: str | Path, overrides=()) -> Config:
     """The ``config.yaml`` of a run (plus ``section.key=value`` overrides)."""
-    path = Path(run_dir) / CONFIG_NAME
+    path = resolve_run_dir(run_dir) / CONFIG_NAME
     if not path.is_file():
         raise EdofprojError(f"'{run_dir}' is not a training run (no {CONFIG_NAME})")
     return load_config(str(path), overrides)
@@ -100,13 +101,14 @@ class TrainedRun:
 
 
 def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
-    """Load ``config.yaml``, the DOE and the network of the newest checkpoint of a run.
+    """Load ``config.yaml``, the DOE and the network of the newest checkpoint of a run
+    (a directory, or a built-in run ``builtin:NAME``: :mod:`edofproj.builtin_runs`).
 
     The DOE is the fabricated design in ``doe.npz`` when present (what a mask would make);
     otherwise (a lens-only run, or a run without a finished checkpoint of its DOE) it is
     rebuilt from the configuration and the checkpoint.
     """
-    run_dir = Path(run_dir)
+    run_dir = resolve_run_dir(run_dir)
     if not run_dir.is_dir():
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
     cfg = saved_config(run_dir)

@@ -1,0 +1,84 @@
+"""Built-in runs: ``builtin:NAME`` wherever a run directory is, packaged without optimizer state,
+never written into."""
+
+import pytest
+import torch
+
+import edofproj.builtin_runs as builtin_runs
+from edofproj.builtin_runs import builtin_names, package_run, resolve_run_dir
+from edofproj.cli import main
+from edofproj.errors import EdofprojError
+from edofproj.runs import load_run
+from edofproj.training.trainer import train
+
+SHIPPED = "builtin:cpu-doe-net"
+
+
+def package_files() -> set:
+    return {p for p in builtin_runs.ROOT.rglob("*") if p.is_file()}
+
+
+def test_the_reference_model_ships_and_loads():
+    assert SHIPPED in builtin_names()
+    run = load_run(SHIPPED)
+    assert run.run_dir == builtin_runs.ROOT / "cpu-doe-net"
+    assert run.cfg.name == "cpu" and run.cfg.doe.kind == "mlp"
+    assert run.step >= run.cfg.train.steps > 0  # the finished run, not an intermediate checkpoint
+    checkpoint = torch.load(run.run_dir / "checkpoints" / "last.pt", weights_only=True)
+    assert set(checkpoint) <= set(builtin_runs.KEPT_CHECKPOINT_KEYS) and "optimizer" not in checkpoint
+    size_mb = sum(p.stat().st_size for p in run.run_dir.rglob("*") if p.is_file()) / 2**20
+    assert size_mb < 5
+
+
+def test_unknown_builtin_names_fail_with_the_list():
+    with pytest.raises(EdofprojError, match="builtin:cpu-doe-net"):
+        resolve_run_dir("builtin:no-such-run")
+    assert str(resolve_run_dir("runs/x")) == "runs/x"  # a path stays a path
+
+
+def test_packaging_a_run_keeps_what_loading_needs(tiny_config, tmp_path, monkeypatch):
+    run_dir = tmp_path / "run"
+    train(tiny_config("train.steps=3", "train.checkpoint_every=3"), run_dir, progress=False)
+    monkeypatch.setattr(builtin_runs, "ROOT", tmp_path / "package")
+    monkeypatch.setitem(builtin_runs.BUILTIN_RUNS, "tiny", "a test run")
+    packaged = package_run(run_dir, "tiny", log_every=2)
+
+    full = (run_dir / "checkpoints" / "last.pt").stat().st_size
+    slim = (packaged / "checkpoints" / "last.pt").stat().st_size
+    assert slim < full  # optimizer moments and random states dropped
+    rows = (packaged / "train_log.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows] == ["step", "2", "3"]  # every 2nd step and the last
+
+    original, shipped = load_run(run_dir), load_run("builtin:tiny")
+    assert shipped.step == original.step == 3
+    frame = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        assert torch.equal(original.net(frame, frame), shipped.net(frame, frame))
+    radius_m = torch.linspace(0, original.doe.aperture_radius_m, 257)
+    assert torch.equal(original.doe.height_m(radius_m), shipped.doe.height_m(radius_m))
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["evaluate", SHIPPED, "--methods", "doe"],
+        ["export", SHIPPED, "--format", "torchscript"],
+        ["tolerance", SHIPPED, "--trials", "1"],
+    ],
+)
+def test_commands_never_write_into_a_builtin_run(command, capsys):
+    before = package_files()
+    assert main(command) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "built-in run" in err and "--out" in err
+    assert package_files() == before
+
+
+def test_a_builtin_run_is_named_wherever_a_run_is(tmp_path, capsys):
+    out = tmp_path / "net.pt"
+    assert main(["export", SHIPPED, "--format", "torchscript", "--out", str(out), "--no-verify"]) == 0
+    assert out.is_file() and "step" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:  # a parse error, as for any bad argument
+        main(["evaluate", "builtin:nope", "--out", str(tmp_path / "e")])
+    assert exit_info.value.code == 2
+    assert "the built-in runs are builtin:cpu-doe-net" in capsys.readouterr().err
