@@ -14,7 +14,7 @@ from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS
 from edofproj.evaluation.progress import StageProgress, format_duration
 from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.evaluation.summary import format_text_table, image_spread_table, range_table
+from edofproj.evaluation.summary import format_text_table, image_spread_table, range_table, run_spread_table
 
 
 def table_from(ssim_by_method: dict[str, dict[float, float]]) -> MetricsTable:
@@ -208,3 +208,57 @@ def test_image_spread_table_gives_the_spread_over_images_and_the_paired_differen
     assert rows["doe+net"][1] == f"0.7750 ± {0.15 / math.sqrt(2):.4f}" and rows["doe+net"][2] == "0.7000 (b)"
     # differences a: +0.05, b: -0.05 -> mean 0, sd 0.0707, better on 1 of 2
     assert rows["doe+wiener"][3] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"
+
+
+def _two_depth_table(values: dict) -> MetricsTable:
+    """``values[method] = (ssim at 300 mm, ssim at 800 mm)`` for one image, plus a depth outside the range."""
+    table = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    for method, (near, far) in values.items():
+        table.add(method=method, depth_mm=300.0, image="a", ssim=near)
+        table.add(method=method, depth_mm=800.0, image="a", ssim=far)
+        table.add(method=method, depth_mm=900.0, image="a", ssim=0.0)
+    return table
+
+
+def test_run_spread_table_gives_the_spread_over_runs_and_the_paired_difference():
+    runs = {
+        "seed0": _two_depth_table({"doe+net": (0.9, 0.8), "doe+wiener": (0.8, 0.8)}),
+        "seed1": _two_depth_table({"doe+net": (0.7, 0.7), "doe+wiener": (0.8, 0.7)}),
+    }
+    rows = {row[0]: row for row in run_spread_table(runs, (300, 800)).rows}
+    # doe+net: means 0.85 and 0.70 (sd 0.15/sqrt 2); worst depths 0.8 and 0.7 (sd 0.1/sqrt 2)
+    assert rows["doe+net"][1:5] == [
+        "blind",
+        "2",
+        f"0.7750 ± {0.15 / math.sqrt(2):.4f}",
+        f"0.7500 ± {0.1 / math.sqrt(2):.4f}",
+    ]
+    # doe+wiener: means 0.80 and 0.75; doe+net minus it: +0.05 and -0.05, better in 1 of 2 runs
+    assert rows["doe+wiener"][1] == "non-blind" and rows["doe+wiener"][3] == f"0.7750 ± {0.05 / math.sqrt(2):.4f}"
+    assert rows["doe+wiener"][5] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"
+    one = run_spread_table({"seed0": runs["seed0"]}, (300, 800)).rows
+    assert one[0][3] == "0.8500" and one[1][5] == "+0.0500 (1/1)"  # one run: no spread shown
+
+
+def test_summarize_prints_the_spread_of_evaluations_and_refuses_unlike_ones(tmp_path, capsys):
+    from edofproj.cli import main
+
+    for seed, near in (("s0", 0.9), ("s1", 0.7)):
+        (tmp_path / seed).mkdir()
+        _two_depth_table({"doe+net": (near, 0.8), "doe": (0.5, 0.5)}).write_csv(tmp_path / seed / "metrics.csv")
+    assert main(["summarize", str(tmp_path / "s0"), str(tmp_path / "s1")]) == 0
+    printed = capsys.readouterr().out
+    assert f"| doe+net | blind | 2 | 0.8000 ± {0.1 / math.sqrt(2):.4f} |" in printed  # means 0.85, 0.75
+
+    other = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    other.add(method="doe+net", depth_mm=300.0, image="b", ssim=0.5)
+    other.write_csv(tmp_path / "other.csv")
+    for args, message in (
+        ([str(tmp_path / "s0"), str(tmp_path / "other.csv")], "other images"),
+        ([str(tmp_path / "s0"), str(tmp_path / "missing")], "no metrics.csv"),
+        ([str(tmp_path / "s0"), "--range-mm", "800"], "NEAR:FAR"),
+        ([str(tmp_path / "s0"), "--metric", "lpips"], "no lpips column"),
+    ):
+        assert main(["summarize", *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, err

@@ -193,6 +193,11 @@ def _block_markdown(block: Block, base_dir: Path) -> list[str]:
     raise TypeError(f"unknown report block {block!r}")
 
 
+def markdown_table(table: Table) -> str:
+    """``table`` as Markdown (its caption in italics above it)."""
+    return "\n".join(_block_markdown(table, Path(".")))
+
+
 def _block_html(block: Block) -> str:
     if isinstance(block, Heading):
         level = min(max(2, block.level), 4)

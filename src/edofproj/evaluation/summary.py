@@ -5,13 +5,15 @@
 * :func:`depth_table` -- one metric, one row per method, one column per depth, plus the mean
   and worst over the range;
 * :func:`tilted_table` -- the tilted screen, mean over the images per method;
+* :func:`run_spread_table` -- several evaluations of the same methods (e.g. training seeds):
+  mean ± standard deviation over the runs;
 * :func:`format_text_table` -- any :class:`~edofproj.evaluation.report.Table` as aligned text.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -148,6 +150,57 @@ def image_spread_table(
         rows,
         f"{label} per image (mean over {lo:.0f}-{hi:.0f} mm), spread over the images: sample standard deviation",
     )
+
+
+def run_spread_table(
+    tables: Mapping[str, MetricsTable],
+    range_mm: tuple[float, float],
+    metric: str = "ssim",
+    reference: str = "doe+net",
+) -> Table:
+    """How much runs disagree (e.g. training seeds, each evaluated on the same images and depths).
+
+    For each run ``k`` and method, ``mean_k`` and ``worst_k`` are the mean and the worst over the
+    depths in ``range_mm`` of the per-depth mean over the images (:meth:`MetricsTable.range_stats`).
+    A row gives, over the runs that scored the method, ``mean ± sd`` of ``mean_k`` and of
+    ``worst_k`` (sample standard deviation), and the paired difference ``mean_k(reference) -
+    mean_k(method)`` as mean ± sd with the number of runs where ``reference`` is better."""
+    lo, hi = range_mm
+    methods = grouped_methods(list(dict.fromkeys(m for table in tables.values() for m in table.methods())))
+    stats = {(run, m): table.range_stats(m, metric, lo, hi) for run, table in tables.items() for m in table.methods()}
+    label = METRIC_LABELS.get(metric, metric)
+    rows = []
+    for method in methods:
+        runs = [run for run in tables if (run, method) in stats]
+        means = np.array([stats[(run, method)].mean for run in runs])
+        worsts = np.array([stats[(run, method)].worst for run in runs])
+        cells = [method, method_kind(method), str(len(runs))]
+        cells += [_mean_sd(means), _mean_sd(worsts)]
+        shared = [run for run in runs if (run, reference) in stats]
+        if method != reference and shared:
+            diff = np.array([stats[(run, reference)].mean - stats[(run, method)].mean for run in shared])
+            cells.append(f"{_mean_sd(diff, sign=True)} ({int((diff > 0).sum())}/{len(shared)})")
+        else:
+            cells.append("")
+        rows.append(cells)
+    return Table(
+        [
+            "method",
+            "knows",
+            "runs",
+            f"mean {label} ± sd over runs",
+            "worst depth ± sd over runs",
+            f"{reference} minus method (runs better)",
+        ],
+        rows,
+        f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
+    )
+
+
+def _mean_sd(values: np.ndarray, sign: bool = False) -> str:
+    """``mean ± sd`` (the mean alone for one value)."""
+    mean = f"{values.mean():+.4f}" if sign else f"{values.mean():.4f}"
+    return f"{mean} ± {_std(values):.4f}" if values.size > 1 else mean
 
 
 def _std(values: np.ndarray) -> float:

@@ -1,0 +1,64 @@
+"""``edofproj summarize``: mean ± spread over several evaluations of the same methods.
+
+    edofproj summarize runs/seed0/eval runs/seed1/eval runs/seed2/eval [--range-mm 300:800] [--metric ssim]
+
+Each argument is an output directory of ``edofproj evaluate`` (or its ``metrics.csv``), e.g. one
+per training seed, scored on the same images and depths. Prints, as Markdown, each method's mean
+and worst-depth score over ``--range-mm`` as mean ± standard deviation over the evaluations, and
+the paired difference to ``--reference`` (:func:`edofproj.evaluation.summary.run_spread_table`).
+"""
+
+from __future__ import annotations
+
+from ._common import parse_number_list
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "summarize",
+        help="mean ± spread over several evaluations (e.g. training seeds) of the same methods",
+        description=__doc__.split("\n")[0],
+    )
+    p.add_argument("evaluations", nargs="+", metavar="EVAL", help="evaluate output directories or metrics.csv files")
+    p.add_argument("--range-mm", default="300:800", help="depth range scored, NEAR:FAR in mm (default 300:800)")
+    p.add_argument("--metric", default="ssim", help="metric column of metrics.csv (default ssim)")
+    p.add_argument("--reference", default="doe+net", help="method the others are compared with (default doe+net)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..errors import EdofprojError
+    from ..evaluation.report import markdown_table
+    from ..evaluation.results import MetricsTable
+    from ..evaluation.summary import run_spread_table
+
+    parts = str(args.range_mm).split(":")
+    if len(parts) != 2:
+        raise EdofprojError(f"--range-mm '{args.range_mm}' must be NEAR:FAR in mm, e.g. 300:800")
+    near, far = parse_number_list(parts[0], "--range-mm")[0], parse_number_list(parts[1], "--range-mm")[0]
+    if not 0 < near <= far:
+        raise EdofprojError(f"--range-mm '{args.range_mm}' needs 0 < NEAR <= FAR")
+    tables: dict = {}
+    first_images: list = []
+    for item in args.evaluations:
+        path = Path(item)
+        csv_path = path / "metrics.csv" if path.is_dir() else path
+        if not csv_path.is_file():
+            raise EdofprojError(f"'{item}' has no metrics.csv (an output directory of edofproj evaluate)")
+        if str(csv_path) in tables:
+            raise EdofprojError(f"'{item}' is given twice")
+        table = MetricsTable.read_csv(csv_path, ("method", "depth_mm", "image"))
+        if args.metric not in table.metrics:
+            raise EdofprojError(f"'{csv_path}' has no {args.metric} column (it has {', '.join(table.metrics)})")
+        depths = [z for z in table.depths_mm() if near <= z <= far]
+        if not depths:
+            raise EdofprojError(f"'{csv_path}' has no depth within {near:g}-{far:g} mm")
+        images = sorted({row["image"] for row in table.rows})
+        if tables and images != first_images:
+            raise EdofprojError(f"'{csv_path}' scores other images than '{next(iter(tables))}': compare like with like")
+        first_images = images
+        tables[str(csv_path)] = table
+    print(markdown_table(run_spread_table(tables, (near, far), args.metric, args.reference)))
+    return 0
