@@ -236,6 +236,7 @@ def test_run_spread_table_gives_the_spread_over_runs_and_the_paired_difference()
     # doe+wiener: means 0.80 and 0.75; doe+net minus it: +0.05 and -0.05, better in 1 of 2 runs
     assert rows["doe+wiener"][1] == "non-blind" and rows["doe+wiener"][3] == f"0.7750 ± {0.05 / math.sqrt(2):.4f}"
     assert rows["doe+wiener"][5] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"
+    assert rows["doe+wiener"][6] == "+0.0000 ± 0.0000 (0/2)"  # worst depths 0.8 and 0.7 for both
     one = run_spread_table({"seed0": runs["seed0"]}, (300, 800)).rows
     assert one[0][3] == "0.8500" and one[1][5] == "+0.0500 (1/1)"  # one run: no spread shown
 

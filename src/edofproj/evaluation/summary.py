@@ -163,8 +163,9 @@ def run_spread_table(
     For each run ``k`` and method, ``mean_k`` and ``worst_k`` are the mean and the worst over the
     depths in ``range_mm`` of the per-depth mean over the images (:meth:`MetricsTable.range_stats`).
     A row gives, over the runs that scored the method, ``mean ± sd`` of ``mean_k`` and of
-    ``worst_k`` (sample standard deviation), and the paired difference ``mean_k(reference) -
-    mean_k(method)`` as mean ± sd with the number of runs where ``reference`` is better."""
+    ``worst_k`` (sample standard deviation), and the paired differences ``mean_k(reference) -
+    mean_k(method)`` and ``worst_k(reference) - worst_k(method)`` as mean ± sd with the number of
+    runs where ``reference`` is better."""
     lo, hi = range_mm
     methods = grouped_methods(list(dict.fromkeys(m for table in tables.values() for m in table.methods())))
     stats = {(run, m): table.range_stats(m, metric, lo, hi) for run, table in tables.items() for m in table.methods()}
@@ -177,11 +178,14 @@ def run_spread_table(
         cells = [method, method_kind(method), str(len(runs))]
         cells += [_mean_sd(means), _mean_sd(worsts)]
         shared = [run for run in runs if (run, reference) in stats]
-        if method != reference and shared:
-            diff = np.array([stats[(run, reference)].mean - stats[(run, method)].mean for run in shared])
-            cells.append(f"{_mean_sd(diff, sign=True)} ({int((diff > 0).sum())}/{len(shared)})")
-        else:
-            cells.append("")
+        for column in ("mean", "worst"):
+            if method != reference and shared:
+                diff = np.array(
+                    [getattr(stats[(run, reference)], column) - getattr(stats[(run, method)], column) for run in shared]
+                )
+                cells.append(f"{_mean_sd(diff, sign=True)} ({int((diff > 0).sum())}/{len(shared)})")
+            else:
+                cells.append("")
         rows.append(cells)
     return Table(
         [
@@ -190,7 +194,8 @@ def run_spread_table(
             "runs",
             f"mean {label} ± sd over runs",
             "worst depth ± sd over runs",
-            f"{reference} minus method (runs better)",
+            f"{reference} minus method: mean (runs better)",
+            f"{reference} minus method: worst depth (runs better)",
         ],
         rows,
         f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
