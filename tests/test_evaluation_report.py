@@ -237,6 +237,13 @@ def test_run_spread_table_gives_the_spread_over_runs_and_the_paired_difference()
     assert rows["doe+wiener"][1] == "non-blind" and rows["doe+wiener"][3] == f"0.7750 ± {0.05 / math.sqrt(2):.4f}"
     assert rows["doe+wiener"][5] == f"+0.0000 ± {0.1 / math.sqrt(2):.4f} (1/2)"
     assert rows["doe+wiener"][6] == "+0.0000 ± 0.0000 (0/2)"  # worst depths 0.8 and 0.7 for both
+    # LPIPS: lower is better, so doe+net's lower values count as better runs
+    lpips_table = MetricsTable(("method", "depth_mm", "image"), ("lpips",))
+    for method, value in (("doe+net", 0.2), ("doe", 0.5)):
+        for depth in (300.0, 800.0):
+            lpips_table.add(method=method, depth_mm=depth, image="a", lpips=value)
+    lpips_rows = {row[0]: row for row in run_spread_table({"seed0": lpips_table}, (300, 800), metric="lpips").rows}
+    assert lpips_rows["doe"][5:] == ["-0.3000 (1/1)", "-0.3000 (1/1)"]
     one = run_spread_table({"seed0": runs["seed0"]}, (300, 800)).rows
     assert one[0][3] == "0.8500" and one[1][5] == "+0.0500 (1/1)"  # one run: no spread shown
 

@@ -141,7 +141,7 @@ def image_spread_table(
         shared = [i for i in values if i in ref]
         if method != reference and shared:
             diff = np.array([ref[i] - values[i] for i in shared])
-            cells.append(f"{diff.mean():+.4f} ± {_std(diff):.4f} ({int((diff > 0).sum())}/{len(shared)})")
+            cells.append(f"{diff.mean():+.4f} ± {_std(diff):.4f} ({_count_better(metric, diff)}/{len(shared)})")
         else:
             cells.append("")
         rows.append(cells)
@@ -183,7 +183,7 @@ def run_spread_table(
                 diff = np.array(
                     [getattr(stats[(run, reference)], column) - getattr(stats[(run, method)], column) for run in shared]
                 )
-                cells.append(f"{_mean_sd(diff, sign=True)} ({int((diff > 0).sum())}/{len(shared)})")
+                cells.append(f"{_mean_sd(diff, sign=True)} ({_count_better(metric, diff)}/{len(shared)})")
             else:
                 cells.append("")
         rows.append(cells)
@@ -200,6 +200,12 @@ def run_spread_table(
         rows,
         f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
     )
+
+
+def _count_better(metric: str, reference_minus_method: np.ndarray) -> int:
+    """How many of the differences ``reference - method`` favour the reference (positive where a
+    higher value is better, negative for LPIPS/DISTS)."""
+    return int(sum(better(metric, float(d), 0.0) for d in reference_minus_method))
 
 
 def _mean_sd(values: np.ndarray, sign: bool = False) -> str:
