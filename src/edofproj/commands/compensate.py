@@ -3,6 +3,7 @@
     edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
     edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
     edofproj compensate RUN --image TARGET --capture RAW --calib calib.npz --out PROJ.png
+    edofproj compensate RUN (--images DIR | --video FILE) --depth-mm Z --out (FOLDER | VIDEO.avi|.mp4) [--calib calib.npz]
 
 The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
 projection ``I*``: either a camera capture already warped into projector space (``--capture``,
@@ -15,11 +16,20 @@ With ``--calib`` (from ``edofproj procams calibrate``) the capture is a *raw* ca
 rectified into projector output light per projector pixel, and the output is the projector
 *input* ``u = f^-1(x)`` that emits the light ``x`` (the inverse of the measured response).
 The target is then projector output light (full primary = 1); see docs/procams.md.
+
+With ``--images DIR`` or ``--video FILE`` a whole show is compensated offline for a screen at
+``--depth-mm``, in batches of ``--batch`` frames, on the network path of ``edofproj live``
+(:mod:`edofproj.application.offline`): the output is a folder of PNG images or a video (by the
+extension of ``--out``: .avi, .mp4), with ``--calib`` the projector input at the projector's size.
+A progress bar runs while it works; frames per second are printed at the end. A video that
+cannot be decoded to its end or an output that cannot be written completely ends in one line,
+and no partial output is left.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from ..errors import EdofprojError
 from ._common import RUN_HELP_SUFFIX, run_directory
@@ -32,7 +42,10 @@ def register(subparsers) -> None:
         description=__doc__.split("\n")[0],
     )
     p.add_argument("run", metavar="RUN", type=run_directory, help="trained run directory" + RUN_HELP_SUFFIX)
-    p.add_argument("--image", required=True, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
+    targets = p.add_mutually_exclusive_group(required=True)
+    targets.add_argument("--image", default=None, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
+    targets.add_argument("--images", default=None, metavar="DIR", help="a folder of target images (with --depth-mm)")
+    targets.add_argument("--video", default=None, metavar="FILE", help="a target video (with --depth-mm)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument(
         "--capture",
@@ -52,7 +65,12 @@ def register(subparsers) -> None:
         metavar="calib.npz",
         help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response",
     )
-    p.add_argument("--out", required=True, metavar="PROJ", help="output image: the projector input")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="PROJ",
+        help="output image: the projector input; with --images/--video a folder or a video (.avi, .mp4)",
+    )
     p.add_argument(
         "--preview",
         default=None,
@@ -60,10 +78,19 @@ def register(subparsers) -> None:
         help="with --depth-mm: also write the simulated projection of the output",
     )
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the outputs")
+    p.add_argument("--batch", type=int, default=8, help="with --images/--video: frames per batch (8)")
+    p.add_argument(
+        "--fps", type=float, default=None, help="frame rate of a video output (default: the input video's, or 30)"
+    )
+    p.add_argument("--overwrite", action="store_true", help="with --images/--video: replace an existing output")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.images is not None or args.video is not None:
+        return run_batch(args)
+    if args.batch != 8 or args.fps is not None or args.overwrite:
+        raise EdofprojError("--batch, --fps and --overwrite go with --images or --video")
     import torch
 
     from ..compensation.closed_loop import closed_loop, flat_screen
@@ -120,4 +147,68 @@ def run(args) -> int:
             raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
         write_image(args.preview, loop.projected[0], bits=args.bits)
         print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")
+    return 0
+
+
+def run_batch(args) -> int:
+    """``--images`` / ``--video``: the show compensated offline (module docstring)."""
+    import sys
+
+    from tqdm import tqdm
+
+    from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
+    from ..compensation.closed_loop import flat_screen
+    from ..evaluation.designs import OpticalDesign
+    from ..evaluation.pipeline import require_trained_run
+    from ..imaging.projection import projection_bytes
+    from ..limits import check_memory
+    from ..runs import load_run
+
+    if args.depth_mm is None:  # the parser's group asks for --capture or --depth-mm
+        raise EdofprojError("--images/--video need --depth-mm, the screen depth of the show (--capture is one frame)")
+    if not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
+        raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
+    if args.preview is not None:
+        raise EdofprojError("--preview goes with --image")
+    if args.batch < 1:
+        raise EdofprojError(f"--batch {args.batch} must be >= 1")
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise EdofprojError(f"--fps {args.fps:g} must be > 0")
+    video_out = is_video_path(args.out)
+    if video_out and args.bits != 8:
+        raise EdofprojError(f"videos hold 8-bit frames, not --bits {args.bits} (write a folder for 16 bits)")
+    if not video_out and Path(args.out).suffix:
+        raise EdofprojError(
+            f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"
+        )
+    calibration = None
+    if args.calib is not None:
+        from ..procams.calibration import ProCamsCalibration
+
+        calibration = ProCamsCalibration.load(args.calib)
+    source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
+    trained = load_run(require_trained_run(args.run))
+    H, W = source.size_hw
+    check_memory(
+        args.batch * projection_bytes(H, W, trained.cfg.psf.window),
+        f"compensating batches of {args.batch} frames of {W}x{H}",
+        "lower --batch",
+    )
+    psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
+    sink = (
+        VideoSink(args.out, args.fps or source.fps, source.size_hw, overwrite=args.overwrite)
+        if video_out
+        else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
+    )
+    to_input = calibration.inverse_table.apply if calibration is not None else None
+    print(f"compensating the {source.description}: {source.count or 'unknown number of'} frames of {W}x{H}")
+    with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
+        summary = compensate_frames(
+            trained.net, source, flat_screen(psf), sink, batch=args.batch, to_input=to_input, on_batch=bar.update
+        )
+    output = "projector input (measured response inverted)" if calibration is not None else "light"
+    print(
+        f"wrote {args.out}: {summary.frames} frames ({output}) in {summary.wall_s:.1f} s, {summary.fps:.2f} frames/s "
+        f"(network {summary.network_ms_per_frame():.1f} ms per frame in batches of {args.batch})"
+    )
     return 0
