@@ -10,6 +10,8 @@ own threads. The network is that of ``--run``, or an untrained network of ``--co
 ideally (:meth:`VirtualProCams.ideal_calibration`; the loop's cost does not depend on how the
 calibration was measured).
 
+0. **each stage alone**: the per-call computations the loop made before it had tables, and the
+   tables, one after the other in one thread (medians of wall time and thread CPU time).
 1. **instant camera**: an in-memory display and a camera that returns a ready frame (one
    virtual capture of the target, made before timing): what the loop costs around the network.
    Targets: >= 30 frames/s; the ``compensate`` stage (the network alone) within 20 % of the
@@ -17,8 +19,12 @@ calibration was measured).
 2. **virtual ProCams**: the camera simulates the optics and the sensor for every frame (on a real
    rig that is the camera's frame time). Target: frames/s >= 1 / (capture + 10 ms).
 
-Each prints a table: stage, median ms, 99th percentile ms; throughput; latency (target taken ->
-compensated frame on screen, median and 99th percentile).
+Each prints a table: stage, median ms, 99th percentile ms, and the median CPU time of the thread
+that ran the stage (what the stage costs, without the time its thread waited for a core: on a
+loaded machine wall times are far above it); throughput; latency (target taken -> compensated
+frame on screen, median and 99th percentile); and the throughput the three threads' CPU times
+allow with a core each. PyTorch and OpenCV run one thread each (``--threads``), so that each
+stage's work stays in the thread that times it.
 
     PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 60] [--virtual-frames 8]
 """
@@ -28,6 +34,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import cv2
 import numpy as np
 import torch
 
@@ -63,17 +70,57 @@ class InstantCamera(Camera):
 
 def print_summary(title: str, summary: LiveSummary) -> None:
     print(f"\n{title}: {summary.frames} frames")
-    print(f"  {'stage':<17} {'median ms':>10} {'p99 ms':>8}")
-    stats = summary.stage_ms()
+    print(f"  {'stage':<17} {'median ms':>10} {'p99 ms':>8} {'CPU ms':>8}")
+    stats, cpu = summary.stage_ms(), summary.stage_cpu_ms()
     for stage in STAGES + ("check",):
         if stage in stats:
-            print(f"  {stage:<17} {stats[stage][0]:10.2f} {stats[stage][1]:8.2f}")
-    outside = sum(stats[s][0] for s in OUTSIDE_NETWORK)
-    print(f"  outside the network (rectify + to_input): {outside:.2f} ms per frame (median sums)")
+            print(f"  {stage:<17} {stats[stage][0]:10.2f} {stats[stage][1]:8.2f} {cpu[stage]:8.2f}")
+    outside, outside_cpu = sum(stats[s][0] for s in OUTSIDE_NETWORK), sum(cpu[s] for s in OUTSIDE_NETWORK)
+    print(f"  outside the network (rectify + to_input): {outside:.2f} ms per frame, CPU {outside_cpu:.2f} ms (medians)")
     median, p99 = summary.latency_ms()
     print(f"  throughput {summary.fps:.1f} frames/s; latency median {median:.1f} ms, p99 {p99:.1f} ms")
+    print(f"  throughput the threads' CPU times allow, a core each: {summary.cpu_limited_fps():.1f} frames/s")
     if summary.stalls:
         print(f"  camera stalls: {summary.stalls}")
+
+
+def cpu_ms(function, repeats: int) -> tuple[float, float]:
+    """Median wall-clock ms and mean thread-CPU ms of ``function()`` (after one warm-up call)."""
+    function()
+    walls = []
+    cpu_start = time.thread_time()
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        walls.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(walls)), 1e3 * (time.thread_time() - cpu_start) / repeats
+
+
+def print_stages_alone(calibration, frame: np.ndarray, target: np.ndarray, net, repeats: int) -> None:
+    """Each per-frame stage alone, one after the other in this thread: as computed per call before
+    the loop had tables (``to_output_space``: warp with float64 maps converted per call, float64
+    unmixing; the 65^3 ``ResponseLUT`` read by ``grid_sample`` for the target and the output) and
+    with the tables (:mod:`edofproj.procams.frame_maps`)."""
+    H, W = calibration.projector_hw
+    light_chw = torch.from_numpy(target.transpose(2, 0, 1).copy())[None]
+    lut = calibration.color.inverse_response_lut(calibration.response_lut_size)
+    out = np.empty((H, W, 3), np.float32)
+    out_t = torch.from_numpy(out)
+    prepared = calibration.rectifier.prepare(frame)
+    cases = [
+        ("rectify", "before", lambda: calibration.to_output_space(frame)),
+        ("rectify", "after", lambda: calibration.rectifier(prepared, out=out)),
+        ("  prepare (camera thread)", "after", lambda: calibration.rectifier.prepare(frame)),
+        ("to_input", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
+        ("to_input", "after", lambda: calibration.inverse_table.apply(light_chw.permute(0, 2, 3, 1)[0], out=out_t)),
+        ("show_target f^-1(I)", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
+    ]
+    print(f"\neach stage alone ({repeats} calls each; after: the tables the loop builds once)")
+    print(f"  {'stage':<26} {'':<7} {'median ms':>10} {'CPU ms':>8}")
+    for stage, when, function in cases:
+        wall, cpu = cpu_ms(function, repeats)
+        print(f"  {stage:<26} {when:<7} {wall:10.2f} {cpu:8.2f}")
+    print(f"  {'show_target f^-1(I)':<26} {'after':<7} {'cached per target: 0':>19}")
 
 
 def main() -> int:
@@ -87,9 +134,10 @@ def main() -> int:
     parser.add_argument("--window", type=int, default=21, help="PSF window (21)")
     parser.add_argument("--camera-scale", type=float, default=1.5, help="camera px per projector px (1.5)")
     parser.add_argument("--supersampling", type=int, default=2, help="sub-samples per camera pixel (2)")
-    parser.add_argument("--threads", type=int, default=1, help="PyTorch threads (1)")
+    parser.add_argument("--threads", type=int, default=1, help="PyTorch and OpenCV threads (1)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)
     height, width = (int(v) for v in args.size.lower().split("x"))
     cfg = load_run(args.run).cfg if args.run else load_config(args.config)
     net = load_run(args.run).net if args.run else build_network(cfg.net).eval()
@@ -109,20 +157,26 @@ def main() -> int:
         f"(inverse response: {type(calibration.inverse_table).__name__})"
     )
 
-    # 1. instant camera: one virtual capture of the target, returned at once
+    # 0. each stage alone: the per-call computations the loop used before against its tables
     display = MemoryDisplay()
     display.show(calibration.inverse_table.apply(torch.from_numpy(target)).numpy())
     frame = VirtualCamera(rig, display).grab()
+    print_stages_alone(calibration, frame, target, net, args.frames)
+
+    # 1. instant camera: one virtual capture of the target, returned at once
     camera = InstantCamera(frame)
     run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3)
     instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames)
     print_summary("instant camera, in-memory display", instant)
     bench_frame = network_torch_case(net, "net").build(height, width)
-    bench_ms = float(np.median(measure_ms(bench_frame, repeats=max(10, args.frames // 2), warmup=2)))
-    live_ms = instant.stage_ms()["compensate"][0]
+    cpu_start = time.thread_time()
+    bench_ms = float(np.median(measure_ms(bench_frame, repeats=max(10, args.frames // 2), warmup=0)))
+    bench_cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(10, args.frames // 2)
+    live_ms, live_cpu_ms = instant.stage_ms()["compensate"][0], instant.stage_cpu_ms()["compensate"]
     print(
-        f"  network alone as 'edofproj bench' times it: {bench_ms:.2f} ms median; in the loop {live_ms:.2f} ms "
-        f"({100 * (live_ms / bench_ms - 1):+.0f} %)"
+        f"  network alone as 'edofproj bench' times it: {bench_ms:.2f} ms median (CPU {bench_cpu_ms:.2f} ms mean); "
+        f"in the loop {live_ms:.2f} ms ({100 * (live_ms / bench_ms - 1):+.0f} %), CPU {live_cpu_ms:.2f} ms "
+        f"({100 * (live_cpu_ms / bench_cpu_ms - 1):+.0f} %)"
     )
 
     # 2. the virtual ProCams: every capture simulated
@@ -133,7 +187,8 @@ def main() -> int:
     print_summary("virtual ProCams (simulated capture)", virtual)
     capture_ms = virtual.stage_ms()["capture"][0]
     print(
-        f"  target 1 / (capture + 10 ms) = {1e3 / (capture_ms + 10):.2f} frames/s; measured {virtual.fps:.2f} frames/s"
+        f"  target 1 / (capture + 10 ms) = {1e3 / (capture_ms + 10):.2f} frames/s (capture median {capture_ms:.0f} ms); "
+        f"measured {virtual.fps:.2f} frames/s"
     )
     return 0
 

@@ -20,7 +20,8 @@ not by the sum of the stages:
 
 * the **device** thread owns the display: it shows a target, has it captured, hands the capture
   to the compute thread (a queue of one: back-pressure) and shows each compensated frame as soon
-  as it is ready -- frame ``n + 1`` is captured while frame ``n`` is computed;
+  as it is ready -- frame ``n + 1`` is captured while frame ``n`` is computed, and between two
+  captures this thread only shows;
 * the **camera** thread runs :func:`grab_frame`, so that a camera that returns nothing for
   ``stall_timeout_s`` is reported in one line while the display goes back to the last good
   compensated frame; when frames come back the late one is dropped (it may show the compensated
@@ -159,6 +160,7 @@ class LiveSummary:
     frames: int = 0
     interrupted: bool = False
     stage_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES + ("check",)})
+    stage_cpu_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES + ("check",)})
     latency_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     stalls: int = 0
@@ -177,9 +179,42 @@ class LiveSummary:
         """``{stage: (median, 99th percentile)}`` in ms, for the stages that ran."""
         return {s: (_percentile_ms(t, 50), _percentile_ms(t, 99)) for s, t in self.stage_s.items() if t}
 
+    def stage_cpu_ms(self) -> dict[str, float]:
+        """``{stage: median}`` of the CPU time of the thread that ran it, ms: the stage's own cost,
+        which does not count the time its thread waited for a core (``capture``: the camera thread's)."""
+        return {s: _percentile_ms(t, 50) for s, t in self.stage_cpu_s.items() if t}
+
+    def cpu_limited_fps(self) -> float:
+        """The throughput the threads' CPU times allow with a core each: ``1 / max`` over the three
+        threads of their stages' median CPU time per frame (``check`` excluded)."""
+        cpu = self.stage_cpu_ms()
+        device = cpu.get("show_target", 0.0) + cpu.get("show_compensated", 0.0)
+        compute = sum(cpu.get(s, 0.0) for s in ("rectify", "compensate", "to_input"))
+        busiest = max(device, cpu.get("capture", 0.0), compute)
+        return 1e3 / busiest if busiest > 0 else float("nan")
+
     def latency_ms(self) -> tuple[float, float]:
         """Median and 99th percentile of target taken -> compensated frame on screen, ms."""
         return _percentile_ms(self.latency_s, 50), _percentile_ms(self.latency_s, 99)
+
+
+class _StageClock:
+    """Wall-clock and thread-CPU seconds of each stage of one frame (each stage runs in one thread)."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._start = (0.0, 0.0)
+
+    def start(self) -> None:
+        self._start = (time.perf_counter(), time.thread_time())
+
+    def stop(self, stage: str) -> float:
+        """Record ``stage`` since :meth:`start`; the wall-clock time now."""
+        now = time.perf_counter()
+        self.wall[stage] = now - self._start[0]
+        self.cpu[stage] = time.thread_time() - self._start[1]
+        return now
 
 
 class _Stopped(Exception):
@@ -209,11 +244,14 @@ class CameraWorker:
     """The camera in its own thread: :meth:`request` a grab, :meth:`result` waits for it.
 
     A grab that raises (any exception, ``KeyboardInterrupt`` included) is re-raised by
-    :meth:`result`. :meth:`close` lets the current grab finish and ends the thread.
+    :meth:`result`. Saturated pixels are warned about on the first frame only (a warning per frame would repeat
+    the same line). :meth:`close` lets the current grab finish and ends the thread.
     """
 
     def __init__(self, camera: Camera, grab: GrabSettings) -> None:
         self.camera, self.grab = camera, grab
+        self._warn = True
+        self.last_cpu_s = 0.0
         self._requests: queue.Queue = queue.Queue(maxsize=1)
         self._results: queue.Queue = queue.Queue(maxsize=1)
         self.thread = threading.Thread(target=self._run, name="edofproj-live-camera", daemon=True)
@@ -221,21 +259,24 @@ class CameraWorker:
 
     def _run(self) -> None:
         while True:
-            what = self._requests.get()
-            if what is None:
+            request = self._requests.get()
+            if request is None:
                 return
+            start_cpu = time.thread_time()
             try:
-                result: Any = grab_frame(self.camera, self.grab, what)
+                result: Any = grab_frame(self.camera, self.grab, request, warn=self._warn)
+                self._warn = False
             except BaseException as exc:  # handed to the device thread, which stops the loop
                 result = exc
-            self._results.put(result)
+            self._results.put((result, time.thread_time() - start_cpu))
 
     def request(self, what: str) -> None:
         self._requests.put(what)
 
     def result(self, timeout_s: float) -> np.ndarray:
-        """The frame requested last; ``queue.Empty`` after ``timeout_s`` without one."""
-        result = self._results.get(timeout=timeout_s)
+        """The frame requested last; ``queue.Empty`` after ``timeout_s`` without one. The camera
+        thread's CPU time for it is :attr:`last_cpu_s`."""
+        result, self.last_cpu_s = self._results.get(timeout=timeout_s)
         if isinstance(result, BaseException):
             raise result
         return result
@@ -260,10 +301,10 @@ class _Job:
     name: str
     target: np.ndarray
     light: torch.Tensor
-    slot: int
+    frame: np.ndarray
     taken: float
-    stage_s: dict[str, float]
-    compensated: torch.Tensor | None = None
+    stages: "_StageClock"
+    slot: int = -1
     shown: float = float("nan")
     record: LiveFrame | None = None
 
@@ -317,6 +358,7 @@ class _Devices:
         self.compensated: queue.Queue = queue.Queue(maxsize=1)  # compute -> device: _Job, None at the end
         self.done: queue.Queue = queue.Queue()  # device -> caller: shown _Job, None at the end
         self.stop = threading.Event()
+        self.ended = threading.Event()  # set when the device thread is about to end
         self.error: BaseException | None = None
         self.stalls = 0
         self.last_shown: np.ndarray | None = None
@@ -366,7 +408,6 @@ class _Devices:
 
     def _show_ready(self, block: bool) -> bool:
         """Show the compensated frames that are ready (wait for one if ``block``); False at the end mark."""
-        clock = time.perf_counter
         while True:
             try:
                 job = _wait_get(self.compensated, self.stop) if block else self.compensated.get_nowait()
@@ -375,24 +416,17 @@ class _Devices:
             if job is None:
                 return False
             slot = self.slots[job.slot]
-            assert job.compensated is not None
-            start = clock()
-            with torch.inference_mode():  # clamps to [0, 1]
-                self.calibration.inverse_table.apply(job.compensated.permute(0, 2, 3, 1)[0], out=slot.projector_input_t)
-            job.compensated = None
-            job.stage_s["to_input"] = clock() - start
-            start = clock()
+            job.stages.start()
             self.display.show(slot.projector_input)
-            job.shown = clock()
-            job.stage_s["show_compensated"] = job.shown - start
-            record = LiveFrame(job.name, job.target, None, None, job.stage_s, latency_s=job.shown - job.taken)
+            job.shown = job.stages.stop("show_compensated")
+            record = LiveFrame(job.name, job.target, None, None, job.stages.wall, latency_s=job.shown - job.taken)
             if self.keep_images or self.measure:
                 record.uncompensated, record.compensated_input = slot.rectified.copy(), slot.projector_input.copy()
             if self.measure:
-                start = clock()
+                job.stages.start()
                 check = self._grab(f"check of '{job.name}'", slot.projector_input)
                 record.compensated = self.calibration.to_output_space(check).astype(np.float32)
-                job.stage_s["check"] = clock() - start
+                job.stages.stop("check")
             job.record = record
             self.last_shown = self.display.shown  # the slot is reused: keep the display's own copy
             self.free.put(job.slot)
@@ -400,30 +434,23 @@ class _Devices:
             block = False
 
     def _run(self) -> None:
-        clock = time.perf_counter
         captured = 0
         try:
             for name, target in self.targets:
                 if self.stop.is_set() or (self.frames is not None and captured >= self.frames):
                     break
-                taken = clock()
+                taken = time.perf_counter()
                 light, shown = self._target(name, target)
-                times: dict[str, float] = {}
-                start = clock()
+                stages = _StageClock()
+                stages.start()
                 self.display.show(shown)
-                times["show_target"] = clock() - start
-                start = clock()
+                stages.stop("show_target")
+                stages.start()
                 frame = self._grab(f"capture of '{name}'", shown)
-                times["capture"] = clock() - start
+                stages.stop("capture")
+                stages.cpu["capture"] = self.camera.last_cpu_s  # the camera thread's
                 self.calibration.rectifier.check_frame(frame, what=f"camera frame of '{name}'")
-                index = _wait_get(self.free, self.stop)
-                slot = self.slots[index]
-                start = clock()
-                self.calibration.rectifier(frame, out=slot.rectified)
-                if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images
-                    slot.captured.copy_(torch.from_numpy(slot.rectified).permute(2, 0, 1)[None])
-                times["rectify"] = clock() - start
-                _wait_put(self.captures, _Job(name, target, light, index, taken, times), self.stop)
+                _wait_put(self.captures, _Job(name, target, light, frame, taken, stages), self.stop)
                 captured += 1
                 self._show_ready(block=False)
         except _Stopped:
@@ -440,6 +467,7 @@ class _Devices:
             self.error = self.error or exc
         finally:
             self.done.put(None)
+            self.ended.set()
 
 
 def run_live(
@@ -470,7 +498,7 @@ def run_live(
         raise EdofprojError(f"display '{display.spec}' is {w}x{h} but the calibration was made for a {W}x{H} projector")
     report = report or (lambda line: warnings.warn(line, RuntimeWarning, stacklevel=2))
     memory_format = network_memory_format(net)
-    _ = calibration.rectifier, calibration.inverse_table  # built before the clock starts
+    rectify, inverse = calibration.rectifier, calibration.inverse_table  # built before the clock starts
     summary = LiveSummary()
     worker = CameraWorker(camera, grab)
     devices = _Devices(
@@ -485,8 +513,9 @@ def run_live(
         summary.frames += 1
         last_shown = job.shown
         summary.latency_s.append(job.shown - job.taken)
-        for stage, seconds in job.stage_s.items():
+        for stage, seconds in job.stages.wall.items():
             summary.stage_s[stage].append(seconds)
+            summary.stage_cpu_s[stage].append(job.stages.cpu[stage])
         record = job.record
         if record is not None and record.compensated is not None and record.uncompensated is not None:
             reference = _to_tensor(job.target)
@@ -513,13 +542,25 @@ def run_live(
     running = True
     try:
         while True:
-            job = _wait_get(devices.captures)
+            job = _wait_get(devices.captures, devices.ended)
             if job is None:
                 break
-            start = clock()
+            job.slot = _wait_get(devices.free, devices.ended)
+            slot = devices.slots[job.slot]
+            job.stages.start()
+            rectify(job.frame, out=slot.rectified)
+            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images
+                slot.captured.copy_(torch.from_numpy(slot.rectified).permute(2, 0, 1)[None])
+            job.frame = np.empty(0)  # used up
+            job.stages.stop("rectify")
+            job.stages.start()
             with torch.inference_mode():
-                job.compensated = net(job.light, devices.slots[job.slot].captured)
-            job.stage_s["compensate"] = clock() - start
+                compensated = net(job.light, slot.captured)
+            job.stages.stop("compensate")
+            job.stages.start()
+            with torch.inference_mode():  # clamps to [0, 1]
+                inverse.apply(compensated.permute(0, 2, 3, 1)[0], out=slot.projector_input_t)
+            job.stages.stop("to_input")
             _wait_put(devices.compensated, job, devices.stop)
             running = drain(block=False)
         _wait_put(devices.compensated, None, devices.stop)
