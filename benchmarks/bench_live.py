@@ -106,11 +106,9 @@ def print_stages_alone(calibration, frame: np.ndarray, target: np.ndarray, net, 
     lut = calibration.color.inverse_response_lut(calibration.response_lut_size)
     out = np.empty((H, W, 3), np.float32)
     out_t = torch.from_numpy(out)
-    prepared = calibration.rectifier.prepare(frame)
     cases = [
         ("rectify", "before", lambda: calibration.to_output_space(frame)),
-        ("rectify", "after", lambda: calibration.rectifier(prepared, out=out)),
-        ("  prepare (camera thread)", "after", lambda: calibration.rectifier.prepare(frame)),
+        ("rectify", "after", lambda: calibration.rectifier(frame, out=out)),
         ("to_input", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
         ("to_input", "after", lambda: calibration.inverse_table.apply(light_chw.permute(0, 2, 3, 1)[0], out=out_t)),
         ("show_target f^-1(I)", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
