@@ -149,3 +149,25 @@ def test_bad_requests_are_one_line(run_dir, tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     with pytest.raises(EdofprojError, match="holds no image"):
         open_frames(images=str(tmp_path / "empty"))
+
+
+def test_with_a_calibration_the_output_is_projector_input(tmp_path):
+    """``to_input`` (a calibration's inverse table) turns each compensated frame into projector
+    input: with an identity network and screen, f^-1(I) = I^(1/2.2) for a gamma-2.2 projector."""
+    from edofproj.application.offline import FolderSink
+    from edofproj.procams.color import ColorCalibration
+    from edofproj.procams.frame_maps import ChannelInverseTable
+
+    levels = np.linspace(0, 1, 6)
+    inputs = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), -1).reshape(-1, 3)
+    table = ChannelInverseTable.from_color(ColorCalibration(np.eye(3), np.zeros(3), inputs, inputs**2.2))
+    (tmp_path / "in").mkdir()
+    frames = smooth_frames(3, seed=4)
+    for index, frame in enumerate(frames):
+        write_image(tmp_path / "in" / f"f{index}.png", torch.from_numpy(frame.transpose(2, 0, 1).copy()), bits=16)
+    source = open_frames(images=str(tmp_path / "in"))
+    with FolderSink(tmp_path / "out", bits=16) as sink:
+        compensate_frames(lambda t, c: t, source, lambda x: x, sink, batch=2, to_input=table.apply)
+    for index, frame in enumerate(frames):
+        written = read_image(tmp_path / "out" / f"f{index}.png").numpy().transpose(1, 2, 0)
+        assert np.abs(written - frame ** (1 / 2.2)).mean() < 0.003

@@ -78,8 +78,6 @@ class ChannelInverseTable:
         self._flat = torch.from_numpy(np.ascontiguousarray(table.reshape(-1)))
         # index = o (N - 1) + 0.5 + c N, truncated: the nearest bin of channel c's row
         self._offsets = torch.tensor([0.5 + c * self.bins for c in range(3)], dtype=torch.float32)
-        self._lowest = self._offsets.clone()  # o = 0 and o = 1 of each channel: the clamp, on the scaled values
-        self._highest = self._offsets + (self.bins - 1)
         self._scratch: dict[tuple[int, ...], tuple[torch.Tensor, torch.Tensor]] = {}
 
     @classmethod
@@ -107,8 +105,8 @@ class ChannelInverseTable:
         if shape not in self._scratch:
             self._scratch[shape] = (torch.empty(shape), torch.empty(shape, dtype=torch.int32))
         scaled, index = self._scratch[shape]
-        torch.add(self._offsets, light, alpha=self.bins - 1, out=scaled)
-        torch.clamp(scaled, min=self._lowest, max=self._highest, out=scaled)
+        torch.clamp(light, 0.0, 1.0, out=scaled)  # (a scalar clamp first: cheaper than per-channel bounds after)
+        torch.add(self._offsets, scaled, alpha=self.bins - 1, out=scaled)
         index.copy_(scaled)
         if out is None:
             out = torch.empty(shape)
