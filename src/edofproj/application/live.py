@@ -31,8 +31,9 @@ not by the sum of the stages:
 
 Throughput (frames shown per second) and latency (target taken -> its compensated frame on
 screen) are reported separately (:class:`LiveSummary`). With ``measure`` the compensated
-projection is captured and rectified too (``check``, not in the frame time), and both captures
-are scored with SSIM against ``I``. Ctrl-C (``KeyboardInterrupt`` in the calling thread, or
+projection is captured and rectified too (``check``, not in the frame time; frame ``n + 1`` is
+then captured only after frame ``n`` was shown and checked), and both captures are scored with
+SSIM against ``I``. Ctrl-C (``KeyboardInterrupt`` in the calling thread, or
 raised by a device) ends the loop; a device error (a camera frame of the wrong size, a camera
 that raises) ends it and is raised in the calling thread. Either way every thread the loop
 started has ended when :func:`run_live` returns.
@@ -253,7 +254,7 @@ class CameraWorker:
         self._warn = True
         self.last_cpu_s = 0.0
         self._requests: queue.Queue = queue.Queue(maxsize=1)
-        self._results: queue.Queue = queue.Queue(maxsize=1)
+        self._results: queue.Queue = queue.Queue()  # one request at a time: never more than one result
         self.thread = threading.Thread(target=self._run, name="edofproj-live-camera", daemon=True)
         self.thread.start()
 
@@ -452,7 +453,9 @@ class _Devices:
                 self.calibration.rectifier.check_frame(frame, what=f"camera frame of '{name}'")
                 _wait_put(self.captures, _Job(name, target, light, frame, taken, stages), self.stop)
                 captured += 1
-                self._show_ready(block=False)
+                # with measure, frame n is shown and checked before n + 1 is captured: the captures
+                # come in a fixed order (capture, check, capture, ...), whatever the machine's speed
+                self._show_ready(block=self.measure)
         except _Stopped:
             pass
         except BaseException as exc:  # a device error or Ctrl-C raised by a device: the calling thread decides

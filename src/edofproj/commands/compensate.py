@@ -63,7 +63,8 @@ def register(subparsers) -> None:
         "--calib",
         default=None,
         metavar="calib.npz",
-        help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response",
+        help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response; "
+        "with --images/--video: frames at the projector's size, output the projector input",
     )
     p.add_argument(
         "--out",
