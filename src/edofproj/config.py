@@ -403,7 +403,7 @@ class DataConfig:
 
 
 DEPTH_SPACINGS = ("depth", "defocus")
-MIXED_PRECISION = ("none", "bf16")
+MIXED_PRECISION = ("none", "bf16", "auto")
 
 
 @dataclass
@@ -426,7 +426,9 @@ class TrainConfig:
     default). ``device``: ``auto`` (a CUDA GPU when available), ``cpu`` or ``cuda``.
     ``mixed_precision``: ``none`` (float32 throughout) or ``bf16``: the compensation network's
     convolutions run under bfloat16 autocast, while the PSF simulation, image formation, every
-    FFT (the network's Fourier filter included) and the loss stay in float32 or float64.
+    FFT (the network's Fourier filter included) and the loss stay in float32 or float64;
+    ``auto``: ``bf16`` where the device computes bfloat16 natively (a CUDA GPU that supports it,
+    a CPU with AVX512-BF16 or AMX), ``none`` elsewhere (emulated bfloat16 would be slower).
     Checkpoints every ``checkpoint_every`` steps; the newest ``keep_checkpoints`` step files
     are kept (0: all). ``screens``: ``flat`` (one depth per crop, the paper) or ``varying``
     (each crop on a random depth-varying screen: flat, tilted, a step or smooth relief,

@@ -293,8 +293,8 @@ class RadialPSFEngine:
         check_defocus_sampling(self.geometry, self.wavelengths_m, depths_m, self.pupil_samples)
         phase, alpha = self.pupil_phase(doe, depths_m)
         n = len(self.nu)
-        cos_k = torch.matmul(torch.cos(phase).to(self.dtype), self.kernel)  # (L, Z, 3 n_nu)
-        sin_k = torch.matmul(torch.sin(phase).to(self.dtype), self.kernel)
+        # cos and sin in one product: the kernel (M x 3 n_nu, tens of MB) is read once per pass
+        cos_k, sin_k = torch.matmul(torch.stack([torch.cos(phase), torch.sin(phase)]).to(self.dtype), self.kernel)
         a = alpha.to(self.dtype)
         half_a2 = 0.5 * a * a
         # G = K0 g + i alpha K1 g - alpha^2/2 K2 g with g = cos + i sin

@@ -78,7 +78,7 @@ from .distributed import (
     setup_process_group,
     teardown_process_group,
 )
-from .end_to_end import EndToEndProjector, SimulatedPSF
+from .end_to_end import EndToEndProjector, SimulatedPSF, resolve_mixed_precision
 from .losses import build_loss
 from .psf_table import DepthPSFTable
 from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise
@@ -203,7 +203,7 @@ class _Session:
             self.net,
             cfg.train.noise_sigma,
             cfg.train.quantize_capture,
-            cfg.train.mixed_precision,
+            resolve_mixed_precision(cfg.train.mixed_precision, device),
             layers_m,
         )
 
