@@ -179,7 +179,7 @@ class OnlineProDebNet(nn.Module):
         self.luminance_net = MapExtractorUNet(extractor_widths, leaky_slope=leaky_slope)
         self.generator = CompensationGenerator(generator_width, generator_blocks, leaky_slope)
         # weights and features channels-last (NHWC): the layout oneDNN's CPU convolutions run without reordering
-        self.to(memory_format=torch.channels_last)
+        self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch accepts it; stubs lack it
 
     @classmethod
     def from_preset(cls, name: str = "default", leaky_slope: float = 0.2) -> "OnlineProDebNet":

@@ -211,7 +211,7 @@ class CompensationUNet(nn.Module):
         self.head = nn.Conv2d(widths[0], out_channels * block, 1)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(cast(torch.Tensor, self.head.bias))
-        self.to(memory_format=torch.channels_last)  # module docstring, "Memory layout"
+        self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # docstring: "Memory layout"
 
     @classmethod
     def from_config(cls, net_cfg) -> "CompensationUNet":
