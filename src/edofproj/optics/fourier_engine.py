@@ -11,9 +11,17 @@ An N-point FFT (N >= 2M, zero padded) gives samples spaced
 
     delta_px = lambda T W / (N dx)       over a field of view   FOV_px = lambda T W / dx.
 
-By Parseval the samples' energies sum to the pupil energy; each sample's energy is spread
-uniformly over its delta x delta cell and binned exactly onto the K x K projector pixels
-(separable overlap matrices), so each PSF value is that pixel's share of the pupil energy.
+By Parseval the samples' energies sum to the pupil energy. The intensity of the sampled pupil,
+|U|^2, is a trigonometric polynomial of period FOV_px with frequencies up to M - 1 (cycles per
+period) in each direction, so its N x N samples (N >= 2M) determine it everywhere; its integral
+over a projector pixel is exact in the Fourier domain, where the pixel's box filter is the factor
+sinc(k / FOV_px) on the coefficient of frequency k (:func:`.pixel_integration.periodic_pixel_weights`).
+The box is separable, so the K x K pixel energies are
+
+    E = W I W^T / (N^2 sum A),     W (K, N): W[i, n] = (p/N) sum_{|k| < M} sinc(k p/N) cos(2 pi k (i' p - n)/N),
+
+with I the unshifted FFT samples, p = N / FOV_px the pixel in sample spacings and i' = i - K//2:
+each PSF value is that pixel's exact share of the pupil energy, wherever the spot sits within it.
 
 Sampling checks (:class:`~edofproj.errors.SamplingError`, naming the parameter to change):
 * the defocus phase step between pupil samples at the rim, 2 pi R dx |1/z - 1/v| / lambda,
@@ -36,6 +44,7 @@ from ..errors import EdofprojError, SamplingError
 from ..limits import check_memory
 from .aberrations import PupilAberration, check_aberration_sampling
 from .geometry import ProjectorGeometry
+from .pixel_integration import periodic_pixel_weights
 from .radial_engine import (
     MAX_DEFOCUS_STEP_RAD,
     check_depths,
@@ -43,14 +52,6 @@ from .radial_engine import (
     check_window,
     warn_if_blur_exceeds_window,
 )
-
-
-def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.ndarray:
-    """B[i, k]: fraction of cell k ([c_k - d/2, c_k + d/2]) inside pixel i ([a_i - 1/2, a_i + 1/2])."""
-    a = (np.arange(window) - window // 2)[:, None].astype(float)
-    lo = np.maximum(a - 0.5, centres_px[None, :] - cell_px / 2)
-    hi = np.minimum(a + 0.5, centres_px[None, :] + cell_px / 2)
-    return np.clip(hi - lo, 0.0, None) / cell_px
 
 
 def fourier_engine_bytes(pupil_samples: int, window: int, n_wavelengths: int, depth_chunk: int, n_depths: int) -> int:
@@ -102,8 +103,9 @@ class FourierPSFEngine:
         self.r2 = xx**2 + yy**2
         self.aperture = self.r2 <= geometry.aperture_radius_m**2
 
-        self.fft_size = []
-        self.binning = []
+        self.fft_size: list[int] = []
+        #: per wavelength, (K, N): the exact pixel integrals of the sampled intensity (module docstring)
+        self.pixel_weights: list[torch.Tensor] = []
         for lam in self.wavelengths_m:
             fov_px = lam * geometry.throw_width_m / self.dx_m
             if fov_px < self.window + 2:
@@ -112,12 +114,11 @@ class FourierPSFEngine:
                     f"{self.window}-px window: increase pupil_samples above {int(self.M * (self.window + 2) / fov_px) + 2}"
                 )
             N = sfft.next_fast_len(2 * self.M)
-            cell = fov_px / N
-            centres = (np.arange(N) - N // 2) * cell  # after fftshift, index N//2 is the axis
-            keep = np.nonzero(np.abs(centres) <= self.window / 2 + cell)[0]
-            B = _overlap_matrix(self.window, centres[keep], cell)
+            pixel_cells = N / fov_px  # one pixel in FFT sample spacings; sample 0 is the axis
+            centres = (np.arange(self.window) - self.window // 2) * pixel_cells
+            W = periodic_pixel_weights(centres, N, self.M - 1, pixel_cells)
             self.fft_size.append(N)
-            self.binning.append((keep, torch.as_tensor(B, dtype=dtype, device=self.device)))
+            self.pixel_weights.append(torch.as_tensor(W, dtype=dtype, device=self.device))
 
     def _check_sampling(self, doe, depths_m) -> None:
         g = self.geometry
@@ -185,8 +186,7 @@ class FourierPSFEngine:
             n_minus_1 = 0.0 if doe is None else float(doe.refractive_index(lam)) - 1.0
             doe_phase = 2 * math.pi * n_minus_1 * height / lam + self.aberration_phase(float(lam))
             N = self.fft_size[li]
-            keep, B = self.binning[li]
-            keep_t = torch.as_tensor(keep, device=self.device)
+            W = self.pixel_weights[li]
             per_depth = []
             for start in range(0, len(depths_m), self.depth_chunk):
                 zc = z[start : start + self.depth_chunk]
@@ -195,9 +195,8 @@ class FourierPSFEngine:
                 )
                 phase = (doe_phase[None] + defocus).to(self.dtype)
                 field = torch.polar(aperture.expand_as(phase), phase).to(complex_dtype)
-                spectrum = torch.fft.fftshift(torch.fft.fft2(field, s=(N, N)), dim=(-2, -1))
-                spectrum = spectrum.index_select(-2, keep_t).index_select(-1, keep_t)
-                cells = (spectrum.real**2 + spectrum.imag**2) / (N * N * pupil_energy)
-                per_depth.append(torch.einsum("ik,zkl,jl->zij", B, cells, B))
+                spectrum = torch.fft.fft2(field, s=(N, N))  # unshifted: sample (0, 0) is the axis
+                intensity = spectrum.real.square().addcmul_(spectrum.imag, spectrum.imag)
+                per_depth.append((W @ intensity @ W.T) / (N * N * pupil_energy))
             out.append(torch.cat(per_depth, dim=0))
         return torch.stack(out, dim=1)
