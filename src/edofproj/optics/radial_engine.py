@@ -13,7 +13,10 @@ exact,
     int_{r_a}^{r_b} J0(2 pi f r) r dr = [r J1(2 pi f r) / (2 pi f)]_{r_a}^{r_b},   f = rho_px / (lambda T W),
 
 so the field is one matrix product per wavelength, ``G = K_lambda g``, with ``K_lambda``
-built once and cached. The defocus phase alpha r^2 (alpha = pi (1/z - 1/v) / lambda) varies
+built once and cached. A design that is piecewise constant on rings of its own (a design file:
+``ring_edges_m``, any widths, up to the rim) gets the equal rings split at its edges
+(:meth:`RadialPSFEngine.rings_for`): its height is constant on every ring, and the transform of
+its profile is exact instead of resampled at the equal rings' centres. The defocus phase alpha r^2 (alpha = pi (1/z - 1/v) / lambda) varies
 inside a ring; it is expanded about the ring centre r_m to second order,
 
     exp(i alpha r^2) ~ exp(i alpha r_m^2) (1 + i alpha s - alpha^2 s^2 / 2),   s = r^2 - r_m^2,
@@ -142,6 +145,44 @@ def radial_engine_bytes(n_nu: int, n_rings: int, n_wavelengths: int, window: int
     return tables + n_depths * per_depth
 
 
+#: design ring edges closer than this to an engine edge are merged with it (no sliver rings)
+MIN_RING_M = 1e-10
+
+
+def split_ring_edges(base_edges_m: np.ndarray, extra_edges_m) -> np.ndarray:
+    """Sorted union of the base ring edges and ``extra_edges_m`` strictly inside them (rings
+    narrower than :data:`MIN_RING_M` merged); the first and last base edges are kept."""
+    base = np.asarray(base_edges_m, dtype=float)
+    extra = np.asarray(extra_edges_m, dtype=float).reshape(-1)
+    extra = extra[(extra > base[0]) & (extra < base[-1])]
+    edges = np.unique(np.concatenate([base, extra]))
+    edges = edges[np.concatenate([[True], np.diff(edges) > MIN_RING_M])]
+    edges[-1] = base[-1]
+    return edges
+
+
+def ring_moments(ring_edges_m: np.ndarray, nu: np.ndarray, aperture_diameter_m: float) -> np.ndarray:
+    """Kernel (n_rings, 3 n_nu): the ring moments int_ring s^n J0(2 pi f r) r dr (n = 0, 1, 2;
+    s = r^2 - r_m^2, r_m the ring centre; f = nu / D) in closed form (module docstring), for any
+    increasing ring edges (n_rings + 1,)."""
+    r = np.asarray(ring_edges_m, dtype=float)[None, :]
+    centres = 0.5 * (r[0, 1:] + r[0, :-1])
+    c = (centres**2)[:, None]
+    f = np.asarray(nu, dtype=float) / aperture_diameter_m  # spatial frequency (1/m)
+    a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
+    x = a * r
+    j1_, j2, j3 = bessel_j123(x)
+    p0 = r * j1_ / a  # int r J0 dr
+    p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2  # int r^3 J0 dr
+    p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3  # int r^5 J0 dr
+    zero = f[:, None] <= 0
+    p0 = np.where(zero, r**2 / 2, p0)
+    p1 = np.where(zero, r**4 / 4, p1)
+    p2 = np.where(zero, r**6 / 6, p2)
+    d0, d1, d2 = (np.diff(p, axis=1).T for p in (p0, p1, p2))  # (n_rings, n_nu)
+    return np.concatenate([d0, d1 - c * d0, d2 - 2 * c * d1 + c**2 * d0], axis=1)
+
+
 def normalized_radius_grid(
     nu_max: float, fine_until: float, fine_step: float = 1 / 64, coarse_step: float = 1 / 4
 ) -> np.ndarray:
@@ -218,6 +259,7 @@ class RadialPSFEngine:
         )[:, None, None]
         self.kernel = torch.as_tensor(self._ring_moments(), dtype=dtype, device=self.device)  # (M, 3 n_nu)
         self.ring_centres_t = torch.as_tensor(self.ring_centres_m, dtype=torch.float64, device=self.device)
+        self._split_rings: tuple[bytes, torch.Tensor, torch.Tensor] | None = None
 
     @property
     def rho_px(self) -> np.ndarray:
@@ -229,30 +271,36 @@ class RadialPSFEngine:
         return self.nu * lam * self.geometry.throw_width_m / self.geometry.aperture_diameter_m
 
     def _ring_moments(self) -> np.ndarray:
-        """Kernel (M, 3 n_nu): ring moments int_ring s^n J0(2 pi f r) r dr, n = 0, 1, 2, s = r^2 - r_m^2."""
-        r = self.ring_edges_m[None, :]
-        c = (self.ring_centres_m**2)[:, None]
-        f = self.nu / self.geometry.aperture_diameter_m  # spatial frequency (1/m)
-        a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
-        x = a * r
-        j1_, j2, j3 = bessel_j123(x)
-        p0 = r * j1_ / a  # int r J0 dr
-        p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2  # int r^3 J0 dr
-        p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3  # int r^5 J0 dr
-        zero = f[:, None] <= 0
-        p0 = np.where(zero, r**2 / 2, p0)
-        p1 = np.where(zero, r**4 / 4, p1)
-        p2 = np.where(zero, r**6 / 6, p2)
-        d0, d1, d2 = (np.diff(p, axis=1).T for p in (p0, p1, p2))  # (M, n_nu)
-        return np.concatenate([d0, d1 - c * d0, d2 - 2 * c * d1 + c**2 * d0], axis=1)
+        """Kernel (M, 3 n_nu) of the engine's rings ``ring_edges_m`` (:func:`ring_moments`)."""
+        return ring_moments(self.ring_edges_m, self.nu, self.geometry.aperture_diameter_m)
+
+    def rings_for(self, doe) -> tuple[torch.Tensor, torch.Tensor]:
+        """Ring centres (n,) and ring-moment kernel (n, 3 n_nu) that simulate ``doe`` exactly.
+
+        A design that is piecewise constant on its own rings (a design file: ``ring_edges_m``,
+        any widths, up to the rim) gets the engine's rings split at its edges: its height is then
+        constant on every ring and each ring integral is exact. Any other design (and the bare
+        lens) uses the engine's equal rings, with the height at their centres. The split kernel
+        of the last design is kept (one design is simulated many times)."""
+        edges = getattr(doe, "ring_edges_m", None) if doe is not None else None
+        if edges is None:
+            return self.ring_centres_t, self.kernel
+        design = np.asarray(edges.detach().cpu().numpy() if torch.is_tensor(edges) else edges, dtype=float)
+        key = design.tobytes()
+        if self._split_rings is None or self._split_rings[0] != key:
+            split = split_ring_edges(self.ring_edges_m, design)
+            centres = torch.as_tensor(0.5 * (split[1:] + split[:-1]), dtype=torch.float64, device=self.device)
+            kernel = ring_moments(split, self.nu, self.geometry.aperture_diameter_m)
+            self._split_rings = (key, centres, torch.as_tensor(kernel, dtype=self.dtype, device=self.device))
+        return self._split_rings[1], self._split_rings[2]
 
     # ------------------------------------------------------------------ physics
     def pupil_phase(self, doe, depths_m) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pupil phase at the ring centres (rad), (n_lambda, n_depths, n_rings), and the
-        defocus coefficient alpha = pi (1/z - 1/v) / lambda (rad/m^2), (n_lambda, n_depths, 1)."""
+        """Pupil phase at the ring centres of :meth:`rings_for` (rad), (n_lambda, n_depths, n_rings),
+        and the defocus coefficient alpha = pi (1/z - 1/v) / lambda (rad/m^2), (n_lambda, n_depths, 1)."""
         z = torch.as_tensor(check_depths(depths_m), dtype=torch.float64, device=self.device)
         lam = torch.as_tensor(self.wavelengths_m, dtype=torch.float64, device=self.device)
-        r = self.ring_centres_t
+        r, _ = self.rings_for(doe)
         if doe is None:
             height = torch.zeros_like(r)
             n_minus_1 = torch.zeros_like(lam)
@@ -267,12 +315,13 @@ class RadialPSFEngine:
                 doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64, device=self.device
             )
         doe_phase = 2 * math.pi * n_minus_1[:, None] * height[None, :] / lam[:, None]  # (L, M)
-        doe_phase = doe_phase + self.aberration_phase()
+        doe_phase = doe_phase + self.aberration_phase(r)
         alpha = math.pi * (1.0 / z - 1.0 / self.geometry.focus_distance_m)[None, :, None] / lam[:, None, None]
         return doe_phase[:, None, :] + alpha * r[None, None, :] ** 2, alpha
 
-    def aberration_phase(self) -> torch.Tensor | float:
-        """``2 pi W(r_m) / lambda`` at the ring centres, (n_lambda, n_rings), or 0 without aberration."""
+    def aberration_phase(self, ring_centres_m: torch.Tensor | None = None) -> torch.Tensor | float:
+        """``2 pi W(r_m) / lambda`` at the ring centres (default: the engine's), (n_lambda, n_rings),
+        or 0 without aberration."""
         ab = self.aberration
         if ab is None or ab.is_zero:
             return 0.0
@@ -281,7 +330,8 @@ class RadialPSFEngine:
                 "the radial engine takes only rotationally symmetric aberrations (Noll j = 1, 4, 11, 22, ...; "
                 "no wavefront map): use --engine 2d"
             )
-        rho = self.ring_centres_t / self.geometry.aperture_radius_m
+        centres = self.ring_centres_t if ring_centres_m is None else ring_centres_m
+        rho = centres / self.geometry.aperture_radius_m
         phase = torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
         step = pupil_phase_step_rad(phase)
         check_aberration_sampling(step, self.pupil_samples, "ring", MAX_DEFOCUS_STEP_RAD)
@@ -292,9 +342,10 @@ class RadialPSFEngine:
         depths_m = check_depths(depths_m)
         check_defocus_sampling(self.geometry, self.wavelengths_m, depths_m, self.pupil_samples)
         phase, alpha = self.pupil_phase(doe, depths_m)
+        _, kernel = self.rings_for(doe)
         n = len(self.nu)
-        cos_k = torch.matmul(torch.cos(phase).to(self.dtype), self.kernel)  # (L, Z, 3 n_nu)
-        sin_k = torch.matmul(torch.sin(phase).to(self.dtype), self.kernel)
+        cos_k = torch.matmul(torch.cos(phase).to(self.dtype), kernel)  # (L, Z, 3 n_nu)
+        sin_k = torch.matmul(torch.sin(phase).to(self.dtype), kernel)
         a = alpha.to(self.dtype)
         half_a2 = 0.5 * a * a
         # G = K0 g + i alpha K1 g - alpha^2/2 K2 g with g = cos + i sin
