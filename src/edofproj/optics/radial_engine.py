@@ -39,8 +39,9 @@ Sampling: the intensity of a pupil of diameter D oscillates with period >= lambd
 pixels; the radial output grid is several times finer than that (finer still near the
 axis, where the in-focus Airy core is a fraction of a pixel). The pupil rings must resolve
 the defocus phase: its step per ring, 2 pi R dr |1/z - 1/v| / lambda, must stay below
-``MAX_DEFOCUS_STEP_RAD``, else :class:`~edofproj.errors.SamplingError` names the
-``pupil_samples`` needed.
+``MAX_DEFOCUS_STEP_RAD``; with the aberration's step and the design's own rule, every
+requirement is checked at once (:mod:`.sampling`), and one
+:class:`~edofproj.errors.SamplingError` names the ``pupil_samples`` that meets them all.
 
 Lens aberrations (:mod:`.aberrations`, rotationally symmetric terms only) add the phase
 ``2 pi W(r) / lambda`` at the ring centres; their step per ring must stay below
@@ -56,13 +57,14 @@ import numpy as np
 import torch
 from scipy.special import j0, j1, spherical_jn
 
-from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
+from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..limits import check_memory
-from .aberrations import PupilAberration, check_aberration_sampling, pupil_phase_step_rad
+from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
+from .sampling import MAX_PHASE_STEP_RAD, check_pupil_sampling
 
-MAX_DEFOCUS_STEP_RAD = math.pi / 2
+MAX_DEFOCUS_STEP_RAD = MAX_PHASE_STEP_RAD
 
 
 def check_window(window: int) -> int:
@@ -84,21 +86,6 @@ def check_depths(depths_m) -> np.ndarray:
     if z.size == 0 or np.any(~np.isfinite(z)) or np.any(z <= 0):
         raise EdofprojError(f"depths must be positive and finite, got {z.tolist()} m")
     return z
-
-
-def check_defocus_sampling(geometry: ProjectorGeometry, wavelengths_m, depths_m, pupil_samples: int) -> None:
-    """Refuse when the pupil samples cannot resolve the defocus phase (names the fix)."""
-    dr = geometry.aperture_diameter_m / pupil_samples
-    worst = np.max(np.abs(1.0 / np.asarray(depths_m) - 1.0 / geometry.focus_distance_m))
-    step = 2 * math.pi * geometry.aperture_radius_m * dr * worst / float(np.min(wavelengths_m))
-    if step > MAX_DEFOCUS_STEP_RAD:
-        need = int(math.ceil(pupil_samples * step / MAX_DEFOCUS_STEP_RAD))
-        need += need % 2
-        raise SamplingError(
-            f"pupil_samples={pupil_samples} cannot resolve the defocus phase at "
-            f"{float(np.min(depths_m)) * 1e3:.0f}-{float(np.max(depths_m)) * 1e3:.0f} mm "
-            f"({step:.2f} rad per sample, max {MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need}"
-        )
 
 
 def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: int) -> None:
@@ -312,7 +299,6 @@ class RadialPSFEngine:
         else:
             if not doe.radially_symmetric:
                 raise EdofprojError(f"the radial engine needs a radially symmetric DOE; use --engine 2d for {doe.name}")
-            doe.check_sampling(self.ring_width_m)
             height = doe.height_m(r).to(torch.float64)
             if not torch.all(torch.isfinite(height)):
                 raise EdofprojError("the DOE produced NaN or infinite heights")
@@ -337,15 +323,41 @@ class RadialPSFEngine:
             )
         centres = self.ring_centres_t if ring_centres_m is None else ring_centres_m
         rho = centres / self.geometry.aperture_radius_m
-        phase = torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
-        step = pupil_phase_step_rad(phase)
-        check_aberration_sampling(step, self.pupil_samples, "ring", MAX_DEFOCUS_STEP_RAD)
-        return phase
+        return torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
+
+    def aberration_step_rad(self, pupil_samples: int) -> float:
+        """The aberration's largest phase step between neighbouring ring centres of ``pupil_samples`` equal rings."""
+        edges = torch.linspace(0.0, self.geometry.aperture_radius_m, pupil_samples // 2 + 1, dtype=torch.float64)
+        phase = self.aberration_phase(0.5 * (edges[1:] + edges[:-1]).to(self.device))  # (L, M / 2)
+        if not torch.is_tensor(phase):
+            return 0.0
+        return max(pupil_phase_step_rad(row[None]) for row in phase)  # along the radius, per wavelength
+
+    def check_sampling(self, doe, depths_m) -> None:
+        """Refuse (one :class:`~edofproj.errors.SamplingError` naming the one ``pupil_samples`` that meets every
+        requirement: :mod:`.sampling`) rings that cannot resolve the defocus, the aberration or the design.
+        A design on rings of its own is exact at any sampling (:meth:`rings_for`): its rule is not applied."""
+        if doe is not None and not doe.radially_symmetric:
+            raise EdofprojError(f"the radial engine needs a radially symmetric DOE; use --engine 2d for {doe.name}")
+        ab = self.aberration
+        if ab is not None and not ab.is_zero and not ab.radially_symmetric:
+            self.aberration_phase()  # the one-line refusal of asymmetric terms
+        check_pupil_sampling(
+            self.pupil_samples,
+            geometry=self.geometry,
+            wavelengths_m=self.wavelengths_m,
+            depths_m=depths_m,
+            window=self.window,
+            engine="radial",
+            doe=doe,
+            aberration_step_rad=None if ab is None or ab.is_zero else self.aberration_step_rad,
+            check_design=getattr(doe, "ring_edges_m", None) is None,
+        )
 
     def radial_intensity(self, doe, depths_m) -> torch.Tensor:
         """I at the radii ``rho_px_at(l)``: pupil-energy fraction per square pixel, (n_lambda, n_depths, n_nu)."""
         depths_m = check_depths(depths_m)
-        check_defocus_sampling(self.geometry, self.wavelengths_m, depths_m, self.pupil_samples)
+        self.check_sampling(doe, depths_m)
         phase, alpha = self.pupil_phase(doe, depths_m)
         centres, kernel = self.rings_for(doe)
         b_re, b_im = self.defocus_coefficients(alpha, centres)  # (L, Z, 3 M) each: b0 | b1 | b2
