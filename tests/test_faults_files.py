@@ -258,8 +258,8 @@ def test_a_manifest_cannot_make_capture_write_outside_its_session(pattern_dir, t
 
 @pytest.mark.parametrize("name", ["../cube.stl", "/tmp/cube.stl"])
 def test_scene_mesh_files_stay_inside_the_scene_folder(tmp_path, name):
-    from edofproj.optics.geometry import ProjectorGeometry
     from edofproj.config import load_config
+    from edofproj.optics.geometry import ProjectorGeometry
     from edofproj.scenes.loader import load_scene
 
     folder = tmp_path / "scene"

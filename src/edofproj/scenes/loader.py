@@ -8,6 +8,7 @@ import numpy as np
 import trimesh
 import yaml
 
+from ..config import safe_load_yaml
 from ..errors import EdofprojError
 from .builtin import BUILTIN_SCENES, builtin_scene
 from .scene import Scene, SceneMesh
@@ -100,7 +101,7 @@ def read_scene_file(path: str | Path) -> Scene:
     if not path.is_file():
         raise EdofprojError(f"scene file '{path}' does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load_yaml(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise EdofprojError(f"cannot read scene file '{path}': {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict):
