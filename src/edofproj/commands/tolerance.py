@@ -73,8 +73,8 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import EdofprojError
     from ..builtin_runs import require_output_outside
+    from ..errors import EdofprojError
     from ..fabrication.inputs import DesignInput
     from ..fabrication.profile import RadialProfile
     from ..fabrication.tolerance import ToleranceSettings, run_tolerance

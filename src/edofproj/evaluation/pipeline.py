@@ -18,7 +18,6 @@ A method whose run does not exist is skipped with a note, unless it was asked fo
 from __future__ import annotations
 
 import dataclasses
-
 import math
 import time
 import warnings
