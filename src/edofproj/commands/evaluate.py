@@ -145,8 +145,8 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
     from pathlib import Path
 
     from ..builtin_runs import resolve_run_dir
-    from ..evaluation.output_set import moved_path, staged_output_set
     from ..evaluation.claims import ssim_claims
+    from ..evaluation.output_set import moved_path, staged_output_set
     from ..evaluation.pipeline import evaluate_run
     from ..evaluation.summary import format_text_table, range_table
     from ..evaluation.writeup import claims_section, write_documents
