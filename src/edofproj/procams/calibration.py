@@ -189,9 +189,14 @@ def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> 
     for key, top in (("map_x", Wc - 1), ("map_y", Hc - 1)):
         if data[key].min() < 0 or data[key].max() > top:
             fail(f"has '{key}' outside the {Wc}x{Hc} camera frame ({data[key].min():.6g}..{data[key].max():.6g})")
-    for key, shape in (("homography", (3, 3)), ("mixing_matrix", (3, 3)), ("black_level", (3,))):
-        if data[key].shape != shape:
-            fail(f"has '{key}' of shape {data[key].shape}, not {shape}")
+    small: tuple[tuple[str, tuple[int, ...]], ...] = (
+        ("homography", (3, 3)),
+        ("mixing_matrix", (3, 3)),
+        ("black_level", (3,)),
+    )
+    for key, wanted in small:
+        if data[key].shape != wanted:
+            fail(f"has '{key}' of shape {data[key].shape}, not {wanted}")
     if (
         data["dots_proj"].ndim != 2
         or data["dots_proj"].shape[1:] != (2,)
