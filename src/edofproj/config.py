@@ -209,6 +209,14 @@ class DOEConfig:
 
 #: Bytes per window pixel of the smallest PSF simulation (3 colours x float64 x 3 copies).
 PSF_WINDOW_BYTES_PER_PIXEL = 72
+#: Least bytes per pixel of each training crop in one step: the smallest network's forward and
+#: backward pass (peak RSS, 512x512 input: 281 B/px for the multi-rate network of widths 8,16;
+#: 1828 B/px for the default U-Net; docs/experiments/2026-11-25-hostile-inputs.md) -- a lower bound.
+TRAIN_BYTES_PER_CROP_PIXEL = 256
+#: Least bytes per pixel of one scored image in ``evaluate``: its projection (80 B/px,
+#: :data:`edofproj.imaging.projection.PROJECTION_BYTES_PER_PIXEL`) and the smallest network's
+#: inference (184 B/px measured as above) -- a lower bound.
+EVALUATION_BYTES_PER_PIXEL = 256
 
 
 @dataclass
@@ -654,7 +662,35 @@ class Config:
             section = getattr(self, f.name)
             if hasattr(section, "validate"):
                 section.validate()
+        self.check_memory()
         return self
+
+    def check_memory(self) -> None:
+        """Refuse sizes that cannot fit before anything is allocated (:func:`edofproj.limits.check_memory`):
+        a training step (``train.batch_size`` crops of ``data.crop``, :data:`TRAIN_BYTES_PER_CROP_PIXEL`),
+        one scored image of ``evaluation.image_size`` padded by the PSF window
+        (:data:`EVALUATION_BYTES_PER_PIXEL`) and the PSFs of every ``evaluation.depths_mm``
+        (:data:`PSF_WINDOW_BYTES_PER_PIXEL` each). Lower bounds: what passes may still not fit."""
+        crop, batch = self.data.crop, self.train.batch_size
+        check_memory(
+            float(TRAIN_BYTES_PER_CROP_PIXEL) * batch * crop * crop,
+            f"a training step of train.batch_size={batch} crops of {crop}x{crop} px",
+            "use a smaller train.batch_size (or data.crop)",
+        )
+        if self.evaluation.image_size:
+            height, width = (int(s) for s in self.evaluation.image_size)
+            padding = self.psf.window - 1
+            check_memory(
+                float(EVALUATION_BYTES_PER_PIXEL) * (height + padding) * (width + padding),
+                f"evaluation.image_size={[height, width]}",
+                "use a smaller evaluation.image_size",
+            )
+        depths = len(self.evaluation.depths_mm) + len(self.evaluation.comparison_depths_mm)
+        check_memory(
+            float(PSF_WINDOW_BYTES_PER_PIXEL) * self.psf.window**2 * depths,
+            f"the PSFs of {depths} evaluation depths",
+            "use fewer evaluation.depths_mm",
+        )
 
 
 # --------------------------------------------------------------------------- helpers
@@ -765,10 +801,37 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
             did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
             raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
         try:
-            node[keys[-1]] = yaml.safe_load(raw)
+            node[keys[-1]] = safe_load_yaml(raw)
         except yaml.YAMLError:
             node[keys[-1]] = raw
     return from_dict(Config, data).validate()
+
+
+class DuplicateKeyError(yaml.YAMLError):
+    """A YAML mapping names a key twice (one line: the key and its line)."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a mapping holding a key twice, instead of keeping the last
+    value silently (YAML 1.2 requires keys to be unique)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise DuplicateKeyError(f"key '{key}' appears twice (line {key_node.start_mark.line + 1})")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _UniqueKeyLoader.construct_mapping)
+
+
+def safe_load_yaml(text: str):
+    """``yaml.safe_load`` that refuses duplicate keys (:class:`DuplicateKeyError`): every YAML file
+    edofproj reads (configs, scene files) and every ``--set`` value goes through it."""
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
 
 
 #: The presets ship inside the package (``edofproj/presets/*.yaml``), so any install finds them.
@@ -799,7 +862,7 @@ def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -
     else:
         file = resolve_config_path(path)
         try:
-            data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+            data = safe_load_yaml(file.read_text(encoding="utf-8")) or {}
         except (OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"cannot read config '{file}': {exc}") from None
         except yaml.YAMLError as exc:
