@@ -76,3 +76,11 @@ def test_every_help_text_states_the_same_durations():
 def test_the_report_budget_is_the_stated_one(settings):
     minutes = FULL_BUDGET_MIN if settings is demo.FULL else demo.QUICK_BUDGET_MIN
     assert settings.budget_s == minutes * 60
+
+
+def test_the_shipped_cubic_baseline_is_a_trained_run_of_the_demo_recipe():
+    from edofproj.builtin_runs import builtin_run_dir
+
+    run = load_run(builtin_run_dir(demo.BUILTIN_BASELINES["cubic+net"]))
+    assert run.cfg.doe.kind == "cubic" and run.step == load_config("cpu").train.steps
+    assert run.cfg.net.widths == load_config("cpu").net.widths
