@@ -146,6 +146,9 @@ def test_bad_requests_are_one_line(run_dir, tmp_path, capsys):
         open_frames(video=str(tmp_path / "missing.avi"))
     with pytest.raises(EdofprojError, match="must end in one of"):
         VideoSink(tmp_path / "x.mkv", 30, HW)
+    write_image(tmp_path / "in" / "b.png", torch.rand(3, 20, 30))  # still images are not resized
+    with pytest.raises(EdofprojError, match="b.png' is 30x20, not 56x40 like the first image 'a.png'"):
+        list(open_frames(images=str(tmp_path / "in")).frames)
     (tmp_path / "empty").mkdir()
     with pytest.raises(EdofprojError, match="holds no image"):
         open_frames(images=str(tmp_path / "empty"))

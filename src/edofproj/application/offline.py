@@ -77,8 +77,8 @@ def _video_frames(
 def open_frames(
     images: str | None = None, video: str | None = None, size_hw: tuple[int, int] | None = None
 ) -> FrameSource:
-    """The frames of a folder (``images``, name order) or of a ``video``, fitted to ``size_hw``
-    (default: the first frame's size)."""
+    """The frames of a folder (``images``, name order; each of ``size_hw``, else refused) or of a
+    ``video`` (resized to ``size_hw``); ``size_hw`` defaults to the first frame's size."""
     if (images is None) == (video is None):
         raise EdofprojError("give one of --images, --video")
     if video is not None:
@@ -107,10 +107,16 @@ def open_frames(
         raise EdofprojError(f"image folder '{folder}' holds no image ({', '.join(IMAGE_EXTENSIONS)})")
     first_image = read_image_array(paths[0])
     size = size_hw or (int(first_image.shape[0]), int(first_image.shape[1]))
+    reference = "the calibrated projector" if size_hw is not None else f"the first image '{paths[0].name}'"
 
     def frames() -> Iterator[tuple[str, np.ndarray]]:
-        for path in paths:
-            yield path.stem, fit_to_projector(to_unit_float(read_image_array(path)), size)
+        for path in paths:  # still images are not resized (as in live): one of another size is refused
+            image = to_unit_float(read_image_array(path))
+            if image.shape[:2] != tuple(size):
+                raise EdofprojError(
+                    f"image '{path}' is {image.shape[1]}x{image.shape[0]}, not {size[1]}x{size[0]} like {reference}"
+                )
+            yield path.stem, image.astype(np.float32)
 
     return FrameSource(f"folder '{folder}'", len(paths), DEFAULT_VIDEO_FPS, size, frames())
 

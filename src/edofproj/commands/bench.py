@@ -96,13 +96,15 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import torch
 
-    from ..compensation.registry import network_from_widths
+    from ..compensation.registry import check_frame_memory, network_from_widths
     from ..config import Config
     from ..evaluation import timing
     from ..evaluation.timing import disk_psf
     from ..fileio import write_text_atomic
 
     sizes = timing.parse_sizes(args.sizes)
+    for height, width in sizes:  # every size is refused before the first is timed
+        check_frame_memory(height, width, f"a {height}x{width} frame", "use smaller --sizes")
     methods = parse_name_list(args.methods)
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
