@@ -41,7 +41,13 @@ from ..errors import EdofprojError
 from ..evaluation import timing
 from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
-from ..evaluation.pipeline import EVALUATION_OVERRIDE_PREFIXES, Evaluation, evaluate_run, require_trained_run
+from ..evaluation.pipeline import (
+    EVALUATION_OVERRIDE_PREFIXES,
+    Evaluation,
+    baseline_mismatch,
+    evaluate_run,
+    require_trained_run,
+)
 from ..evaluation.progress import StageProgress, format_duration
 from ..evaluation.report import Figure, Heading, Paragraph, Table
 from ..evaluation.scenes import evaluate_scenes, scene_summary_table
@@ -220,13 +226,23 @@ def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" 
     )
 
 
-def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str]) -> None:
+def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str], ours_dir: Path | None = None) -> None:
     """Put the shipped run of each skipped baseline (:data:`BUILTIN_BASELINES`) in its run directory,
-    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in``."""
+    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in``. With ``ours_dir``
+    (the evaluated run), a shipped run whose projector differs from it (another spectrum, optics or
+    PSF sampling: :func:`~edofproj.evaluation.pipeline.baseline_mismatch`) is not used; the note says why."""
     for job in jobs:
         name = BUILTIN_BASELINES.get(job.method)
         if job.status != "skipped" or name is None or name not in BUILTIN_RUNS:
             continue
+        if ours_dir is not None and (ours_dir / "config.yaml").is_file():
+            shipped_dir = require_trained_run(PREFIX + name)
+            problem = baseline_mismatch(
+                method_spec(job.method), shipped_dir, saved_config(ours_dir), saved_config(shipped_dir)
+            )
+            if problem:
+                job.note += f"; its shipped run {PREFIX}{name} does not fit: {problem}"
+                continue
         shipped = copy_pretrained(PREFIX + name, job.run_dir, overrides)
         job.status = "built-in"
         job.note = (
@@ -344,7 +360,8 @@ def run_demo(
     """Run the demo into ``out`` (module docstring); returns what it measured and wrote.
 
     ``pretrained``: a trained run (directory or ``builtin:NAME``) copied to ``doe_net/`` instead of
-    training ``doe+net``; the baselines are trained as usual. ``retrain_baselines``: train every
+    training ``doe+net``; the baselines train with its configuration (its projector: optics, spectrum,
+    PSF sampling) for the preset's steps. ``retrain_baselines``: train every
     baseline whatever the budget (else those predicted not to fit come from the shipped runs)."""
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
@@ -362,6 +379,13 @@ def run_demo(
 
     if pretrained is not None:
         require_trained_run(pretrained)  # fails before anything is written
+    training_config = config
+    if pretrained is not None:
+        # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
+        # train with its configuration, for the preset's steps
+        training_config = str(require_trained_run(pretrained) / "config.yaml")
+        overrides = [f"train.steps={cfg.train.steps}", *overrides]
+        cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(
         out, settings, cfg, methods, overrides, train_ours=pretrained is None, retrain_baselines=retrain_baselines
     )
@@ -372,9 +396,9 @@ def run_demo(
     if pretrained is not None:
         ours = copy_pretrained(pretrained, out / OURS_RUN_DIR, list(settings.overrides) + list(overrides))
     progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
-    trainer = ParallelTrainer(jobs, config, out / LOG_DIR, workers, deadline, progress, later_s=later)
+    trainer = ParallelTrainer(jobs, training_config, out / LOG_DIR, workers, deadline, progress, later_s=later)
     trainer.run()
-    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides))
+    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), out / OURS_RUN_DIR)
     progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
