@@ -83,6 +83,7 @@ def run(args) -> int:
     import torch
 
     from ..doe import build_doe
+    from ..doe.factory import design_label
     from ..optics.psf_bank import simulator_from_config
     from ..optics.spectra import check_wavelengths_nm
 
@@ -116,6 +117,7 @@ def run(args) -> int:
             lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine="radial").bank(
                 lens, depths_m
             )
-        plot_psf_comparison([("lens", lens, lens_bank), (doe.name, doe, bank)], args.plot)
+        label = doe.name if args.doe is None else design_label(args.doe)
+        plot_psf_comparison([("lens", lens, lens_bank), (label, doe, bank)], args.plot)
         print(f"wrote {args.plot}")
     return 0
