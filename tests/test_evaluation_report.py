@@ -270,3 +270,37 @@ def test_summarize_prints_the_spread_of_evaluations_and_refuses_unlike_ones(tmp_
         assert main(["summarize", *args]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_a_method_left_out_is_named_once_in_the_notes():
+    """The demo notes 'cubic+net not evaluated: ...' and the builder 'axicon+net skipped: ...'; the list of
+    methods not evaluated names only the others, so no method is reported twice (issue 29)."""
+    from types import SimpleNamespace
+
+    from edofproj.evaluation.report import Bullets
+    from edofproj.evaluation.writeup import methods_section
+
+    evaluated = [SimpleNamespace(name=n, spec=method_spec(n), detail="") for n in ("doe", "doe+net")]
+    ev = SimpleNamespace(
+        methods=evaluated,
+        notes=["cubic+net not evaluated: the time budget", "axicon+net skipped: no trained run at 'x'"],
+        perceptual_missing=[],
+        frame_ms={},
+    )
+    notes = next(block for block in methods_section(ev)[2:] if isinstance(block, Bullets)).items
+    text = "\n".join(notes)
+    assert text.count("cubic+net") == 1 and text.count("axicon+net") == 1
+    listed = next(n for n in notes if n.startswith("Not evaluated:"))
+    others = [m for m in METHOD_NAMES if m not in ("doe", "doe+net", "cubic+net", "axicon+net")]
+    assert listed == f"Not evaluated: {', '.join(others)}."
+
+
+def test_the_demo_timing_table_says_how_it_differs_from_the_summary_ms_per_frame():
+    from edofproj.application.demo import timing_section
+    from edofproj.evaluation.timing import Timing
+
+    blocks = timing_section([Timing("doe+net", "torch", "cpu", 128, 128, 887.9, 2)], 2, (256, 256))
+    paragraph = next(b for b in blocks if isinstance(b, Paragraph)).text
+    assert "not the summary's ms/frame" in paragraph and "(256x256 frames)" in paragraph
+    table = next(b for b in blocks if isinstance(b, Table))
+    assert table.header[-1] == "128x128" and table.rows == [["doe+net", "torch", "887.9"]]
