@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -88,6 +89,34 @@ def test_psf_designs(tmp_path):
     assert len(rows) == 1 + 4 * 3
     for figure in ("psf_designs.png", "sharpness_vs_depth.png"):
         assert (tmp_path / figure).stat().st_size > 10_000
+
+
+def test_psf_designs_at_full_size_prints_what_its_page_shows(tmp_path):
+    """The page's table is ``docs/tutorials/output/psf_designs.txt``: a fresh full-size run prints the
+    same lines, each number within 0.0015 (the last printed digit, FFT rounding across machines).
+    About a minute of CPU time (the cubic plate's 2-D engine)."""
+    env = dict(
+        os.environ,
+        OMP_NUM_THREADS="1",
+        PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]),
+    )
+    result = subprocess.run(
+        [sys.executable, str(TUTORIALS / "psf_designs.py"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=3600,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    printed = result.stdout.strip().splitlines()[:-1]  # the last line: where it wrote and the time
+    recorded = (TUTORIALS / "output" / "psf_designs.txt").read_text(encoding="utf-8").strip().splitlines()
+    assert len(printed) == len(recorded)
+    number = re.compile(r"\d+\.\d+")
+    for fresh, page in zip(printed, recorded):
+        assert number.sub("#", fresh) == number.sub("#", page)  # the same words and layout
+        np.testing.assert_allclose(
+            [float(v) for v in number.findall(fresh)], [float(v) for v in number.findall(page)], atol=0.0015
+        )
 
 
 @pytest.fixture(scope="module")
