@@ -4,15 +4,36 @@ stores the folder absolute, so the run resumes and loads from any working direct
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from edofproj.cli import main
 from edofproj.config import dump_config, load_config
 from edofproj.data import folder_split
 from edofproj.imaging.image_io import write_image
-from edofproj.runs import load_run
+from edofproj.runs import check_resume_config, load_run, with_absolute_paths, write_run_config
 
 
+def test_config_yaml_stores_paths_absolute_and_resume_accepts_a_relative_run(tmp_path, monkeypatch):
+    """Without training: the run's config.yaml holds data.folder (and every path key) absolute; a config
+    saved relative (before this rule) still resumes from its own directory; builtin:NAME stays a name."""
+    from edofproj.config import Config
+
+    monkeypatch.chdir(tmp_path)
+    cfg = Config()
+    cfg.data.source, cfg.data.folder, cfg.data.test_folder = "folder", "photos", "../held"
+    cfg.doe.kind, cfg.doe.path = "file", "builtin:cpu-doe-net"
+    (tmp_path / "run").mkdir()
+    write_run_config(tmp_path / "run", cfg)
+    saved = load_config(str(tmp_path / "run" / "config.yaml"))
+    assert saved.data.folder == str(tmp_path / "photos") and saved.data.test_folder == str(tmp_path.parent / "held")
+    assert saved.doe.path == "builtin:cpu-doe-net" and cfg.data.folder == "photos"  # the caller's config untouched
+    check_resume_config(tmp_path / "run", cfg)  # the same folders, given relative: resumable
+    (tmp_path / "run" / "config.yaml").write_text(dump_config(cfg))  # a run saved with relative paths
+    check_resume_config(tmp_path / "run", with_absolute_paths(cfg))
+
+
+@pytest.mark.slow  # trains (one step)
 def test_train_on_a_relative_folder_prints_the_split_and_stores_it_absolute(tmp_path, monkeypatch, tiny_config, capsys):
     work, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
     (work / "photos").mkdir(parents=True)
