@@ -214,6 +214,12 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     return results
 
 
+def _frame_hw(evaluation) -> tuple[int, int]:
+    """``(height, width)`` of the evaluated frames (the first image's)."""
+    height, width = evaluation.images[0][1].shape[-2:]
+    return int(height), int(width)
+
+
 def timing_section(results, threads: int, evaluated_hw: tuple[int, int] | None = None) -> list:
     """The report's timing table; its paragraph says how it differs from the summary's ms/frame
     (measured on the evaluated frame size, ``evaluated_hw``)."""
@@ -369,8 +375,7 @@ def run_demo(
         evaluation,
         title="edofproj demo report",
         preface=preface,
-        extra=timing_section(timings, torch.get_num_threads(), tuple(evaluation.images[0][1].shape[-2:]))
-        + scene_blocks,
+        extra=timing_section(timings, torch.get_num_threads(), _frame_hw(evaluation)) + scene_blocks,
     )
     progress.finish()
     return DemoResult(out, evaluation, claims, jobs, time.perf_counter() - clock, paths["report_html"])

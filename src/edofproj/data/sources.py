@@ -118,16 +118,16 @@ def describe_training_data(data_cfg) -> str:
     mixed = f"; mixed with {' and '.join(mix)} per sample" if mix else ""
     rule = f"data.test_fraction={data_cfg.test_fraction:g}, chosen by the SHA-256 of their names"
     if data_cfg.source in ("builtin", *synthetic):
-        train, test = builtin_split(data_cfg.test_fraction)
+        train_names, test_names = builtin_split(data_cfg.test_fraction)
         if data_cfg.source in synthetic:
             return (
                 f"data: {synthetic[data_cfg.source]} drawn at random ({data_cfg.crop} px crops); tested on the "
-                f"{len(test)} held-out built-in photographs ({rule})"
+                f"{len(test_names)} held-out built-in photographs ({rule})"
             )
-        small = sum(min(load_builtin_photo(name).shape[:2]) < data_cfg.crop for name in train)
+        too_small = sum(min(load_builtin_photo(name).shape[:2]) < data_cfg.crop for name in train_names)
         return (
-            f"data: {len(BUILTIN_PHOTOS)} built-in photographs: {len(train)} for training, {len(test)} held out "
-            f"for testing ({rule}){_skipped(small, data_cfg.crop)}{mixed}"
+            f"data: {len(BUILTIN_PHOTOS)} built-in photographs: {len(train_names)} for training, {len(test_names)} "
+            f"held out for testing ({rule}){_skipped(too_small, data_cfg.crop)}{mixed}"
         )
     root = Path(data_cfg.folder)
     if data_cfg.test_folder:
