@@ -119,8 +119,8 @@ def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, di
     first) wrap after :data:`GRID_MAX_COLUMNS`, so that the figure stays readable at page width;
     every tile carries its method's name."""
     n_cells = 1 + max(len(r[2]) for r in rows)
-    n_cols = min(n_cells, GRID_MAX_COLUMNS)
-    lines_per_row = -(-n_cells // n_cols)
+    lines_per_row = -(-n_cells // GRID_MAX_COLUMNS)
+    n_cols = -(-n_cells // lines_per_row)  # balanced lines: 9 tiles as 3 x 3, not 4 + 4 + 1
     height, width = rows[0][1].shape[:2]
     tile = GRID_TILE_IN
     n_lines = len(rows) * lines_per_row
