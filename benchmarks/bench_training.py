@@ -1,7 +1,18 @@
-"""Seconds per training step and peak memory of the training presets, at each preset's crop size.
+"""Seconds per training step and peak memory of the training presets, at each preset's crop size;
+with ``--stages``, the seconds of each stage of one step.
 
     .venv/bin/python benchmarks/bench_training.py                  # cpu (8 steps) and paper (2 steps)
     .venv/bin/python benchmarks/bench_training.py --presets cpu --steps 20 --threads 1
+    .venv/bin/python benchmarks/bench_training.py --stages --presets cpu realtime --threads 1
+
+``--stages`` times each stage of a step of a training session (:class:`~edofproj.training.trainer`'s
+session, built as ``edofproj train`` builds it) on its own, forward and backward together, with the
+shapes of the real step: data (crops, depths), the PSFs (simulated for a trained DOE, looked up in the
+table for a fixed one), image formation (the two projections and the camera), the network, the loss,
+gradient clipping with the optimizer step, and the checkpoint amortized over ``train.checkpoint_every``
+steps; then whole steps. The median of ``--repeats`` runs is printed, as process CPU seconds with one
+thread (robust to other processes on a shared machine: a one-thread process is charged only while it
+runs) and as wall seconds otherwise. The stages add up to the step less Python and autograd overhead.
 
 Each preset runs ``edofproj.training.trainer.train`` in its own subprocess (so the peak
 resident memory, ``ru_maxrss``, belongs to that preset alone) in a temporary run directory.
@@ -27,6 +38,91 @@ import time
 from pathlib import Path
 
 DEFAULT_STEPS = {"cpu": 8, "paper": 2}
+
+
+def stage_seconds(preset: str, threads: int, repeats: int, overrides: list[str]) -> dict:
+    """Median seconds of each stage of one training step of ``preset`` (module docstring)."""
+    import warnings
+
+    import numpy as np
+    import torch
+
+    from edofproj.config import load_config
+    from edofproj.imaging.projection import project
+    from edofproj.training.camera import camera_capture
+    from edofproj.training.distributed import setup_process_group
+    from edofproj.training.sampling import sample_depths_m, sample_images
+    from edofproj.training.trainer import _clip, _Session, loss_terms
+
+    torch.set_num_threads(threads)
+    clock = time.process_time if threads == 1 else time.perf_counter
+    warnings.simplefilter("ignore")
+    cfg = load_config(preset, overrides)
+    if cfg.data.source == "folder" and not Path(cfg.data.folder or "").is_dir():
+        cfg = load_config(preset, overrides + ["data.source=dead-leaves", "data.folder=null"])
+
+    def median(fn, n=repeats):
+        fn()
+        times = []
+        for _ in range(n):
+            start = clock()
+            fn()
+            times.append(clock() - start)
+        return float(np.median(times))
+
+    with tempfile.TemporaryDirectory() as tmp:
+        session = _Session(cfg, Path(tmp) / "run", setup_process_group("cpu"))
+        c, step = cfg, 1
+
+        def draw():
+            depths = sample_depths_m(
+                c.train.seed, step, session.shard, c.psf.depth_min_m, c.psf.depth_max_m,
+                c.train.depth_sampling, c.train.depth_spacing,
+            )  # fmt: skip
+            return depths, sample_images(session.source, c.train.seed, step, session.shard, c.data.crop)
+
+        depths, images = draw()
+        source = session.model.psf_source
+        psf = source(depths).detach()
+
+        def psfs():
+            p = source(depths)
+            if session.doe_params:
+                torch.autograd.grad(p, session.doe_params, torch.ones_like(p))
+
+        def imaging():
+            x = images.clone().requires_grad_(True)
+            kernel = psf.clone().requires_grad_(True)
+            shown = project(x, kernel) + camera_capture(project(x, kernel))
+            torch.autograd.grad(shown.sum(), [x, kernel])
+
+        captured = project(images, psf)
+
+        def network():
+            out = session.model._compensate(images, captured)
+            out.sum().backward()
+
+        projected = captured.clone().requires_grad_(True)
+
+        def loss():
+            loss_terms(session.loss_fn, cfg, projected, images)[0].backward()
+
+        def optimizer():
+            norms = [_clip(p, cfg.train.grad_clip) for p in (session.doe_params, session.net_params) if p]
+            [float(n) for n in norms]
+            session.optimizer.step()
+
+        stages = {
+            "data": median(draw),
+            "psf": median(psfs),
+            "imaging": median(imaging),
+            "network": median(network),
+            "loss": median(loss),
+            "optimizer": median(optimizer),
+            "checkpoint": median(session.save, 3) / cfg.train.checkpoint_every,
+        }
+        stages["step"] = median(session.train_step)
+    return {"preset": preset, "threads": torch.get_num_threads(), "clock": clock.__name__, "stages": stages}
 
 
 def run_preset(preset: str, steps: int, threads: int) -> dict:
@@ -91,11 +187,19 @@ def main(argv=None) -> int:
     parser.add_argument("--presets", nargs="+", default=["cpu", "paper"])
     parser.add_argument("--steps", type=int, default=None, help="steps per preset (default: cpu 8, paper 2)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--stages", action="store_true", help="seconds of each stage of a step (module docstring)")
+    parser.add_argument("--repeats", type=int, default=10, help="--stages: runs of each stage (median)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override (repeatable)")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(run_preset(args.worker, args.steps, args.threads)))
+        if args.stages:
+            print(json.dumps(stage_seconds(args.worker, args.threads or 1, args.repeats, args.set)))
+        else:
+            print(json.dumps(run_preset(args.worker, args.steps, args.threads)))
         return 0
+    if args.stages:
+        return print_stages(args)
     print(
         f"{'preset':8s} {'crop':>5s} {'batch':>5s} {'threads':>7s} {'first step s':>12s} "
         f"{'s/step':>8s} {'peak RSS MiB':>12s}"
@@ -117,6 +221,28 @@ def main(argv=None) -> int:
         )
         for note in r["notes"]:
             print(f"{'':8s} note: {note}")
+    return 0
+
+
+def print_stages(args) -> int:
+    """Run :func:`stage_seconds` for each preset in its own process and print one column per preset."""
+    results = []
+    for preset in args.presets:
+        command = [sys.executable, __file__, "--worker", preset, "--stages", "--threads", str(args.threads or 1)]
+        command += ["--repeats", str(args.repeats)] + [item for value in args.set for item in ("--set", value)]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            print(f"{preset}: failed: {done.stderr.strip().splitlines()[-1] if done.stderr.strip() else '?'}")
+            continue
+        results.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    if not results:
+        return 1
+    print(f"ms per step ({results[0]['clock']}, {results[0]['threads']} thread(s), median of {args.repeats})")
+    print(f"{'stage':12s}" + "".join(f"{r['preset']:>12s}" for r in results))
+    for stage in results[0]["stages"]:
+        print(f"{stage:12s}" + "".join(f"{1e3 * r['stages'][stage]:12.1f}" for r in results))
+    total = [sum(v for k, v in r["stages"].items() if k != "step") for r in results]
+    print(f"{'sum':12s}" + "".join(f"{1e3 * t:12.1f}" for t in total))
     return 0
 
 

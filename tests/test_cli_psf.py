@@ -86,3 +86,30 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, args, message):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in res.stderr
     assert not out.exists() and not any(tmp_path.iterdir())
+
+
+def test_plot_with_a_non_symmetric_aberration_uses_the_commands_engine(tmp_path):
+    out, plot = tmp_path / "psf.npz", tmp_path / "psf.png"
+    res = run_cli(
+        "psf",
+        "--doe",
+        "lens",
+        "--depth-mm",
+        "500",
+        "--wavelength-nm",
+        "550",
+        "--window",
+        "9",
+        "--engine",
+        "2d",
+        "--pupil-samples",
+        "128",
+        "--set",
+        "optics.zernike_um={6: 0.05}",
+        "--out",
+        str(out),
+        "--plot",
+        str(plot),
+    )
+    assert res.returncode == 0, res.stderr
+    assert out.exists() and plot.stat().st_size > 0

@@ -62,6 +62,8 @@ def test_quick_demo_writes_a_complete_report(tmp_path, capsys):
     assert (out / "scene_metrics.csv").is_file()
     markdown = (out / "report.md").read_text()
     assert "(figures/eval_psf_lens_vs_doe.png)" in markdown and (out / "figures" / "eval_psf_lens_vs_doe.png").is_file()
+    # three steps leave the quantized DOE flat: the report says why doe projects like lens
+    assert "is still the flat plate it starts as (3 steps" in markdown
 
 
 def test_demo_refuses_a_non_empty_output(tmp_path, capsys):

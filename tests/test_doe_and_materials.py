@@ -92,15 +92,19 @@ def test_measured_spd_csv(tmp_path):
         Spectrum.from_csv(tmp_path / "missing.csv", [500])
 
 
-def test_a_design_finer_than_the_pupil_sampling_is_refused_with_the_fix(tmp_path):
+def test_a_design_finer_than_the_pupil_sampling_is_refused_by_the_2d_engine_and_exact_in_the_radial_one(tmp_path):
     from edofproj.errors import SamplingError
+    from edofproj.optics.fourier_engine import FourierPSFEngine
     from edofproj.optics.geometry import ProjectorGeometry
     from edofproj.optics.radial_engine import RadialPSFEngine
 
     doe = build_doe(Config(), "axicon")
     save_doe(doe, tmp_path / "d.npz", samples=1024)  # 512 rings of 6.84 um
     fine = load_doe(tmp_path / "d.npz")
-    engine = RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=512)
+    engine = FourierPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=512)
     with pytest.raises(SamplingError, match=r"rings 6\.84 um wide .* use pupil_samples >= 1024"):
         engine.psf(fine, [0.5])
-    RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=1024).psf(fine, [0.5])  # resolved
+    # the radial engine splits its rings at the design's edges: the same PSF at 512 and 1024 samples
+    coarse = RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=512).psf(fine, [0.5])
+    resolved = RadialPSFEngine(ProjectorGeometry(), [550e-9], window=9, pupil_samples=1024).psf(fine, [0.5])
+    assert float((coarse - resolved).abs().sum()) < 1e-6

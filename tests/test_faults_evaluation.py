@@ -105,3 +105,22 @@ def test_finetune_into_a_used_directory_does_not_suggest_resume(run, tmp_path, c
     assert main(["finetune", str(run), "--psfs", str(good), "--steps", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "choose another --out" in err and "--resume" not in err
+
+
+def test_an_interrupted_evaluate_leaves_the_previous_set_alone(run, tmp_path, capsys, monkeypatch):
+    """Killed after its tables but before its reports: the folder keeps the previous evaluation's
+    files, unchanged, and no new table beside them."""
+    import edofproj.evaluation.writeup as writeup
+
+    out = tmp_path / "ev"
+    args = ["evaluate", str(run), "--out", str(out), "--methods", "doe", "--quiet"]
+    assert main(args) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(writeup, "write_documents", interrupted)
+    assert main(args + ["--depths-mm", "400,600"]) == 130
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before

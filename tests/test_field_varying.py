@@ -91,6 +91,7 @@ def test_per_patch_table_draws_field_points_and_interpolates_in_inverse_depth(tm
     files, psfs = [], []
     for depth in (0.4, 0.8):
         psf = rng.uniform(0, 1, (2, 3, 5, 5)).astype(np.float32)  # two patches
+        psf *= 0.9 / psf.sum(axis=(-1, -2), keepdims=True)  # physical: 0.9 of the light in the window
         np.savez(tmp_path / f"p{depth}.npz", psf=psf, depths_m=np.array([depth]))
         files.append(tmp_path / f"p{depth}.npz")
         psfs.append(psf)
@@ -101,6 +102,6 @@ def test_per_patch_table_draws_field_points_and_interpolates_in_inverse_depth(tm
     which = [int(np.argmin([np.abs(o - h).max() for h in halves])) for o in out]
     assert all(np.allclose(o, halves[w], atol=1e-6) for o, w in zip(out, which))
     assert 10 < sum(which) < 54  # both field points are drawn
-    np.savez(tmp_path / "bad.npz", psf=np.zeros((3, 3, 5, 5), np.float32), depths_m=np.array([0.6]))
+    np.savez(tmp_path / "bad.npz", psf=np.full((3, 3, 5, 5), 0.03, np.float32), depths_m=np.array([0.6]))
     with pytest.raises(EdofprojError, match="differ in patches"):
         MeasuredPSFTable.from_patch_files(files + [tmp_path / "bad.npz"])

@@ -90,11 +90,15 @@ def test_targets_of_another_size_are_refused(rig_and_calibration):
         GrabSettings(average=0)
 
 
-def test_frame_sources_cycle_images_and_fit_the_projector(tmp_path):
+def test_frame_sources_cycle_images_and_refuse_another_size(tmp_path):
     import cv2
 
     for index in range(2):
-        cv2.imwrite(str(tmp_path / f"{index}.png"), np.full((48, 64, 3), 100 * index, np.uint8))
+        cv2.imwrite(str(tmp_path / f"{index}.png"), np.full(HW + (3,), 100 * index, np.uint8))
+    (tmp_path / "other").mkdir()
+    cv2.imwrite(str(tmp_path / "other" / "big.png"), np.zeros((48, 64, 3), np.uint8))
+    with pytest.raises(EdofprojError, match="is 64x48 but the calibration was made for a"):
+        next(frame_source(HW, image=str(tmp_path / "other" / "big.png")))
     frames = frame_source(HW, images=str(tmp_path))
     names = [next(frames)[0] for _ in range(5)]
     assert names == ["0.png", "1.png", "0.png", "1.png", "0.png"]

@@ -16,6 +16,7 @@ from edofproj.optics.radial_engine import RadialPSFEngine
 from edofproj.optics.spectra import (
     Spectrum,
     check_spectral_sampling,
+    gauss_rule,
     pupil_path_difference_m,
     reference_spd,
     sample_wavelengths_nm,
@@ -96,3 +97,68 @@ def test_default_step_is_within_a_tenth_of_a_percent_of_1_nm_and_20_nm_is_not():
     assert l1(CFG.spectrum.wavelength_step_nm) < 1e-3
     assert l1(20.0) > 1e-3  # the check's verdict on 20 nm is right
     assert sample_wavelengths_nm(400, 700, 10).size == 31
+
+
+def test_the_gauss_rule_of_a_gaussian_spd_is_gauss_hermite():
+    mean, fwhm = 530.0, 35.0
+    sigma = fwhm / (2 * np.sqrt(2 * np.log(2)))
+    lam = np.arange(400.0, 701.0)
+    for n in (1, 2, 4):
+        nodes, weights = gauss_rule(lam, np.exp(-0.5 * ((lam - mean) / sigma) ** 2), n)
+        x, w = np.polynomial.hermite.hermgauss(n)  # weight exp(-x^2): lambda = mean + sqrt(2) sigma x
+        assert nodes == pytest.approx(mean + np.sqrt(2) * sigma * x, abs=1e-6)
+        assert weights == pytest.approx(w / np.sqrt(np.pi), abs=1e-9)
+
+
+def test_the_gauss_rule_integrates_polynomials_up_to_degree_2n_minus_1_against_any_spd():
+    lam = np.arange(400.0, 701.0)
+    spd = np.random.default_rng(0).random(lam.size)  # an arbitrary measured SPD
+    t = (lam - 550.0) / 150.0
+    for n in (1, 2, 3, 5):
+        nodes, weights = gauss_rule(lam, spd, n)
+        for degree in range(2 * n):
+            exact = spd @ t**degree / spd.sum()
+            assert weights @ ((nodes - 550.0) / 150.0) ** degree == pytest.approx(exact, abs=1e-10)
+
+
+def test_gauss_quadrature_gives_each_channel_its_own_nodes_and_warns_unless_its_error_is_stated():
+    cfg = dataclasses.replace(CFG.spectrum, quadrature="gauss", nodes_per_primary=2)
+    spectrum = Spectrum.from_config(cfg)
+    assert spectrum.wavelengths_m.size == 6 and np.all(np.diff(spectrum.wavelengths_m) > 0)
+    assert np.all((spectrum.weights > 0).sum(axis=1) == 2) and np.allclose(spectrum.weights.sum(axis=1), 1.0)
+    message = _check(cfg)
+    assert len(message) == 1 and "quadrature=uniform" in message[0] and "stated_l1_error" in message[0]
+    assert _check(dataclasses.replace(cfg, stated_l1_error=0.0025)) == []
+
+
+@pytest.mark.parametrize("preset", [None, "cpu", "paper", "realtime"])
+def test_the_shipped_presets_print_no_spectral_warning(preset):
+    cfg = load_config(preset)
+    opd = pupil_path_difference_m(ProjectorGeometry.from_config(cfg.optics), cfg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SpectralSamplingWarning)
+        check_spectral_sampling(cfg.spectrum, Spectrum.from_config(cfg.spectrum), opd)
+
+
+@pytest.mark.slow
+def test_the_cpu_presets_stated_error_holds_for_its_reference_design():
+    from edofproj.doe.factory import build_doe
+
+    cfg = load_config("cpu")
+    geometry = ProjectorGeometry.from_config(cfg.optics)
+    doe = build_doe(cfg, "builtin:cpu-doe-net")
+    depths = np.array([0.275, 0.5, 0.8])
+    engine_for = lambda lam: RadialPSFEngine(geometry, lam, cfg.psf.window, cfg.psf.pupil_samples)  # noqa: E731
+    fine_lam, fine_spd = reference_spd(CFG.spectrum)
+    keep = fine_spd.max(axis=0) > 0
+    reference = _rgb_psf(engine_for, doe, depths, Spectrum(fine_lam[keep] * 1e-9, fine_spd[:, keep]))
+
+    def l1(spectrum_cfg):
+        psf = _rgb_psf(engine_for, doe, depths, Spectrum.from_config(spectrum_cfg))
+        return float((np.abs(psf - reference).sum(axis=(-1, -2)) / reference.sum(axis=(-1, -2))).max())
+
+    assert l1(cfg.spectrum) <= cfg.spectrum.stated_l1_error
+    one_per_peak = dataclasses.replace(
+        CFG.spectrum, wavelength_min_nm=460.0, wavelength_max_nm=620.0, wavelength_step_nm=80.0
+    )
+    assert l1(one_per_peak) > 10 * cfg.spectrum.stated_l1_error  # the former 460/540/620 nm: 4.8 % in green

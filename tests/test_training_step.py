@@ -215,3 +215,48 @@ def test_gradient_clipping_limits_the_norm_and_reports_it():
     assert float(p.grad.norm()) == pytest.approx(1.0, rel=1e-5)
     p.grad = torch.tensor([3.0, 4.0, 0.0, 0.0])
     assert float(_clip([p], 0.0)) == pytest.approx(5.0) and float(p.grad.norm()) == pytest.approx(5.0)
+
+
+# ----------------------------------------------------------------------------- precision and layout
+
+
+def test_auto_precision_is_bf16_exactly_where_the_device_computes_it_natively(monkeypatch):
+    from edofproj.training import end_to_end
+
+    cpu = torch.device("cpu")
+    assert end_to_end.resolve_mixed_precision("none", cpu) == "none"
+    assert end_to_end.resolve_mixed_precision("bf16", cpu) == "bf16"
+    for native in (False, True):
+        monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda native=native: native)
+        monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: False)
+        assert end_to_end.resolve_mixed_precision("auto", cpu) == ("bf16" if native else "none")
+
+
+def test_a_bf16_step_is_deterministic_and_close_to_float32():
+    """The network under bf16 autocast: the same inputs give bit-identical outputs (exact resume relies on
+    it), and the compensated projection differs from float32 by bf16 rounding only."""
+    torch.manual_seed(0)
+    net = build_network(tiny_config().net)
+    with torch.no_grad():  # a network that does something: random head weights instead of zeros
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    psf = torch.full((1, 1, 3, 3), 1 / 9.0)
+    target = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(1))
+    source = lambda depths_m: psf.expand(len(depths_m), 3, 3, 3)  # noqa: E731
+    runs = {}
+    for precision in ("none", "bf16", "bf16"):
+        model = EndToEndProjector(source, net, mixed_precision=precision)
+        runs.setdefault(precision, []).append(model(target, np.array([0.5, 0.6])).projected)
+    assert torch.equal(runs["bf16"][0], runs["bf16"][1])
+    difference = (runs["bf16"][0] - runs["none"][0]).abs().max().item()
+    assert 0 < difference < 0.02  # bf16 keeps 8 significant bits (2^-8 = 0.004 relative)
+
+
+def test_the_unet_keeps_its_weights_channels_last_and_returns_nchw():
+    net = build_network(tiny_config().net)
+    convolutions = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert convolutions and all(m.weight.is_contiguous(memory_format=torch.channels_last) for m in convolutions)
+    target = torch.rand(1, 3, 20, 28)
+    out = net(target, target)
+    assert out.shape == target.shape and out.is_contiguous()
+    assert torch.equal(out, target)  # untrained: the identity, whatever the layout

@@ -53,6 +53,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options that name a file or folder a command writes: never inside a built-in run.
+OUTPUT_OPTIONS = ("out", "preview")
+
+
+def _refuse_outputs_in_builtin_runs(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` unless an output option (:data:`OUTPUT_OPTIONS`) points into a built-in run's
+    packaged directory (they belong to the installed package: nothing is written there)."""
+    from .builtin_runs import is_builtin_run_dir
+
+    for name in OUTPUT_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value and is_builtin_run_dir(value):
+            raise EdofprojError(
+                f"--{name} '{value}' is inside a built-in run of the installed package: write elsewhere"
+            )
+    return args
+
+
 def main(argv=None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``) and return the exit code: the subcommand's
     return value (0 for None); 2 with one ``edofproj: error:`` line on stderr for an
@@ -60,10 +78,11 @@ def main(argv=None) -> int:
     ``EDOFPROJ_DEBUG`` is set); 130 on Ctrl-C. Parse errors exit with code 2 (``SystemExit``), and
     warnings print as one line ``edofproj: warning: ...``."""
     warnings.formatwarning = _one_line_warning
-    parser = build_parser()
-    args = parser.parse_args(argv)
     debug = bool(os.environ.get("EDOFPROJ_DEBUG"))
     try:
+        # inside the try: a Ctrl-C while the subcommands load (the first second) ends as cleanly as later
+        args = build_parser().parse_args(argv)
+        args = _refuse_outputs_in_builtin_runs(args)
         result = args.func(args)
         return int(result or 0)
     except EdofprojError as exc:

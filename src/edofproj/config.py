@@ -88,6 +88,9 @@ class OpticsConfig:
                 raise ConfigError(f"optics.zernike_um[{j}]={c!r} must be a finite number (micrometres)")
 
 
+SPECTRAL_QUADRATURES = ("uniform", "gauss")
+
+
 @dataclass
 class SpectrumConfig:
     """Wavelength sampling and the RGB primaries' spectral power distributions.
@@ -99,7 +102,11 @@ class SpectrumConfig:
     Wavelengths: ``wavelength_min_nm`` to ``wavelength_max_nm`` in ``wavelength_step_nm``
     steps (10 nm: PSFs within 0.1 % L1 of a 1 nm sampling for the default primaries), minus the
     end samples that hold less than ``trim_power`` of every primary's power (a fraction, 0: keep
-    all). :mod:`edofproj.optics.spectra` warns when a primary is undersampled.
+    all). ``quadrature: gauss`` instead takes ``nodes_per_primary`` wavelengths per primary: the
+    Gauss rule of its SPD (on a 1 nm grid over ``wavelength_min_nm..max``), each channel weighting
+    only its own nodes. :mod:`edofproj.optics.spectra` warns when a primary is undersampled, unless
+    ``stated_l1_error`` gives the sampling's measured PSF error (worst channel, a fraction of the
+    PSF's L1 norm, against a 1 nm sampling): a configuration that states its error accepts it.
     """
 
     wavelength_min_nm: float = 400.0
@@ -109,6 +116,9 @@ class SpectrumConfig:
     peaks_nm: list[float] = field(default_factory=lambda: [620.0, 530.0, 460.0])
     fwhm_nm: list[float] = field(default_factory=lambda: [20.0, 35.0, 25.0])
     spd_csv: Optional[str] = None
+    quadrature: str = "uniform"
+    nodes_per_primary: int = 2
+    stated_l1_error: float = 0.0
 
     def validate(self) -> None:
         for name in ("wavelength_min_nm", "wavelength_max_nm"):
@@ -120,6 +130,14 @@ class SpectrumConfig:
         _positive(self, "wavelength_step_nm", "spectrum.wavelength_step_nm")
         if not (0.0 <= self.trim_power < 0.01):
             raise ConfigError(f"spectrum.trim_power={self.trim_power} must be a fraction in [0, 0.01)")
+        if self.quadrature not in SPECTRAL_QUADRATURES:
+            raise ConfigError(_unknown_choice("spectrum.quadrature", self.quadrature, SPECTRAL_QUADRATURES))
+        n = self.nodes_per_primary
+        if isinstance(n, bool) or not isinstance(n, int) or not (1 <= n <= 16):
+            raise ConfigError(f"spectrum.nodes_per_primary={n!r} must be an integer in 1-16")
+        e = self.stated_l1_error
+        if isinstance(e, bool) or not isinstance(e, (int, float)) or not (0.0 <= e < 1.0):
+            raise ConfigError(f"spectrum.stated_l1_error={e!r} must be a fraction in [0, 1)")
         if len(self.peaks_nm) != 3 or len(self.fwhm_nm) != 3:
             raise ConfigError("spectrum.peaks_nm and spectrum.fwhm_nm need three values (R, G, B)")
         if any(not (350.0 <= p <= 1000.0) for p in self.peaks_nm):
@@ -191,6 +209,14 @@ class DOEConfig:
 
 #: Bytes per window pixel of the smallest PSF simulation (3 colours x float64 x 3 copies).
 PSF_WINDOW_BYTES_PER_PIXEL = 72
+#: Least bytes per pixel of each training crop in one step: the smallest network's forward and
+#: backward pass (peak RSS, 512x512 input: 281 B/px for the multi-rate network of widths 8,16;
+#: 1828 B/px for the default U-Net; docs/experiments/2026-11-25-hostile-inputs.md) -- a lower bound.
+TRAIN_BYTES_PER_CROP_PIXEL = 256
+#: Least bytes per pixel of one scored image in ``evaluate``: its projection (80 B/px,
+#: :data:`edofproj.imaging.projection.PROJECTION_BYTES_PER_PIXEL`) and the smallest network's
+#: inference (184 B/px measured as above) -- a lower bound.
+EVALUATION_BYTES_PER_PIXEL = 256
 
 
 @dataclass
@@ -403,7 +429,7 @@ class DataConfig:
 
 
 DEPTH_SPACINGS = ("depth", "defocus")
-MIXED_PRECISION = ("none", "bf16")
+MIXED_PRECISION = ("none", "bf16", "auto")
 
 
 @dataclass
@@ -426,7 +452,9 @@ class TrainConfig:
     default). ``device``: ``auto`` (a CUDA GPU when available), ``cpu`` or ``cuda``.
     ``mixed_precision``: ``none`` (float32 throughout) or ``bf16``: the compensation network's
     convolutions run under bfloat16 autocast, while the PSF simulation, image formation, every
-    FFT (the network's Fourier filter included) and the loss stay in float32 or float64.
+    FFT (the network's Fourier filter included) and the loss stay in float32 or float64;
+    ``auto``: ``bf16`` where the device computes bfloat16 natively (a CUDA GPU that supports it,
+    a CPU with AVX512-BF16 or AMX), ``none`` elsewhere (emulated bfloat16 would be slower).
     Checkpoints every ``checkpoint_every`` steps; the newest ``keep_checkpoints`` step files
     are kept (0: all). ``screens``: ``flat`` (one depth per crop, the paper) or ``varying``
     (each crop on a random depth-varying screen: flat, tilted, a step or smooth relief,
@@ -634,7 +662,35 @@ class Config:
             section = getattr(self, f.name)
             if hasattr(section, "validate"):
                 section.validate()
+        self.check_memory()
         return self
+
+    def check_memory(self) -> None:
+        """Refuse sizes that cannot fit before anything is allocated (:func:`edofproj.limits.check_memory`):
+        a training step (``train.batch_size`` crops of ``data.crop``, :data:`TRAIN_BYTES_PER_CROP_PIXEL`),
+        one scored image of ``evaluation.image_size`` padded by the PSF window
+        (:data:`EVALUATION_BYTES_PER_PIXEL`) and the PSFs of every ``evaluation.depths_mm``
+        (:data:`PSF_WINDOW_BYTES_PER_PIXEL` each). Lower bounds: what passes may still not fit."""
+        crop, batch = self.data.crop, self.train.batch_size
+        check_memory(
+            float(TRAIN_BYTES_PER_CROP_PIXEL) * batch * crop * crop,
+            f"a training step of train.batch_size={batch} crops of {crop}x{crop} px",
+            "use a smaller train.batch_size (or data.crop)",
+        )
+        if self.evaluation.image_size:
+            height, width = (int(s) for s in self.evaluation.image_size)
+            padding = self.psf.window - 1
+            check_memory(
+                float(EVALUATION_BYTES_PER_PIXEL) * (height + padding) * (width + padding),
+                f"evaluation.image_size={[height, width]}",
+                "use a smaller evaluation.image_size",
+            )
+        depths = len(self.evaluation.depths_mm) + len(self.evaluation.comparison_depths_mm)
+        check_memory(
+            float(PSF_WINDOW_BYTES_PER_PIXEL) * self.psf.window**2 * depths,
+            f"the PSFs of {depths} evaluation depths",
+            "use fewer evaluation.depths_mm",
+        )
 
 
 # --------------------------------------------------------------------------- helpers
@@ -747,10 +803,37 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
             did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
             raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
         try:
-            node[keys[-1]] = yaml.safe_load(raw)
+            node[keys[-1]] = safe_load_yaml(raw)
         except yaml.YAMLError:
             node[keys[-1]] = raw
     return from_dict(Config, data).validate()
+
+
+class DuplicateKeyError(yaml.YAMLError):
+    """A YAML mapping names a key twice (one line: the key and its line)."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a mapping holding a key twice, instead of keeping the last
+    value silently (YAML 1.2 requires keys to be unique)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise DuplicateKeyError(f"key '{key}' appears twice (line {key_node.start_mark.line + 1})")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _UniqueKeyLoader.construct_mapping)
+
+
+def safe_load_yaml(text: str):
+    """``yaml.safe_load`` that refuses duplicate keys (:class:`DuplicateKeyError`): every YAML file
+    edofproj reads (configs, scene files) and every ``--set`` value goes through it."""
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
 
 
 #: The presets ship inside the package (``edofproj/presets/*.yaml``), so any install finds them.
@@ -781,7 +864,7 @@ def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -
     else:
         file = resolve_config_path(path)
         try:
-            data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+            data = safe_load_yaml(file.read_text(encoding="utf-8")) or {}
         except (OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"cannot read config '{file}': {exc}") from None
         except yaml.YAMLError as exc:

@@ -3,9 +3,12 @@
 Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StageProgress`):
 
 1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
-   (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly) and ``lens_net``
-   (the same U-Net without a DOE) always; ``axicon_net``, ``cubic_net`` and
-   ``lens_onlineprodeb`` when they are predicted to fit the time budget;
+   (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
+   :attr:`DemoSettings.ours_steps` steps) and ``lens_net`` (the same U-Net without a DOE) always;
+   ``axicon_net``, ``cubic_net`` and ``lens_onlineprodeb`` when they are predicted to fit the time
+   budget. A baseline that does not fit is taken from the run the package ships for it
+   (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
+   which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
    others as baselines, on the held-out built-in photographs;
 3. **timing** -- milliseconds per compensated frame (:mod:`.timing`), and one scene,
@@ -16,7 +19,8 @@ Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StagePr
    ``metrics.csv``, with the paper's claims (:mod:`edofproj.evaluation.claims`) measured on the held-out images.
 
 ``--quick`` shrinks everything (few steps, small crops, two small test images, three depths)
-into a smoke run of about two minutes; its numbers are not meant to be judged.
+into a smoke run of about a minute; its numbers are not meant to be judged. Its DOE trains for too
+few steps to leave the flat plate it starts as, and its report says so (:func:`flat_doe_note`).
 """
 
 from __future__ import annotations
@@ -28,8 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import torch
 
+from ..builtin_runs import BUILTIN_RUNS, PREFIX
 from ..config import apply_overrides, load_config
 from ..errors import EdofprojError
 from ..evaluation import timing
@@ -41,7 +47,9 @@ from ..evaluation.report import Figure, Heading, Paragraph, Table
 from ..evaluation.scenes import evaluate_scenes, scene_summary_table
 from ..evaluation.summary import format_text_table, range_table
 from ..evaluation.writeup import claims_section, write_documents
-from ..runs import load_run, saved_config, write_run_config
+from ..fileio import read_arrays
+from ..runs import DOE_NAME, load_run, saved_config, write_run_config
+from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
 OURS_RUN_DIR = "doe_net"
@@ -62,20 +70,27 @@ class DemoSettings:
     timing_sizes: tuple[tuple[int, int], ...]
     timing_repeats: int
     cubic_table_depths: int
+    #: training steps of ``doe+net`` (None: the preset's ``train.steps``, as every baseline)
+    ours_steps: int | None = None
 
+
+#: Steps the full demo trains ``doe+net`` for: the time the faster step saves goes to our method
+#: (the baselines keep the preset's steps; docs/experiments/2026-11-25-training-speed.md).
+OURS_DEMO_STEPS = 3000
 
 FULL = DemoSettings(
     name="full",
-    budget_s=15 * 60,
+    budget_s=FULL_BUDGET_MIN * 60,
     overrides=("train.checkpoint_every=100",),
     evaluation_estimate_s=130.0,
     timing_sizes=((256, 256), (600, 800)),
     timing_repeats=3,
     cubic_table_depths=24,
+    ours_steps=OURS_DEMO_STEPS,
 )
 QUICK = DemoSettings(
     name="quick",
-    budget_s=2 * 60,
+    budget_s=QUICK_BUDGET_MIN * 60,
     overrides=(
         "train.steps=12",
         "train.batch_size=2",
@@ -97,16 +112,21 @@ QUICK = DemoSettings(
 )
 
 #: Training cost per step relative to ``lens+net`` (a U-Net with a precomputed PSF table), and
-#: one-off start-up seconds, measured with the cpu preset on a 2-core machine (one thread each):
-#: lens+net 0.55 s/step; doe+net 0.83 s/step (the DOE's PSFs are simulated every step);
-#: OnlineProDeb 3.9 s/step; the cubic plate needs the 2-D engine, about 2.3 s per simulated depth.
+#: one-off start-up seconds, measured with the cpu preset on the 2-core machine (one thread each,
+#: ``benchmarks/bench_training.py --stages``): lens+net about 0.095 s/step; doe+net 0.105 s/step (the
+#: DOE's PSFs are simulated every step); OnlineProDeb 0.81 s/step; the cubic plate needs the 2-D
+#: engine, about 2.3 s per simulated depth.
 JOB_COSTS = {
-    "doe+net": (1.5, 15.0),
+    "doe+net": (1.1, 15.0),
     "lens+net": (1.0, 15.0),
     "axicon+net": (1.0, 15.0),
     "cubic+net": (1.0, 15.0),
-    "lens+onlineprodeb": (7.0, 15.0),
+    "lens+onlineprodeb": (8.5, 15.0),
 }
+#: The run the package ships for a baseline (``builtin:NAME``), trained beforehand with the ``cpu``
+#: preset and the demo's settings; the demo uses it when training the baseline would overrun the
+#: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
+BUILTIN_BASELINES = {"cubic+net": "demo-cubic-net", "lens+onlineprodeb": "demo-lens-onlineprodeb"}
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
 OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
@@ -128,29 +148,34 @@ def demo_jobs(
     methods: Sequence[str] | None,
     user_overrides: Sequence[str],
     train_ours: bool = True,
+    retrain_baselines: bool = False,
 ) -> list[TrainingJob]:
     """The training runs of a demo: ours (unless ``train_ours`` is false: a pretrained run stands for
-    it) and lens+net required, the others optional (or required when named in ``methods``). The
-    cubic plate's cost includes its PSF table and the 2-D PSFs its evaluation will need."""
+    it; :attr:`DemoSettings.ours_steps` steps unless the user sets ``train.steps``) and lens+net
+    required, the others optional (or required when named in ``methods`` or with
+    ``retrain_baselines``). The cubic plate's cost includes its PSF table and the 2-D PSFs its
+    evaluation will need."""
     steps = cfg.train.steps
+    user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in user_overrides)
     common = list(settings.overrides) + list(user_overrides)
     wanted = set(methods) if methods else None
     jobs = []
 
-    def add(method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0) -> None:
+    def add(
+        method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0, n: int = steps
+    ) -> None:
         cost, setup = JOB_COSTS[method]
-        jobs.append(
-            TrainingJob(method, out / run_dir, common + list(extra), steps, required, cost, setup + setup_extra)
-        )
+        extra = list(extra) + ([f"train.steps={n}"] if n != steps else [])
+        jobs.append(TrainingJob(method, out / run_dir, common + extra, n, required, cost, setup + setup_extra))
 
     if train_ours:
-        add(OURS, OURS_RUN_DIR, [], True)
+        add(OURS, OURS_RUN_DIR, [], True, n=settings.ours_steps if settings.ours_steps and not user_steps else steps)
     baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
     for method in baseline_methods:
         spec = method_spec(method)
         if wanted is not None and method not in wanted:
             continue
-        required = method == "lens+net" or wanted is not None
+        required = method == "lens+net" or wanted is not None or retrain_baselines
         extra = list(spec.train_overrides)
         setup_extra = 0.0
         if method == "cubic+net":
@@ -192,6 +217,39 @@ def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" 
         ["method", "run", "steps", "training s", "status", "note"],
         rows,
         "Training runs (two one-thread processes in parallel)",
+    )
+
+
+def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str]) -> None:
+    """Put the shipped run of each skipped baseline (:data:`BUILTIN_BASELINES`) in its run directory,
+    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in``."""
+    for job in jobs:
+        name = BUILTIN_BASELINES.get(job.method)
+        if job.status != "skipped" or name is None or name not in BUILTIN_RUNS:
+            continue
+        shipped = copy_pretrained(PREFIX + name, job.run_dir, overrides)
+        job.status = "built-in"
+        job.note = (
+            f"{job.note.replace('not trained: ', 'not trained here: ')}; shipped run {shipped.source} "
+            f"({shipped.steps} steps, trained beforehand; --retrain-baselines trains it here)"
+        )
+
+
+def flat_doe_note(run_dir: Path) -> str | None:
+    """One sentence when the trained DOE of ``run_dir`` is still a flat plate (one height level), else
+    None: then ``doe`` projects like ``lens`` and the DOE's methods show no extended depth of field."""
+    path = run_dir / DOE_NAME
+    if not path.is_file():
+        return None
+    data = read_arrays(path, "DOE file")
+    heights = data["height_m"] if "height_m" in data else data.get("height_map_m")
+    if heights is None or np.ptp(np.asarray(heights, dtype=float)) > 0:
+        return None
+    steps = load_run(run_dir).step
+    return (
+        f"The DOE trained here is still the flat plate it starts as ({steps} steps moved no height by a whole "
+        "level of its quantized profile), so `doe` projects like `lens`; the full demo trains long enough to "
+        "shape it."
     )
 
 
@@ -298,11 +356,13 @@ def run_demo(
     timing: bool = True,
     progress: StageProgress | None = None,
     pretrained: str | Path | None = None,
+    retrain_baselines: bool = False,
 ) -> DemoResult:
     """Run the demo into ``out`` (module docstring); returns what it measured and wrote.
 
     ``pretrained``: a trained run (directory or ``builtin:NAME``) copied to ``doe_net/`` instead of
-    training ``doe+net``; the baselines are trained as usual."""
+    training ``doe+net``; the baselines are trained as usual. ``retrain_baselines``: train every
+    baseline whatever the budget (else those predicted not to fit come from the shipped runs)."""
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
     budget = float(budget_s) if budget_s is not None else settings.budget_s
@@ -319,7 +379,9 @@ def run_demo(
 
     if pretrained is not None:
         require_trained_run(pretrained)  # fails before anything is written
-    jobs = demo_jobs(out, settings, cfg, methods, overrides, train_ours=pretrained is None)
+    jobs = demo_jobs(
+        out, settings, cfg, methods, overrides, train_ours=pretrained is None, retrain_baselines=retrain_baselines
+    )
     later = settings.evaluation_estimate_s + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
     deadline = clock + budget - later - REPORT_MARGIN_S
     out.mkdir(parents=True, exist_ok=True)
@@ -329,17 +391,18 @@ def run_demo(
     progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
     trainer = ParallelTrainer(jobs, config, out / LOG_DIR, workers, deadline, progress, later_s=later)
     trainer.run()
+    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides))
     progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     progress.note("stage 2/4 evaluation")
-    trained = {j.method for j in jobs if j.status == "done"}
+    trained = {j.method for j in jobs if j.status in ("done", "built-in")}
     eval_methods = [m for m in (methods or METHOD_NAMES) if not method_spec(m).needs_separate_run or m in trained]
     evaluation = evaluate_run(
         out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out, progress=progress
     )
     for job in jobs:
-        if job.status != "done":
+        if job.status not in ("done", "built-in"):
             evaluation.notes.append(f"{job.method} not evaluated: {job.note or job.status}")
 
     timings = []
@@ -363,14 +426,18 @@ def run_demo(
                 f"{OURS} the trained run {ours.source} ({ours.steps} steps, trained beforehand), the other runs "
                 f"{cfg.train.steps} training steps each"
                 if ours
-                else f"{cfg.train.steps} training steps per run"
+                else f"{jobs[0].steps} training steps for {OURS}, {cfg.train.steps} for each baseline"
             )
             + f", built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
             f"up to the report, budget {format_duration(budget)}."
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
         ),
         jobs_table(jobs, ours),
-    ] + claims_section(claims)
+    ]
+    flat = flat_doe_note(out / OURS_RUN_DIR)
+    if flat:
+        preface.append(Paragraph(flat))
+    preface += claims_section(claims)
     paths = write_documents(
         evaluation,
         title="edofproj demo report",

@@ -55,11 +55,24 @@ def fit_to_projector(image: np.ndarray, size_hw: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image.astype(np.float32), (W, H), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
 
+def _still_at_projector_size(path: Path, size_hw: tuple[int, int]) -> np.ndarray:
+    """A target image file, refused unless it has the calibrated projector's size (only a
+    video's frames are resized: docs/procams.md)."""
+    image = to_unit_float(read_image_array(path))
+    if image.shape[:2] != tuple(size_hw):
+        raise EdofprojError(
+            f"image '{path}' is {image.shape[1]}x{image.shape[0]} but the calibration was made for a "
+            f"{size_hw[1]}x{size_hw[0]} projector"
+        )
+    return image.astype(np.float32)
+
+
 def frame_source(
     size_hw: tuple[int, int], image: str | None = None, images: str | None = None, video: str | None = None
 ) -> Iterator[tuple[str, np.ndarray]]:
     """Target frames ``(name, (H, W, 3) in [0, 1])`` at the projector's size: one image repeated,
-    a folder's images in turn (repeated), or a video's frames until its end."""
+    a folder's images in turn (repeated), each of the projector's size (else refused), or a
+    video's frames until its end (resized to the projector)."""
     if sum(x is not None for x in (image, images, video)) != 1:
         raise EdofprojError("give one of --image, --images, --video")
     if video is not None:
@@ -87,7 +100,7 @@ def frame_source(
         paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
         if not paths:
             raise EdofprojError(f"image folder '{folder}' holds no image ({', '.join(IMAGE_EXTENSIONS)})")
-    targets = [(p.name, fit_to_projector(to_unit_float(read_image_array(p)), size_hw)) for p in paths]
+    targets = [(p.name, _still_at_projector_size(p, size_hw)) for p in paths]
     while True:
         yield from targets
 

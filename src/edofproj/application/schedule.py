@@ -10,7 +10,8 @@ is predicted to end before ``deadline``:
     now + setup_s + steps * rate * relative_cost  <=  deadline
 
 where ``rate`` is the measured seconds per step of a reference job (the first required job
-with ``relative_cost == 1``; before it has logged a step, ``default_rate``), and
+with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_rate``, 0.1 s: the
+``cpu`` preset's ``lens+net`` step on the 2-core development machine), and
 ``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
 and its one-off start-up cost (process start, PSF tables). A job that cannot fit is skipped
 with a note. Progress is read from each run's ``train_log.csv``.
@@ -98,7 +99,7 @@ class ParallelTrainer:
         workers: int,
         deadline: float,
         progress: StageProgress,
-        default_rate_s: float = 0.6,
+        default_rate_s: float = 0.1,
         later_s: float = 0.0,
     ) -> None:
         self.jobs = list(jobs)

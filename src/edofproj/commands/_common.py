@@ -40,8 +40,13 @@ def config_from_args(args: argparse.Namespace, extra_overrides=()) -> Config:
     return load_config(args.config, list(extra_overrides) + list(getattr(args, "overrides", []) or []))
 
 
+#: Most values a ``start:stop:step`` range may give (a depth sweep of 0.05 mm steps over 300-800 mm).
+MAX_RANGE_VALUES = 10_000
+
+
 def parse_number_list(text: str, what: str) -> list[float]:
-    """``"300,350,400"`` or a range ``"300:800:50"`` (start:stop:step, stop included)."""
+    """``"300,350,400"`` or a range ``"300:800:50"`` (start:stop:step, stop included; at most
+    :data:`MAX_RANGE_VALUES` values, counted before any is made)."""
     values: list[float] = []
     for part in str(text).split(","):
         part = part.strip()
@@ -53,7 +58,13 @@ def parse_number_list(text: str, what: str) -> list[float]:
                 if len(pieces) != 3 or pieces[2] <= 0:
                     raise ValueError
                 start, stop, step = pieces
+                if not all(np.isfinite(pieces)):
+                    raise ValueError
                 n = int(np.floor((stop - start) / step + 1e-9)) + 1
+                if n > MAX_RANGE_VALUES:
+                    raise EdofprojError(
+                        f"{what} '{part}' gives {n} values, more than {MAX_RANGE_VALUES}: use a larger step"
+                    )
                 values += list(start + step * np.arange(max(n, 0)))
             else:
                 values.append(float(part))

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from ..compensation.registry import network_from_widths
+from ..compensation.registry import check_frame_memory, network_from_widths
 from ..errors import EdofprojError
 from ..evaluation.timing import disk_psf
 from ..fileio import write_text_atomic
@@ -101,6 +101,8 @@ def run(args) -> int:
     from ..evaluation import timing
 
     sizes = timing.parse_sizes(args.sizes)
+    for height, width in sizes:  # every size is refused before the first is timed
+        check_frame_memory(height, width, f"a {height}x{width} frame", "use smaller --sizes")
     methods = parse_name_list(args.methods)
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:

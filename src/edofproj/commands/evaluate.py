@@ -142,27 +142,37 @@ def run(args) -> int:
 
 
 def _evaluate_locked(args, methods, depths, device, progress) -> int:
+    from pathlib import Path
+
+    from ..builtin_runs import resolve_run_dir
     from ..evaluation.claims import ssim_claims
+    from ..evaluation.output_set import moved_path, staged_output_set
     from ..evaluation.pipeline import evaluate_run
     from ..evaluation.summary import format_text_table, range_table
     from ..evaluation.writeup import claims_section, write_documents
 
-    evaluation = evaluate_run(
-        args.run,
-        out_dir=args.out,
-        images_dir=args.images,
-        validation=args.validation,
-        depths_mm=depths,
-        methods=methods,
-        baselines_dir=args.baselines,
-        overrides=args.overrides,
-        progress=progress,
-        device=device,
-    )
-    claims = ssim_claims(evaluation.table, evaluation.range_mm)
-    paths = write_documents(
-        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
-    )
+    out = Path(args.out or resolve_run_dir(args.run))
+    # the whole set (tables, figures, reports) is written aside, then swapped in: never a mix of two
+    with staged_output_set(out) as stage:
+        evaluation = evaluate_run(
+            args.run,
+            out_dir=stage,
+            images_dir=args.images,
+            validation=args.validation,
+            depths_mm=depths,
+            methods=methods,
+            baselines_dir=args.baselines,
+            overrides=args.overrides,
+            progress=progress,
+            device=device,
+        )
+        claims = ssim_claims(evaluation.table, evaluation.range_mm)
+        paths = write_documents(
+            evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
+        )
+    evaluation.files = {key: moved_path(path, stage, out) for key, path in evaluation.files.items()}
+    paths = {key: moved_path(path, stage, out) for key, path in paths.items()}
+    evaluation.out_dir = out
     print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)

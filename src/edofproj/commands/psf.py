@@ -101,6 +101,13 @@ def run(args) -> int:
         engine = "2d"
     sim = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine)
     bank = sim.bank(doe, depths_m)
+    panels = None
+    if args.plot:  # the bare lens in the command's engine and optics, simulated before anything is written
+        lens = build_doe(cfg, "lens")
+        with torch.no_grad():
+            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine).bank(lens, depths_m)
+        label = doe.name if args.doe is None else design_label(args.doe)  # builtin:NAME, not "file"
+        panels = [("lens", lens, lens_bank), (label, doe, bank)]
     bank.save(args.out)
     energy = bank.energy_in_window.numpy()
     print(
@@ -109,15 +116,9 @@ def run(args) -> int:
     )
     for z, e in zip(depths_m, energy):
         print(f"  {z * 1e3:7.1f} mm  energy in window " + " ".join(f"{v:.4f}" for v in e))
-    if args.plot:
+    if panels is not None:
         from ..evaluation.psf_plots import plot_psf_comparison
 
-        lens = build_doe(cfg, "lens")
-        with torch.no_grad():
-            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine="radial").bank(
-                lens, depths_m
-            )
-        label = doe.name if args.doe is None else design_label(args.doe)
-        plot_psf_comparison([("lens", lens, lens_bank), (label, doe, bank)], args.plot)
+        plot_psf_comparison(panels, args.plot)
         print(f"wrote {args.plot}")
     return 0

@@ -92,13 +92,13 @@ def check_arguments(args) -> None:
 
 def load_depth_map_m(path: str, image_hw: tuple[int, int]) -> np.ndarray:
     """A ``.npy`` depth map in mm (NaN: nothing hit), checked against the image size; returned in metres."""
-    try:
-        depth_mm = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise EdofprojError(f"depth map '{path}' does not exist") from None
-    except (OSError, ValueError) as exc:
-        raise EdofprojError(f"cannot read depth map '{path}' (a .npy array in mm is expected): {exc}") from None
-    if not isinstance(depth_mm, np.ndarray) or depth_mm.dtype.kind not in "fiu":
+    from ..fileio import read_arrays
+
+    arrays = read_arrays(path, what="depth map")
+    if list(arrays) != [""]:
+        raise EdofprojError(f"depth map '{path}' must be one .npy array in mm, not an .npz archive")
+    depth_mm = arrays[""]
+    if depth_mm.dtype.kind not in "fiu":
         raise EdofprojError(f"depth map '{path}' must hold numbers (depth in mm), got dtype {depth_mm.dtype}")
     if depth_mm.shape != tuple(image_hw):
         raise EdofprojError(

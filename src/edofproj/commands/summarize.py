@@ -3,7 +3,8 @@
     edofproj summarize runs/seed0/eval runs/seed1/eval runs/seed2/eval [--range-mm 300:800] [--metric ssim]
 
 Each argument is an output directory of ``edofproj evaluate`` (or its ``metrics.csv``), e.g. one
-per training seed, scored on the same images and depths. Prints, as Markdown, each method's mean
+per training seed, scored on the same images and depths (refused otherwise, as are incomplete or
+truncated files, NA scores and an unknown ``--reference``). Prints, as Markdown, each method's mean
 and worst-depth score over ``--range-mm`` as mean ± standard deviation over the evaluations, and
 the paired difference to ``--reference`` (:func:`edofproj.evaluation.summary.run_spread_table`).
 """
@@ -32,7 +33,7 @@ def run(args) -> int:
     from ..errors import EdofprojError
     from ..evaluation.report import markdown_table
     from ..evaluation.results import MetricsTable
-    from ..evaluation.summary import run_spread_table
+    from ..evaluation.summary import check_like_runs, run_spread_table
 
     parts = str(args.range_mm).split(":")
     if len(parts) != 2:
@@ -41,7 +42,6 @@ def run(args) -> int:
     if not 0 < near <= far:
         raise EdofprojError(f"--range-mm '{args.range_mm}' needs 0 < NEAR <= FAR")
     tables: dict = {}
-    first_images: list = []
     for item in args.evaluations:
         path = Path(item)
         csv_path = path / "metrics.csv" if path.is_dir() else path
@@ -49,16 +49,7 @@ def run(args) -> int:
             raise EdofprojError(f"'{item}' has no metrics.csv (an output directory of edofproj evaluate)")
         if str(csv_path) in tables:
             raise EdofprojError(f"'{item}' is given twice")
-        table = MetricsTable.read_csv(csv_path, ("method", "depth_mm", "image"))
-        if args.metric not in table.metrics:
-            raise EdofprojError(f"'{csv_path}' has no {args.metric} column (it has {', '.join(table.metrics)})")
-        depths = [z for z in table.depths_mm() if near <= z <= far]
-        if not depths:
-            raise EdofprojError(f"'{csv_path}' has no depth within {near:g}-{far:g} mm")
-        images = sorted({row["image"] for row in table.rows})
-        if tables and images != first_images:
-            raise EdofprojError(f"'{csv_path}' scores other images than '{next(iter(tables))}': compare like with like")
-        first_images = images
-        tables[str(csv_path)] = table
+        tables[str(csv_path)] = MetricsTable.read_csv(csv_path, ("method", "depth_mm", "image"))
+    check_like_runs(tables, (near, far), args.metric, args.reference)
     print(markdown_table(run_spread_table(tables, (near, far), args.metric, args.reference)))
     return 0

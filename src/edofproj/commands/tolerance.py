@@ -74,11 +74,14 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..builtin_runs import require_output_outside
+    from ..errors import EdofprojError
     from ..fabrication.inputs import DesignInput
     from ..fabrication.profile import RadialProfile
     from ..fabrication.tolerance import ToleranceSettings, run_tolerance
     from ..fabrication.tolerance_report import write_outputs
 
+    if args.ssim_images < 0:
+        raise EdofprojError(f"--ssim-images {args.ssim_images} must be >= 0 (0 skips the compensated SSIM)")
     design = DesignInput.resolve(args.source)
     if not args.out:
         require_output_outside(design.doe_file.parent, "--out")
@@ -111,7 +114,12 @@ def run(args: argparse.Namespace) -> int:
         from ..runs import load_run
 
         trained = load_run(design.run_dir)
-        images = torch.stack([img for _, img in build_test_images(cfg.data, size=128)[: args.ssim_images]])
+        held_out = build_test_images(cfg.data, size=128)
+        if args.ssim_images > len(held_out):
+            raise EdofprojError(
+                f"--ssim-images {args.ssim_images}: the run has {len(held_out)} held-out images; give at most that"
+            )
+        images = torch.stack([img for _, img in held_out[: args.ssim_images]])
         evaluate_ssim = compensated_ssim_evaluator(trained.net, cfg, images, settings.engine)
         print(f"compensated SSIM on {len(images)} held-out images with the run's network", file=sys.stderr)
     result = run_tolerance(

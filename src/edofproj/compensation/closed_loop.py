@@ -21,7 +21,7 @@ from typing import Callable, NamedTuple
 
 import torch
 
-from ..imaging.projection import project
+from ..imaging.projection import ScreenProjection
 
 #: ``forward(image (B, C, H, W)) -> display (B, C, H, W)``; must clamp its input to [0, 1].
 ForwardModel = Callable[[torch.Tensor], torch.Tensor]
@@ -43,8 +43,9 @@ class LoopImages(NamedTuple):
 
 
 def flat_screen(psf: torch.Tensor) -> ForwardModel:
-    """The forward model of a flat screen whose PSF is ``psf (B|1, C|1, K, K)``: ``x -> project(x, psf)``."""
-    return lambda image: project(image, psf)
+    """The forward model of a flat screen whose PSF is ``psf (B|1, C|1, K, K)``: ``x -> project(x, psf)``
+    (the PSF's transfer function computed once for both projections of the loop)."""
+    return ScreenProjection(psf)
 
 
 def scene_screen(cast, psf_for_depths, layers, falloff_reference_m: float | None = None) -> ForwardModel:

@@ -32,6 +32,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import atomic_path
+from .registry import check_frame_memory
 
 EXPORT_FORMATS = ("onnx", "torchscript")
 ONNX_OPSET = 17
@@ -176,6 +177,7 @@ def export_network(
         raise EdofprojError(f"unknown export format '{format}' (known: {', '.join(EXPORT_FORMATS)})")
     if height < 1 or width < 1:
         raise EdofprojError(f"export size {height}x{width} must be positive")
+    check_frame_memory(height, width, f"exporting at {height}x{width} px", "use a smaller --height/--width")
     if format == "onnx":
         require_onnx(fourier=fixed_size_onnx(net))
     fixed_size = format == "onnx" and fixed_size_onnx(net)

@@ -153,7 +153,8 @@ class CompensationGenerator(nn.Module):
     def forward(self, target: torch.Tensor, defocus: torch.Tensor, luminance: torch.Tensor) -> torch.Tensor:
         """The projector input ``target + tail(...)`` (N, 1, H, W) from the grayscale target and the two maps,
         each (N, 1, H, W)."""
-        features = self.first(self.head(torch.cat([target, defocus, luminance], dim=1)))
+        stacked = torch.cat([target, defocus, luminance], dim=1).contiguous(memory_format=torch.channels_last)
+        features = self.first(self.head(stacked))
         features = self.second(self.inject(torch.cat([features, defocus, luminance], dim=1)))
         return target + self.tail(features)
 
@@ -177,6 +178,8 @@ class OnlineProDebNet(nn.Module):
         self.defocus_net = MapExtractorUNet(extractor_widths, leaky_slope=leaky_slope)
         self.luminance_net = MapExtractorUNet(extractor_widths, leaky_slope=leaky_slope)
         self.generator = CompensationGenerator(generator_width, generator_blocks, leaky_slope)
+        # weights and features channels-last (NHWC): the layout oneDNN's CPU convolutions run without reordering
+        self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch accepts it; stubs lack it
 
     @classmethod
     def from_preset(cls, name: str = "default", leaky_slope: float = 0.2) -> "OnlineProDebNet":
@@ -202,8 +205,11 @@ class OnlineProDebNet(nn.Module):
         if previous_maps is None:
             zeros = torch.zeros_like(projected)
             previous_maps = (zeros, zeros)
-        defocus_in = self._pad(torch.cat([projected, captured, previous_maps[0]], dim=1))
-        luminance_in = self._pad(torch.cat([projected, captured, previous_maps[1]], dim=1))
+        nhwc = torch.channels_last
+        defocus_in = self._pad(torch.cat([projected, captured, previous_maps[0]], dim=1)).contiguous(memory_format=nhwc)
+        luminance_in = self._pad(torch.cat([projected, captured, previous_maps[1]], dim=1)).contiguous(
+            memory_format=nhwc
+        )
         return self.defocus_net(defocus_in)[..., :h, :w], self.luminance_net(luminance_in)[..., :h, :w]
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
@@ -220,4 +226,4 @@ class OnlineProDebNet(nn.Module):
         gray_target = target.reshape(b * c, 1, h, w)
         gray_captured = captured.reshape(b * c, 1, h, w)
         defocus, luminance = self.extract_maps(gray_target, gray_captured)
-        return self.generator(gray_target, defocus, luminance).reshape(b, c, h, w)
+        return self.generator(gray_target, defocus, luminance).contiguous().reshape(b, c, h, w)

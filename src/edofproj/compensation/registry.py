@@ -23,9 +23,21 @@ from torch import nn
 
 from ..config import NetConfig
 from ..errors import EdofprojError
+from ..limits import check_memory
 from .multirate import MultirateCompensationNet
 from .onlineprodeb import OnlineProDebNet
 from .unet import CompensationUNet, width_preset
+
+#: Least bytes per pixel of one frame through a compensation network (inference): peak RSS at
+#: 512x512 of the smallest network, the multi-rate one of widths 8,16, was 184 B/px (the default
+#: U-Net 713; docs/experiments/2026-11-25-hostile-inputs.md) -- a lower bound.
+NETWORK_FRAME_BYTES_PER_PIXEL = 128
+
+
+def check_frame_memory(height: int, width: int, what: str, change: str) -> None:
+    """Refuse a ``height x width`` frame through a network that cannot fit in memory, before any
+    allocation (:func:`edofproj.limits.check_memory` of :data:`NETWORK_FRAME_BYTES_PER_PIXEL`)."""
+    check_memory(float(NETWORK_FRAME_BYTES_PER_PIXEL) * height * width, what, change)
 
 
 def _describe_unet(net_cfg) -> str:

@@ -29,6 +29,12 @@ real FFT pair, starts as the identity) is applied to the target first; the U-Net
 Images of any size are padded on the bottom and right to a multiple of ``s 2**(S-1)``
 (replicate or reflect) and the output is cropped back. The output is *not* clamped: the
 caller clamps to the projector's ``[0, 1]`` range before projecting.
+
+Memory layout: the U-Net's weights and features are stored channels-last (NHWC), the layout in
+which oneDNN's CPU convolutions (and cuDNN's tensor-core ones) run without reordering their
+operands; about 1.3x faster for a training step of the ``cpu`` preset on a CPU
+(``benchmarks/bench_training.py --stages``). The output is returned in the ordinary contiguous
+(NCHW) layout.
 """
 
 from __future__ import annotations
@@ -205,6 +211,7 @@ class CompensationUNet(nn.Module):
         self.head = nn.Conv2d(widths[0], out_channels * block, 1)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(cast(torch.Tensor, self.head.bias))
+        self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # docstring: "Memory layout"
 
     @classmethod
     def from_config(cls, net_cfg) -> "CompensationUNet":
@@ -238,11 +245,12 @@ class CompensationUNet(nn.Module):
         x = self._pad_to_multiple(x, height, width)
         if self.space_to_depth > 1:
             x = F.pixel_unshuffle(x, self.space_to_depth)
+        x = x.contiguous(memory_format=torch.channels_last)
 
         residual = self.head(unet_body(x, self.encoder, self.down, self.up, self.decoder))
         if self.space_to_depth > 1:
             residual = F.pixel_shuffle(residual, self.space_to_depth)
-        residual = residual[..., :height, :width]
+        residual = residual[..., :height, :width].contiguous()
         return base + residual
 
     def _pad_to_multiple(self, x: torch.Tensor, height, width) -> torch.Tensor:

@@ -198,6 +198,52 @@ def validate_design(data: dict[str, np.ndarray], path: str | Path) -> None:
             raise EdofprojError(f"DOE file '{path}': height_map_m must be a square (N, N) map, got {height.shape}")
     if height.dtype.kind not in "fiu" or not np.all(np.isfinite(height)):
         raise EdofprojError(f"DOE file '{path}' contains NaN or infinite heights")
+    if kind == "radial":
+        _check_radial_levels(data, path, int(levels))
+
+
+#: Largest distance of a quantized design's height from its level, in level steps.
+LEVEL_GRID_TOLERANCE = 1e-3
+
+
+def _check_radial_levels(data: dict[str, np.ndarray], path: Path, levels: int) -> None:
+    """A radial design covers its aperture (outermost ring edge >= ``aperture_radius_m``); a
+    quantized one (``levels > 0``) has every ``level`` in ``0..levels - 1`` and, with ``h2pi_m``,
+    every height within :data:`LEVEL_GRID_TOLERANCE` steps of the grid ``L h_2pi / levels``, on the
+    ring's ``level`` when the file gives one."""
+    edges, height = data["ring_edges_m"], np.asarray(data["height_m"], dtype=np.float64)
+    aperture = float(data["aperture_radius_m"])
+    if edges[-1] < aperture * (1 - 1e-9):
+        raise EdofprojError(
+            f"DOE file '{path}': the aperture (radius {aperture * 1e3:.6g} mm) exceeds the outermost ring edge "
+            f"({edges[-1] * 1e3:.6g} mm): the rings do not cover the aperture"
+        )
+    if levels == 0:
+        return
+    if "level" in data:
+        level = data["level"]
+        if level.dtype.kind not in "iu" or np.any(level < 0) or np.any(level >= levels):
+            raise EdofprojError(f"DOE file '{path}': ring levels must be whole numbers in 0..{levels - 1}")
+    if "h2pi_m" not in data:
+        return
+    h2pi = _scalar(data, "h2pi_m", path)
+    if not (np.isfinite(h2pi) and h2pi > 0):
+        raise EdofprojError(f"DOE file '{path}': h2pi_m = {h2pi:g} must be positive and finite")
+    steps = height / (h2pi / levels)
+    nearest = np.round(steps)
+    off = np.abs(steps - nearest)
+    if np.any(off > LEVEL_GRID_TOLERANCE) or np.any(height < -1e-12) or np.any(nearest > levels):
+        ring = int(np.argmax((off > LEVEL_GRID_TOLERANCE) | (height < -1e-12) | (nearest > levels)))
+        raise EdofprojError(
+            f"DOE file '{path}': ring {ring}'s height {height[ring] * 1e9:.4g} nm is not one of the {levels} levels "
+            f"of {h2pi / levels * 1e9:.4g} nm in [0, h2pi_m]: a quantized design's heights lie on its level grid"
+        )
+    if "level" in data and np.any(np.mod(nearest.astype(np.int64), levels) != data["level"]):
+        ring = int(np.argmax(np.mod(nearest.astype(np.int64), levels) != data["level"]))
+        raise EdofprojError(
+            f"DOE file '{path}': ring {ring} has level {int(data['level'][ring])} but height "
+            f"{height[ring] * 1e9:.4g} nm (level {int(nearest[ring]) % levels})"
+        )
 
 
 def load_doe(path: str | Path) -> DOE:

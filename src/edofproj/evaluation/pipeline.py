@@ -17,6 +17,7 @@ A method whose run does not exist is skipped with a note, unless it was asked fo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -324,6 +325,8 @@ def evaluate_run(
     run = load_run(run_path)
     cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
+    if depths_mm is not None:  # the sizes of the sweep asked for, before anything is simulated
+        dataclasses.replace(cfg, evaluation=dataclasses.replace(cfg.evaluation, depths_mm=depths)).check_memory()
     range_mm = score_range_mm(cfg)
     if validation and images_dir is not None:
         raise EdofprojError("--validation and --images are two image sets: give one")

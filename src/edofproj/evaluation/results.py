@@ -141,11 +141,16 @@ class MetricsTable:
         with ``keys`` or holds a value that is not a number."""
         try:
             with open(path, newline="", encoding="utf-8") as handle:
-                reader = csv.DictReader(handle)
-                header = tuple(reader.fieldnames or ())
-                rows = list(reader)
+                text = handle.read()
         except OSError as exc:
             raise EdofprojError(f"cannot read metrics file '{path}': {exc.strerror or exc}") from None
+        except UnicodeDecodeError:
+            raise EdofprojError(f"metrics file '{path}' is not UTF-8 text (not written by edofproj)") from None
+        if text and not text.endswith("\n"):  # to_csv ends every line: a file cut short ends mid-line
+            raise EdofprojError(f"metrics file '{path}' is truncated (its last line is incomplete)")
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        header = tuple(reader.fieldnames or ())
+        rows = list(reader)
         if header[: len(keys)] != keys:
             raise EdofprojError(f"'{path}' is not a metrics table (columns {', '.join(header)})")
         table = cls(keys, header[len(keys) :])

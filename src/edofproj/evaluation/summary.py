@@ -17,6 +17,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..errors import EdofprojError
 from .methods import METHOD_NAMES, method_spec
 from .report import Table
 from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
@@ -200,6 +201,46 @@ def run_spread_table(
         rows,
         f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
     )
+
+
+def check_like_runs(
+    tables: Mapping[str, MetricsTable], range_mm: tuple[float, float], metric: str, reference: str
+) -> None:
+    """Raise one line unless the evaluations ``tables`` (``{file: table}``) can be summarized
+    together by :func:`run_spread_table`: each scores ``metric`` for every method at every one of
+    its depths in ``range_mm`` and on every one of its images (a file cut short lacks rows), with no
+    NaN there; all score the same images and the same depths in the range; ``reference`` is one
+    of their methods."""
+    lo, hi = range_mm
+    first_name, first_grid = None, None
+    for name, table in tables.items():
+        if metric not in table.metrics:
+            raise EdofprojError(f"'{name}' has no {metric} column (it has {', '.join(table.metrics)})")
+        rows = [r for r in table.rows if lo - 1e-9 <= float(r["depth_mm"]) <= hi + 1e-9]
+        depths = sorted({round(float(r["depth_mm"]), 6) for r in rows})
+        if not depths:
+            raise EdofprojError(f"'{name}' has no depth within {lo:g}-{hi:g} mm")
+        images = sorted({str(r["image"]) for r in rows})
+        for method in table.methods():
+            cells = {(round(float(r["depth_mm"]), 6), str(r["image"])) for r in rows if r["method"] == method}
+            if cells and len(cells) != len(depths) * len(images):
+                raise EdofprojError(
+                    f"'{name}' lacks {len(depths) * len(images) - len(cells)} of the {len(depths) * len(images)} "
+                    f"scores of {method} within {lo:g}-{hi:g} mm (a truncated or edited file?)"
+                )
+            if any(r["method"] == method and math.isnan(float(r[metric])) for r in rows):
+                raise EdofprojError(f"'{name}' has no {metric} score (NA) for {method}: choose another --metric")
+        grid = (depths, images)
+        if first_grid is not None and grid[1] != first_grid[1]:
+            raise EdofprojError(f"'{name}' scores other images than '{first_name}': compare like with like")
+        if first_grid is not None and grid[0] != first_grid[0]:
+            raise EdofprojError(
+                f"'{name}' scores other depths within {lo:g}-{hi:g} mm than '{first_name}': compare like with like"
+            )
+        first_name, first_grid = first_name or name, first_grid or grid
+    methods = list(dict.fromkeys(m for table in tables.values() for m in table.methods()))
+    if reference not in methods:
+        raise EdofprojError(f"--reference '{reference}' is not a method of these evaluations ({', '.join(methods)})")
 
 
 def _count_better(metric: str, reference_minus_method: np.ndarray) -> int:

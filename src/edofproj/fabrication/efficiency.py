@@ -69,7 +69,9 @@ def efficiency_spectrum(
 def fine_spectrum(spectrum_cfg, step_nm: float = 1.0) -> Spectrum:
     """The configured primaries' SPDs resampled every ``step_nm`` (the 30 nm simulation samples
     are too coarse to integrate 20 nm wide LED peaks)."""
-    return Spectrum.from_config(dataclasses.replace(spectrum_cfg, wavelength_step_nm=step_nm, trim_power=0.0))
+    return Spectrum.from_config(
+        dataclasses.replace(spectrum_cfg, quadrature="uniform", wavelength_step_nm=step_nm, trim_power=0.0)
+    )
 
 
 def channel_efficiency(

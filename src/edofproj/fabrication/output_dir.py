@@ -1,19 +1,24 @@
 """All-or-nothing output directories: build every file in a staging directory, then rename it into place.
 
 A failed export therefore leaves no partial GDSII (nor any other file) behind: the staging
-directory is removed and the previous output, if any, is untouched.
+directory is removed and the previous output, if any, is untouched. One export per output at a
+time (a lock beside it, :mod:`edofproj.locking`); the staging folders of an export killed with
+``kill -9`` are removed by the next export to the same place.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Iterator
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, RecoveryWarning
+from ..locking import directory_lock
 
 
 def check_replaceable(out_dir: Path, marker: str) -> None:
@@ -38,6 +43,30 @@ def staged_directory(out_dir: str | os.PathLike, marker: str) -> Iterator[Path]:
     target = Path(out_dir)
     check_replaceable(target, marker)
     target.parent.mkdir(parents=True, exist_ok=True)
+    with directory_lock(target, "edofproj export-doe", "--out", beside=True):
+        remove_stale_staging(target)
+        with _staged(target, marker) as staging:
+            yield staging
+
+
+def remove_stale_staging(target: Path) -> list[Path]:
+    """Delete the ``.<name>.XXXXXXXX.staging`` and ``.old`` folders that a killed export left beside
+    ``target`` (call while holding ``target``'s lock: no live export owns them)."""
+    pattern = re.compile(rf"^\.{re.escape(target.name)}\.[A-Za-z0-9_]{{8}}\.(?:staging|old)$")
+    stale = [p for p in target.parent.iterdir() if p.is_dir() and not p.is_symlink() and pattern.match(p.name)]
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    if stale:
+        warnings.warn(
+            f"removed {len(stale)} unfinished folder(s) of an interrupted export beside '{target}'",
+            RecoveryWarning,
+            stacklevel=4,
+        )
+    return stale
+
+
+@contextlib.contextmanager
+def _staged(target: Path, marker: str) -> Iterator[Path]:
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".staging", dir=target.parent))
     umask = os.umask(0)
     os.umask(umask)

@@ -85,28 +85,51 @@ def apply_transfer_function(image: torch.Tensor, otf: torch.Tensor, grid_hw: tup
     return torch.fft.irfft2(spectrum, s=grid)[..., :height, :width]
 
 
+class KernelConvolution:
+    """``image -> convolve_same(image, kernel)`` for one kernel and many images.
+
+    The kernel's transfer function is computed on the first image of each FFT grid (size,
+    dtype, device) and reused, so filtering several images of one size with the same PSFs (the
+    uncompensated and the compensated projection of a training step) transforms the kernel once.
+    Differentiable in the images and the kernel (the cached transfer function stays in the graph).
+    """
+
+    def __init__(self, kernel: torch.Tensor) -> None:
+        if kernel.ndim < 2:
+            raise EdofprojError(f"convolution needs 2-D kernels, got shape {tuple(kernel.shape)}")
+        self.kernel = kernel
+        self._transfer: dict[tuple, torch.Tensor] = {}
+
+    def __call__(self, image: torch.Tensor) -> torch.Tensor:
+        kernel = self.kernel
+        if image.ndim < 2:
+            raise EdofprojError(
+                f"convolution needs 2-D images and kernels, got shapes {tuple(image.shape)} and {tuple(kernel.shape)}"
+            )
+        lead_image, lead_kernel = image.shape[:-2], kernel.shape[:-2]
+        try:
+            torch.broadcast_shapes(lead_image, lead_kernel)
+        except RuntimeError:
+            raise EdofprojError(
+                f"image {tuple(image.shape)} and PSF {tuple(kernel.shape)} do not match: the PSF needs a batch of 1 "
+                f"or {tuple(lead_image)[:1]} and 1 or the image's channels"
+            ) from None
+        if not image.is_floating_point():
+            raise EdofprojError(f"convolution needs a floating-point image, got {image.dtype}")
+        grid = fft_shape((image.shape[-2], image.shape[-1]), (kernel.shape[-2], kernel.shape[-1]))
+        key = (grid, image.dtype, image.device)
+        if key not in self._transfer:
+            self._transfer[key] = optical_transfer_function(kernel.to(dtype=image.dtype, device=image.device), grid)
+        return apply_transfer_function(image, self._transfer[key], grid)
+
+
 def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     """Linear convolution of ``image (..., H, W)`` with ``kernel (..., Kh, Kw)``, output ``(..., H, W)``.
 
     Leading dimensions broadcast, so an image batch ``(B, C, H, W)`` takes one PSF for all
     samples ``(1, C, K, K)``, one per sample ``(B, C, K, K)``, or one for all channels
     ``(1, 1, K, K)``. The kernel is cast to the image's dtype. See the module docstring for
-    the alignment (kernel pixel ``K//2`` maps onto the source pixel).
+    the alignment (kernel pixel ``K//2`` maps onto the source pixel). (:class:`KernelConvolution`
+    keeps the kernel's transfer function for further images.)
     """
-    if image.ndim < 2 or kernel.ndim < 2:
-        raise EdofprojError(
-            f"convolution needs 2-D images and kernels, got shapes {tuple(image.shape)} and {tuple(kernel.shape)}"
-        )
-    lead_image, lead_kernel = image.shape[:-2], kernel.shape[:-2]
-    try:
-        torch.broadcast_shapes(lead_image, lead_kernel)
-    except RuntimeError:
-        raise EdofprojError(
-            f"image {tuple(image.shape)} and PSF {tuple(kernel.shape)} do not match: the PSF needs a batch of 1 or "
-            f"{tuple(lead_image)[:1]} and 1 or the image's channels"
-        ) from None
-    if not image.is_floating_point():
-        raise EdofprojError(f"convolution needs a floating-point image, got {image.dtype}")
-    grid = fft_shape((image.shape[-2], image.shape[-1]), (kernel.shape[-2], kernel.shape[-1]))
-    kernel = kernel.to(dtype=image.dtype, device=image.device)
-    return apply_transfer_function(image, optical_transfer_function(kernel, grid), grid)
+    return KernelConvolution(kernel)(image)

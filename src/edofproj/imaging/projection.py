@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 
 from ..errors import EdofprojError
-from .convolution import convolve_same
+from .convolution import KernelConvolution
 
 
 def _check_image_and_psf(image: torch.Tensor, psf: torch.Tensor) -> None:
@@ -46,6 +46,30 @@ def haze_term(clamped_image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     return lost * clamped_image.mean(dim=(-1, -2), keepdim=True)
 
 
+class ScreenProjection:
+    """``image -> project(image, psf)`` for one screen and many images (:func:`project`).
+
+    The PSF's transfer function is computed once per image size and reused
+    (:class:`~edofproj.imaging.convolution.KernelConvolution`): the closed loop projects the
+    uncompensated and the compensated image through the same PSFs.
+    """
+
+    def __init__(self, psf: torch.Tensor, haze: bool = True) -> None:
+        if psf.ndim != 4 or psf.shape[-1] != psf.shape[-2]:
+            raise EdofprojError(f"PSFs must be (B or 1, C or 1, K, K), got shape {tuple(psf.shape)}")
+        self.psf = psf
+        self.haze = haze
+        self._convolution = KernelConvolution(psf)
+
+    def __call__(self, image: torch.Tensor) -> torch.Tensor:
+        _check_image_and_psf(image, self.psf)
+        clamped = image.clamp(0.0, 1.0)
+        out = self._convolution(clamped)
+        if self.haze:
+            out = out + haze_term(clamped, self.psf)
+        return out
+
+
 def project(image: torch.Tensor, psf: torch.Tensor, haze: bool = True) -> torch.Tensor:
     """What a screen at one depth shows when the projector emits ``image``.
 
@@ -55,11 +79,7 @@ def project(image: torch.Tensor, psf: torch.Tensor, haze: bool = True) -> torch.
     haze (module docstring). Differentiable in ``image`` (inside ``[0, 1]``) and ``psf``.
     """
     _check_image_and_psf(image, psf)
-    clamped = image.clamp(0.0, 1.0)
-    out = convolve_same(clamped, psf)
-    if haze:
-        out = out + haze_term(clamped, psf)
-    return out
+    return ScreenProjection(psf, haze)(image)
 
 
 #: Measured bytes per padded pixel of ``render``: a flat screen, and each extra depth layer

@@ -11,11 +11,20 @@ An N-point FFT (N >= 2M, zero padded) gives samples spaced
 
     delta_px = lambda T W / (N dx)       over a field of view   FOV_px = lambda T W / dx.
 
-By Parseval the samples' energies sum to the pupil energy; each sample's energy is spread
-uniformly over its delta x delta cell and binned exactly onto the K x K projector pixels
-(separable overlap matrices), so each PSF value is that pixel's share of the pupil energy.
+By Parseval the samples' energies sum to the pupil energy. The intensity of the sampled pupil,
+|U|^2, is a trigonometric polynomial of period FOV_px with frequencies up to M - 1 (cycles per
+period) in each direction, so its N x N samples (N >= 2M) determine it everywhere; its integral
+over a projector pixel is exact in the Fourier domain, where the pixel's box filter is the factor
+sinc(k / FOV_px) on the coefficient of frequency k (:func:`.pixel_integration.periodic_pixel_weights`).
+The box is separable, so the K x K pixel energies are
 
-Sampling checks (:class:`~edofproj.errors.SamplingError`, naming the parameter to change):
+    E = W I W^T / (N^2 sum A),     W (K, N): W[i, n] = (p/N) sum_{|k| < M} sinc(k p/N) cos(2 pi k (i' p - n)/N),
+
+with I the unshifted FFT samples, p = N / FOV_px the pixel in sample spacings and i' = i - K//2:
+each PSF value is that pixel's exact share of the pupil energy, wherever the spot sits within it.
+
+Sampling checks, all at once (:mod:`.sampling`: one :class:`~edofproj.errors.SamplingError` naming
+the one ``pupil_samples`` that meets every requirement, the design's own rule included):
 * the defocus phase step between pupil samples at the rim, 2 pi R dx |1/z - 1/v| / lambda,
   stays below pi/2;
 * the FFT's periodic field of view holds the window plus the geometric blur (otherwise light
@@ -32,25 +41,18 @@ import numpy as np
 import torch
 from scipy import fft as sfft
 
-from ..errors import EdofprojError, SamplingError
+from ..errors import EdofprojError
 from ..limits import check_memory
-from .aberrations import PupilAberration, check_aberration_sampling
+from .aberrations import PupilAberration
 from .geometry import ProjectorGeometry
+from .pixel_integration import periodic_pixel_weights
 from .radial_engine import (
-    MAX_DEFOCUS_STEP_RAD,
     check_depths,
     check_pupil_samples,
     check_window,
     warn_if_blur_exceeds_window,
 )
-
-
-def _overlap_matrix(window: int, centres_px: np.ndarray, cell_px: float) -> np.ndarray:
-    """B[i, k]: fraction of cell k ([c_k - d/2, c_k + d/2]) inside pixel i ([a_i - 1/2, a_i + 1/2])."""
-    a = (np.arange(window) - window // 2)[:, None].astype(float)
-    lo = np.maximum(a - 0.5, centres_px[None, :] - cell_px / 2)
-    hi = np.minimum(a + 0.5, centres_px[None, :] + cell_px / 2)
-    return np.clip(hi - lo, 0.0, None) / cell_px
+from .sampling import check_pupil_sampling
 
 
 def fourier_engine_bytes(pupil_samples: int, window: int, n_wavelengths: int, depth_chunk: int, n_depths: int) -> int:
@@ -102,45 +104,63 @@ class FourierPSFEngine:
         self.r2 = xx**2 + yy**2
         self.aperture = self.r2 <= geometry.aperture_radius_m**2
 
-        self.fft_size = []
-        self.binning = []
+        self.fft_size: list[int] = []
+        #: per wavelength, (K, N): the exact pixel integrals of the sampled intensity (module docstring)
+        self.pixel_weights: list[torch.Tensor] = []
         for lam in self.wavelengths_m:
-            fov_px = lam * geometry.throw_width_m / self.dx_m
-            if fov_px < self.window + 2:
-                raise SamplingError(
-                    f"the 2-D engine's field of view ({fov_px:.1f} px at {lam * 1e9:.0f} nm) is smaller than the "
-                    f"{self.window}-px window: increase pupil_samples above {int(self.M * (self.window + 2) / fov_px) + 2}"
-                )
+            fov_px = lam * geometry.throw_width_m / self.dx_m  # too small a field is refused by psf()
             N = sfft.next_fast_len(2 * self.M)
-            cell = fov_px / N
-            centres = (np.arange(N) - N // 2) * cell  # after fftshift, index N//2 is the axis
-            keep = np.nonzero(np.abs(centres) <= self.window / 2 + cell)[0]
-            B = _overlap_matrix(self.window, centres[keep], cell)
+            pixel_cells = N / fov_px  # one pixel in FFT sample spacings; sample 0 is the axis
+            centres = (np.arange(self.window) - self.window // 2) * pixel_cells
+            W = periodic_pixel_weights(centres, N, self.M - 1, pixel_cells)
             self.fft_size.append(N)
-            self.binning.append((keep, torch.as_tensor(B, dtype=dtype, device=self.device)))
+            self.pixel_weights.append(torch.as_tensor(W, dtype=dtype, device=self.device))
 
     def _check_sampling(self, doe, depths_m) -> None:
-        g = self.geometry
-        lam_min = float(self.wavelengths_m.min())
-        worst = float(np.max(np.abs(1.0 / depths_m - 1.0 / g.focus_distance_m)))
-        step = 2 * math.pi * g.aperture_radius_m * self.dx_m * worst / lam_min
-        if step > MAX_DEFOCUS_STEP_RAD:
-            need = int(math.ceil(self.M * step / MAX_DEFOCUS_STEP_RAD))
-            raise SamplingError(
-                f"pupil_samples={self.M} cannot resolve the defocus phase ({step:.2f} rad per sample, max "
-                f"{MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need + need % 2}"
-            )
-        blur = g.blur_diameter_px(depths_m)
+        """Every sampling requirement at once (:mod:`.sampling`): defocus, field of view, aberration, design."""
+        ab = self.aberration
+        check_pupil_sampling(
+            self.M,
+            geometry=self.geometry,
+            wavelengths_m=self.wavelengths_m,
+            depths_m=depths_m,
+            window=self.window,
+            engine="2d",
+            doe=doe,
+            aberration_step_rad=None if ab is None or ab.is_zero else self.aberration_step_rad,
+        )
+
+    def aberration_step_rad(self, pupil_samples: int) -> float:
+        """The aberration's largest phase step between neighbouring points, inside the aperture, of the
+        ``pupil_samples`` x ``pupil_samples`` grid (all wavelengths; rows in blocks to bound memory)."""
+        ab = self.aberration
+        if ab is None or ab.is_zero:
+            return 0.0
+        m = int(pupil_samples)
+        dx = self.geometry.aperture_diameter_m / m
+        R = self.geometry.aperture_radius_m
+        x = (torch.arange(m, dtype=torch.float64) - m / 2 + 0.5) * dx
+        worst = 0.0
+        block = max(1, (1 << 22) // m)
         for lam in self.wavelengths_m:
-            fov_px = lam * g.throw_width_m / self.dx_m
-            if fov_px < self.window + float(blur.max()):
-                need = int(math.ceil(self.M * (self.window + float(blur.max())) / fov_px))
-                raise SamplingError(
-                    f"the 2-D engine's field of view ({fov_px:.0f} px at {lam * 1e9:.0f} nm) cannot hold the window "
-                    f"plus the {blur.max():.0f}-px blur (light would wrap around): use pupil_samples >= {need + need % 2}"
-                )
-        if doe is not None:
-            doe.check_sampling(self.dx_m)
+            previous = None
+            for start in range(0, m, block):
+                yy, xx = torch.meshgrid(x[start : start + block], x, indexing="ij")
+                r2 = xx**2 + yy**2
+                inside = r2 <= R**2
+                phase = 2 * math.pi * ab.opd_m(torch.sqrt(r2) / R, torch.atan2(yy, xx), float(lam)) / float(lam)
+                phase = torch.where(inside, phase, torch.zeros_like(phase))
+                both = inside[:, 1:] & inside[:, :-1]
+                worst = max(worst, float((torch.diff(phase, dim=1).abs() * both).max()))
+                if previous is not None:  # the step across the block boundary
+                    rows, rows_in = torch.cat([previous[0], phase]), torch.cat([previous[1], inside])
+                else:
+                    rows, rows_in = phase, inside
+                both_y = rows_in[1:] & rows_in[:-1]
+                if len(rows) > 1:
+                    worst = max(worst, float((torch.diff(rows, dim=0).abs() * both_y).max()))
+                previous = (phase[-1:], inside[-1:])
+        return worst
 
     def aberration_phase(self, wavelength_m: float) -> torch.Tensor | float:
         """``2 pi W(x, y) / lambda`` on the pupil grid, (M, M), or 0 without aberration."""
@@ -151,13 +171,7 @@ class FourierPSFEngine:
         rho = torch.sqrt(self.r2) / R
         theta = torch.atan2(self.yy, self.xx)
         phase = 2 * math.pi * ab.opd_m(rho, theta, wavelength_m) / wavelength_m
-        phase = torch.where(self.aperture, phase, torch.zeros_like(phase))
-        inside = self.aperture[:, 1:] & self.aperture[:, :-1]
-        step_x = (torch.diff(phase, dim=1).abs() * inside).max()
-        inside_y = self.aperture[1:, :] & self.aperture[:-1, :]
-        step = max(float(step_x), float((torch.diff(phase, dim=0).abs() * inside_y).max()))
-        check_aberration_sampling(step, self.M, "sample", MAX_DEFOCUS_STEP_RAD)
-        return phase
+        return torch.where(self.aperture, phase, torch.zeros_like(phase))
 
     def psf(self, doe, depths_m) -> torch.Tensor:
         """Pixel-integrated PSFs, (n_depths, n_lambda, K, K), fractions of the pupil energy."""
@@ -185,8 +199,7 @@ class FourierPSFEngine:
             n_minus_1 = 0.0 if doe is None else float(doe.refractive_index(lam)) - 1.0
             doe_phase = 2 * math.pi * n_minus_1 * height / lam + self.aberration_phase(float(lam))
             N = self.fft_size[li]
-            keep, B = self.binning[li]
-            keep_t = torch.as_tensor(keep, device=self.device)
+            W = self.pixel_weights[li]
             per_depth = []
             for start in range(0, len(depths_m), self.depth_chunk):
                 zc = z[start : start + self.depth_chunk]
@@ -195,9 +208,8 @@ class FourierPSFEngine:
                 )
                 phase = (doe_phase[None] + defocus).to(self.dtype)
                 field = torch.polar(aperture.expand_as(phase), phase).to(complex_dtype)
-                spectrum = torch.fft.fftshift(torch.fft.fft2(field, s=(N, N)), dim=(-2, -1))
-                spectrum = spectrum.index_select(-2, keep_t).index_select(-1, keep_t)
-                cells = (spectrum.real**2 + spectrum.imag**2) / (N * N * pupil_energy)
-                per_depth.append(torch.einsum("ik,zkl,jl->zij", B, cells, B))
+                spectrum = torch.fft.fft2(field, s=(N, N))  # unshifted: sample (0, 0) is the axis
+                intensity = spectrum.real.square().addcmul_(spectrum.imag, spectrum.imag)
+                per_depth.append((W @ intensity @ W.T) / (N * N * pupil_energy))
             out.append(torch.cat(per_depth, dim=0))
         return torch.stack(out, dim=1)

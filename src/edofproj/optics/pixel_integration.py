@@ -106,3 +106,31 @@ def annulus_pixel_weights(annulus_edges_px: np.ndarray, window: int) -> tuple[np
     rho = np.asarray(annulus_edges_px, dtype=float)[None, :]
     area = disk_rectangle_area(rho, a - 0.5, a + 0.5, b - 0.5, b + 0.5)
     return np.diff(area, axis=1), index
+
+
+def periodic_pixel_weights(
+    centres_cells: np.ndarray, n_samples: int, max_frequency: int, pixel_cells: float
+) -> np.ndarray:
+    """Weights ``W`` (n_pixels, n_samples) with ``E_i = sum_n W[i, n] I_n``: the exact integral
+    over the pixel ``[t_i - p/2, t_i + p/2]`` of the trigonometric polynomial of period ``N`` whose
+    samples at ``t = n`` (n = 0..N-1) are ``I_n``, provided it has no frequency above ``max_frequency``
+    (cycles per period; ``N >= 2 max_frequency + 1``).
+
+    With ``I(t) = sum_k c_k exp(2 pi i k t / N)`` and ``c_k = (1/N) sum_n I_n exp(-2 pi i k n / N)``,
+
+        int_{t_i - p/2}^{t_i + p/2} I(t) dt = sum_{|k| <= max_frequency} c_k p sinc(k p / N) exp(2 pi i k t_i / N),
+
+    so ``W[i, n] = (p / N) sum_{|k| <= max_frequency} sinc(k p / N) cos(2 pi k (t_i - n) / N)``
+    (sinc(x) = sin(pi x) / (pi x)): the pixel's box filter is a sinc factor on the Fourier
+    coefficients. ``centres_cells`` ``t_i`` and ``pixel_cells`` ``p`` are in sample spacings.
+    Each row is one FFT of length ``N``.
+    """
+    n = int(n_samples)
+    kmax = int(max_frequency)
+    if n < 2 * kmax + 1:
+        raise ValueError(f"{n} samples cannot represent frequencies up to {kmax}")
+    t = np.asarray(centres_cells, dtype=float)[:, None]
+    k = np.fft.fftfreq(n, 1.0 / n)[None, :]  # 0, 1, ..., -1 (integers)
+    factor = np.where(np.abs(k) <= kmax, pixel_cells * np.sinc(k * pixel_cells / n), 0.0)
+    coefficients = factor * np.exp(2j * np.pi * k * t / n)  # (n_pixels, N)
+    return np.fft.fft(coefficients, axis=1).real / n

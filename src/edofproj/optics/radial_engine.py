@@ -13,15 +13,22 @@ exact,
     int_{r_a}^{r_b} J0(2 pi f r) r dr = [r J1(2 pi f r) / (2 pi f)]_{r_a}^{r_b},   f = rho_px / (lambda T W),
 
 so the field is one matrix product per wavelength, ``G = K_lambda g``, with ``K_lambda``
-built once and cached. The defocus phase alpha r^2 (alpha = pi (1/z - 1/v) / lambda) varies
-inside a ring; it is expanded about the ring centre r_m to second order,
+built once and cached. A design that is piecewise constant on rings of its own (a design file:
+``ring_edges_m``, any widths, up to the rim) gets the equal rings split at its edges
+(:meth:`RadialPSFEngine.rings_for`): its height is constant on every ring, and the transform of
+its profile is exact instead of resampled at the equal rings' centres. The defocus phase alpha r^2 (alpha = pi (1/z - 1/v) / lambda) varies
+inside a ring; in s = r^2 - r_m^2 (r_m the ring centre; r dr = ds / 2, so the ring's measure is
+uniform in s) it is replaced by its best quadratic in the L2 sense over the ring's s-interval
+[c - h, c + h], the truncated Legendre series (j_n: spherical Bessel functions, omega = alpha h),
 
-    exp(i alpha r^2) ~ exp(i alpha r_m^2) (1 + i alpha s - alpha^2 s^2 / 2),   s = r^2 - r_m^2,
+    exp(i alpha s) ~ exp(i alpha c) [j0(omega) + 3 i j1(omega) t - 5 j2(omega) P2(t)],   t = (s - c) / h,
 
-with the ring moments int s^n J0(2 pi f r) r dr (n = 0, 1, 2) also in closed form:
-int x^3 J0 = x^3 J1 - 2 x^2 J2 and int x^5 J0 = x^5 J1 - 4 x^4 J2 + 8 x^3 J3. The kernels
-stay independent of z, and the residual error is O((alpha r dr)^3) per ring instead of the
-O((alpha r dr)^2) energy leak of a flat-phase ring. With the normalization folded into ``K``,
+rewritten as b0 + b1 s + b2 s^2 per ring, depth and wavelength, with the ring moments
+int s^n J0(2 pi f r) r dr (n = 0, 1, 2) in closed form: int x^3 J0 = x^3 J1 - 2 x^2 J2 and
+int x^5 J0 = x^5 J1 - 4 x^4 J2 + 8 x^3 J3. The kernels stay independent of z. Being an orthogonal
+projection, the quadratic never adds energy (by Parseval the PSF's energy error is the squared
+residual, O(omega^6)); the Taylor polynomial 1 + i alpha s - alpha^2 s^2 / 2 it replaces gained
+energy O(omega^4): 0.6 % at a defocus step of pi/2 per ring. With the normalization folded into ``K``,
 
     I(rho_px) = |G|^2 / ((lambda T W)^2 pi R^2)
 
@@ -32,8 +39,9 @@ Sampling: the intensity of a pupil of diameter D oscillates with period >= lambd
 pixels; the radial output grid is several times finer than that (finer still near the
 axis, where the in-focus Airy core is a fraction of a pixel). The pupil rings must resolve
 the defocus phase: its step per ring, 2 pi R dr |1/z - 1/v| / lambda, must stay below
-``MAX_DEFOCUS_STEP_RAD``, else :class:`~edofproj.errors.SamplingError` names the
-``pupil_samples`` needed.
+``MAX_DEFOCUS_STEP_RAD``; with the aberration's step and the design's own rule, every
+requirement is checked at once (:mod:`.sampling`), and one
+:class:`~edofproj.errors.SamplingError` names the ``pupil_samples`` that meets them all.
 
 Lens aberrations (:mod:`.aberrations`, rotationally symmetric terms only) add the phase
 ``2 pi W(r) / lambda`` at the ring centres; their step per ring must stay below
@@ -47,15 +55,16 @@ import warnings
 
 import numpy as np
 import torch
-from scipy.special import j0, j1
+from scipy.special import j0, j1, spherical_jn
 
-from ..errors import BlurExceedsWindowWarning, EdofprojError, SamplingError
+from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..limits import check_memory
-from .aberrations import PupilAberration, check_aberration_sampling, pupil_phase_step_rad
+from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
 from .pixel_integration import hat_pixel_weights
+from .sampling import MAX_PHASE_STEP_RAD, check_pupil_sampling
 
-MAX_DEFOCUS_STEP_RAD = math.pi / 2
+MAX_DEFOCUS_STEP_RAD = MAX_PHASE_STEP_RAD
 
 
 def check_window(window: int) -> int:
@@ -77,21 +86,6 @@ def check_depths(depths_m) -> np.ndarray:
     if z.size == 0 or np.any(~np.isfinite(z)) or np.any(z <= 0):
         raise EdofprojError(f"depths must be positive and finite, got {z.tolist()} m")
     return z
-
-
-def check_defocus_sampling(geometry: ProjectorGeometry, wavelengths_m, depths_m, pupil_samples: int) -> None:
-    """Refuse when the pupil samples cannot resolve the defocus phase (names the fix)."""
-    dr = geometry.aperture_diameter_m / pupil_samples
-    worst = np.max(np.abs(1.0 / np.asarray(depths_m) - 1.0 / geometry.focus_distance_m))
-    step = 2 * math.pi * geometry.aperture_radius_m * dr * worst / float(np.min(wavelengths_m))
-    if step > MAX_DEFOCUS_STEP_RAD:
-        need = int(math.ceil(pupil_samples * step / MAX_DEFOCUS_STEP_RAD))
-        need += need % 2
-        raise SamplingError(
-            f"pupil_samples={pupil_samples} cannot resolve the defocus phase at "
-            f"{float(np.min(depths_m)) * 1e3:.0f}-{float(np.max(depths_m)) * 1e3:.0f} mm "
-            f"({step:.2f} rad per sample, max {MAX_DEFOCUS_STEP_RAD:.2f}): use pupil_samples >= {need}"
-        )
 
 
 def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: int) -> None:
@@ -140,6 +134,44 @@ def radial_engine_bytes(n_nu: int, n_rings: int, n_wavelengths: int, window: int
     tables = 8 * ((n_wavelengths + 1) * n_nu * n_unique + 13 * n_rings * n_nu)
     per_depth = 8 * n_wavelengths * (3 * n_rings + 8 * n_nu + n_unique + 2 * window * window)
     return tables + n_depths * per_depth
+
+
+#: design ring edges closer than this to an engine edge are merged with it (no sliver rings)
+MIN_RING_M = 1e-10
+
+
+def split_ring_edges(base_edges_m: np.ndarray, extra_edges_m) -> np.ndarray:
+    """Sorted union of the base ring edges and ``extra_edges_m`` strictly inside them (rings
+    narrower than :data:`MIN_RING_M` merged); the first and last base edges are kept."""
+    base = np.asarray(base_edges_m, dtype=float)
+    extra = np.asarray(extra_edges_m, dtype=float).reshape(-1)
+    extra = extra[(extra > base[0]) & (extra < base[-1])]
+    edges = np.unique(np.concatenate([base, extra]))
+    edges = edges[np.concatenate([[True], np.diff(edges) > MIN_RING_M])]
+    edges[-1] = base[-1]
+    return edges
+
+
+def ring_moments(ring_edges_m: np.ndarray, nu: np.ndarray, aperture_diameter_m: float) -> np.ndarray:
+    """Kernel (n_rings, 3 n_nu): the ring moments int_ring s^n J0(2 pi f r) r dr (n = 0, 1, 2;
+    s = r^2 - r_m^2, r_m the ring centre; f = nu / D) in closed form (module docstring), for any
+    increasing ring edges (n_rings + 1,)."""
+    r = np.asarray(ring_edges_m, dtype=float)[None, :]
+    centres = 0.5 * (r[0, 1:] + r[0, :-1])
+    c = (centres**2)[:, None]
+    f = np.asarray(nu, dtype=float) / aperture_diameter_m  # spatial frequency (1/m)
+    a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
+    x = a * r
+    j1_, j2, j3 = bessel_j123(x)
+    p0 = r * j1_ / a  # int r J0 dr
+    p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2  # int r^3 J0 dr
+    p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3  # int r^5 J0 dr
+    zero = f[:, None] <= 0
+    p0 = np.where(zero, r**2 / 2, p0)
+    p1 = np.where(zero, r**4 / 4, p1)
+    p2 = np.where(zero, r**6 / 6, p2)
+    d0, d1, d2 = (np.diff(p, axis=1).T for p in (p0, p1, p2))  # (n_rings, n_nu)
+    return np.concatenate([d0, d1 - c * d0, d2 - 2 * c * d1 + c**2 * d0], axis=1)
 
 
 def normalized_radius_grid(
@@ -218,6 +250,7 @@ class RadialPSFEngine:
         )[:, None, None]
         self.kernel = torch.as_tensor(self._ring_moments(), dtype=dtype, device=self.device)  # (M, 3 n_nu)
         self.ring_centres_t = torch.as_tensor(self.ring_centres_m, dtype=torch.float64, device=self.device)
+        self._split_rings: tuple[bytes, torch.Tensor, torch.Tensor, np.ndarray] | None = None
 
     @property
     def rho_px(self) -> np.ndarray:
@@ -229,37 +262,43 @@ class RadialPSFEngine:
         return self.nu * lam * self.geometry.throw_width_m / self.geometry.aperture_diameter_m
 
     def _ring_moments(self) -> np.ndarray:
-        """Kernel (M, 3 n_nu): ring moments int_ring s^n J0(2 pi f r) r dr, n = 0, 1, 2, s = r^2 - r_m^2."""
-        r = self.ring_edges_m[None, :]
-        c = (self.ring_centres_m**2)[:, None]
-        f = self.nu / self.geometry.aperture_diameter_m  # spatial frequency (1/m)
-        a = 2 * math.pi * np.where(f > 0, f, 1.0)[:, None]
-        x = a * r
-        j1_, j2, j3 = bessel_j123(x)
-        p0 = r * j1_ / a  # int r J0 dr
-        p1 = r**3 * j1_ / a - 2 * r**2 * j2 / a**2  # int r^3 J0 dr
-        p2 = r**5 * j1_ / a - 4 * r**4 * j2 / a**2 + 8 * r**3 * j3 / a**3  # int r^5 J0 dr
-        zero = f[:, None] <= 0
-        p0 = np.where(zero, r**2 / 2, p0)
-        p1 = np.where(zero, r**4 / 4, p1)
-        p2 = np.where(zero, r**6 / 6, p2)
-        d0, d1, d2 = (np.diff(p, axis=1).T for p in (p0, p1, p2))  # (M, n_nu)
-        return np.concatenate([d0, d1 - c * d0, d2 - 2 * c * d1 + c**2 * d0], axis=1)
+        """Kernel (M, 3 n_nu) of the engine's rings ``ring_edges_m`` (:func:`ring_moments`)."""
+        return ring_moments(self.ring_edges_m, self.nu, self.geometry.aperture_diameter_m)
+
+    def rings_for(self, doe) -> tuple[torch.Tensor, torch.Tensor]:
+        """Ring centres (n,) and ring-moment kernel (n, 3 n_nu) that simulate ``doe`` exactly.
+
+        A design that is piecewise constant on its own rings (a design file: ``ring_edges_m``,
+        any widths, up to the rim) gets the engine's rings split at its edges: its height is then
+        constant on every ring and each ring integral is exact. Any other design (and the bare
+        lens) uses the engine's equal rings, with the height at their centres. The split kernel
+        of the last design is kept (one design is simulated many times)."""
+        edges = getattr(doe, "ring_edges_m", None) if doe is not None else None
+        if edges is None:
+            return self.ring_centres_t, self.kernel
+        design = np.asarray(edges.detach().cpu().numpy() if torch.is_tensor(edges) else edges, dtype=float)
+        key = design.tobytes()
+        if self._split_rings is None or self._split_rings[0] != key:
+            split = split_ring_edges(self.ring_edges_m, design)
+            centres = torch.as_tensor(0.5 * (split[1:] + split[:-1]), dtype=torch.float64, device=self.device)
+            kernel = ring_moments(split, self.nu, self.geometry.aperture_diameter_m)
+            kernel_t = torch.as_tensor(kernel, dtype=self.dtype, device=self.device)
+            self._split_rings = (key, centres, kernel_t, split)
+        return self._split_rings[1], self._split_rings[2]
 
     # ------------------------------------------------------------------ physics
     def pupil_phase(self, doe, depths_m) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pupil phase at the ring centres (rad), (n_lambda, n_depths, n_rings), and the
-        defocus coefficient alpha = pi (1/z - 1/v) / lambda (rad/m^2), (n_lambda, n_depths, 1)."""
+        """Pupil phase at the ring centres of :meth:`rings_for` (rad), (n_lambda, n_depths, n_rings),
+        and the defocus coefficient alpha = pi (1/z - 1/v) / lambda (rad/m^2), (n_lambda, n_depths, 1)."""
         z = torch.as_tensor(check_depths(depths_m), dtype=torch.float64, device=self.device)
         lam = torch.as_tensor(self.wavelengths_m, dtype=torch.float64, device=self.device)
-        r = self.ring_centres_t
+        r, _ = self.rings_for(doe)
         if doe is None:
             height = torch.zeros_like(r)
             n_minus_1 = torch.zeros_like(lam)
         else:
             if not doe.radially_symmetric:
                 raise EdofprojError(f"the radial engine needs a radially symmetric DOE; use --engine 2d for {doe.name}")
-            doe.check_sampling(self.ring_width_m)
             height = doe.height_m(r).to(torch.float64)
             if not torch.all(torch.isfinite(height)):
                 raise EdofprojError("the DOE produced NaN or infinite heights")
@@ -267,12 +306,13 @@ class RadialPSFEngine:
                 doe.refractive_index(self.wavelengths_m) - 1.0, dtype=torch.float64, device=self.device
             )
         doe_phase = 2 * math.pi * n_minus_1[:, None] * height[None, :] / lam[:, None]  # (L, M)
-        doe_phase = doe_phase + self.aberration_phase()
+        doe_phase = doe_phase + self.aberration_phase(r)
         alpha = math.pi * (1.0 / z - 1.0 / self.geometry.focus_distance_m)[None, :, None] / lam[:, None, None]
         return doe_phase[:, None, :] + alpha * r[None, None, :] ** 2, alpha
 
-    def aberration_phase(self) -> torch.Tensor | float:
-        """``2 pi W(r_m) / lambda`` at the ring centres, (n_lambda, n_rings), or 0 without aberration."""
+    def aberration_phase(self, ring_centres_m: torch.Tensor | None = None) -> torch.Tensor | float:
+        """``2 pi W(r_m) / lambda`` at the ring centres (default: the engine's), (n_lambda, n_rings),
+        or 0 without aberration."""
         ab = self.aberration
         if ab is None or ab.is_zero:
             return 0.0
@@ -281,26 +321,88 @@ class RadialPSFEngine:
                 "the radial engine takes only rotationally symmetric aberrations (Noll j = 1, 4, 11, 22, ...; "
                 "no wavefront map): use --engine 2d"
             )
-        rho = self.ring_centres_t / self.geometry.aperture_radius_m
-        phase = torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
-        step = pupil_phase_step_rad(phase)
-        check_aberration_sampling(step, self.pupil_samples, "ring", MAX_DEFOCUS_STEP_RAD)
-        return phase
+        centres = self.ring_centres_t if ring_centres_m is None else ring_centres_m
+        rho = centres / self.geometry.aperture_radius_m
+        return torch.stack([2 * math.pi * ab.opd_m(rho, None, float(lam)) / float(lam) for lam in self.wavelengths_m])
+
+    def aberration_step_rad(self, pupil_samples: int) -> float:
+        """The aberration's largest phase step between neighbouring ring centres of ``pupil_samples`` equal rings."""
+        edges = torch.linspace(0.0, self.geometry.aperture_radius_m, pupil_samples // 2 + 1, dtype=torch.float64)
+        phase = self.aberration_phase(0.5 * (edges[1:] + edges[:-1]).to(self.device))  # (L, M / 2)
+        if not torch.is_tensor(phase):
+            return 0.0
+        return max(pupil_phase_step_rad(row[None]) for row in phase)  # along the radius, per wavelength
+
+    def check_sampling(self, doe, depths_m) -> None:
+        """Refuse (one :class:`~edofproj.errors.SamplingError` naming the one ``pupil_samples`` that meets every
+        requirement: :mod:`.sampling`) rings that cannot resolve the defocus, the aberration or the design.
+        A design on rings of its own is exact at any sampling (:meth:`rings_for`): its rule is not applied."""
+        if doe is not None and not doe.radially_symmetric:
+            raise EdofprojError(f"the radial engine needs a radially symmetric DOE; use --engine 2d for {doe.name}")
+        ab = self.aberration
+        if ab is not None and not ab.is_zero and not ab.radially_symmetric:
+            self.aberration_phase()  # the one-line refusal of asymmetric terms
+        check_pupil_sampling(
+            self.pupil_samples,
+            geometry=self.geometry,
+            wavelengths_m=self.wavelengths_m,
+            depths_m=depths_m,
+            window=self.window,
+            engine="radial",
+            doe=doe,
+            aberration_step_rad=None if ab is None or ab.is_zero else self.aberration_step_rad,
+            check_design=getattr(doe, "ring_edges_m", None) is None,
+        )
 
     def radial_intensity(self, doe, depths_m) -> torch.Tensor:
         """I at the radii ``rho_px_at(l)``: pupil-energy fraction per square pixel, (n_lambda, n_depths, n_nu)."""
         depths_m = check_depths(depths_m)
-        check_defocus_sampling(self.geometry, self.wavelengths_m, depths_m, self.pupil_samples)
+        self.check_sampling(doe, depths_m)
         phase, alpha = self.pupil_phase(doe, depths_m)
-        n = len(self.nu)
-        cos_k = torch.matmul(torch.cos(phase).to(self.dtype), self.kernel)  # (L, Z, 3 n_nu)
-        sin_k = torch.matmul(torch.sin(phase).to(self.dtype), self.kernel)
-        a = alpha.to(self.dtype)
-        half_a2 = 0.5 * a * a
-        # G = K0 g + i alpha K1 g - alpha^2/2 K2 g with g = cos + i sin
-        re = cos_k[..., :n] - a * sin_k[..., n : 2 * n] - half_a2 * cos_k[..., 2 * n :]
-        im = sin_k[..., :n] + a * cos_k[..., n : 2 * n] - half_a2 * sin_k[..., 2 * n :]
+        centres, kernel = self.rings_for(doe)
+        b_re, b_im = self.defocus_coefficients(alpha, centres)  # (L, Z, 3 M) each: b0 | b1 | b2
+        stacked = self._stacked_kernel(kernel)  # (3 M, n_nu): K0 over K1 over K2
+        cos, sin = torch.cos(phase).to(self.dtype), torch.sin(phase).to(self.dtype)
+        cos3, sin3 = cos.repeat(1, 1, 3), sin.repeat(1, 1, 3)
+        # G = sum_n (g b_n) K_n with g = cos + i sin
+        # both parts in one product: the kernel (3 M x n_nu, tens of MB) is read once per pass
+        re, im = torch.matmul(torch.stack([cos3 * b_re - sin3 * b_im, sin3 * b_re + cos3 * b_im]), stacked)
         return (re * re + im * im) * self.intensity_norm
+
+    def defocus_coefficients(self, alpha: torch.Tensor, centres_m: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Real and imaginary parts of ``b0 | b1 | b2`` (L, Z, 3 M): exp(i alpha s) ~ b0 + b1 s + b2 s^2
+        on each ring (module docstring), for ``alpha`` (L, Z, 1) and the rings of ``centres_m`` (M,)."""
+        r_m = centres_m.detach().cpu().numpy()
+        edges = self._edges_for(centres_m)
+        s_lo, s_hi = edges[:-1] ** 2 - r_m**2, edges[1:] ** 2 - r_m**2
+        c, h = 0.5 * (s_lo + s_hi), 0.5 * (s_hi - s_lo)  # (M,)
+        a = alpha.detach().cpu().numpy()  # (L, Z, 1)
+        omega = a * h
+        a0 = spherical_jn(0, omega)
+        a1 = 3j * spherical_jn(1, omega)
+        a2 = -5 * spherical_jn(2, omega)
+        e = np.exp(1j * a * c)
+        b2 = e * a2 * 1.5 / h**2
+        b1 = e * (a1 / h - 3 * a2 * c / h**2)
+        b0 = e * (a0 - a1 * c / h + a2 * (3 * c**2 / h**2 - 1) / 2)
+        b = np.concatenate([b0, b1, b2], axis=-1)
+        as_t = lambda x: torch.as_tensor(x, dtype=self.dtype, device=self.device)  # noqa: E731
+        return as_t(b.real), as_t(b.imag)
+
+    def _edges_for(self, centres: torch.Tensor) -> np.ndarray:
+        """Ring edges (M + 1,) of the rings whose centres :meth:`rings_for` returned."""
+        if self._split_rings is not None and centres is self._split_rings[1]:
+            return self._split_rings[3]
+        return np.asarray(self.ring_edges_m, dtype=float)
+
+    def _stacked_kernel(self, kernel: torch.Tensor) -> torch.Tensor:
+        """``kernel`` (M, 3 n_nu) = [K0 | K1 | K2] restacked as (3 M, n_nu), kept for the last kernel."""
+        cached = getattr(self, "_stacked", None)
+        if cached is None or cached[0] is not kernel:
+            M, n = kernel.shape[0], kernel.shape[1] // 3
+            cached = (kernel, kernel.reshape(M, 3, n).transpose(0, 1).reshape(3 * M, n).contiguous())
+            self._stacked = cached
+        return cached[1]
 
     def psf(self, doe, depths_m) -> torch.Tensor:
         """Pixel-integrated PSFs, (n_depths, n_lambda, K, K); each value is a fraction of the pupil energy."""

@@ -39,7 +39,8 @@ from typing import Callable, Optional, Sequence
 import torch
 
 from ..errors import EdofprojError
-from ..fileio import atomic_path
+from ..fileio import TEMP_PATTERN, atomic_path
+from ..locking import directory_lock
 
 
 class PerceptualWeightsMissing(EdofprojError):
@@ -236,6 +237,28 @@ def fetch_backbone_weights(
     if folder.exists() and not folder.is_dir():
         raise EdofprojError(f"'{folder}' exists and is not a directory")
     say = progress or (lambda message: None)
+    # one fetch per folder at a time; then the partial downloads of a killed fetch can go
+    with directory_lock(folder, "edofproj weights fetch"):
+        for stale in remove_partial_downloads(folder):
+            say(f"removed the partial download {stale.name} of an interrupted fetch")
+        return _fetch_locked(backbones, folder, base_url, say, timeout_s)
+
+
+def remove_partial_downloads(folder: Path) -> list[Path]:
+    """Delete the temporary files (:func:`edofproj.fileio.atomic_path` names) of the backbone files
+    in ``folder`` that a killed fetch left; only those of :data:`BACKBONE_DOWNLOADS`' file names
+    (the folder is shared with torch's hub cache). Call while holding the folder's lock."""
+    names = {item.filename for item in BACKBONE_DOWNLOADS.values()}
+    removed = []
+    for path in folder.glob(".*"):
+        match = TEMP_PATTERN.match(path.name)
+        if match and match.group("target") in names and path.is_file() and not path.is_symlink():
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
+def _fetch_locked(backbones, folder: Path, base_url: str, say, timeout_s: float) -> list[FetchResult]:
     results = []
     for backbone in dict.fromkeys(backbones):
         item = BACKBONE_DOWNLOADS[backbone]

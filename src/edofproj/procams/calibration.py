@@ -24,7 +24,8 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..fileio import save_npz_atomic
+from ..fileio import read_arrays, save_npz_atomic
+from ..limits import check_memory
 from .capture_io import read_captures, saturated_fraction
 from .color import RESPONSE_LUT_SIZE, ColorCalibration, ResponseLUT, calibrate_color
 from .geometry import CameraMap, calibrate_geometry
@@ -102,35 +103,121 @@ class ProCamsCalibration:
 
     @classmethod
     def load(cls, path: str | Path) -> "ProCamsCalibration":
-        try:
-            data = np.load(path, allow_pickle=False)
-            if "format" not in data or str(data["format"]) != CALIBRATION_FORMAT:
-                raise ValueError("not a calibration file (make one with 'edofproj procams calibrate')")
-            camera_map = CameraMap(
-                map_x=data["map_x"].astype(np.float64),
-                map_y=data["map_y"].astype(np.float64),
-                homography=data["homography"],
-                dots_proj=data["dots_proj"],
-                dots_cam=data["dots_cam"],
-                camera_hw=_camera_hw(data["camera_hw"]),
-            )
-            color = ColorCalibration(
-                mixing_matrix=data["mixing_matrix"],
-                black_level=data["black_level"],
-                sample_inputs=data["color_inputs"],
-                sample_outputs=data["color_outputs"],
-                neighbours=int(data["neighbours"]),
-            )
-            black = data["black_image"].astype(np.float64)
-        except FileNotFoundError:
-            raise EdofprojError(f"calibration file '{path}' does not exist") from None
-        except (OSError, ValueError, KeyError) as exc:
-            raise EdofprojError(f"cannot read calibration file '{path}': {exc}") from None
-        return cls(camera_map=camera_map, color=color, black_image=black)
+        """Read ``calib.npz``; every field is checked by :func:`validate_calibration_arrays` first."""
+        data = read_arrays(path, what="calibration file")
+        validate_calibration_arrays(data, f"calibration file '{path}'")
+        camera_map = CameraMap(
+            map_x=data["map_x"].astype(np.float64),
+            map_y=data["map_y"].astype(np.float64),
+            homography=data["homography"].astype(np.float64),
+            dots_proj=data["dots_proj"].astype(np.float64),
+            dots_cam=data["dots_cam"].astype(np.float64),
+            camera_hw=_size_pair(data["camera_hw"]),
+        )
+        color = ColorCalibration(
+            mixing_matrix=data["mixing_matrix"].astype(np.float64),
+            black_level=data["black_level"].astype(np.float64),
+            sample_inputs=data["color_inputs"].astype(np.float64),
+            sample_outputs=data["color_outputs"].astype(np.float64),
+            neighbours=int(data["neighbours"]),
+        )
+        return cls(camera_map=camera_map, color=color, black_image=data["black_image"].astype(np.float64))
 
 
-def _camera_hw(values: np.ndarray) -> tuple[int, int]:
-    """The stored camera size ``[Hc, Wc]`` (ValueError unless it has two values)."""
+#: Largest projector or camera side a calibration file may give (pixels): beyond any display or sensor.
+MAX_CALIBRATION_SIDE_PX = 32768
+#: Largest condition number of a stored mixing matrix (calibration refuses 1e4; a file may not do worse).
+MAX_MIXING_CONDITION = 1e4
+CALIBRATION_KEYS = (
+    "format",
+    "projector_hw",
+    "camera_hw",
+    "map_x",
+    "map_y",
+    "homography",
+    "dots_proj",
+    "dots_cam",
+    "mixing_matrix",
+    "black_level",
+    "black_image",
+    "color_inputs",
+    "color_outputs",
+    "neighbours",
+)
+
+
+def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> None:
+    """Raise one line (naming ``source``) unless the arrays of a ``calib.npz`` are a calibration
+    this tool could have written (the module docstring's keys):
+
+    * sizes ``projector_hw`` ``[H, W]`` and ``camera_hw`` ``[Hc, Wc]``: two integers in
+      ``1..MAX_CALIBRATION_SIDE_PX``; ``map_x``, ``map_y`` ``(H, W)`` and ``black_image`` ``(H, W, 3)``;
+    * every array finite; the maps inside the camera frame, ``0 <= map_x <= Wc - 1``,
+      ``0 <= map_y <= Hc - 1`` (what calibration itself requires);
+    * ``homography`` 3x3; ``dots_proj`` and ``dots_cam`` ``(n, 2)`` with the same ``n``;
+    * ``mixing_matrix`` 3x3 with condition number at most ``MAX_MIXING_CONDITION``;
+      ``black_level`` (3,);
+    * ``color_inputs`` and ``color_outputs`` ``(N, 3)``, inputs in ``[0, 1]``, and
+      ``4 <= neighbours <= N`` (a 3-D local linear interpolation, as ``procams calibrate`` requires).
+    """
+
+    def fail(message: str) -> None:
+        raise EdofprojError(f"{source} {message} (make a new one with 'edofproj procams calibrate')")
+
+    if "format" not in data or data["format"].shape != () or str(data["format"]) != CALIBRATION_FORMAT:
+        raise EdofprojError(f"{source} is not a calibration file (make one with 'edofproj procams calibrate')")
+    missing = [key for key in CALIBRATION_KEYS if key not in data]
+    if missing:
+        fail(f"lacks {', '.join(missing)}")
+    for key in CALIBRATION_KEYS[1:]:
+        if data[key].dtype.kind not in "biuf":
+            fail(f"has non-numeric '{key}' ({data[key].dtype})")
+        if not np.all(np.isfinite(data[key])):
+            fail(f"has NaN or infinite values in '{key}'")
+    sizes = {}
+    for key in ("projector_hw", "camera_hw"):
+        values = data[key]
+        if values.shape != (2,) or np.any(values != np.round(values)):
+            fail(f"gives '{key}' {values.tolist()}, not two whole numbers [height, width]")
+        if np.any(values < 1) or np.any(values > MAX_CALIBRATION_SIDE_PX):
+            fail(f"gives '{key}' {values.tolist()}: each side must be 1..{MAX_CALIBRATION_SIDE_PX} pixels")
+        sizes[key] = _size_pair(values)
+    (H, W), (Hc, Wc) = sizes["projector_hw"], sizes["camera_hw"]
+    for key, shape in (("map_x", (H, W)), ("map_y", (H, W)), ("black_image", (H, W, 3))):
+        if data[key].shape != shape:
+            fail(f"has '{key}' of shape {data[key].shape}, not {shape} (projector {W}x{H})")
+    for key, top in (("map_x", Wc - 1), ("map_y", Hc - 1)):
+        if data[key].min() < 0 or data[key].max() > top:
+            fail(f"has '{key}' outside the {Wc}x{Hc} camera frame ({data[key].min():.6g}..{data[key].max():.6g})")
+    small: tuple[tuple[str, tuple[int, ...]], ...] = (
+        ("homography", (3, 3)),
+        ("mixing_matrix", (3, 3)),
+        ("black_level", (3,)),
+    )
+    for key, wanted in small:
+        if data[key].shape != wanted:
+            fail(f"has '{key}' of shape {data[key].shape}, not {wanted}")
+    if (
+        data["dots_proj"].ndim != 2
+        or data["dots_proj"].shape[1:] != (2,)
+        or data["dots_cam"].shape != data["dots_proj"].shape
+    ):
+        fail(f"has dot lists of shapes {data['dots_proj'].shape} and {data['dots_cam'].shape}, not two (n, 2)")
+    condition = np.linalg.cond(data["mixing_matrix"].astype(np.float64))
+    if not condition <= MAX_MIXING_CONDITION:
+        fail(f"has a singular colour-mixing matrix (condition number {condition:.3g} > {MAX_MIXING_CONDITION:g})")
+    inputs, outputs = data["color_inputs"], data["color_outputs"]
+    if inputs.ndim != 2 or inputs.shape[1:] != (3,) or outputs.shape != inputs.shape or len(inputs) == 0:
+        fail(f"has colour tables of shapes {inputs.shape} and {outputs.shape}, not two non-empty (N, 3)")
+    if inputs.min() < 0 or inputs.max() > 1:
+        fail("has colour-sample inputs outside [0, 1]")
+    neighbours = data["neighbours"]
+    if neighbours.shape != () or neighbours != np.round(neighbours) or not 4 <= neighbours <= len(inputs):
+        fail(f"gives neighbours={neighbours.tolist()}: a whole number in 4..{len(inputs)} (the colour samples)")
+
+
+def _size_pair(values: np.ndarray) -> tuple[int, int]:
+    """A stored size ``[H, W]`` as two ints."""
     height, width = (int(v) for v in values)
     return height, width
 
@@ -154,12 +241,30 @@ def calibration_files(manifest: PatternManifest) -> list[str]:
     )
 
 
+def calibration_memory_bytes(height: int, width: int, captures: int) -> int:
+    """Memory of :func:`calibrate` beyond the captures: the dense map (pixel grid, homography and
+    spline values, the maps: about 64 bytes per projector pixel, float64) and every capture warped
+    into projector pixels, ``(H, W, 3)`` float32 (12 bytes per pixel each)."""
+    return (64 + 12 * captures) * height * width
+
+
+def check_calibration_memory(manifest: PatternManifest) -> None:
+    """:func:`edofproj.limits.check_memory` of :func:`calibration_memory_bytes` for ``manifest``."""
+    count = len(calibration_files(manifest))
+    check_memory(
+        calibration_memory_bytes(manifest.height, manifest.width, count),
+        f"calibrating a {manifest.width}x{manifest.height} projector from {count} captures",
+        "regenerate the patterns at the projector's size (or with fewer --color-levels)",
+    )
+
+
 def calibrate(manifest: PatternManifest, captures: Mapping[str, np.ndarray], neighbours: int = 6) -> ProCamsCalibration:
     """Geometric and colour calibration from captures ``{pattern file: (Hc, Wc, 3) image}``."""
     dots, black = manifest.one("dots"), manifest.one("black")
     if dots.dots is None or dots.grid is None:
         raise EdofprojError(f"the pattern manifest lists no dot grid for '{dots.file}'")
     names = calibration_files(manifest)
+    check_calibration_memory(manifest)
     camera_map = calibrate_geometry(
         captures[dots.file], captures[black.file], dots.dots, dots.grid, (manifest.height, manifest.width)
     )
@@ -179,5 +284,6 @@ def calibrate_folders(
 ) -> tuple[PatternManifest, ProCamsCalibration]:
     """:func:`calibrate` on a pattern folder and its capture folder."""
     manifest = PatternManifest.load(pattern_dir)
+    check_calibration_memory(manifest)
     captures = read_captures(capture_dir, calibration_files(manifest))
     return manifest, calibrate(manifest, captures, neighbours)

@@ -40,7 +40,9 @@ Captures are read from a folder holding one capture per pattern under the same f
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -168,14 +170,19 @@ class PatternManifest:
 
     @classmethod
     def load(cls, folder: str | Path) -> "PatternManifest":
+        """Read ``folder/manifest.json``; every field is checked (:meth:`validate`)."""
         path = Path(folder) / MANIFEST_NAME
         if not Path(folder).is_dir():
             raise EdofprojError(f"pattern folder '{folder}' does not exist")
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
-            width, height = int(data["width"]), int(data["height"])
+            if not isinstance(data, dict) or not isinstance(data.get("files"), list):
+                raise ValueError("not a pattern manifest (an object with a list 'files')")
+            width, height = _whole(data["width"], "width"), _whole(data["height"], "height")
             entries = []
             for item in data["files"]:
+                if not isinstance(item, dict):
+                    raise ValueError(f"file entry {item!r} is not an object")
                 role = item["role"]
                 if role not in ROLES:
                     raise ValueError(f"unknown role '{role}'")
@@ -186,20 +193,101 @@ class PatternManifest:
                     PatternEntry(
                         file=str(item["file"]),
                         role=role,
-                        index=item.get("index"),
+                        index=_whole(item["index"], "index") if "index" in item else None,
                         color=_color_triple(item["color"]) if "color" in item else None,
                         grid=_grid_pair(item["grid"]) if "grid" in item else None,
-                        radius_px=item.get("radius_px"),
+                        radius_px=_whole(item["radius_px"], "radius_px") if "radius_px" in item else None,
                         dots=dots,
                     )
                 )
+            manifest = cls(width=width, height=height, entries=entries)
+            manifest.validate()
         except FileNotFoundError:
             raise EdofprojError(
                 f"'{folder}' has no {MANIFEST_NAME} (make one with 'edofproj procams patterns')"
             ) from None
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except UnicodeDecodeError:
+            raise EdofprojError(f"cannot read '{path}': not UTF-8 text") from None
+        except (OSError, ValueError, KeyError, TypeError, OverflowError) as exc:
             raise EdofprojError(f"cannot read '{path}': {exc}") from None
-        return cls(width=width, height=height, entries=entries)
+        return manifest
+
+    def validate(self) -> None:
+        """Raise ValueError unless the manifest describes patterns this tool can show:
+        a size of ``16..MAX_PATTERN_SIDE_PX`` per side that :func:`edofproj.limits.check_memory`
+        admits for one pattern, at least one file, unique file names that are bare names inside
+        the pattern folder (:func:`confined_file_name`), colours in ``[0, 1]`` and dots inside the image."""
+        if not (16 <= self.width <= MAX_PATTERN_SIDE_PX and 16 <= self.height <= MAX_PATTERN_SIDE_PX):
+            raise ValueError(f"size {self.width}x{self.height} is not 16..{MAX_PATTERN_SIDE_PX} pixels per side")
+        check_memory(
+            30 * self.width * self.height,
+            f"a {self.width}x{self.height} pattern",
+            "regenerate the patterns at the projector's size with 'edofproj procams patterns'",
+        )
+        if not self.entries:
+            raise ValueError("it lists no pattern files")
+        seen: set[str] = set()
+        for entry in self.entries:
+            confined_file_name(entry.file, "pattern file")
+            if entry.file in seen:
+                raise ValueError(f"'{entry.file}' is listed twice")
+            seen.add(entry.file)
+            if entry.color is not None and not all(0.0 <= c <= 1.0 for c in entry.color):
+                raise ValueError(f"'{entry.file}' has colour {list(entry.color)} outside [0, 1]")
+            if entry.dots is not None:
+                x, y = entry.dots[:, 0], entry.dots[:, 1]
+                if not (np.all(np.isfinite(entry.dots)) and x.min() >= 0 and y.min() >= 0):
+                    raise ValueError(f"'{entry.file}' has dots outside the {self.width}x{self.height} image")
+                if x.max() > self.width - 1 or y.max() > self.height - 1:
+                    raise ValueError(f"'{entry.file}' has dots outside the {self.width}x{self.height} image")
+            if entry.radius_px is not None and entry.radius_px < 1:
+                raise ValueError(f"'{entry.file}' has radius_px {entry.radius_px} < 1")
+
+    def content_hash(self, folder: str | Path) -> str:
+        """SHA-256 (hex) over the manifest's text and every pattern file's bytes, in manifest order:
+        what a capture session is tied to (:mod:`.session`). Raises one line for a missing pattern."""
+        digest = hashlib.sha256(manifest_json_text(self).encode("utf-8"))
+        for entry in self.entries:
+            pattern = Path(folder) / entry.file
+            try:
+                with open(pattern, "rb") as handle:
+                    for block in iter(lambda: handle.read(1 << 20), b""):
+                        digest.update(block)
+            except OSError as exc:
+                raise EdofprojError(f"cannot read pattern '{pattern}': {exc.strerror or exc}") from None
+        return digest.hexdigest()
+
+
+#: Largest pattern side a manifest may give (pixels): beyond any projector.
+MAX_PATTERN_SIDE_PX = 32768
+
+
+def confined_file_name(name: str, what: str = "file") -> str:
+    """``name`` if it is a bare file name (no folder part, not absolute, not hidden, not ``..``),
+    else ValueError: file names read from a manifest stay inside the manifest's folder."""
+    if (
+        not isinstance(name, str)
+        or not name
+        or name != Path(name).name
+        or "/" in name
+        or "\\" in name
+        or name.startswith(".")
+        or "\0" in name
+    ):
+        raise ValueError(f"{what} name {name!r} is not a bare file name inside the folder")
+    return name
+
+
+def _whole(value, what: str) -> int:
+    """A JSON whole number (ValueError for booleans, fractions, text)."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or value != int(value)
+    ):
+        raise ValueError(f"'{what}' {value!r} is not a whole number")
+    return int(value)
 
 
 def _color_triple(values) -> tuple[float, float, float]:
@@ -330,4 +418,5 @@ __all__ = [
     "read_pattern",
     "parse_grid",
     "MANIFEST_NAME",
+    "confined_file_name",
 ]

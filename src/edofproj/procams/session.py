@@ -6,12 +6,17 @@ or 16-bit for a mean of several frames; each written atomically: temp file, then
     {"source": "edofproj procams capture", "patterns": ".../manifest.json",
      "projector_hw": [H, W], "camera_hw": [Hc, Wc], "depth_mm": Z,
      "display": {...}, "camera": {...}, "settle_s": s, "average": N,
-     "captured": n, "total": N_patterns, "complete": true|false}
+     "captured": n, "total": N_patterns, "complete": true|false,
+     "patterns_sha256": "..."}
 
 An interrupted session (Ctrl-C, a camera that stops answering) keeps every capture already
 written; running it again skips them and continues. A folder is resumed only with the same
 pattern manifest, depth and number of frames averaged, and every capture must have the camera
-size of the first.
+size of the first. The session is tied to the *content* of its patterns: ``patterns_sha256``
+(:meth:`PatternManifest.content_hash`, the manifest and every pattern file) must match on
+resume, so patterns regenerated in place (another seed or size) are refused. Each capture
+already in the folder is read back before it counts: one that does not decode or has another
+size than the session's camera is removed and captured again (with a ``RecoveryWarning``).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import EdofprojError
+from ..errors import EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files, write_text_atomic
 from ..imaging.image_io import write_image
 from ..locking import directory_lock
@@ -50,12 +55,17 @@ def _load_info(out: Path) -> dict | None:
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except ValueError as exc:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except ValueError as exc:  # UnicodeDecodeError is one
         raise EdofprojError(f"'{path}' is not valid JSON: {exc}") from None
+    if not isinstance(info, dict):
+        raise EdofprojError(f"'{path}' is not a capture session's record (a JSON object): use another --out")
+    return info
 
 
-def _check_resume(out: Path, info: dict | None, manifest_path: Path, depth_mm: float | None) -> dict | None:
+def _check_resume(
+    out: Path, info: dict | None, manifest_path: Path, depth_mm: float | None, patterns_sha256: str
+) -> dict | None:
     """The existing session's ``captures.json`` if ``out`` can be resumed, else raise; None if new."""
     if info is None:
         if out.is_dir() and any(out.iterdir()):
@@ -67,11 +77,65 @@ def _check_resume(out: Path, info: dict | None, manifest_path: Path, depth_mm: f
         raise EdofprojError(f"'{out}' was not written by 'edofproj procams capture' (source: {info.get('source')})")
     if info.get("patterns") != str(manifest_path):
         raise EdofprojError(f"'{out}' is a session of other patterns ({info.get('patterns')}): use another --out")
+    if "patterns_sha256" not in info:
+        raise EdofprojError(
+            f"'{out}' does not record its patterns' content (patterns_sha256; an earlier edofproj wrote it): "
+            "capture into a new --out"
+        )
+    if info.get("patterns_sha256") != patterns_sha256:
+        raise EdofprojError(
+            f"the patterns of '{out}' have changed since it was captured (their content differs from "
+            f"{CAPTURE_INFO_JSON}'s patterns_sha256): capture into a new --out"
+        )
     if info.get("depth_mm") != depth_mm:
         raise EdofprojError(
             f"'{out}' was captured at --depth-mm {info.get('depth_mm')}, not {depth_mm}: resume with the same depth"
         )
     return info
+
+
+def _stored_camera_hw(previous: dict | None, out: Path) -> tuple[int, int] | None:
+    """The camera size a resumed session recorded (None for a new one), checked."""
+    stored = previous.get("camera_hw") if previous else None
+    if stored is None:
+        return None
+    if not (
+        isinstance(stored, list)
+        and len(stored) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in stored)
+    ):
+        raise EdofprojError(f"'{out / CAPTURE_INFO_JSON}' gives camera_hw {stored!r}, not [height, width]")
+    return stored[0], stored[1]
+
+
+def _verify_existing_captures(out: Path, files: list[str], camera_hw: tuple[int, int] | None) -> tuple[int, int] | None:
+    """Read back every capture of ``files`` already in ``out``; remove those that do not decode or
+    differ in size from ``camera_hw`` (or from the first readable one), with one ``RecoveryWarning``.
+    Returns the camera size (None when no capture is there)."""
+    damaged = []
+    for name in files:
+        path = out / name
+        if not path.is_file():
+            continue
+        try:
+            shape = read_rgb(path, what="capture").shape[:2]
+        except EdofprojError:
+            damaged.append(name)
+            continue
+        if camera_hw is None:
+            camera_hw = (int(shape[0]), int(shape[1]))
+        elif tuple(shape) != tuple(camera_hw):
+            damaged.append(name)
+    for name in damaged:
+        (out / name).unlink()
+    if damaged:
+        warnings.warn(
+            f"{len(damaged)} capture(s) in '{out}' did not decode or had another size than the camera's "
+            f"(first: '{damaged[0]}'): removed, they are captured again",
+            RecoveryWarning,
+            stacklevel=3,
+        )
+    return camera_hw
 
 
 def capture_patterns(
@@ -93,7 +157,8 @@ def capture_patterns(
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise EdofprojError(f"'{out}' exists and is not a folder")
-    previous = _check_resume(out, _load_info(out), manifest_path, depth_mm)
+    patterns_sha256 = manifest.content_hash(pattern_dir)
+    previous = _check_resume(out, _load_info(out), manifest_path, depth_mm, patterns_sha256)
     if previous is not None and previous.get("average", grab.average) != grab.average:
         raise EdofprojError(
             f"'{out}' was captured with --average {previous.get('average')}, not {grab.average}: resume with the same"
@@ -102,7 +167,7 @@ def capture_patterns(
     # one capture session per folder; temporary files of an interrupted write are removed under the lock
     with directory_lock(out, "edofproj procams capture", "--out"):
         remove_stale_temp_files(out)
-        camera_hw = tuple(previous["camera_hw"]) if previous and previous.get("camera_hw") else None
+        camera_hw = _stored_camera_hw(previous, out)
         info = {
             "source": CAPTURE_SOURCE,
             "patterns": str(manifest_path),
@@ -114,10 +179,10 @@ def capture_patterns(
             "settle_s": grab.settle_s,
             "average": grab.average,
             "total": len(manifest.entries),
+            "patterns_sha256": patterns_sha256,
         }
+        camera_hw = _verify_existing_captures(out, [e.file for e in manifest.entries], camera_hw)
         done = [e for e in manifest.entries if (out / e.file).is_file()]
-        if done and camera_hw is None:
-            camera_hw = read_rgb(out / done[0].file, what="capture").shape[:2]
         todo = [e for e in manifest.entries if not (out / e.file).is_file()]
 
         def write_info(captured: int) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 import trimesh
 import yaml
 
+from ..config import safe_load_yaml
 from ..errors import EdofprojError
 from .builtin import BUILTIN_SCENES, builtin_scene
 from .scene import Scene, SceneMesh
@@ -77,11 +78,21 @@ def _posed_mesh(entry, index: int, base: Path, where: str) -> SceneMesh:
         raise EdofprojError(f"{where}: meshes[{index}].open must be true or false, got {is_open!r}")
     rotation = _vector(entry.get("rotation_deg", [0, 0, 0]), "rotation_deg", f"{where}: meshes[{index}]")
     position = _vector(entry.get("position_m", [0, 0, 0]), "position_m", f"{where}: meshes[{index}]")
-    path = Path(str(entry["file"]))
-    path = path if path.is_absolute() else base / path
+    path = _confined_mesh_path(str(entry["file"]), base, f"{where}: meshes[{index}].file")
     mesh = read_mesh(path)
     mesh.apply_transform(pose_matrix(rotation, position, float(scale)))
     return SceneMesh(path.name, mesh, is_open)
+
+
+def _confined_mesh_path(name: str, base: Path, where: str) -> Path:
+    """``base / name`` for a relative ``name`` that stays inside the scene file's folder ``base``
+    (subfolders allowed; absolute paths and ``..`` refused): a scene names its own files only."""
+    relative = Path(name)
+    if not name or relative.is_absolute() or ".." in relative.parts:
+        raise EdofprojError(
+            f"{where} '{name}' must be a path relative to the scene file's folder, inside it (no absolute path, no '..')"
+        )
+    return base / relative
 
 
 def read_scene_file(path: str | Path) -> Scene:
@@ -90,7 +101,7 @@ def read_scene_file(path: str | Path) -> Scene:
     if not path.is_file():
         raise EdofprojError(f"scene file '{path}' does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load_yaml(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise EdofprojError(f"cannot read scene file '{path}': {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict):

@@ -17,7 +17,8 @@ quantizer), the DOE's parameters.
 
 With ``mixed_precision="bf16"`` the network runs under bfloat16 autocast (its convolutions in
 bf16, its Fourier filter in float32) and its output is returned to float32; the PSFs, both
-projections and the camera stay in float32.
+projections and the camera stay in float32. ``"auto"`` is resolved by
+:func:`resolve_mixed_precision` to ``bf16`` on hardware with native bfloat16 arithmetic.
 
 PSFs come from a *PSF source*, a module ``source(depths_m) -> (B, C, K, K)``:
 :class:`SimulatedPSF` (the DOE simulated every step, one call for the whole batch) or a
@@ -32,6 +33,24 @@ from torch import nn
 from ..compensation.closed_loop import ForwardModel, LoopImages, closed_loop, flat_screen
 from ..imaging.depth_layers import render_depth_map
 from .camera import camera_capture
+
+
+def native_bf16(device: torch.device) -> bool:
+    """Whether ``device`` computes bfloat16 natively: a CUDA GPU with bf16 support, or a CPU with
+    AVX512-BF16 or AMX instructions (elsewhere oneDNN emulates bf16, slower than float32)."""
+    if device.type == "cuda":
+        return bool(torch.cuda.is_bf16_supported())
+    if device.type == "cpu":
+        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+    return False
+
+
+def resolve_mixed_precision(setting: str, device: torch.device) -> str:
+    """``train.mixed_precision`` on ``device``: ``none`` and ``bf16`` as given, ``auto`` -> ``bf16``
+    where :func:`native_bf16`, else ``none``."""
+    if setting == "auto":
+        return "bf16" if native_bf16(device) else "none"
+    return setting
 
 
 class SimulatedPSF(nn.Module):

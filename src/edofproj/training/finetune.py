@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import math
 import shutil
 import time
 from dataclasses import dataclass
@@ -37,9 +38,10 @@ from tqdm import tqdm
 
 from ..data import build_training_source
 from ..errors import EdofprojError
-from ..fileio import write_text_atomic
+from ..fileio import read_arrays, write_text_atomic
 from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
+from ..optics.psf_checks import validate_psf
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
@@ -92,17 +94,17 @@ class MeasuredPSFTable(nn.Module):
         ``depths_m (1,)``); they must share the window and the patch count."""
         psfs, depths = [], []
         for path in paths:
-            try:
-                with np.load(path, allow_pickle=False) as data:
-                    psf, depth = data["psf"], data["depths_m"]
-            except (OSError, ValueError, KeyError) as exc:
-                raise EdofprojError(f"cannot read per-patch PSF file '{path}': {exc}") from None
+            data = read_arrays(path, what="per-patch PSF file")
+            if "psf" not in data or "depths_m" not in data:
+                raise EdofprojError(f"per-patch PSF file '{path}' must hold 'psf' and 'depths_m'")
+            psf, depth = data["psf"], data["depths_m"]
+            if psf.dtype.kind not in "fiu" or depth.dtype.kind not in "fiu":
+                raise EdofprojError(f"per-patch PSF file '{path}' holds non-numeric arrays")
             if psf.ndim != 4 or psf.shape[1] != 3 or psf.shape[-1] != psf.shape[-2] or np.size(depth) != 1:
                 raise EdofprojError(
                     f"per-patch PSF file '{path}' must hold psf (P, 3, K, K) and one depth, got {psf.shape}"
                 )
-            if not np.all(np.isfinite(psf)):
-                raise EdofprojError(f"per-patch PSF file '{path}' contains NaN or infinite values")
+            validate_psf(psf, np.full(len(psf), float(np.ravel(depth)[0])), f"per-patch PSF file '{path}'")
             psfs.append(torch.from_numpy(psf.astype(np.float32)))
             depths.append(float(np.ravel(depth)[0]))
         if len({p.shape for p in psfs}) != 1:
@@ -174,6 +176,10 @@ def finetune(
     """
     if steps < 1:
         raise EdofprojError(f"--steps {steps} must be >= 1")
+    if lr is not None and not (math.isfinite(lr) and lr > 0):
+        raise EdofprojError(f"--lr {lr} must be a positive, finite learning rate")
+    if batch_size is not None and batch_size < 1:
+        raise EdofprojError(f"--batch-size {batch_size} must be >= 1")
     if not psf_files:
         raise EdofprojError("give at least one measured PSF file with --psfs")
     out_dir = Path(out_dir)
@@ -196,7 +202,7 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
     z_min, z_max = table.depth_range_m
     train_cfg = dataclasses.replace(
         cfg.train,
-        batch_size=batch_size or cfg.train.batch_size,
+        batch_size=cfg.train.batch_size if batch_size is None else batch_size,
         seed=cfg.train.seed if seed is None else seed,
         steps=steps,
         train_doe=False,
@@ -207,6 +213,7 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
         name=f"{cfg.name}-finetuned",
         psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3),
     )
+    cfg.check_memory()  # a training step of --batch-size crops, before it is drawn
     seed_everything(cfg.train.seed)
 
     net = trained.net

@@ -78,7 +78,7 @@ from .distributed import (
     setup_process_group,
     teardown_process_group,
 )
-from .end_to_end import EndToEndProjector, SimulatedPSF
+from .end_to_end import EndToEndProjector, SimulatedPSF, resolve_mixed_precision
 from .losses import build_loss
 from .psf_table import DepthPSFTable
 from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise
@@ -203,7 +203,7 @@ class _Session:
             self.net,
             cfg.train.noise_sigma,
             cfg.train.quantize_capture,
-            cfg.train.mixed_precision,
+            resolve_mixed_precision(cfg.train.mixed_precision, device),
             layers_m,
         )
 
@@ -356,15 +356,25 @@ class _Session:
         return float(lr)
 
     # -- end-of-session files ------------------------------------------------------
+    def figure_psfs(self) -> tuple[np.ndarray, torch.Tensor]:
+        """The depths of the PSF figure and the PSFs there (the whole training range)."""
+        depths = np.linspace(self.cfg.psf.depth_min_m, self.cfg.psf.depth_max_m, FIGURE_DEPTHS)
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
+            return depths, self.model.psf_source(depths)
+
+    def check_before_writing(self) -> None:
+        """Compute once, before any file is written, the PSFs the steps and the figures will need:
+        a sampling the simulation refuses (:class:`~edofproj.errors.SamplingError`) then stops the
+        command with nothing written, instead of after a step or after the last one."""
+        self.figure_psfs()
+
     def write_figures(self) -> None:
         figures = self.run_dir / FIGURES_DIR
         figures.mkdir(parents=True, exist_ok=True)
         plot_loss_curve(read_log(self.run_dir / "train_log.csv"), figures / "loss.png")
         plot_doe_profile(self.doe, figures / "doe_profile.png", samples=self.cfg.psf.pupil_samples)
-        depths = np.linspace(self.cfg.psf.depth_min_m, self.cfg.psf.depth_max_m, FIGURE_DEPTHS)
-        with torch.no_grad(), warnings.catch_warnings():
-            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
-            psf = self.model.psf_source(depths)
+        depths, psf = self.figure_psfs()
         plot_psfs_across_depth(psf, depths, figures / "psf_depths.png")
 
 
@@ -431,6 +441,7 @@ def _train(
     barrier(group)
 
     session = _Session(cfg, run_dir, group)
+    session.check_before_writing()
     if checkpoint is not None:
         session.restore(checkpoint)
     start = session.step

@@ -19,8 +19,12 @@ linearly, or a machine-vision camera with gamma 1); see docs/procams.md.
 
 from __future__ import annotations
 
+import contextlib
 import glob
+import os
 import shlex
+import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -90,6 +94,45 @@ def _image_files(folder: Path) -> dict[Path, float]:
     return {p: p.stat().st_mtime for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()}
 
 
+#: Private folders of ``cmd:`` cameras: ``<tmp>/edofproj-camera-<pid>-XXXXXXXX``.
+CAMERA_FOLDER_PREFIX = "edofproj-camera-"
+
+
+def _kill_group(process: subprocess.Popen) -> None:
+    """SIGKILL the process group of ``process`` (its grandchildren too) and reap it."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(process.pid, signal.SIGKILL)
+    with contextlib.suppress(Exception):
+        process.communicate(timeout=5)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def remove_stale_camera_folders(temp_dir: str | None = None) -> list[Path]:
+    """Delete the ``cmd:`` camera folders (:data:`CAMERA_FOLDER_PREFIX`) of this user whose
+    process is dead (killed with ``kill -9``, which skips the clean-up); returns them."""
+    root = Path(temp_dir or tempfile.gettempdir())
+    removed = []
+    for folder in root.glob(CAMERA_FOLDER_PREFIX + "*"):
+        pid_text = folder.name[len(CAMERA_FOLDER_PREFIX) :].split("-", 1)[0]
+        try:
+            mine = folder.is_dir() and not folder.is_symlink() and folder.stat().st_uid == os.getuid()
+        except OSError:
+            continue
+        if mine and pid_text.isdigit() and not _pid_alive(int(pid_text)):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
+
+
 class CommandCamera(Camera):
     """Runs a command that writes one image to ``{out}`` per grab (module docstring)."""
 
@@ -104,7 +147,8 @@ class CommandCamera(Camera):
         if not self.tokens or not any("{out}" in t for t in self.tokens):
             raise EdofprojError(f"camera command '{template}' must contain {{out}}, the file it writes")
         self.timeout_s = timeout_s
-        self._folder = tempfile.TemporaryDirectory(prefix="edofproj-camera-")
+        remove_stale_camera_folders()
+        self._folder = tempfile.TemporaryDirectory(prefix=f"{CAMERA_FOLDER_PREFIX}{os.getpid()}-")
 
     def grab(self) -> np.ndarray:
         folder = Path(self._folder.name)
@@ -113,14 +157,26 @@ class CommandCamera(Camera):
         out = folder / self.OUT_NAME
         command = [t.replace("{out}", str(out)) for t in self.tokens]
         try:
-            result = subprocess.run(command, capture_output=True, text=True, timeout=self.timeout_s)
+            # its own process group (session): on a timeout the command and every process it started are killed
+            process = subprocess.Popen(
+                command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+            )
         except FileNotFoundError:
             raise EdofprojError(f"camera command '{self.tokens[0]}' not found (is it installed and on PATH?)") from None
-        except subprocess.TimeoutExpired:
-            raise EdofprojError(f"camera command timed out after {self.timeout_s:g} s: {' '.join(command)}") from None
-        if result.returncode != 0:
-            last = (result.stderr or result.stdout).strip().splitlines()
-            raise EdofprojError(f"camera command exited with {result.returncode}: {last[-1] if last else 'no message'}")
+        try:
+            stdout, stderr = process.communicate(timeout=self.timeout_s)
+        except BaseException as exc:  # a timeout, or Ctrl-C: no camera process outlives the grab
+            _kill_group(process)
+            if isinstance(exc, subprocess.TimeoutExpired):
+                raise EdofprojError(
+                    f"camera command timed out after {self.timeout_s:g} s: {' '.join(command)}"
+                ) from None
+            raise
+        if process.returncode != 0:
+            last = (stderr or stdout).strip().splitlines()
+            raise EdofprojError(
+                f"camera command exited with {process.returncode}: {last[-1] if last else 'no message'}"
+            )
         written = _image_files(folder)
         if not written:
             raise EdofprojError(f"camera command wrote no image file to {{out}} ({' '.join(command)})")

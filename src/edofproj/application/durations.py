@@ -1,0 +1,15 @@
+"""The demo's time budgets and measured durations, stated once.
+
+Every place that tells a user how long the demo takes -- ``edofproj --help``, ``edofproj demo
+--help``, the report's budget line and the README -- takes its words and numbers from here, so
+they cannot disagree. The measured durations come from ``edofproj demo`` on the 2-core
+development machine (``docs/experiments/2026-11-25-training-speed.md``).
+"""
+
+#: Budget of the full demo (minutes): optional baselines predicted not to fit are not trained here.
+FULL_BUDGET_MIN = 10
+#: Budget of ``edofproj demo --quick`` (minutes).
+QUICK_BUDGET_MIN = 2
+#: How long each takes, as measured, in the words every help text uses.
+FULL_DURATION = "about 10 minutes on 2 CPU cores"
+QUICK_DURATION = "about a minute"
