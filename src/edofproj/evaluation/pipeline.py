@@ -347,7 +347,10 @@ def evaluate_run(
         if str(warning.message) not in image_notes:
             warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
     if image_notes:
-        image_notes.append(f"{len(images)} image(s) scored; {len(image_notes)} skipped as unreadable")
+        small = sum("smaller than the evaluation size" in note for note in image_notes)
+        counts = [(len(image_notes) - small, "as unreadable"), (small, "as smaller than the evaluation size")]
+        skipped_text = ", ".join(f"{n} skipped {why}" for n, why in counts if n)
+        image_notes.append(f"{len(images)} image(s) scored; {skipped_text}")
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(
