@@ -82,3 +82,27 @@ def test_a_builtin_run_is_named_wherever_a_run_is(tmp_path, capsys):
         main(["evaluate", "builtin:nope", "--out", str(tmp_path / "e")])
     assert exit_info.value.code == 2
     assert "the built-in runs are builtin:cpu-doe-net, builtin:demo-cubic-net" in capsys.readouterr().err
+
+
+def test_builtin_runs_are_named_not_pathed_in_outputs(tmp_path, capsys, monkeypatch):
+    """``export-doe builtin:NAME`` reports its source as builtin:NAME (not the package's path), and
+    ``psf --plot`` labels the design builtin:NAME (not 'file')."""
+    import edofproj.evaluation.psf_plots as psf_plots
+
+    out = tmp_path / "fab"
+    assert main(["export-doe", SHIPPED, "--out", str(out), "--map-px", "512"]) == 0
+    report = (out / "fab_report.md").read_text()
+    assert f"Source: `{SHIPPED}`" in report and str(builtin_runs.ROOT) not in report
+    assert str(builtin_runs.ROOT) not in (out / "fab_report.json").read_text()
+
+    labels = []
+    monkeypatch.setattr(psf_plots, "plot_psf_comparison", lambda panels, path: labels.extend(p[0] for p in panels))
+    argv = ["psf", "--doe", SHIPPED, "--depth-mm", "400", "--window", "15", "--out", str(tmp_path / "p.npz")]
+    assert main([*argv, "--plot", str(tmp_path / "p.png")]) == 0
+    assert labels == ["lens", SHIPPED]
+
+
+def test_run_labels():
+    assert builtin_runs.run_label(builtin_runs.ROOT / "cpu-doe-net") == SHIPPED
+    assert builtin_runs.run_label(builtin_runs.ROOT / "cpu-doe-net" / "doe.npz") == SHIPPED + "/doe.npz"
+    assert builtin_runs.run_label("runs/mine") == "runs/mine"  # a user's path stays as given

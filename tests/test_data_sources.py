@@ -192,3 +192,49 @@ def test_dead_leaves_fraction_mixes_each_sample_and_is_validated():
         dataclasses.replace(DataConfig(), dead_leaves_fraction=1.5).validate()
     with pytest.raises(ConfigError, match="data.source=builtin or folder"):
         dataclasses.replace(DataConfig(), source="dead-leaves", dead_leaves_fraction=0.5).validate()
+
+
+# --------------------------------------------------------------------------- images smaller than the evaluation size
+
+
+def test_images_smaller_than_the_evaluation_size_are_skipped_with_the_rule(tmp_path):
+    """A 60x60 image enlarged to 128x128 is smooth and scores well: it is not scored (issue 29)."""
+    from edofproj.config import Config
+    from edofproj.data import evaluation_images
+
+    rng = np.random.default_rng(1)
+    write_image(tmp_path / "big.png", torch.from_numpy(rng.random((3, 150, 140))).float())
+    write_image(tmp_path / "small.png", torch.from_numpy(rng.random((3, 60, 60))).float())
+    write_image(tmp_path / "narrow.png", torch.from_numpy(rng.random((3, 200, 100))).float())
+    for scaling in ("crop", "cover"):
+        cfg = Config()
+        cfg.evaluation.image_size = [128, 128]
+        cfg.evaluation.image_scaling = scaling
+        with pytest.warns(UserWarning) as caught:
+            images = evaluation_images(cfg, tmp_path)
+        assert [name for name, _ in images] == ["big.png"] and images[0][1].shape == (3, 128, 128)
+        messages = sorted(str(w.message) for w in caught)
+        assert len(messages) == 2 and "narrow.png" in messages[0] and "small.png" in messages[1]
+        assert "60x60 px is smaller than the evaluation size 128x128" in messages[1]
+        assert "evaluation.image_size" in messages[1]
+    cfg.evaluation.image_size = [256, 256]
+    with pytest.warns(UserWarning), pytest.raises(EdofprojError, match="smaller than the evaluation size 256x256"):
+        evaluation_images(cfg, tmp_path)
+    cfg.evaluation.image_size = []  # native sizes: nothing is enlarged, everything is scored
+    assert len(evaluation_images(cfg, tmp_path)) == 3
+
+
+def test_training_data_summary_counts_and_splits(tmp_path):
+    from edofproj.data import describe_training_data
+
+    make_folder(tmp_path / "data")
+    cfg = DataConfig(source="folder", folder=str(tmp_path / "data"), crop=16, test_fraction=0.3)
+    train, test = folder_split(tmp_path / "data", 0.3)
+    text = describe_training_data(cfg)
+    assert "\n" not in text and f"7 images in '{tmp_path / 'data'}'" in text
+    assert f"{len(train)} for training" in text and f"{len(test)} held out for testing" in text
+    assert {p.name for p in train} >= {"corrupt.png", "small.png"}  # the split of make_folder's names
+    assert "2 training image(s) skipped (unreadable or smaller than the 16 px crop)" in text
+    builtin_train, builtin_test = builtin_split(0.3)
+    text = describe_training_data(DataConfig())
+    assert f"{len(builtin_train)} for training, {len(builtin_test)} held out for testing" in text

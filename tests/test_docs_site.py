@@ -90,3 +90,20 @@ def test_every_internal_link_of_the_built_site_resolves(site):
             if not resolved.exists():
                 broken.append(f"{page.relative_to(site)} -> {target}")
     assert not broken, broken[:20]
+
+
+def test_cli_reference_is_laid_out_as_tables(site):
+    """Each command: its usage and a table of its arguments, not the raw ``--help`` text (issue 29)."""
+    text = (site / "reference/cli/index.html").read_text(encoding="utf-8")
+    assert "show this help message and exit" not in text  # argparse's own help dump is gone
+    assert text.count("<th>argument</th>") >= 20 and "<th>default</th>" in text
+    assert "<code>--projector-out PROJECTOR_OUT</code>" in text  # an argument in its table cell
+
+
+def test_code_blocks_wrap_and_the_front_page_shows_what_the_project_does(site):
+    """Code and output blocks wrap instead of being cut off at the right; the front page has pictures."""
+    page = (site / "index.html").read_text(encoding="utf-8")
+    assert "stylesheets/code.css" in page
+    css = (site / "stylesheets" / "code.css").read_text(encoding="utf-8")
+    assert "white-space: pre-wrap" in css
+    assert 'src="figures/demo_psf_lens_vs_doe.jpg"' in page and 'src="figures/demo_comparison.jpg"' in page

@@ -2,6 +2,7 @@
 
 import csv
 import math
+import re
 
 import numpy as np
 import pytest
@@ -175,9 +176,9 @@ def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
     assert not (tmp_path / "out.png").exists()
 
 
-def test_compensate_any_size_with_simulated_capture(runs, tmp_path):
+def test_compensate_any_size_with_simulated_capture(runs, tmp_path, capsys):
     target = torch.rand(3, 37, 53)
-    write_image(tmp_path / "target.png", target)
+    write_image(tmp_path / "target.png", target, bits=16)
     assert (
         main(
             [
@@ -191,13 +192,28 @@ def test_compensate_any_size_with_simulated_capture(runs, tmp_path):
                 str(tmp_path / "proj.png"),
                 "--preview",
                 str(tmp_path / "shown.png"),
+                "--bits",
+                "16",
             ]
         )
         == 0
     )
     projector_input = read_image(tmp_path / "proj.png")
     assert projector_input.shape == (3, 37, 53)
-    assert read_image(tmp_path / "shown.png").shape == (3, 37, 53)
+    shown = read_image(tmp_path / "shown.png")
+    assert shown.shape == (3, 37, 53)
+    # the printed figures of the preview, checked with scikit-image on the files (issue 29)
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    line = [x for x in capsys.readouterr().out.splitlines() if x.startswith("against the target at 350 mm")][0]
+    figures = [float(v) for v in re.findall(r"SSIM ([0-9.]+), PSNR ([0-9.]+) dB", line)[0]]
+    truth, preview = read_image(tmp_path / "target.png").numpy(), shown.numpy()
+    expected_psnr = peak_signal_noise_ratio(truth, preview, data_range=1.0)
+    expected_ssim = structural_similarity(
+        truth, preview, channel_axis=0, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False
+    )
+    assert figures == pytest.approx([expected_ssim, expected_psnr], abs=6e-3)  # printed to 4 and 2 decimals
+    assert "uncompensated projection SSIM" in line
 
 
 def test_compensate_with_a_capture_file(runs, tmp_path):

@@ -270,3 +270,69 @@ def test_summarize_prints_the_spread_of_evaluations_and_refuses_unlike_ones(tmp_
         assert main(["summarize", *args]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_a_method_left_out_is_named_once_in_the_notes():
+    """The demo notes 'cubic+net not evaluated: ...' and the builder 'axicon+net skipped: ...'; the list of
+    methods not evaluated names only the others, so no method is reported twice (issue 29)."""
+    from types import SimpleNamespace
+
+    from edofproj.evaluation.report import Bullets
+    from edofproj.evaluation.writeup import methods_section
+
+    evaluated = [SimpleNamespace(name=n, spec=method_spec(n), detail="") for n in ("doe", "doe+net")]
+    ev = SimpleNamespace(
+        methods=evaluated,
+        notes=["cubic+net not evaluated: the time budget", "axicon+net skipped: no trained run at 'x'"],
+        perceptual_missing=[],
+        frame_ms={},
+    )
+    notes = next(block for block in methods_section(ev)[2:] if isinstance(block, Bullets)).items
+    text = "\n".join(notes)
+    assert text.count("cubic+net") == 1 and text.count("axicon+net") == 1
+    listed = next(n for n in notes if n.startswith("Not evaluated:"))
+    others = [m for m in METHOD_NAMES if m not in ("doe", "doe+net", "cubic+net", "axicon+net")]
+    assert listed == f"Not evaluated: {', '.join(others)}."
+
+
+def test_the_demo_timing_table_says_how_it_differs_from_the_summary_ms_per_frame():
+    from edofproj.application.demo import timing_section
+    from edofproj.evaluation.timing import Timing
+
+    blocks = timing_section([Timing("doe+net", "torch", "cpu", 128, 128, 887.9, 2)], 2, (256, 256))
+    paragraph = next(b for b in blocks if isinstance(b, Paragraph)).text
+    assert "not the summary's ms/frame" in paragraph and "(256x256 frames)" in paragraph
+    table = next(b for b in blocks if isinstance(b, Table))
+    assert table.header[-1] == "128x128" and table.rows == [["doe+net", "torch", "887.9"]]
+
+
+def test_comparison_labels_are_readable_at_page_width(tmp_path):
+    """Ten methods at one depth: the P/S labels on the tiles are at least 10 px high when the
+    figure is shown 800 px wide (a report page), measured on the written PNG (issue 29)."""
+    from PIL import Image
+
+    from edofproj.evaluation import figures
+
+    target = np.random.default_rng(0).random((48, 64, 3))
+    methods = [m for m in METHOD_NAMES if m != "cubic+net"]
+    examples = {(320.0, m): (target, {"psnr": 20.0 + i, "ssim": 0.5}) for i, m in enumerate(methods)}
+    path = tmp_path / "comparison.png"
+    figures.plot_comparison(target, examples, [320], methods, path)
+    width_px = Image.open(path).size[0]
+    label_px = figures.TILE_FONT_PT / 72 * figures.GRID_DPI * min(1.0, 800 / width_px)
+    assert label_px >= 10, (width_px, label_px)
+
+
+def test_training_curves_draw_each_run_in_its_own_panel(tmp_path, monkeypatch):
+    """Two runs with the same losses step for step: each still has its own visible curve (issue 29)."""
+    from edofproj.evaluation import figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda fig, path, dpi=110: drawn.setdefault("fig", fig))
+    rows = [{"step": s, "loss": 1.0 / s} for s in range(1, 41)]
+    figures.plot_training_curves([("doe+net", rows), ("lens+net", rows), ("axicon+net", rows[:20])], tmp_path / "c.png")
+    panels = [ax for ax in drawn["fig"].axes if ax.get_title()]
+    assert [ax.get_title() for ax in panels] == ["doe+net", "lens+net", "axicon+net"]
+    for ax in panels:  # the panel's own run, in colour and on top of the grey ones
+        coloured = [line for line in ax.get_lines() if line.get_color() not in ("0.75",) and line.get_alpha() is None]
+        assert len(coloured) == 1 and coloured[0].get_zorder() >= max(line.get_zorder() for line in ax.get_lines())

@@ -49,6 +49,24 @@ def test_evaluate_names_the_skipped_image_in_its_report(run, tmp_path, capsys):
     assert "broken.png" in capsys.readouterr().err
 
 
+def test_evaluate_does_not_score_images_smaller_than_the_evaluation_size(run, tmp_path, capsys):
+    """A 30x30 image enlarged to 48x64 would be smooth and score well: it is skipped and counted (issue 29)."""
+    import cv2
+
+    images = tmp_path / "images"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(images / "a_small.png"), (rng.random((30, 30, 3)) * 255).astype(np.uint8))
+    cv2.imwrite(str(images / "b_large.png"), (rng.random((48, 64, 3)) * 255).astype(np.uint8))
+    out = tmp_path / "ev"
+    args = ["evaluate", str(run), "--images", str(images), "--out", str(out), "--methods", "doe", "--quiet"]
+    assert main(args) == 0
+    assert "30x30 px is smaller than the evaluation size 64x48" in capsys.readouterr().err
+    assert "1 image(s) scored; 1 skipped as smaller than the evaluation size" in (out / "report.md").read_text()
+    scored = {line.split(",")[2] for line in (out / "metrics.csv").read_text().splitlines()[1:]}
+    assert scored == {"b_large.png"}
+
+
 def test_evaluate_refuses_an_output_another_process_writes(run, tmp_path, capsys):
     out = tmp_path / "ev"
     with directory_lock(out, "edofproj evaluate"):

@@ -116,3 +116,53 @@ def test_scene_list(capsys):
     text = capsys.readouterr().out
     for name in ("box_corner", "sphere", "cylinder", "steps", "sphere_wall"):
         assert name in text
+
+
+@pytest.mark.slow  # trains a tiny run
+def test_scene_render_run_is_the_render_compensate_render_chain(tmp_path, image_path, capsys):
+    """``scene render --run RUN`` = ``scene render --doe RUN`` -> ``compensate --capture`` -> ``scene render``
+    of the projector input, each step through the command line (16-bit files; issue 29)."""
+    from edofproj.config import load_config
+    from edofproj.training.trainer import train
+    from tiny_configs import TINY_EVALUATION
+
+    run = tmp_path / "run"
+    train(load_config(None, TINY_EVALUATION + ["psf.depth_min_mm=300"]), run, progress=False)
+    config = ["--config", str(run / "config.yaml"), "--bits", "16"]
+    scene = ["scene", "render", "--scene", "sphere_wall"]
+
+    def files(*names):
+        return [str(tmp_path / name) for name in names]
+
+    assert (
+        main(
+            [*scene, "--run", str(run), "--image", str(image_path), "--bits", "16"]
+            + ["--out", *files("shown.png")]
+            + ["--projector-out", *files("x.png")]
+        )
+        == 0
+    )
+    printed = capsys.readouterr().out
+    assert "over the objects' pixels against the image: compensated SSIM" in printed and "uncompensated SSIM" in printed
+    # the same by hand
+    assert main([*scene, "--doe", str(run), "--image", str(image_path), "--out", *files("captured.png"), *config]) == 0
+    compensate = ["compensate", str(run), "--image", str(image_path), "--capture", *files("captured.png")]
+    assert main([*compensate, "--out", *files("x_by_hand.png"), "--bits", "16"]) == 0
+    assert (
+        main([*scene, "--doe", str(run), "--image", *files("x_by_hand.png"), "--out", *files("by_hand.png"), *config])
+        == 0
+    )
+    by_hand, shown = read_image(tmp_path / "by_hand.png"), read_image(tmp_path / "shown.png")
+    assert shown.shape == (3, H, W)
+    np.testing.assert_allclose(read_image(tmp_path / "x.png"), read_image(tmp_path / "x_by_hand.png"), atol=2e-3)
+    np.testing.assert_allclose(shown, by_hand, atol=2e-3)  # 16-bit files and their rounding between the steps
+
+
+def test_scene_render_run_refuses_a_config_and_projector_out_needs_run(tmp_path, image_path, capsys):
+    out = ["--out", str(tmp_path / "o.png")]
+    argv = ["scene", "render", "--scene", "sphere_wall", "--image", str(image_path), *out]
+    assert main([*argv, "--run", "builtin:cpu-doe-net", "--config", "cpu"]) == 2
+    assert "--run renders with the run's own configuration" in capsys.readouterr().err
+    assert main([*argv, "--doe", "lens", "--projector-out", str(tmp_path / "x.png")]) == 2
+    assert "--projector-out goes with --run" in capsys.readouterr().err
+    assert not (tmp_path / "o.png").exists()

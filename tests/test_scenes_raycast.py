@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 import trimesh
 
+from edofproj.errors import EdofprojError
 from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.scenes import Scene, SceneMesh, cast_scene, load_scene
 from edofproj.scenes.builtin import BUILTIN_SCENES, builtin_scene, quad, sphere_mesh
@@ -136,3 +138,39 @@ def test_builtin_scenes_span_their_stated_depths():
         lo, hi = cast.depth_range_m()
         assert lo * 1e3 == pytest.approx(near, abs=6), name
         assert hi * 1e3 == pytest.approx(far, abs=12), name
+
+
+def screen_corners(depth_m: float, facing_projector: bool) -> np.ndarray:
+    """A 0.6 m square screen at ``depth_m``; wound so that its normal points at the projector (-z) or away."""
+    corners = np.array([[-0.3, -0.3, depth_m], [0.3, -0.3, depth_m], [0.3, 0.3, depth_m], [-0.3, 0.3, depth_m]])
+    return corners[::-1] if facing_projector else corners
+
+
+@pytest.mark.parametrize("facing_projector", [True, False])
+def test_a_bare_single_sheet_is_a_screen_whichever_way_it_faces(tmp_path, small_projector, facing_projector):
+    """A mesh file holding one rectangle (two triangles) is a screen: its depth is the plane's, facing the
+    projector or not; wound away, a warning says which way it faces (issue 29)."""
+    sheet = quad(screen_corners(0.5, facing_projector))
+    assert (sheet.face_normals[:, 2] < 0).all() == facing_projector  # -z: toward the projector
+    path = tmp_path / "screen.obj"
+    sheet.export(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cast = cast_scene(load_scene(path, small_projector), H, W, small_projector)
+    assert cast.hit.all() and np.allclose(cast.depth_m, 0.5, atol=1e-6)
+    assert np.allclose(cast.normal[..., 2], -1.0)  # the normal seen is the side facing the projector
+    messages = [str(w.message) for w in caught]
+    if facing_projector:
+        assert messages == []
+    else:
+        assert len(messages) == 1 and "screen.obj" in messages[0] and "away from the projector" in messages[0]
+
+
+def test_a_bare_mesh_seen_from_both_sides_of_its_faces_is_still_refused(tmp_path, small_projector):
+    """A solid with a hole: some rays meet the outside, some the inside through the hole."""
+    holed = sphere_mesh(0.1, (0.0, 0.0, 0.5), subdivisions=2)
+    holed.update_faces(holed.face_normals[:, 2] > -0.7)  # a cap facing the projector removed
+    path = tmp_path / "holed.obj"
+    holed.export(path)
+    with pytest.raises(EdofprojError, match=r"holed\.obj' is not watertight: .* meet the inside"):
+        cast_scene(load_scene(path, small_projector), H, W, small_projector)

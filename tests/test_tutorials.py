@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -88,6 +89,42 @@ def test_psf_designs(tmp_path):
     assert len(rows) == 1 + 4 * 3
     for figure in ("psf_designs.png", "sharpness_vs_depth.png"):
         assert (tmp_path / figure).stat().st_size > 10_000
+
+
+#: Tutorials whose page includes the script's recorded default-size output
+#: (``docs/tutorials/output/<name>.txt``, the last line -- where it wrote, the time -- left out).
+RECORDED_OUTPUTS = ["psf_designs", "export_for_lithography", "procams_measure_psf"]
+
+
+@pytest.mark.parametrize("name", RECORDED_OUTPUTS)
+def test_a_default_size_run_prints_what_its_page_shows(name, tmp_path):
+    """The page's output block is the recorded file, included as it is; a fresh default-size run prints
+    the same lines, each number within 1.5 units of its last printed digit (rounding across machines).
+    CPU time: psf_designs about a minute (the cubic plate's 2-D engine), the others under 40 s."""
+    page = (TUTORIALS / f"{name}.md").read_text(encoding="utf-8")
+    assert f'--8<-- "docs/tutorials/output/{name}.txt"' in page
+    env = dict(
+        os.environ,
+        OMP_NUM_THREADS="1",
+        PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]),
+    )
+    result = subprocess.run(
+        [sys.executable, str(TUTORIALS / f"{name}.py"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=3600,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    printed = result.stdout.strip().splitlines()[:-1]
+    recorded = (TUTORIALS / "output" / f"{name}.txt").read_text(encoding="utf-8").strip().splitlines()
+    assert len(printed) == len(recorded)
+    number = re.compile(r"\d+\.(\d+)")
+    for fresh, shown in zip(printed, recorded):
+        assert number.sub("#", fresh) == number.sub("#", shown)  # the same words and layout
+        for new, old in zip(number.finditer(fresh), number.finditer(shown)):
+            last_digit = 10.0 ** -len(old.group(1))
+            assert abs(float(new.group(0)) - float(old.group(0))) <= 1.5 * last_digit, (fresh, shown)
 
 
 @pytest.fixture(scope="module")

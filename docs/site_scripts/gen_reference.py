@@ -1,6 +1,7 @@
 """Generate the site's reference pages at build time (run by the mkdocs-gen-files plugin).
 
-* ``reference/cli.md``: every command's ``--help``, read from the real argument parsers;
+* ``reference/cli.md``: every command's description, usage and a table of its arguments (help,
+  choices, default), read from the real argument parsers;
 * ``reference/config.md``: every configuration key with its type, unit, default and the rule its
   validation enforces (the rule is the message the validator gives for an invalid value, so the page
   cannot drift from the code);
@@ -37,11 +38,67 @@ def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.Argument
     return {}
 
 
+def _option_name(action: argparse.Action, formatter) -> str:
+    """``--out DIR`` / ``-h, --help`` / ``RUN``: how the option is written on a command line."""
+    if not action.option_strings:
+        return formatter._metavar_formatter(action, action.dest)(1)[0]
+    if action.nargs == 0:
+        return ", ".join(action.option_strings)
+    metavar = formatter._format_args(action, action.dest.upper())
+    return ", ".join(f"{flag} {metavar}" for flag in action.option_strings)
+
+
+def _option_default(action: argparse.Action) -> str:
+    default = action.default
+    if action.nargs == 0 or default in (None, argparse.SUPPRESS, [], ""):
+        return ""
+    return f"`{default}`"
+
+
+def _markdown_cell(text: str) -> str:
+    text = re.sub(r"``([^`]+)``", r"`\1`", " ".join(str(text).split()))  # reStructuredText literals
+    return text.replace("|", "\\|")
+
+
 def _command_sections(parser: argparse.ArgumentParser, name: str, level: int) -> list[str]:
-    lines = [f"{'#' * level} `{name}`", "", "```text", parser.format_help().rstrip(), "```", ""]
-    for sub_name, sub in _subcommands(parser).items():
+    """One command: its description, its usage line and a table of its arguments (what ``--help`` says,
+    laid out for a page), then its subcommands."""
+    formatter = parser._get_formatter()
+    lines = [f"{'#' * level} `{name}`", ""]
+    if parser.description:
+        lines += [_markdown_cell(parser.description), ""]
+    lines += ["```text", parser.format_usage().strip(), "```", ""]
+    rows = []
+    subcommands = _subcommands(parser)
+    for action in parser._actions:
+        if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)) or action.help == argparse.SUPPRESS:
+            continue
+        text = formatter._expand_help(action) if action.help else ""
+        if action.choices and not isinstance(action, argparse._SubParsersAction):
+            text = (text + f" (one of: {', '.join(f'`{c}`' for c in action.choices)})").strip()
+        rows.append(f"| `{_option_name(action, formatter)}` | {_markdown_cell(text)} | {_option_default(action)} |")
+    if rows:
+        lines += ["| argument | meaning | default |", "| --- | --- | --- |", *rows, ""]
+    if subcommands:
+        helps = {
+            choice.dest: choice.help
+            for action in parser._actions
+            if isinstance(action, argparse._SubParsersAction)
+            for choice in action._choices_actions
+        }
+        lines += ["| subcommand | what it does |", "| --- | --- |"]
+        lines += [
+            f"| [`{sub}`](#{_anchor(f'{name} {sub}')}) | {_markdown_cell(helps.get(sub, ''))} |" for sub in subcommands
+        ]
+        lines.append("")
+    for sub_name, sub in subcommands.items():
         lines += _command_sections(sub, f"{name} {sub_name}", level + 1)
     return lines
+
+
+def _anchor(title: str) -> str:
+    """The id MkDocs' toc extension gives a heading ``# `title` ``."""
+    return re.sub(r"[^\w\- ]", "", title.lower()).strip().replace(" ", "-")
 
 
 def cli_reference() -> str:
@@ -54,7 +111,17 @@ def cli_reference() -> str:
         "fails on bad input with one line `edofproj: error: ...` and exit code 2.",
         "",
     ]
-    for name, sub in _subcommands(parser).items():
+    commands = _subcommands(parser)
+    helps = {
+        choice.dest: choice.help
+        for action in parser._actions
+        if isinstance(action, argparse._SubParsersAction)
+        for choice in action._choices_actions
+    }
+    lines += ["| command | what it does |", "| --- | --- |"]
+    lines += [f"| [`{n}`](#{_anchor(f'edofproj {n}')}) | {_markdown_cell(helps.get(n, ''))} |" for n in commands]
+    lines.append("")
+    for name, sub in commands.items():
         lines += _command_sections(sub, f"edofproj {name}", 2)
     return "\n".join(lines)
 

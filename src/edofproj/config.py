@@ -113,8 +113,8 @@ class SpectrumConfig:
     wavelength_max_nm: float = 700.0
     wavelength_step_nm: float = 10.0
     trim_power: float = 1e-4
-    peaks_nm: list = field(default_factory=lambda: [620.0, 530.0, 460.0])
-    fwhm_nm: list = field(default_factory=lambda: [20.0, 35.0, 25.0])
+    peaks_nm: list[float] = field(default_factory=lambda: [620.0, 530.0, 460.0])
+    fwhm_nm: list[float] = field(default_factory=lambda: [20.0, 35.0, 25.0])
     spd_csv: Optional[str] = None
     quadrature: str = "uniform"
     nodes_per_primary: int = 2
@@ -173,7 +173,7 @@ class DOEConfig:
     cubic_waves: float = 20.0
     axicon_near_mm: float = 300.0
     axicon_far_mm: float = 800.0
-    multifocal_foci_mm: list = field(default_factory=lambda: [350.0, 500.0, 700.0])
+    multifocal_foci_mm: list[float] = field(default_factory=lambda: [350.0, 500.0, 700.0])
     min_feature_um: float = 0.0
 
     @property
@@ -303,7 +303,7 @@ class NetConfig:
     0 starts it at zero (the identity).
     """
 
-    widths: list = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
+    widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
     leaky_slope: float = 0.2
     architecture: str = "unet"
     downsampling: str = "conv"
@@ -534,7 +534,7 @@ class EvaluationConfig:
     it can be there) or ``psnr`` (the MSE-optimal choice).
     """
 
-    depths_mm: list = field(
+    depths_mm: list[float] = field(
         default_factory=lambda: [
             250.0,
             300.0,
@@ -551,15 +551,15 @@ class EvaluationConfig:
             900.0,
         ]
     )
-    comparison_depths_mm: list = field(default_factory=lambda: [320.0, 630.0, 800.0])
+    comparison_depths_mm: list[float] = field(default_factory=lambda: [320.0, 630.0, 800.0])
     tilt_deg: float = 50.0
     tilt_span_mm: float = 200.0
-    image_size: list = field(default_factory=lambda: [256, 256])
+    image_size: list[int] = field(default_factory=lambda: [256, 256])
     image_scaling: str = "crop"
     cls_iterations: int = 100
     wiener_tuning_images: int = 8
     wiener_tuning_depths: int = 6
-    score_range_mm: list = field(default_factory=list)
+    score_range_mm: list[float] = field(default_factory=list)
     wiener_tuning_metric: str = "ssim"
 
     @property
@@ -750,6 +750,8 @@ def _coerce(value: Any, annotation: Any, label: str) -> Any:
             value = [value]
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{label}={value!r} must be a list")
+        if args:  # a typed list: every element checked, e.g. spectrum.peaks_nm[0]='red' must be a number
+            return [_coerce(item, args[0], f"{label}[{i}]") for i, item in enumerate(value)]
         return list(value)
     return value
 

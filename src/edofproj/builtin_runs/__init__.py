@@ -66,6 +66,18 @@ def is_builtin_run_dir(path: str | Path) -> bool:
         return False
 
 
+def run_label(path: str | Path) -> str:
+    """How outputs name a run or a file of it: ``builtin:NAME`` (``builtin:NAME/FILE``) for a
+    built-in run's packaged directory (never the installation's path), any other path as given."""
+    try:
+        relative = Path(path).resolve().relative_to(ROOT)
+    except (OSError, ValueError):
+        return str(path)
+    if not relative.parts or relative.parts[0] not in BUILTIN_RUNS:
+        return str(path)
+    return PREFIX + "/".join(relative.parts)
+
+
 def require_output_outside(run_dir: str | Path, option: str = "--out") -> None:
     """Refuse to write into a built-in run (it belongs to the installed package)."""
     if is_builtin_run_dir(run_dir):

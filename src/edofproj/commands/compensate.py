@@ -10,7 +10,8 @@ projection ``I*``: either a camera capture already warped into projector space (
 same size as the target) or the simulated capture ``I* = project(I, p_z)`` of the run's DOE on a
 flat screen at ``--depth-mm``. ``x`` is clamped to ``[0, 1]`` (what a projector can emit) and
 written as an 8- or 16-bit image. Any image size. With ``--depth-mm``, ``--preview`` also writes
-the simulated projection of ``x``.
+the simulated projection of ``x``, and the command prints the SSIM and PSNR against the target of
+that projection and of the uncompensated projection ``I*`` (what the network gains there).
 
 With ``--calib`` (from ``edofproj procams calibrate``) the capture is a *raw* camera frame: it is
 rectified into projector output light per projector pixel, and the output is the projector
@@ -148,7 +149,22 @@ def run(args) -> int:
             raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
         write_image(args.preview, loop.projected[0], bits=args.bits)
         print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")
+    if loop is not None:
+        print(
+            f"against the target at {args.depth_mm:g} mm: compensated (the preview) {_quality(loop.projected, target)}; "
+            f"uncompensated projection {_quality(loop.captured, target)}"
+        )
     return 0
+
+
+def _quality(shown, target) -> str:
+    """``SSIM s, PSNR p dB`` of a simulated projection against the target (PSNR alone below SSIM's window)."""
+    from ..metrics import gaussian_window, psnr, ssim
+
+    text = f"PSNR {float(psnr(shown, target)[0]):.2f} dB"
+    if min(target.shape[-2:]) >= gaussian_window().numel():
+        text = f"SSIM {float(ssim(shown, target)[0]):.4f}, " + text
+    return text
 
 
 def run_batch(args) -> int:

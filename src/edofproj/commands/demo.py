@@ -81,7 +81,7 @@ def register(subparsers) -> None:
         default=None,
         metavar="RUN",
         help=f"start from a trained doe+net run instead of training it (default {DEFAULT_PRETRAINED}, the "
-        "reference model shipped with the package); the baselines are trained as usual",
+        "reference model shipped with the package); the baselines train with its configuration (its projector)",
     )
     p.add_argument("--no-timing", action="store_true", help="skip the per-frame timing stage")
     p.add_argument("--quiet", action="store_true", help="no progress display")

@@ -57,6 +57,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..builtin_runs import run_label
     from ..fabrication.export import export_doe
     from ..fabrication.inputs import DesignInput
     from ..fabrication.profile import check_power_of_two_levels
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             spectrum_cfg=cfg.spectrum,
             strict=args.strict,
             map_px=args.map_px,
-            source=args.source,
+            source=run_label(args.source),
         )
     except CriticalDimensionError as exc:
         print(f"edofproj: error: {exc}", file=sys.stderr)

@@ -3,8 +3,6 @@ profiles, and their height profiles."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..errors import EdofprojError
 from ._common import add_config_options, config_from_args
 from .psf import add_optics_options, depths_from_args, psf_overrides
@@ -30,7 +28,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..doe import DOE_CHOICES, build_doe
+    from ..doe import build_doe
+    from ..doe.factory import design_label
     from ..evaluation.psf_plots import plot_psf_comparison
     from ..optics.psf_bank import design_engine, simulator_from_config
 
@@ -47,8 +46,7 @@ def run(args) -> int:
     for spec in specs:
         doe = build_doe(cfg, spec)
         sim = simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))
-        label = spec if spec in DOE_CHOICES else Path(spec.rstrip("/")).stem  # a file or run: its name
-        panels.append((label, doe, sim.bank(doe, depths_m)))
+        panels.append((design_label(spec), doe, sim.bank(doe, depths_m)))
     plot_psf_comparison(panels, args.out)
     print(f"wrote {args.out}")
     return 0

@@ -83,6 +83,7 @@ def run(args) -> int:
     import torch
 
     from ..doe import build_doe
+    from ..doe.factory import design_label
     from ..optics.psf_bank import simulator_from_config
     from ..optics.spectra import check_wavelengths_nm
 
@@ -105,7 +106,8 @@ def run(args) -> int:
         lens = build_doe(cfg, "lens")
         with torch.no_grad():
             lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine).bank(lens, depths_m)
-        panels = [("lens", lens, lens_bank), (doe.name, doe, bank)]
+        label = doe.name if args.doe is None else design_label(args.doe)  # builtin:NAME, not "file"
+        panels = [("lens", lens, lens_bank), (label, doe, bank)]
     bank.save(args.out)
     energy = bank.energy_in_window.numpy()
     print(

@@ -2,6 +2,7 @@
 
     edofproj scene list
     edofproj scene render --scene S --doe D --image I --out O [--depth-out D.npy] [--figure F.png]
+    edofproj scene render --scene S --run RUN --image I --out O [--projector-out X.png]
 
 ``S`` is a built-in scene (``scene list``), a YAML scene file or a mesh file (OBJ, PLY, STL,
 GLB) in metres in the projector's frame (+z the optical axis, +x right, +y down). One ray per
@@ -9,11 +10,17 @@ projector pixel gives the depth each pixel lands on; the projection goes through
 depth-layer renderer, each source pixel carrying the PSF of the surface it lands on; light
 that misses the objects is lost. ``--depth-out`` writes the depth map as ``float32 (H, W)``
 in millimetres, NaN where nothing is hit: the array ``edofproj render --depth-map`` reads.
+
+``--run RUN`` compensates the projection with a trained run (its DOE, its configuration and its
+network): the scene's rendered uncompensated projection ``I* = R(I)`` is the network's capture,
+``x = net(I, I*)`` the projector input (``--projector-out``), and ``--out`` what the objects
+show, ``R(clamp(x, 0, 1))``. It prints the SSIM and PSNR over the objects' pixels of both
+projections against the image, as ``evaluate --scene`` scores them.
 """
 
 from __future__ import annotations
 
-from ._common import add_config_options, config_from_args
+from ._common import RUN_HELP_SUFFIX, add_config_options, config_from_args, run_directory
 
 
 def register(subparsers) -> None:
@@ -29,10 +36,21 @@ def register(subparsers) -> None:
 
     r = actions.add_parser("render", help="simulate the projection of an image onto a scene")
     r.add_argument("--scene", required=True, help="built-in scene name, YAML scene file, or .obj/.ply/.stl/.glb mesh")
-    r.add_argument(
+    design = r.add_mutually_exclusive_group(required=True)
+    design.add_argument(
         "--doe",
-        required=True,
         help="the design: lens, mlp, free, cubic, axicon, multifocal, a DOE .npz file or a run directory",
+    )
+    design.add_argument(
+        "--run",
+        type=run_directory,
+        default=None,
+        help="a trained run" + RUN_HELP_SUFFIX + ": its DOE, configuration and network compensate the projection",
+    )
+    r.add_argument(
+        "--projector-out",
+        default=None,
+        help="with --run: also write the compensated projector input (the image to project)",
     )
     r.add_argument(
         "--image",
@@ -94,7 +112,22 @@ def run_render(args) -> int:
         raise EdofprojError(f"--depth-out '{args.depth_out}' must end in .npy")
     if args.figure is not None and Path(args.figure).suffix.lower() != ".png":
         raise EdofprojError(f"--figure '{args.figure}' must end in .png")
-    cfg = config_from_args(args)
+    if args.projector_out is not None:
+        if args.run is None:
+            raise EdofprojError("--projector-out goes with --run (a trained network to compensate with)")
+        check_output_path(args.projector_out, args.bits)
+    trained = None
+    if args.run is not None:
+        from ..config import apply_overrides
+        from ..evaluation.pipeline import require_trained_run
+        from ..runs import load_run
+
+        if args.config is not None:
+            raise EdofprojError("--run renders with the run's own configuration: change a key with --set, not --config")
+        trained = load_run(require_trained_run(args.run))
+        cfg = apply_overrides(trained.cfg, args.overrides) if args.overrides else trained.cfg
+    else:
+        cfg = config_from_args(args)
     geometry = ProjectorGeometry.from_config(cfg.optics)
     scene = load_scene(args.scene, geometry)
     image = read_image(args.image)[None]
@@ -103,16 +136,28 @@ def run_render(args) -> int:
     check_scene_depth_range(
         cast, cfg.psf.depth_min_m, cfg.psf.depth_max_m, "the PSFs (psf.depth_min_mm-psf.depth_max_mm)"
     )
-    doe = build_doe(cfg, args.doe)
+    doe = build_doe(cfg, args.doe) if trained is None else trained.doe
     simulator = simulator_for(cfg, doe)
     reference = cfg.optics.focus_mm * 1e-3 if args.falloff else None
-    with torch.no_grad():
-        result = render_scene(
-            image, cast, lambda depths: simulator(doe, depths), int(cfg.imaging.depth_layers), reference
-        )
+    psf_for_depths = lambda depths: simulator(doe, depths)  # noqa: E731
+    loop = None
+    with torch.inference_mode():
+        if trained is None:
+            result = render_scene(image, cast, psf_for_depths, int(cfg.imaging.depth_layers), reference)
+        else:
+            from ..compensation.closed_loop import closed_loop, scene_screen
+            from ..scenes.render import scene_layers_m
+
+            # the layers' PSFs once, for the capture and for the compensated projection
+            layers = scene_layers_m(cast, int(cfg.imaging.depth_layers))
+            loop = closed_loop(image, scene_screen(cast, psf_for_depths(layers), layers, reference), trained.net)
+            result = loop.projected
 
     write_image(args.out, result[0], bits=args.bits)
     written = [args.out]
+    if loop is not None and args.projector_out is not None:
+        write_image(args.projector_out, loop.emitted[0], bits=args.bits)
+        written.append(args.projector_out)
     if args.depth_out is not None:
         with atomic_path(args.depth_out, suffix=".npy") as tmp:
             np.save(tmp, (cast.depth_m * 1e3).astype(np.float32))
@@ -125,7 +170,7 @@ def run_render(args) -> int:
             cast,
             result[0].permute(1, 2, 0).numpy(),
             args.figure,
-            f"{scene.name} with {doe.describe()}",
+            f"{scene.name} with {doe.describe()}" + (", compensated by its network" if loop is not None else ""),
         )
         written.append(args.figure)
     lo, hi = cast.depth_range_m()
@@ -134,4 +179,15 @@ def run_render(args) -> int:
         f"{cast.hit_fraction:.0%} of pixels hit ({cast.engine} ray casting {cast.seconds:.2f} s); {doe.describe()}"
         + ("; falloff cos(theta) (v/d)^2" if args.falloff else "")
     )
+    if loop is not None:
+        from ..evaluation.scenes import masked_scores
+
+        hit = torch.as_tensor(cast.hit)
+        shown, _ = masked_scores(loop.projected, image, hit)
+        plain, _ = masked_scores(loop.captured, image, hit)
+        print(
+            "over the objects' pixels against the image: compensated "
+            f"SSIM {shown[0]['ssim']:.4f}, PSNR {shown[0]['psnr']:.2f} dB; "
+            f"uncompensated SSIM {plain[0]['ssim']:.4f}, PSNR {plain[0]['psnr']:.2f} dB"
+        )
     return 0

@@ -57,6 +57,7 @@ def _positive_int(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..data import describe_training_data
     from ..runs import saved_config
     from ..training.trainer import train
 
@@ -72,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
             cfg.name = out.name or "run"
     if args.resume and args.config is not None and cfg.name == "run":
         cfg.name = saved_config(out).name
+    if int(os.environ.get("RANK", "0")) == 0:
+        print(describe_training_data(cfg.data), flush=True)
     result = train(cfg, out, resume=args.resume, stop_after=args.stop_after, progress=not args.quiet)
     if int(os.environ.get("RANK", "0")) == 0:
         if result.step == result.start_step:

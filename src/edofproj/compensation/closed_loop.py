@@ -48,6 +48,14 @@ def flat_screen(psf: torch.Tensor) -> ForwardModel:
     return ScreenProjection(psf)
 
 
+def scene_screen(cast, psf_for_depths, layers, falloff_reference_m: float | None = None) -> ForwardModel:
+    """The forward model of a 3-D scene seen through a ray cast ``cast`` (:class:`~edofproj.scenes.SceneCast`):
+    ``x -> render_scene(x, cast, psf_for_depths, layers, falloff_reference_m)`` (it clamps its input)."""
+    from ..scenes.render import render_scene  # start-up: trimesh loads only where a scene is rendered
+
+    return lambda image: render_scene(image, cast, psf_for_depths, layers, falloff_reference_m)
+
+
 def closed_loop(
     target: torch.Tensor,
     forward: ForwardModel,

@@ -30,7 +30,7 @@ from .photos import (
     random_crop,
     split_names,
 )
-from .sources import MixedSource, build_training_source
+from .sources import MixedSource, build_training_source, describe_training_data
 from .test_images import build_test_images, evaluation_images, fit_image, fit_to_size, folder_images
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "builtin_split",
     "dead_leaves_image",
     "dead_leaves_labels",
+    "describe_training_data",
     "disks_per_covering_layer",
     "evaluation_images",
     "find_image_files",

@@ -15,7 +15,17 @@ import torch
 
 from ..errors import EdofprojError
 from .dead_leaves import DeadLeavesSource, natural_color_palette
-from .photos import FolderSource, PhotoSource, builtin_photo_source, find_image_files, folder_split
+from .photos import (
+    BUILTIN_PHOTOS,
+    FolderSource,
+    PhotoSource,
+    builtin_photo_source,
+    builtin_split,
+    find_image_files,
+    folder_split,
+    load_builtin_photo,
+    probe_image_size,
+)
 from .procedural import ProceduralSource
 
 
@@ -90,3 +100,55 @@ def build_training_source(data_cfg, seed: int = 0):
     if leaves is not None or procedural is not None:
         return MixedSource(photos, leaves, data_cfg.dead_leaves_fraction, seed, procedural, procedural_fraction)
     return photos
+
+
+def describe_training_data(data_cfg) -> str:
+    """One line saying what a run trains and tests on: the images found, how many train and how
+    many are held out (and by which rule), and how many training images are too small for the
+    crop or unreadable (those are skipped, with one warning each when the source is built)."""
+    synthetic = {"dead-leaves": "dead-leaves images", "procedural": "procedural images"}
+    mix = [
+        f"{100 * fraction:g} % {name}"
+        for fraction, name in (
+            (data_cfg.dead_leaves_fraction, "dead leaves"),
+            (float(getattr(data_cfg, "procedural_fraction", 0.0)), "procedural"),
+        )
+        if fraction > 0 and data_cfg.source in ("builtin", "folder")
+    ]
+    mixed = f"; mixed with {' and '.join(mix)} per sample" if mix else ""
+    rule = f"data.test_fraction={data_cfg.test_fraction:g}, chosen by the SHA-256 of their names"
+    if data_cfg.source in ("builtin", *synthetic):
+        train_names, test_names = builtin_split(data_cfg.test_fraction)
+        if data_cfg.source in synthetic:
+            return (
+                f"data: {synthetic[data_cfg.source]} drawn at random ({data_cfg.crop} px crops); tested on the "
+                f"{len(test_names)} held-out built-in photographs ({rule})"
+            )
+        too_small = sum(min(load_builtin_photo(name).shape[:2]) < data_cfg.crop for name in train_names)
+        return (
+            f"data: {len(BUILTIN_PHOTOS)} built-in photographs: {len(train_names)} for training, {len(test_names)} "
+            f"held out for testing ({rule}){_skipped(too_small, data_cfg.crop)}{mixed}"
+        )
+    root = Path(data_cfg.folder)
+    if data_cfg.test_folder:
+        train = find_image_files(root)
+        test = find_image_files(data_cfg.test_folder)
+        split = (
+            f"{len(train)} images in '{root}': all for training; {len(test)} for testing in "
+            f"data.test_folder '{data_cfg.test_folder}'"
+        )
+    else:
+        train, test = folder_split(root, data_cfg.test_fraction)
+        split = (
+            f"{len(train) + len(test)} images in '{root}': {len(train)} for training, {len(test)} held out for "
+            f"testing ({rule})"
+        )
+    small = 0
+    for path in train:
+        size = probe_image_size(path)
+        small += size is None or min(size) < data_cfg.crop
+    return f"data: {split}{_skipped(small, data_cfg.crop)}{mixed}"
+
+
+def _skipped(count: int, crop: int) -> str:
+    return f"; {count} training image(s) skipped (unreadable or smaller than the {crop} px crop)" if count else ""

@@ -18,6 +18,12 @@ ones by name. Size (``evaluation.image_size = [height, width]``, ``[]``: native 
 * ``cover`` -- the whole image scaled to cover the size, then centre-cropped
   (:func:`fit_to_size`): large photographs are shrunk, which packs more detail into each pixel
   than the training crops have.
+
+Images are never enlarged for scoring: an image smaller than the size on either side (a 60x60
+image for 256x256) would be interpolated into a smooth picture that any method projects well,
+raising the mean score. Such an image is skipped with a warning that says the rule, in both
+scalings; when every image is smaller the evaluation stops with that message. Give larger images
+or a smaller ``evaluation.image_size`` (``[]`` scores every image at its native size).
 """
 
 from __future__ import annotations
@@ -70,12 +76,17 @@ def _test_entries(data_cfg) -> list[tuple[str, Callable[[], np.ndarray]]]:
     return [(p.relative_to(root).as_posix(), partial(read_image_array, p)) for p in files]
 
 
-def build_test_images(data_cfg, size: int | tuple[int, int] | None = None) -> list[tuple[str, torch.Tensor]]:
+def build_test_images(
+    data_cfg,
+    size: int | tuple[int, int] | None = None,
+    keep: Callable[[str, np.ndarray], bool] | None = None,
+) -> list[tuple[str, torch.Tensor]]:
     """The held-out test images ``[(name, (3, H, W) float32 in [0, 1])]``, sorted by name.
 
     ``size``: None keeps each image's size; ``n`` or ``(height, width)`` scales each image to
     cover that size and crops the centre (:func:`fit_to_size`). ``data.max_test_images``
-    (0: all) keeps the first ones. Unreadable files are skipped with a warning.
+    (0: all) keeps the first ones. Unreadable files are skipped with a warning, and so are those
+    for which ``keep(name, pixels (H, W, 3))`` (when given) is false.
     """
     entries = _test_entries(data_cfg)
     limit = int(getattr(data_cfg, "max_test_images", 0) or 0)
@@ -87,6 +98,8 @@ def build_test_images(data_cfg, size: int | tuple[int, int] | None = None) -> li
             pixels = as_rgb(load())
         except EdofprojError as exc:
             warnings.warn(f"skipping test image '{name}': {exc}")
+            continue
+        if keep is not None and not keep(name, pixels):
             continue
         if size is not None:
             pixels = fit_to_size(pixels, size)
@@ -113,20 +126,42 @@ def fit_image(pixels: np.ndarray, size: tuple[int, int] | None, scaling: str) ->
     return np.clip(fitted, 0.0, 1.0) if fitted.dtype.kind == "f" else fitted  # bicubic overshoot
 
 
+def smaller_than_size(pixels: np.ndarray, size: tuple[int, int] | None) -> bool:
+    """Whether ``pixels (H, W, 3)`` would have to be enlarged to reach ``size = (height, width)``."""
+    return size is not None and (pixels.shape[0] < size[0] or pixels.shape[1] < size[1])
+
+
+def _too_small_message(name: str, pixels: np.ndarray, size: tuple[int, int]) -> str:
+    return (
+        f"skipping '{name}': {pixels.shape[1]}x{pixels.shape[0]} px is smaller than the evaluation size "
+        f"{size[1]}x{size[0]} (width x height; evaluation.image_size=[{size[0]},{size[1]}]): an enlarged image is "
+        "smooth and scores too well; give a smaller --set evaluation.image_size=[H,W] to score it"
+    )
+
+
+def _none_large_enough(where: str, size: tuple[int, int]) -> EdofprojError:
+    return EdofprojError(
+        f"{where}: every image is smaller than the evaluation size {size[1]}x{size[0]} (width x height) and images "
+        f"are not enlarged for scoring: give larger images or --set evaluation.image_size=[H,W] (or [] for native sizes)"
+    )
+
+
 def _as_tensor(pixels: np.ndarray) -> torch.Tensor:
     array = pixels if pixels.dtype == np.float32 else to_unit_float(pixels)
     return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
 
 
 def folder_images(
-    folder: str | Path, size: tuple[int, int] | None, scaling: str = "crop", limit: int = 0
+    folder: str | Path, size: tuple[int, int] | None, scaling: str = "crop", limit: int = 0, enlarge: bool = False
 ) -> list[tuple[str, torch.Tensor]]:
-    """``[(relative path, (3, H, W) float32)]`` of the images below ``folder``, sorted by name."""
+    """``[(relative path, (3, H, W) float32)]`` of the images below ``folder``, sorted by name; those
+    smaller than ``size`` are skipped with a warning unless ``enlarge`` (module docstring)."""
     root = Path(folder)
     files = find_image_files(root)
     if not files:
         raise EdofprojError(f"--images '{folder}' holds no PNG/JPEG files")
     images: list[tuple[str, torch.Tensor]] = []
+    too_small = 0
     for path in files:
         if limit and len(images) >= limit:
             break
@@ -135,19 +170,47 @@ def folder_images(
         except EdofprojError as exc:
             warnings.warn(f"skipping '{path}': {exc}")
             continue
-        images.append((path.relative_to(root).as_posix(), _as_tensor(fit_image(pixels, size, scaling))))
+        name = path.relative_to(root).as_posix()
+        if size is not None and smaller_than_size(pixels, size) and not enlarge:
+            warnings.warn(_too_small_message(name, pixels, size), stacklevel=2)
+            too_small += 1
+            continue
+        images.append((name, _as_tensor(fit_image(pixels, size, scaling))))
     if not images:
+        if too_small and size is not None:
+            raise _none_large_enough(f"--images '{folder}'", size)
         raise EdofprojError(f"--images '{folder}': no readable image")
     return images
 
 
-def evaluation_images(cfg, images_dir: str | Path | None = None) -> list[tuple[str, torch.Tensor]]:
-    """The images to score: ``images_dir`` when given, else the run's held-out test images."""
+def evaluation_images(
+    cfg, images_dir: str | Path | None = None, enlarge: bool = False
+) -> list[tuple[str, torch.Tensor]]:
+    """The images to score: ``images_dir`` when given, else the run's held-out test images.
+
+    Images smaller than ``evaluation.image_size`` are skipped with a warning (module docstring);
+    ``enlarge=True`` scales them up instead (a picture filling a projector frame, as the 3-D
+    scene evaluation shows it)."""
     size = evaluation_size(cfg)
     scaling = cfg.evaluation.image_scaling
     if images_dir is not None:
-        return folder_images(images_dir, size, scaling, int(cfg.data.max_test_images or 0))
-    if scaling == "cover":
-        return build_test_images(cfg.data, size)
-    native = build_test_images(cfg.data, None)
+        return folder_images(images_dir, size, scaling, int(cfg.data.max_test_images or 0), enlarge)
+    too_small: list[str] = []
+
+    def large_enough(name: str, pixels: np.ndarray) -> bool:
+        if enlarge or not smaller_than_size(pixels, size):
+            return True
+        assert size is not None
+        warnings.warn(_too_small_message(name, pixels, size), stacklevel=2)
+        too_small.append(name)
+        return False
+
+    try:
+        if scaling == "cover":
+            return build_test_images(cfg.data, size, keep=large_enough)
+        native = build_test_images(cfg.data, None, keep=large_enough)
+    except EdofprojError:
+        if too_small and size is not None:
+            raise _none_large_enough("the run's test images", size) from None
+        raise
     return [(name, _as_tensor(fit_image(image.permute(1, 2, 0).numpy(), size, scaling))) for name, image in native]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..builtin_runs import resolve_run_dir
+from ..builtin_runs import PREFIX, resolve_run_dir
 from ..errors import EdofprojError
 from .base import DOE
 from .design_rules import apply_design_rules
@@ -35,6 +35,14 @@ def resolve_doe_file(spec: str) -> Path:
     raise EdofprojError(
         f"--doe '{spec}' is neither a design ({', '.join(DOE_CHOICES)}) nor an existing file or run directory"
     )
+
+
+def design_label(spec: str) -> str:
+    """The name a ``--doe`` design goes by in plots and reports: a design name as is, a built-in
+    run as ``builtin:NAME``, a design file or run directory by its name (``runs/a/doe.npz`` -> ``doe``)."""
+    if spec in DOE_CHOICES or spec.startswith(PREFIX):
+        return spec
+    return Path(spec.rstrip("/")).stem
 
 
 def build_doe(cfg, spec: str | None = None) -> DOE:

@@ -7,7 +7,7 @@
   the best value of each row in bold red;
 * :func:`plot_tilted` -- the same for the tilted screen (one row);
 * :func:`plot_captured_comparison` -- the same for real captures (rows = images);
-* :func:`plot_training_curves` -- the training loss of every run, one line each.
+* :func:`plot_training_curves` -- the training loss of every run, one panel each (the others in grey).
 
 The PSF figure is :func:`edofproj.evaluation.psf_plots.plot_psf_comparison` and the DOE profile
 :func:`edofproj.runs.figures.plot_doe_profile`.
@@ -29,6 +29,14 @@ from .results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 
 #: Metrics written on the tiles of the comparison figures, with their short labels (paper Fig. 6).
 TILE_METRICS = (("psnr", "P", "{:.2f}"), ("ssim", "S", "{:.3f}"), ("lpips", "L", "{:.3f}"))
+
+#: Image grids: at most this many tiles side by side (a row of more wraps onto the next lines), each
+#: ``GRID_TILE_IN`` inches wide at ``GRID_DPI``, with the scores in ``TILE_FONT_PT`` points. At the
+#: width of a report page (about 800 px) a label is then about 12 px high, whatever the number of methods.
+GRID_MAX_COLUMNS = 4
+GRID_TILE_IN = 2.4
+GRID_DPI = 120
+TILE_FONT_PT = 10
 
 
 def _save(fig, path: str | Path, dpi: int = 110) -> None:
@@ -96,42 +104,50 @@ def _annotate(ax, parts: list[tuple[str, bool]]) -> None:
             y,
             text,
             transform=ax.transAxes,
-            fontsize=7,
+            fontsize=TILE_FONT_PT,
             va="bottom",
             ha="left",
             color="red" if is_best else "white",
             fontweight="bold" if is_best else "normal",
             bbox=dict(facecolor="white" if is_best else "black", alpha=0.8 if is_best else 0.55, pad=1.0, lw=0),
         )
-        y += 0.11
+        y += 0.15
 
 
 def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]], path, title: str) -> None:
-    """``rows``: ``(row label, target, [(method, display, scores)])``."""
-    n_cols = 1 + max(len(r[2]) for r in rows)
+    """``rows``: ``(row label, target, [(method, display, scores)])``. Each row's tiles (the target
+    first) wrap after :data:`GRID_MAX_COLUMNS`, so that the figure stays readable at page width;
+    every tile carries its method's name."""
+    n_cells = 1 + max(len(r[2]) for r in rows)
+    lines_per_row = -(-n_cells // GRID_MAX_COLUMNS)
+    n_cols = -(-n_cells // lines_per_row)  # balanced lines: 9 tiles as 3 x 3, not 4 + 4 + 1
     height, width = rows[0][1].shape[:2]
-    tile = 2.0
-    fig, axes = plt.subplots(
-        len(rows), n_cols, figsize=(tile * n_cols, tile * height / width * len(rows) + 0.6), squeeze=False
-    )
+    tile = GRID_TILE_IN
+    n_lines = len(rows) * lines_per_row
+    fig_height_in = (tile * height / width + 0.35) * n_lines + 0.7
+    fig, axes = plt.subplots(n_lines, n_cols, figsize=(tile * n_cols, fig_height_in), squeeze=False)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
     for r, (label, target, tiles) in enumerate(rows):
         best = _best_of([scores for _, _, scores in tiles])
-        axes[r, 0].imshow(np.clip(target, 0, 1))
-        axes[r, 0].set_ylabel(label, fontsize=9)
-        if r == 0:
-            axes[r, 0].set_title("target", fontsize=9)
-        for c, (method, display, scores) in enumerate(tiles, start=1):
-            ax = axes[r, c]
-            ax.imshow(np.clip(display, 0, 1))
-            if r == 0:
-                ax.set_title(method, fontsize=9, fontweight="bold" if method == "doe+net" else "normal")
-            _annotate(ax, _tile_text(scores, best))
-        for ax in axes[r]:
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    _save(fig, path, dpi=120)
+        cells = [("target", target, None)] + list(tiles)
+        for index in range(lines_per_row * n_cols):
+            ax = axes[r * lines_per_row + index // n_cols, index % n_cols]
+            if index >= len(cells):
+                ax.axis("off")
+                continue
+            method, image, scores = cells[index]
+            ax.imshow(np.clip(image, 0, 1))
+            bold = "bold" if method == "doe+net" else "normal"
+            ax.set_title(method, fontsize=TILE_FONT_PT + 1, fontweight=bold, pad=3)
+            if index % n_cols == 0:
+                ax.set_ylabel(label, fontsize=TILE_FONT_PT + 1)
+            if scores is not None:
+                _annotate(ax, _tile_text(scores, best))
+    fig.suptitle(title, fontsize=TILE_FONT_PT + 1)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.45 / fig_height_in))  # room for the title
+    _save(fig, path, dpi=GRID_DPI)
 
 
 def plot_comparison(
@@ -186,26 +202,52 @@ def plot_tilted(
     )
 
 
+def _smoothed(rows: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(steps, loss, smooth steps, smooth loss)``: the moving average over 1/20 of the run."""
+    steps = np.array([r["step"] for r in rows], dtype=float)
+    loss = np.array([r["loss"] for r in rows], dtype=float)
+    width = max(1, len(loss) // 20)
+    smooth = np.convolve(loss, np.ones(width) / width, mode="valid") if len(loss) >= width else loss
+    return steps, loss, steps[len(steps) - len(smooth) :], smooth
+
+
 def plot_training_curves(curves: Sequence[tuple[str, list[dict]]], path: str | Path) -> None:
-    """Training loss (moving average over 1/20 of the run) against step, one line per run."""
-    fig, ax = plt.subplots(figsize=(7.5, 4.0))
-    for index, (label, rows) in enumerate(curves):
-        if not rows:
-            continue
-        steps = np.array([r["step"] for r in rows], dtype=float)
-        loss = np.array([r["loss"] for r in rows], dtype=float)
-        width = max(1, len(loss) // 20)
-        smooth = np.convolve(loss, np.ones(width) / width, mode="valid") if len(loss) >= width else loss
+    """Training loss (moving average over 1/20 of the run) against step: one panel per run, so that
+    no curve hides another (runs of the same data and seed can coincide step for step); each panel
+    shows its run in colour over the other runs in grey, on shared axes."""
+    curves = [(label, rows) for label, rows in curves if rows]
+    if not curves:
+        return
+    n_cols = min(len(curves), 3)
+    n_rows = -(-len(curves) // n_cols)
+    fig, axes = plt.subplots(
+        n_rows, n_cols, figsize=(3.6 * n_cols, 2.6 * n_rows + 0.6), sharex=True, sharey=True, squeeze=False
+    )
+    smoothed = [(label, *_smoothed(rows)) for label, rows in curves]
+    for index, (label, steps, loss, smooth_steps, smooth) in enumerate(smoothed):
+        ax = axes[index // n_cols, index % n_cols]
+        for other, _, _, other_steps, other_smooth in smoothed:
+            if other != label:
+                ax.plot(other_steps, other_smooth, color="0.75", lw=0.9)
         style = _method_style(index, label)
         style.pop("marker", None)
-        ax.plot(steps, loss, color=style["color"], alpha=0.15, lw=0.6)
-        ax.plot(steps[len(steps) - len(smooth) :], smooth, label=label, **style)
-    ax.set_yscale("log")
-    ax.set_xlabel("step")
-    ax.set_ylabel("training loss (alpha MSE + beta perceptual)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Training curves (moving average; faint: per step)", fontsize=10)
+        style["ls"] = "-"
+        ax.plot(steps, loss, color=style["color"], alpha=0.2, lw=0.6)
+        ax.plot(smooth_steps, smooth, **style)
+        ax.set_title(label, fontsize=10, fontweight="bold" if label == "doe+net" else "normal")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        if index % n_cols == 0:
+            ax.set_ylabel("training loss")
+        if index // n_cols == n_rows - 1 or index + n_cols >= len(smoothed):
+            ax.set_xlabel("step")
+    for index in range(len(smoothed), n_rows * n_cols):
+        axes[index // n_cols, index % n_cols].axis("off")
+    fig.suptitle(
+        "Training loss (alpha MSE + beta perceptual) of each run: moving average, faint per step; grey: the other runs",
+        fontsize=10,
+    )
+    fig.tight_layout()
     _save(fig, path)
 
 

@@ -134,7 +134,7 @@ def _expected_keys(spec: MethodSpec) -> dict[str, str]:
     return dict(item.split("=", 1) for item in spec.train_overrides)
 
 
-def _check_baseline(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | None:
+def baseline_mismatch(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | None:
     """Why the baseline run at ``path`` cannot stand for ``spec`` next to ``cfg`` (None: it can)."""
     flat = {"doe.kind": baseline_cfg.doe.kind, "net.architecture": baseline_cfg.net.architecture}
     for key, value in _expected_keys(spec).items():
@@ -212,7 +212,7 @@ class MethodBuilder:
             self.notes.append(f"{spec.name} skipped: {reason}")
             return None
         baseline = load_run(path)
-        problem = _check_baseline(spec, path, self.cfg, baseline.cfg)
+        problem = baseline_mismatch(spec, path, self.cfg, baseline.cfg)
         if problem:
             if self.explicit:
                 raise EdofprojError(f"method {spec.name}: the run '{path}' does not fit: {problem}")
@@ -347,7 +347,10 @@ def evaluate_run(
         if str(warning.message) not in image_notes:
             warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
     if image_notes:
-        image_notes.append(f"{len(images)} image(s) scored; {len(image_notes)} skipped as unreadable")
+        small = sum("smaller than the evaluation size" in note for note in image_notes)
+        counts = [(len(image_notes) - small, "as unreadable"), (small, "as smaller than the evaluation size")]
+        skipped_text = ", ".join(f"{n} skipped {why}" for n, why in counts if n)
+        image_notes.append(f"{len(images)} image(s) scored; {skipped_text}")
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = MethodBuilder(

@@ -129,7 +129,8 @@ def evaluate_scenes(
             cast, near_m, far_m, f"the run's PSFs (psf.depth_min_mm-psf.depth_max_mm) for scene '{scene.name}'"
         )
         casts[scene.name] = cast
-    images = evaluation_images(apply_overrides(cfg, [f"evaluation.image_size=[{height},{width}]"]), images_dir)
+    sized = apply_overrides(cfg, [f"evaluation.image_size=[{height},{width}]"])
+    images = evaluation_images(sized, images_dir, enlarge=True)  # a picture fills the projector frame
 
     builder = MethodBuilder(
         run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent, bool(methods), device

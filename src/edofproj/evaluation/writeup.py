@@ -64,7 +64,9 @@ def methods_section(ev) -> list:
     evaluated = {m.name for m in ev.methods}
     if "lens+onlineprodeb" in evaluated:
         notes.append(REIMPLEMENTATION_NOTE)
-    not_evaluated = [name for name in METHOD_NAMES if name not in evaluated]
+    # a method a note already names (not trained in time, no run, ...) is not listed a second time
+    noted = {note.split(" ", 1)[0] for note in notes}
+    not_evaluated = [name for name in METHOD_NAMES if name not in evaluated and name not in noted]
     if not_evaluated:
         notes.append(f"Not evaluated: {', '.join(not_evaluated)}.")
     if ev.perceptual_missing:
@@ -84,7 +86,8 @@ def methods_section(ev) -> list:
             f"{ev.images[0][1].shape[-2]}x{ev.images[0][1].shape[-1]} frame as evaluated "
             f"({ev.timing_threads} CPU thread(s) unless run on a GPU): the non-blind Wiener filter is computed for "
             f"each frame (its PSF follows the depth), CLS runs {ev.cfg.evaluation.cls_iterations} iterations, "
-            f"doe+ensemble and the networks are fixed."
+            f"doe+ensemble and the networks are fixed. A separate timing table (the demo's, `edofproj bench`) "
+            f"times the kernels alone at fixed sizes: its figures differ from these."
         )
     blocks += [Heading("Notes", 3), Bullets(notes)]
     return blocks

@@ -26,6 +26,7 @@ from .directory import (
     last_checkpoint_path,
     load_run,
     saved_config,
+    with_absolute_paths,
     write_run_config,
 )
 
@@ -41,5 +42,6 @@ __all__ = [
     "last_checkpoint_path",
     "load_run",
     "saved_config",
+    "with_absolute_paths",
     "write_run_config",
 ]

@@ -3,12 +3,13 @@ configuration, and loading a trained run for evaluation, export or fine-tuning."
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from pathlib import Path
 
 from torch import nn
 
-from ..builtin_runs import resolve_run_dir
+from ..builtin_runs import PREFIX, resolve_run_dir
 from ..compensation.registry import build_network
 from ..config import Config, dump_config, load_config, to_dict
 from ..doe import DOE, build_run_doe, load_doe
@@ -31,6 +32,33 @@ RESUMABLE_KEYS = (
     "train.device",
     "name",
 )
+
+
+#: Config keys that hold a file or folder path: a run's ``config.yaml`` stores them absolute, so
+#: the run can be resumed, evaluated or fine-tuned from any working directory.
+PATH_KEYS = (
+    "optics.wavefront_map",
+    "optics.aberration_csv",
+    "spectrum.spd_csv",
+    "doe.path",
+    "loss.weights_dir",
+    "data.folder",
+    "data.test_folder",
+)
+
+
+def with_absolute_paths(cfg: Config, base: str | Path | None = None) -> Config:
+    """A copy of ``cfg`` whose relative paths (:data:`PATH_KEYS`) are made absolute against
+    ``base`` (default: the working directory); ``builtin:NAME`` and absolute paths stay as they are."""
+    cfg = copy.deepcopy(cfg)
+    root = Path(base) if base is not None else Path.cwd()
+    for key in PATH_KEYS:
+        section_name, name = key.split(".")
+        section = getattr(cfg, section_name)
+        value = getattr(section, name)
+        if value and not str(value).startswith(PREFIX) and not Path(value).is_absolute():
+            setattr(section, name, str((root / Path(value).expanduser()).resolve()))
+    return cfg
 
 
 def last_checkpoint_path(run_dir: str | Path) -> Path:
@@ -70,8 +98,8 @@ def _flatten(data: dict, prefix: str = "") -> dict:
 
 def check_resume_config(run_dir: str | Path, cfg: Config) -> None:
     """Refuse to resume with a configuration that changes what the run computes."""
-    old = _flatten(to_dict(saved_config(run_dir)))
-    new = _flatten(to_dict(cfg))
+    old = _flatten(to_dict(with_absolute_paths(saved_config(run_dir))))  # a run saved before paths were absolute
+    new = _flatten(to_dict(with_absolute_paths(cfg)))
     changed = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMABLE_KEYS)
     if changed:
         shown = ", ".join(f"{k} ({old.get(k)!r} -> {new.get(k)!r})" for k in changed[:3])
@@ -83,7 +111,8 @@ def check_resume_config(run_dir: str | Path, cfg: Config) -> None:
 
 
 def write_run_config(run_dir: str | Path, cfg: Config) -> None:
-    write_text_atomic(Path(run_dir) / CONFIG_NAME, dump_config(cfg))
+    """Write ``config.yaml`` with its paths absolute (:func:`with_absolute_paths`)."""
+    write_text_atomic(Path(run_dir) / CONFIG_NAME, dump_config(with_absolute_paths(cfg)))
 
 
 # ----------------------------------------------------------------------------- loading a finished run

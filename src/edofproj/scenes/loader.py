@@ -139,7 +139,7 @@ def load_scene(spec: str | Path, geometry=None) -> Scene:
     if suffix in SCENE_EXTENSIONS:
         return read_scene_file(path)
     if suffix in MESH_EXTENSIONS:
-        return Scene(path.stem, [SceneMesh(path.name, read_mesh(path), False)])
+        return Scene(path.stem, [SceneMesh(path.name, read_mesh(path), False, bare=True)])
     raise EdofprojError(
         f"scene '{text}' is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor a scene file "
         f"({', '.join(SCENE_EXTENSIONS)}) or mesh file ({', '.join(MESH_EXTENSIONS)})"

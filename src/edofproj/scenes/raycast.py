@@ -33,6 +33,7 @@ Ray engines (``engine``):
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -240,12 +241,25 @@ def cast_scene(
         owners = owner[face_index]
         solids = np.array([not m.open for m in scene.meshes] + [False])  # the background plane is open
         bad = inside & solids[owners]
+        for k in np.unique(owners[bad]).tolist():
+            which = scene.meshes[k]
+            if which.bare and not which.mesh.is_watertight and np.all(inside[owners == k]):
+                warnings.warn(
+                    f"mesh '{which.name}' is an open sheet whose faces point away from the projector (all "
+                    f"{int(np.sum(owners == k))} rays that meet it meet their backs): lit as a two-sided screen; "
+                    "reverse its faces' winding, or mark it 'open: true' in a scene file, to silence this",
+                    stacklevel=2,
+                )
+                bad &= owners != k
         if np.any(bad):
-            which = scene.meshes[int(owners[bad][0])]
+            k = int(owners[bad][0])
+            which = scene.meshes[k]
             detail = "not watertight" if not which.mesh.is_watertight else "inside out (faces wound inward)"
+            front = int(np.sum((owners == k) & ~inside))
             raise EdofprojError(
-                f"mesh '{which.name}' is {detail}: {int(bad.sum())} projector rays meet the inside of its surface; "
-                "close it, or mark it 'open: true' in a scene file if it is a sheet or a wall"
+                f"mesh '{which.name}' is {detail}: {int(bad.sum())} projector rays meet the inside of its surface "
+                f"(the back of its faces) and {front} its outside; close it, or mark it 'open: true' in a scene file "
+                "if it is a sheet or a wall"
             )
         n = np.where(inside[:, None], -n, n)
         depth[ray_index] = locations[:, 2]

@@ -20,6 +20,12 @@ optional fronto-parallel background plane at ``background_m``. It comes from
 A mesh that is not ``open`` is a solid: the projector must see its outside. When a ray enters
 a solid through a hole and hits the inside of its surface, the mesh is reported as not
 watertight (:func:`~edofproj.scenes.raycast.cast_scene`); open surfaces are lit from either side.
+
+A single mesh file says nothing about being a solid or a sheet (``bare``). When it is not
+watertight and every ray that meets it meets the back of its faces, it is a sheet wound away from
+the projector (a screen whose normals point away): it is lit as an open surface, with a warning
+that says which way it faces. When some rays meet the front of its faces and others the back, it
+is a solid with a hole, and it is refused as not watertight like any solid.
 """
 
 from __future__ import annotations
@@ -31,11 +37,13 @@ import trimesh
 
 @dataclass
 class SceneMesh:
-    """One posed mesh: ``mesh`` (trimesh, metres, projector frame), a display ``name``, ``open``."""
+    """One posed mesh: ``mesh`` (trimesh, metres, projector frame), a display ``name``, ``open``;
+    ``bare``: read from a mesh file alone, nothing saying whether it is a solid or a sheet."""
 
     name: str
     mesh: trimesh.Trimesh
     open: bool = False
+    bare: bool = False
 
 
 @dataclass
