@@ -174,3 +174,20 @@ def test_with_a_calibration_the_output_is_projector_input(tmp_path):
     for index, frame in enumerate(frames):
         written = read_image(tmp_path / "out" / f"f{index}.png").numpy().transpose(1, 2, 0)
         assert np.abs(written - frame ** (1 / 2.2)).mean() < 0.003
+
+
+def test_a_flat_depth_map_compensates_like_the_flat_screen(run_dir, tmp_path):
+    """--depth-map of one depth everywhere is the flat screen of --depth-mm at that depth."""
+    (tmp_path / "in").mkdir()
+    for index, frame in enumerate(smooth_frames(2, seed=5)):
+        write_image(tmp_path / "in" / f"g{index}.png", torch.from_numpy(frame.transpose(2, 0, 1).copy()), bits=16)
+    np.save(tmp_path / "flat.npy", np.full(HW, 350.0))
+    base = ["compensate", str(run_dir), "--images", str(tmp_path / "in"), "--bits", "16"]
+    assert main(base + ["--depth-mm", "350", "--out", str(tmp_path / "a")]) == 0
+    assert main(base + ["--depth-map", str(tmp_path / "flat.npy"), "--out", str(tmp_path / "b")]) == 0
+    for index in range(2):
+        flat, mapped = (read_image(tmp_path / out / f"g{index}.png") for out in ("a", "b"))
+        torch.testing.assert_close(mapped, flat, atol=3 / 65535, rtol=0)
+    np.save(tmp_path / "small.npy", np.full((4, 4), 350.0))
+    assert main(base + ["--depth-map", str(tmp_path / "small.npy"), "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "c").exists()

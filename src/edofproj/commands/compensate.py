@@ -3,7 +3,8 @@
     edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
     edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
     edofproj compensate RUN --image TARGET --capture RAW --calib calib.npz --out PROJ.png
-    edofproj compensate RUN (--images DIR | --video FILE) --depth-mm Z --out (FOLDER | VIDEO.avi|.mp4) [--calib calib.npz]
+    edofproj compensate RUN (--images DIR | --video FILE) (--depth-mm Z | --depth-map MAP.npy)
+                        --out (FOLDER | VIDEO.avi | VIDEO.mp4) [--calib calib.npz]
 
 The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
 projection ``I*``: either a camera capture already warped into projector space (``--capture``,
@@ -18,8 +19,9 @@ rectified into projector output light per projector pixel, and the output is the
 *input* ``u = f^-1(x)`` that emits the light ``x`` (the inverse of the measured response).
 The target is then projector output light (full primary = 1); see docs/procams.md.
 
-With ``--images DIR`` or ``--video FILE`` a whole show is compensated offline for a screen at
-``--depth-mm``, in batches of ``--batch`` frames, on the network path of ``edofproj live``
+With ``--images DIR`` or ``--video FILE`` a whole show is compensated offline for a flat screen at
+``--depth-mm`` or a screen of per-pixel depth ``--depth-map`` (``edofproj render``'s depth
+layers), in batches of ``--batch`` frames, on the network path of ``edofproj live``
 (:mod:`edofproj.application.offline`): the output is a folder of PNG images or a video (by the
 extension of ``--out``: .avi, .mp4), with ``--calib`` the projector input at the projector's size.
 A progress bar runs while it works; frames per second are printed at the end. A video that
@@ -60,6 +62,13 @@ def register(subparsers) -> None:
         default=None,
         help="simulate the capture on a flat screen at this depth (mm) with the run's DOE",
     )
+    source.add_argument(
+        "--depth-map",
+        default=None,
+        metavar="MAP.npy",
+        help="with --images/--video: simulate the capture on a screen of this per-pixel depth, a .npy float "
+        "array (H, W) in mm at the frames' size (NaN: nothing hit)",
+    )
     p.add_argument(
         "--calib",
         default=None,
@@ -93,6 +102,8 @@ def run(args) -> int:
         return run_batch(args)
     if args.batch != 8 or args.fps is not None or args.overwrite:
         raise EdofprojError("--batch, --fps and --overwrite go with --images or --video")
+    if args.depth_map is not None:
+        raise EdofprojError("--depth-map goes with --images or --video ('edofproj render --depth-map' for one image)")
     import torch
 
     from ..compensation.closed_loop import closed_loop, flat_screen
@@ -171,6 +182,7 @@ def run_batch(args) -> int:
     """``--images`` / ``--video``: the show compensated offline (module docstring)."""
     import sys
 
+    import numpy as np
     from tqdm import tqdm
 
     from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
@@ -181,9 +193,11 @@ def run_batch(args) -> int:
     from ..limits import check_memory
     from ..runs import load_run
 
-    if args.depth_mm is None:  # the parser's group asks for --capture or --depth-mm
-        raise EdofprojError("--images/--video need --depth-mm, the screen depth of the show (--capture is one frame)")
-    if not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
+    if args.depth_mm is None and args.depth_map is None:  # the parser's group asks for one of them or --capture
+        raise EdofprojError(
+            "--images/--video need --depth-mm or --depth-map, the screen of the show (--capture is one frame)"
+        )
+    if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
         raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
     if args.preview is not None:
         raise EdofprojError("--preview goes with --image")
@@ -206,22 +220,38 @@ def run_batch(args) -> int:
     source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
     trained = load_run(require_trained_run(args.run))
     H, W = source.size_hw
+    design = OpticalDesign("run", "doe", trained.doe, trained.cfg)
+    if args.depth_map is not None:
+        from ..scenes.render import render_masked_depth_map
+        from .render import load_depth_map_m
+
+        depth_map_m = load_depth_map_m(args.depth_map, (H, W))
+        layers = int(trained.cfg.imaging.depth_layers)
+
+        def forward(images):
+            return render_masked_depth_map(images, depth_map_m, design.psf, layers)
+
+        screen = f"depth map {np.nanmin(depth_map_m) * 1e3:.0f}-{np.nanmax(depth_map_m) * 1e3:.0f} mm"
+    else:
+        layers = 1
+        forward = flat_screen(design.psf([args.depth_mm * 1e-3]))
+        screen = f"flat screen at {args.depth_mm:g} mm"
     check_memory(
-        args.batch * projection_bytes(H, W, trained.cfg.psf.window),
+        args.batch * projection_bytes(H, W, trained.cfg.psf.window, layers),
         f"compensating batches of {args.batch} frames of {W}x{H}",
         "lower --batch",
     )
-    psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
     sink = (
         VideoSink(args.out, args.fps or source.fps, source.size_hw, overwrite=args.overwrite)
         if video_out
         else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
     )
     to_input = calibration.inverse_table.apply if calibration is not None else None
-    print(f"compensating the {source.description}: {source.count or 'unknown number of'} frames of {W}x{H}")
+    count = source.count or "unknown number of"
+    print(f"compensating the {source.description}: {count} frames of {W}x{H}, for a {screen}")
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
         summary = compensate_frames(
-            trained.net, source, flat_screen(psf), sink, batch=args.batch, to_input=to_input, on_batch=bar.update
+            trained.net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
         )
     output = "projector input (measured response inverted)" if calibration is not None else "light"
     print(
