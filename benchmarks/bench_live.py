@@ -1,16 +1,32 @@
-"""Frames per second of the live loop through the virtual ProCams, and the time of each stage.
+"""The pipelined live loop at 600x800: stage times, throughput and latency, in two set-ups.
 
 The loop of ``edofproj live`` (:func:`edofproj.application.live.run_live`): show the target
-through the inverse projector response, capture it with the virtual camera, rectify it into
-projector space, compensate with the network, invert the response, show the result. The rig is
+through the inverse projector response, capture it, rectify it into projector space, compensate
+with the network, invert the response, show the result -- display, camera and compute in their
+own threads. The network is that of ``--run``, or an untrained network of ``--config`` (the
+``realtime`` preset; its cost does not depend on its weights). The rig is
 ``VirtualProCams.example`` at the projector size (camera ``--camera-scale`` px per projector px,
-``--supersampling`` sub-samples per camera pixel, the lens PSF at ``--depth-mm``), calibrated
-ideally (:meth:`VirtualProCams.ideal_calibration`: the loop's cost does not depend on how the
-calibration was measured). The network is that of ``--run``, or an untrained network of
-``--config`` (its cost does not depend on its weights). ``capture`` is the simulation of the
-optics and the camera: on a real rig it is the camera's frame time instead.
+``--supersampling`` sub-samples per camera pixel, lens PSF at ``--depth-mm``), calibrated
+ideally (:meth:`VirtualProCams.ideal_calibration`; the loop's cost does not depend on how the
+calibration was measured).
 
-    PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 10] [--threads 1]
+0. **each stage alone**: the per-call computations the loop made before it had tables, and the
+   tables, one after the other in one thread (medians of wall time and thread CPU time).
+1. **instant camera**: an in-memory display and a camera that returns a ready frame (one
+   virtual capture of the target, made before timing): what the loop costs around the network.
+   Targets: >= 30 frames/s; the ``compensate`` stage (the network alone) within 20 % of the
+   network's time as ``edofproj bench`` measures it (same process, same threads, printed).
+2. **virtual ProCams**: the camera simulates the optics and the sensor for every frame (on a real
+   rig that is the camera's frame time). Target: frames/s >= 1 / (capture + 10 ms).
+
+Each prints a table: stage, median ms, 99th percentile ms, and the median CPU time of the thread
+that ran the stage (what the stage costs, without the time its thread waited for a core: on a
+loaded machine wall times are far above it); throughput; latency (target taken -> compensated
+frame on screen, median and 99th percentile); and the throughput the three threads' CPU times
+allow with a core each. PyTorch and OpenCV run one thread each (``--threads``), so that each
+stage's work stays in the thread that times it.
+
+    PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 60] [--virtual-frames 8]
 """
 
 from __future__ import annotations
@@ -18,34 +34,108 @@ from __future__ import annotations
 import argparse
 import time
 
+import cv2
 import numpy as np
 import torch
 
-from edofproj.application.live import STAGES, run_live
+from edofproj.application.live import STAGES, LiveSummary, run_live
 from edofproj.compensation.registry import build_network
 from edofproj.config import load_config
 from edofproj.data import build_test_images
 from edofproj.doe import build_doe
+from edofproj.evaluation.timing import measure_ms, network_torch_case
 from edofproj.optics.psf_bank import simulator_from_config
+from edofproj.procams.devices.base import Camera
 from edofproj.procams.devices.cameras import VirtualCamera
 from edofproj.procams.devices.displays import MemoryDisplay
 from edofproj.procams.virtual import VirtualProCams
 from edofproj.runs import load_run
 
+OUTSIDE_NETWORK = ("rectify", "to_input")
+"""The per-frame work of the compute thread besides the network (the display's and camera's own
+time runs in their threads and is listed separately)."""
+
+
+class InstantCamera(Camera):
+    """Returns the same ready frame at once: a camera that costs nothing."""
+
+    spec = "instant"
+
+    def __init__(self, frame: np.ndarray) -> None:
+        self.frame = frame
+
+    def grab(self) -> np.ndarray:
+        return self.frame
+
+
+def print_summary(title: str, summary: LiveSummary) -> None:
+    print(f"\n{title}: {summary.frames} frames")
+    print(f"  {'stage':<17} {'median ms':>10} {'p99 ms':>8} {'CPU ms':>8}")
+    stats, cpu = summary.stage_ms(), summary.stage_cpu_ms()
+    for stage in STAGES + ("check",):
+        if stage in stats:
+            print(f"  {stage:<17} {stats[stage][0]:10.2f} {stats[stage][1]:8.2f} {cpu[stage]:8.2f}")
+    outside, outside_cpu = sum(stats[s][0] for s in OUTSIDE_NETWORK), sum(cpu[s] for s in OUTSIDE_NETWORK)
+    print(f"  outside the network (rectify + to_input): {outside:.2f} ms per frame, CPU {outside_cpu:.2f} ms (medians)")
+    median, p99 = summary.latency_ms()
+    print(f"  throughput {summary.fps:.1f} frames/s; latency median {median:.1f} ms, p99 {p99:.1f} ms")
+    print(f"  throughput the threads' CPU times allow, a core each: {summary.cpu_limited_fps():.1f} frames/s")
+    if summary.stalls:
+        print(f"  camera stalls: {summary.stalls}")
+
+
+def cpu_ms(function, repeats: int) -> tuple[float, float]:
+    """Median wall-clock ms and mean thread-CPU ms of ``function()`` (after one warm-up call)."""
+    function()
+    walls = []
+    cpu_start = time.thread_time()
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        walls.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(walls)), 1e3 * (time.thread_time() - cpu_start) / repeats
+
+
+def print_stages_alone(calibration, frame: np.ndarray, target: np.ndarray, net, repeats: int) -> None:
+    """Each per-frame stage alone, one after the other in this thread: as computed per call before
+    the loop had tables (``to_output_space``: warp with float64 maps converted per call, float64
+    unmixing; the 65^3 ``ResponseLUT`` read by ``grid_sample`` for the target and the output) and
+    with the tables (:mod:`edofproj.procams.frame_maps`)."""
+    H, W = calibration.projector_hw
+    light_chw = torch.from_numpy(target.transpose(2, 0, 1).copy())[None]
+    lut = calibration.color.inverse_response_lut(calibration.response_lut_size)
+    out = np.empty((H, W, 3), np.float32)
+    out_t = torch.from_numpy(out)
+    cases = [
+        ("rectify", "before", lambda: calibration.to_output_space(frame)),
+        ("rectify", "after", lambda: calibration.rectifier(frame, out=out)),
+        ("to_input", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
+        ("to_input", "after", lambda: calibration.inverse_table.apply(light_chw.permute(0, 2, 3, 1)[0], out=out_t)),
+        ("show_target f^-1(I)", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
+    ]
+    print(f"\neach stage alone ({repeats} calls each; after: the tables the loop builds once)")
+    print(f"  {'stage':<26} {'':<7} {'median ms':>10} {'CPU ms':>8}")
+    for stage, when, function in cases:
+        wall, cpu = cpu_ms(function, repeats)
+        print(f"  {stage:<26} {when:<7} {wall:10.2f} {cpu:8.2f}")
+    print(f"  {'show_target f^-1(I)':<26} {'after':<7} {'cached per target: 0':>19}")
+
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--size", default="600x800", help="projector HEIGHTxWIDTH (600x800)")
-    parser.add_argument("--frames", type=int, default=10, help="timed frames after one warm-up frame (10)")
+    parser.add_argument("--frames", type=int, default=60, help="timed frames with the instant camera (60)")
+    parser.add_argument("--virtual-frames", type=int, default=8, help="timed frames through the virtual ProCams (8)")
     parser.add_argument("--run", default=None, help="a trained run (default: an untrained network of --config)")
     parser.add_argument("--config", default="realtime", help="config preset of the untrained network (realtime)")
     parser.add_argument("--depth-mm", type=float, default=400.0, help="screen depth of the lens PSF (400)")
     parser.add_argument("--window", type=int, default=21, help="PSF window (21)")
     parser.add_argument("--camera-scale", type=float, default=1.5, help="camera px per projector px (1.5)")
     parser.add_argument("--supersampling", type=int, default=2, help="sub-samples per camera pixel (2)")
-    parser.add_argument("--threads", type=int, default=1, help="PyTorch threads (1)")
+    parser.add_argument("--threads", type=int, default=1, help="PyTorch and OpenCV threads (1)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)
     height, width = (int(v) for v in args.size.lower().split("x"))
     cfg = load_run(args.run).cfg if args.run else load_config(args.config)
     net = load_run(args.run).net if args.run else build_network(cfg.net).eval()
@@ -55,27 +145,48 @@ def main() -> int:
     )
     start = time.perf_counter()
     calibration = rig.ideal_calibration()
-    calibration.to_projector_input(torch.zeros(1, 3, 1, 1))
+    _ = calibration.rectifier, calibration.inverse_table
     setup_s = time.perf_counter() - start
-    display = MemoryDisplay()
-    camera = VirtualCamera(rig, display)
-    target = build_test_images(cfg.data, size=(height, width))[0][1].numpy().transpose(1, 2, 0)
-    run_live(net, calibration, display, camera, [("warm-up", target)])
-    summary = run_live(net, calibration, display, camera, [("target", target)] * args.frames, measure=True)
+    target = build_test_images(cfg.data, size=(height, width))[0][1].numpy().transpose(1, 2, 0).copy()
     print(
         f"live loop, {width}x{height} projector, camera {rig.camera_hw[1]}x{rig.camera_hw[0]} "
-        f"(x{args.supersampling} sub-samples), {torch.get_num_threads()} thread(s), {summary.frames} frames; "
-        f"inverse-response table and camera map built in {setup_s:.2f} s"
+        f"(x{args.supersampling} sub-samples), {torch.get_num_threads()} PyTorch thread(s), network "
+        f"'{args.run or args.config}'; calibration tables built in {setup_s:.2f} s "
+        f"(inverse response: {type(calibration.inverse_table).__name__})"
     )
-    print(f"{summary.fps:.2f} frames/s ({1e3 * summary.frame_s:.0f} ms per frame)")
-    for stage, ms in summary.mean_stage_ms().items():
-        note = (
-            " (not in the frame time: capture + rectify of the compensated projection)" if stage not in STAGES else ""
-        )
-        print(f"  {stage:<17} {ms:8.1f} ms{note}")
+
+    # 0. each stage alone: the per-call computations the loop used before against its tables
+    display = MemoryDisplay()
+    display.show(calibration.inverse_table.apply(torch.from_numpy(target)).numpy())
+    frame = VirtualCamera(rig, display).grab()
+    print_stages_alone(calibration, frame, target, net, args.frames)
+
+    # 1. instant camera: one virtual capture of the target, returned at once
+    camera = InstantCamera(frame)
+    run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3)
+    instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames)
+    print_summary("instant camera, in-memory display", instant)
+    bench_frame = network_torch_case(net, "net").build(height, width)
+    cpu_start = time.thread_time()
+    bench_ms = float(np.median(measure_ms(bench_frame, repeats=max(10, args.frames // 2), warmup=0)))
+    bench_cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(10, args.frames // 2)
+    live_ms, live_cpu_ms = instant.stage_ms()["compensate"][0], instant.stage_cpu_ms()["compensate"]
     print(
-        f"SSIM against the target (untrained network unless --run): uncompensated "
-        f"{np.mean(summary.ssim_uncompensated):.4f}, compensated {np.mean(summary.ssim_compensated):.4f}"
+        f"  network alone as 'edofproj bench' times it: {bench_ms:.2f} ms median (CPU {bench_cpu_ms:.2f} ms mean); "
+        f"in the loop {live_ms:.2f} ms ({100 * (live_ms / bench_ms - 1):+.0f} %), CPU {live_cpu_ms:.2f} ms "
+        f"({100 * (live_cpu_ms / bench_cpu_ms - 1):+.0f} %)"
+    )
+
+    # 2. the virtual ProCams: every capture simulated
+    display = MemoryDisplay()
+    camera = VirtualCamera(rig, display)
+    run_live(net, calibration, display, camera, [("warm-up", target)])
+    virtual = run_live(net, calibration, display, camera, [("target", target)] * args.virtual_frames, measure=False)
+    print_summary("virtual ProCams (simulated capture)", virtual)
+    capture_ms = virtual.stage_ms()["capture"][0]
+    print(
+        f"  target 1 / (capture + 10 ms) = {1e3 / (capture_ms + 10):.2f} frames/s (capture median {capture_ms:.0f} ms); "
+        f"measured {virtual.fps:.2f} frames/s"
     )
     return 0
 

@@ -2,8 +2,11 @@
 calibration is known exactly (tests/virtual_rigs.py): the chain of colour spaces, --frames,
 Ctrl-C, and the frame sources."""
 
+import threading
+
 import numpy as np
 import pytest
+import torch
 from scipy.ndimage import gaussian_filter
 
 from edofproj.application.live import STAGES, fit_to_projector, frame_source, run_live
@@ -122,3 +125,136 @@ def test_video_frames_are_read_in_order(tmp_path):
     writer.release()
     levels = [float(frame.mean()) * 255 for _, frame in frame_source(HW, video=str(path))]
     np.testing.assert_allclose(levels, [40, 200, 120], atol=3)
+
+
+# --------------------------------------------------------------------------- the pipelined devices
+
+
+def live_threads():
+    return [t for t in threading.enumerate() if t.name.startswith("edofproj-live")]
+
+
+def half_net(target, captured):
+    return 0.5 * target  # a compensated frame that differs from the target
+
+
+class RecordingDisplay(MemoryDisplay):
+    def __init__(self):
+        super().__init__()
+        self.history = []
+
+    def _present(self, frame):
+        super()._present(frame)
+        self.history.append(frame)
+
+
+def test_a_stalled_camera_is_reported_and_the_loop_resumes(rig_and_calibration):
+    """The camera blocks in its 4th grab until a stall has been reported: meanwhile the display
+    shows the last compensated frame; then the loop completes. (Its other grabs return a ready
+    frame at once; should one of them outlast the timeout on a loaded machine, it is reported
+    too, which the assertions allow.)"""
+    rig, calibration = rig_and_calibration
+    display = RecordingDisplay()
+    target = smooth_target()
+    display.show(calibration.inverse_table.apply(torch.from_numpy(target)).numpy())
+    ready = VirtualCamera(rig, display).grab()
+    release = threading.Event()
+    lines, shown_during_stall = [], []
+
+    class Stalling(Camera):
+        spec = "stalling"
+        grabs = 0
+
+        def grab(self):
+            self.grabs += 1
+            if self.grabs == 4:
+                assert release.wait(timeout=600), "the stall was never reported"
+            return ready
+
+    camera = Stalling()
+
+    def report(line):
+        lines.append(line)
+        if "stalled" in line and camera.grabs == 4 and not release.is_set():
+            shown_during_stall.append(display.shown.copy())
+            release.set()
+
+    summary = run_live(half_net, calibration, display, camera, [("t", target)] * 6, stall_timeout_s=0.2, report=report)
+    assert summary.frames == 6 and summary.stalls >= 1 and not summary.interrupted
+    assert release.is_set() and camera.grabs > 6  # the late frame was dropped and grabbed again
+    assert all(("stalled" in line) == (i % 2 == 0) for i, line in enumerate(lines)) and "is back" in lines[-1]
+    compensated = calibration.inverse_table.apply(torch.from_numpy(0.5 * target)).numpy()
+    np.testing.assert_allclose(shown_during_stall[0], compensated, atol=0.5 / 255 + 1e-6)
+    assert not live_threads()
+
+
+def test_a_camera_that_raises_stops_the_loop_with_its_error(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    virtual = VirtualCamera(rig, display)
+
+    class Failing(Camera):
+        spec = "failing"
+        grabs = 0
+
+        def grab(self):
+            self.grabs += 1
+            if self.grabs == 3:
+                raise EdofprojError("camera 'failing' was unplugged")
+            return virtual.grab()
+
+    with pytest.raises(EdofprojError, match="unplugged"):
+        run_live(identity_net, calibration, display, Failing(), [("t", smooth_target())] * 10)
+    assert not live_threads()
+
+
+def test_camera_frames_of_another_size_and_displays_of_another_size_are_refused(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+
+    class Small(Camera):
+        spec = "small"
+
+        def grab(self):
+            return np.zeros((8, 10, 3), np.float32)
+
+    with pytest.raises(EdofprojError, match="camera frame of 't' is 10x8 pixels, the calibrated camera 32x24"):
+        run_live(identity_net, calibration, MemoryDisplay(), Small(), [("t", smooth_target())] * 3)
+    assert not live_threads()
+    with pytest.raises(EdofprojError, match="display 'memory' is 64x48 but the calibration was made for a 32x24"):
+        run_live(identity_net, calibration, MemoryDisplay((48, 64)), Small(), [("t", smooth_target())])
+
+
+def test_ctrl_c_in_the_calling_thread_ends_every_thread(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    frames = []
+
+    def on_frame(record):
+        frames.append(record)
+        if len(frames) == 2:
+            raise KeyboardInterrupt
+
+    summary = run_live(
+        identity_net,
+        calibration,
+        display,
+        VirtualCamera(rig, display),
+        [("t", smooth_target())] * 50,
+        on_frame=on_frame,
+    )
+    assert summary.interrupted and 2 <= summary.frames < 50
+    assert not live_threads()
+
+
+def test_throughput_and_latency_are_reported_per_frame(rig_and_calibration):
+    rig, calibration = rig_and_calibration
+    display = MemoryDisplay()
+    summary = run_live(identity_net, calibration, display, VirtualCamera(rig, display), [("t", smooth_target())] * 4)
+    assert summary.frames == 4 and len(summary.latency_s) == 4
+    median, p99 = summary.latency_ms()
+    assert 0 < median <= p99
+    # a frame's latency spans its own stages, which run one after the other in its journey
+    journeys = [sum(summary.stage_s[s][i] for s in STAGES) for i in range(4)]
+    assert all(latency >= journey for latency, journey in zip(summary.latency_s, journeys))
+    assert set(summary.stage_ms()) == set(STAGES)
+    assert summary.fps > 0 and display.frames_shown == 8

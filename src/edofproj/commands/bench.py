@@ -17,12 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-import torch
-
-from ..compensation.registry import check_frame_memory, network_from_widths
 from ..errors import EdofprojError
-from ..evaluation.timing import disk_psf
-from ..fileio import write_text_atomic
 from ._common import RUN_HELP_SUFFIX, parse_name_list, run_directory
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
@@ -30,6 +25,8 @@ DEFAULT_SIZES = "256x256,600x800,768x1024"
 
 
 def devices(requested: str) -> list[str]:
+    import torch  # start-up: commands import their libraries when they run (edofproj --help stays fast)
+
     if requested == "auto":
         return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     if requested == "cuda" and not torch.cuda.is_available():
@@ -97,8 +94,13 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import torch
+
+    from ..compensation.registry import check_frame_memory, network_from_widths
     from ..config import Config
     from ..evaluation import timing
+    from ..evaluation.timing import disk_psf
+    from ..fileio import write_text_atomic
 
     sizes = timing.parse_sizes(args.sizes)
     for height, width in sizes:  # every size is refused before the first is timed

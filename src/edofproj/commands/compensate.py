@@ -3,6 +3,8 @@
     edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
     edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
     edofproj compensate RUN --image TARGET --capture RAW --calib calib.npz --out PROJ.png
+    edofproj compensate RUN (--images DIR | --video FILE) (--depth-mm Z | --depth-map MAP.npy)
+                        --out (FOLDER | VIDEO.avi | VIDEO.mp4) [--calib calib.npz]
 
 The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
 projection ``I*``: either a camera capture already warped into projector space (``--capture``,
@@ -16,11 +18,21 @@ With ``--calib`` (from ``edofproj procams calibrate``) the capture is a *raw* ca
 rectified into projector output light per projector pixel, and the output is the projector
 *input* ``u = f^-1(x)`` that emits the light ``x`` (the inverse of the measured response).
 The target is then projector output light (full primary = 1); see docs/procams.md.
+
+With ``--images DIR`` or ``--video FILE`` a whole show is compensated offline for a flat screen at
+``--depth-mm`` or a screen of per-pixel depth ``--depth-map`` (``edofproj render``'s depth
+layers), in batches of ``--batch`` frames, on the network path of ``edofproj live``
+(:mod:`edofproj.application.offline`): the output is a folder of PNG images or a video (by the
+extension of ``--out``: .avi, .mp4), with ``--calib`` the projector input at the projector's size.
+A progress bar runs while it works; frames per second are printed at the end. A video that
+cannot be decoded to its end or an output that cannot be written completely ends in one line,
+and no partial output is left.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from ..errors import EdofprojError
 from ._common import RUN_HELP_SUFFIX, run_directory
@@ -33,7 +45,10 @@ def register(subparsers) -> None:
         description=__doc__.split("\n")[0],
     )
     p.add_argument("run", metavar="RUN", type=run_directory, help="trained run directory" + RUN_HELP_SUFFIX)
-    p.add_argument("--image", required=True, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
+    targets = p.add_mutually_exclusive_group(required=True)
+    targets.add_argument("--image", default=None, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
+    targets.add_argument("--images", default=None, metavar="DIR", help="a folder of target images (with --depth-mm)")
+    targets.add_argument("--video", default=None, metavar="FILE", help="a target video (with --depth-mm)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument(
         "--capture",
@@ -47,13 +62,26 @@ def register(subparsers) -> None:
         default=None,
         help="simulate the capture on a flat screen at this depth (mm) with the run's DOE",
     )
+    source.add_argument(
+        "--depth-map",
+        default=None,
+        metavar="MAP.npy",
+        help="with --images/--video: simulate the capture on a screen of this per-pixel depth, a .npy float "
+        "array (H, W) in mm at the frames' size (NaN: nothing hit)",
+    )
     p.add_argument(
         "--calib",
         default=None,
         metavar="calib.npz",
-        help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response",
+        help="with --capture: the capture is a raw camera frame; rectify it and invert the projector's response; "
+        "with --images/--video: frames at the projector's size, output the projector input",
     )
-    p.add_argument("--out", required=True, metavar="PROJ", help="output image: the projector input")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="PROJ",
+        help="output image: the projector input; with --images/--video a folder or a video (.avi, .mp4)",
+    )
     p.add_argument(
         "--preview",
         default=None,
@@ -61,10 +89,21 @@ def register(subparsers) -> None:
         help="with --depth-mm: also write the simulated projection of the output",
     )
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the outputs")
+    p.add_argument("--batch", type=int, default=8, help="with --images/--video: frames per batch (8)")
+    p.add_argument(
+        "--fps", type=float, default=None, help="frame rate of a video output (default: the input video's, or 30)"
+    )
+    p.add_argument("--overwrite", action="store_true", help="with --images/--video: replace an existing output")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.images is not None or args.video is not None:
+        return run_batch(args)
+    if args.batch != 8 or args.fps is not None or args.overwrite:
+        raise EdofprojError("--batch, --fps and --overwrite go with --images or --video")
+    if args.depth_map is not None:
+        raise EdofprojError("--depth-map goes with --images or --video ('edofproj render --depth-map' for one image)")
     import torch
 
     from ..compensation.closed_loop import closed_loop, flat_screen
@@ -137,3 +176,86 @@ def _quality(shown, target) -> str:
     if min(target.shape[-2:]) >= gaussian_window().numel():
         text = f"SSIM {float(ssim(shown, target)[0]):.4f}, " + text
     return text
+
+
+def run_batch(args) -> int:
+    """``--images`` / ``--video``: the show compensated offline (module docstring)."""
+    import sys
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
+    from ..compensation.closed_loop import flat_screen
+    from ..evaluation.designs import OpticalDesign
+    from ..evaluation.pipeline import require_trained_run
+    from ..imaging.projection import projection_bytes
+    from ..limits import check_memory
+    from ..runs import load_run
+
+    if args.depth_mm is None and args.depth_map is None:  # the parser's group asks for one of them or --capture
+        raise EdofprojError(
+            "--images/--video need --depth-mm or --depth-map, the screen of the show (--capture is one frame)"
+        )
+    if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
+        raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
+    if args.preview is not None:
+        raise EdofprojError("--preview goes with --image")
+    if args.batch < 1:
+        raise EdofprojError(f"--batch {args.batch} must be >= 1")
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise EdofprojError(f"--fps {args.fps:g} must be > 0")
+    video_out = is_video_path(args.out)
+    if video_out and args.bits != 8:
+        raise EdofprojError(f"videos hold 8-bit frames, not --bits {args.bits} (write a folder for 16 bits)")
+    if not video_out and Path(args.out).suffix:
+        raise EdofprojError(
+            f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"
+        )
+    calibration = None
+    if args.calib is not None:
+        from ..procams.calibration import ProCamsCalibration
+
+        calibration = ProCamsCalibration.load(args.calib)
+    source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
+    trained = load_run(require_trained_run(args.run))
+    H, W = source.size_hw
+    design = OpticalDesign("run", "doe", trained.doe, trained.cfg)
+    if args.depth_map is not None:
+        from ..scenes.render import render_masked_depth_map
+        from .render import load_depth_map_m
+
+        depth_map_m = load_depth_map_m(args.depth_map, (H, W))
+        layers = int(trained.cfg.imaging.depth_layers)
+
+        def forward(images):
+            return render_masked_depth_map(images, depth_map_m, design.psf, layers)
+
+        screen = f"depth map {np.nanmin(depth_map_m) * 1e3:.0f}-{np.nanmax(depth_map_m) * 1e3:.0f} mm"
+    else:
+        layers = 1
+        forward = flat_screen(design.psf([args.depth_mm * 1e-3]))
+        screen = f"flat screen at {args.depth_mm:g} mm"
+    check_memory(
+        args.batch * projection_bytes(H, W, trained.cfg.psf.window, layers),
+        f"compensating batches of {args.batch} frames of {W}x{H}",
+        "lower --batch",
+    )
+    sink = (
+        VideoSink(args.out, args.fps or source.fps, source.size_hw, overwrite=args.overwrite)
+        if video_out
+        else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
+    )
+    to_input = calibration.inverse_table.apply if calibration is not None else None
+    count = source.count or "unknown number of"
+    print(f"compensating the {source.description}: {count} frames of {W}x{H}, for a {screen}")
+    with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
+        summary = compensate_frames(
+            trained.net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
+        )
+    output = "projector input (measured response inverted)" if calibration is not None else "light"
+    print(
+        f"wrote {args.out}: {summary.frames} frames ({output}) in {summary.wall_s:.1f} s, {summary.fps:.2f} frames/s "
+        f"(network {summary.network_ms_per_frame():.1f} ms per frame in batches of {args.batch})"
+    )
+    return 0

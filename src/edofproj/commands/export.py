@@ -8,17 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..compensation.export import (
-    DEFAULT_FILE_NAMES,
-    EXPORT_FORMATS,
-    ONNX_OPSET,
-    export_network,
-    fixed_size_onnx,
-    require_onnx,
-    verification_sizes,
-)
 from ..errors import EdofprojError
 from ._common import RUN_HELP_SUFFIX, run_directory
+
+EXPORT_FORMATS = ("onnx", "torchscript")
+"""= ``compensation.export.EXPORT_FORMATS`` (tests/test_cli_help.py checks): not imported, so that
+``edofproj export --help`` does not load torch."""
 
 
 def register(subparsers) -> None:
@@ -36,6 +31,14 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..builtin_runs import require_output_outside
+    from ..compensation.export import (
+        DEFAULT_FILE_NAMES,
+        ONNX_OPSET,
+        export_network,
+        fixed_size_onnx,
+        require_onnx,
+        verification_sizes,
+    )
     from ..runs import last_checkpoint_path, load_run
 
     run_dir = Path(args.run)

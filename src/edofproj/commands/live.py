@@ -4,15 +4,21 @@
 
 For each frame: show the target ``I``, capture ``I*``, rectify it into projector space,
 compensate with the run's network, show ``Î`` (through the inverse of the measured projector
-response). Prints frames per second and the latency of each stage; ``--frames N`` stops
-after N frames, Ctrl-C stops cleanly. ``--camera virtual:CAPTURES --display memory`` runs it
-headless through the virtual ProCams of a 'procams simulate' folder.
+response). Display, camera and network run in their own threads, so a frame is captured while
+the previous one is computed. Prints each frame, then the throughput (frames/s), the latency
+(target taken -> compensated frame shown; median and 99th percentile) and each stage's median
+and 99th percentile. A camera that returns no frame for ``--stall-timeout-s`` is reported in one
+line while the last compensated frame stays on screen. ``--frames N`` stops after N frames,
+Ctrl-C stops cleanly. ``--camera virtual:CAPTURES --display memory`` runs it headless through
+the virtual ProCams of a 'procams simulate' folder.
 """
 
 from __future__ import annotations
 
 from ..errors import EdofprojError
 from ._common import RUN_HELP_SUFFIX, run_directory
+
+DEFAULT_STALL_TIMEOUT_S = 2.0  # application.live.DEFAULT_STALL_TIMEOUT_S, not imported: --help stays fast
 
 
 def register(subparsers) -> None:
@@ -32,6 +38,12 @@ def register(subparsers) -> None:
     source.add_argument("--video", default=None, help="a video file, frame by frame")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames (default: Ctrl-C)")
     p.add_argument(
+        "--stall-timeout-s",
+        type=float,
+        default=DEFAULT_STALL_TIMEOUT_S,
+        help=f"report a camera that returns no frame for this long, s ({DEFAULT_STALL_TIMEOUT_S:g})",
+    )
+    p.add_argument(
         "--measure",
         action="store_true",
         help="also capture each compensated projection and print SSIM of both captures against the target",
@@ -42,7 +54,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from ..application.live import STAGES, frame_source, run_live
+    from ..application.live import frame_source, run_live
     from ..evaluation.pipeline import require_trained_run
     from ..procams.calibration import ProCamsCalibration
     from ..runs import load_run
@@ -56,7 +68,7 @@ def run(args) -> int:
     display, camera, grab = open_devices(args)
 
     def report(frame) -> None:
-        line = f"frame {frame.name}: {1e3 * sum(frame.stage_s[s] for s in STAGES):.0f} ms"
+        line = f"frame {frame.name}: latency {1e3 * frame.latency_s:.0f} ms"
         if frame.ssim_compensated is not None:
             line += f", SSIM uncompensated {frame.ssim_uncompensated:.4f} -> compensated {frame.ssim_compensated:.4f}"
         print(line)
@@ -74,14 +86,23 @@ def run(args) -> int:
             frames=args.frames,
             measure=args.measure,
             on_frame=report,
+            stall_timeout_s=args.stall_timeout_s,
+            report=lambda line: print(f"live: {line}", flush=True),
         )
     if summary.interrupted:
         print("interrupted")
     if not summary.frames:
         print("no frame completed")
         return 0
-    stages = ", ".join(f"{stage} {ms:.1f}" for stage, ms in summary.mean_stage_ms().items())
-    print(f"{summary.frames} frames, {summary.fps:.2f} frames/s; mean ms per stage: {stages}")
+    latency_median, latency_p99 = summary.latency_ms()
+    print(
+        f"{summary.frames} frames, throughput {summary.fps:.2f} frames/s, latency median {latency_median:.0f} ms "
+        f"(99th percentile {latency_p99:.0f} ms)" + (f", camera stalls {summary.stalls}" if summary.stalls else "")
+    )
+    stats = summary.stage_ms()
+    print(
+        "ms per stage, median / 99th percentile: " + ", ".join(f"{s} {m:.1f} / {p:.1f}" for s, (m, p) in stats.items())
+    )
     if summary.ssim_compensated:
         print(
             f"mean SSIM against the targets: uncompensated {np.mean(summary.ssim_uncompensated):.4f}, "

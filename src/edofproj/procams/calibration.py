@@ -27,7 +27,8 @@ from ..errors import EdofprojError
 from ..fileio import read_arrays, save_npz_atomic
 from ..limits import check_memory
 from .capture_io import read_captures, saturated_fraction
-from .color import RESPONSE_LUT_SIZE, ColorCalibration, ResponseLUT, calibrate_color
+from .color import RESPONSE_LUT_SIZE, ColorCalibration, calibrate_color
+from .frame_maps import InverseTable, Rectifier, inverse_response_table
 from .geometry import CameraMap, calibrate_geometry
 from .patterns import PRIMARY_COLORS, PatternEntry, PatternManifest
 
@@ -55,7 +56,8 @@ class ProCamsCalibration:
     color: ColorCalibration
     black_image: np.ndarray
     response_lut_size: int = field(default=RESPONSE_LUT_SIZE, compare=False)
-    _inverse_lut: ResponseLUT | None = field(default=None, init=False, repr=False, compare=False)
+    _inverse_table: InverseTable | None = field(default=None, init=False, repr=False, compare=False)
+    _rectifier: Rectifier | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def projector_hw(self) -> tuple[int, int]:
@@ -73,13 +75,26 @@ class ProCamsCalibration:
                 f"{what} is {height_width[1]}x{height_width[0]} but the calibration was made for a {W}x{H} projector"
             )
 
+    @property
+    def rectifier(self) -> Rectifier:
+        """The per-frame rectification (:class:`.frame_maps.Rectifier`), built on first use."""
+        if self._rectifier is None:
+            self._rectifier = Rectifier(self.camera_map, self.color, self.black_image)
+        return self._rectifier
+
+    @property
+    def inverse_table(self) -> InverseTable:
+        """The inverse response as a table (:func:`.frame_maps.inverse_response_table`: per channel
+        where the response is separable, else trilinear on ``response_lut_size^3``), built on first use."""
+        if self._inverse_table is None:
+            self._inverse_table = inverse_response_table(self.color, self.response_lut_size)
+        return self._inverse_table
+
     def to_projector_input(self, light: torch.Tensor) -> torch.Tensor:
         """Projector output light ``(B, 3, H, W)`` (clamped to ``[0, 1]``) -> the projector input
-        that emits it, ``u = f^-1(o)`` (:meth:`ColorCalibration.inverse_response_lut` with
-        ``response_lut_size`` points per channel, built on first use)."""
-        if self._inverse_lut is None:
-            self._inverse_lut = self.color.inverse_response_lut(self.response_lut_size)
-        return self._inverse_lut(light)
+        that emits it, ``u = f^-1(o)`` (:attr:`inverse_table`)."""
+        hwc = light.detach().float().clamp(0.0, 1.0).permute(0, 2, 3, 1).contiguous()
+        return self.inverse_table.apply(hwc).permute(0, 3, 1, 2).to(light.dtype)
 
     def save(self, path: str | Path) -> None:
         cm, color = self.camera_map, self.color

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import EdofprojError
-from ..capture_io import saturated_fraction
+from ..capture_io import SATURATION_LEVEL, saturated_fraction
 
 SATURATION_WARN_FRACTION = 1e-3
 """Warn when more than this fraction of a frame's pixels is saturated."""
@@ -131,6 +131,13 @@ def grab_frame(
     """
     if settings.settle_s > 0:
         time.sleep(settings.settle_s)
+    if settings.average == 1:  # the live loop's case: the frame itself, no copy
+        frame = np.asarray(camera.grab(), dtype=np.float32)
+        if frame.ndim != 3 or frame.shape[-1] != 3:
+            raise EdofprojError(f"camera '{camera.spec}' returned a frame of shape {frame.shape}, not (H, W, 3)")
+        if warn:
+            _warn_if_saturated(frame, what)
+        return frame
     total: np.ndarray | None = None
     saturated = 0.0
     for _ in range(settings.average):
@@ -145,10 +152,22 @@ def grab_frame(
             total += frame
         saturated = max(saturated, saturated_fraction(frame))
     if warn and saturated > SATURATION_WARN_FRACTION:
-        warnings.warn(
-            f"{what}: {100 * saturated:.1f} % of the pixels are saturated (light there is not measured; "
-            "lower the exposure)",
-            stacklevel=2,
-        )
+        _saturation_warning(what, saturated)
     assert total is not None
     return (total / settings.average).astype(np.float32)
+
+
+def _saturation_warning(what: str, fraction: float) -> None:
+    warnings.warn(
+        f"{what}: {100 * fraction:.1f} % of the pixels are saturated (light there is not measured; lower the exposure)",
+        stacklevel=3,
+    )
+
+
+def _warn_if_saturated(frame: np.ndarray, what: str) -> None:
+    """The saturation warning of :func:`grab_frame` for one frame; the fraction is counted only when
+    the frame's maximum reaches the top value (one reduction per frame, no allocation, otherwise)."""
+    if frame.size and frame.max() >= SATURATION_LEVEL:
+        fraction = saturated_fraction(frame)
+        if fraction > SATURATION_WARN_FRACTION:
+            _saturation_warning(what, fraction)

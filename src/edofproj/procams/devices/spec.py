@@ -7,14 +7,12 @@ A spec is ``KIND`` or ``KIND:ARGUMENT``; everything after the first colon is the
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from ...errors import EdofprojError
-from ..virtual import VirtualProCams
-from .base import Camera, Display
-from .cameras import CommandCamera, FolderCamera, OpenCVCamera, VirtualCamera
-from .displays import FileDisplay, MemoryDisplay
-from .window import PygameDisplay
+
+if TYPE_CHECKING:
+    from .base import Camera, Display
 
 
 class DeviceKind(NamedTuple):
@@ -52,6 +50,10 @@ def _split(spec: str, role: str) -> tuple[str, str]:
 
 def open_display(spec: str) -> Display:
     """The display named by ``spec`` (:data:`DEVICE_TABLE`)."""
+    # start-up: the backends load here, so that '--help' reads DEVICE_TABLE without NumPy's users
+    from .displays import FileDisplay, MemoryDisplay
+    from .window import PygameDisplay
+
     kind, argument = _split(spec, "display")
     if kind == "memory":
         return MemoryDisplay()
@@ -69,6 +71,10 @@ def open_display(spec: str) -> Display:
 
 def open_camera(spec: str, display: Display | None = None, exposure: float | None = None, seed: int = 0) -> Camera:
     """The camera named by ``spec``; ``display`` is what a virtual camera looks at."""
+    # start-up: the backends (OpenCV, the virtual ProCams) load here, not with DEVICE_TABLE
+    from ..virtual import VirtualProCams
+    from .cameras import CommandCamera, FolderCamera, OpenCVCamera, VirtualCamera
+
     kind, argument = _split(spec, "camera")
     if exposure is not None and kind != "opencv":
         raise EdofprojError(f"--exposure is set through OpenCV only; set it on the camera itself for '{kind}:'")

@@ -1,0 +1,110 @@
+"""The per-frame tables of a calibration (procams/frame_maps.py) against closed forms and the
+direct computations they replace."""
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.errors import EdofprojError
+from edofproj.procams.color import ColorCalibration, ResponseLUT
+from edofproj.procams.frame_maps import (
+    ChannelInverseTable,
+    Rectifier,
+    TrilinearInverseTable,
+    inverse_response_table,
+    separable_response,
+)
+from edofproj.procams.geometry import CameraMap
+
+LEVELS = np.round(np.linspace(0, 255, 6)) / 255
+
+
+def grid_inputs(levels=LEVELS):
+    return np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), -1).reshape(-1, 3)
+
+
+def gamma_color(gammas=(2.2, 2.2, 2.2)):
+    inputs = grid_inputs()
+    return ColorCalibration(np.eye(3), np.zeros(3), inputs, inputs ** np.asarray(gammas))
+
+
+def test_separable_response_is_found_and_cross_talk_is_not():
+    separable, spread = separable_response(gamma_color((2.2, 1.8, 2.4)))
+    assert separable and spread < 1e-12
+    inputs = grid_inputs()
+    crossed = inputs**2.2 + 0.05 * inputs[:, [1, 2, 0]]  # each channel leaks 5 % of the next one's input
+    assert not separable_response(ColorCalibration(np.eye(3), np.zeros(3), inputs, crossed))[0]
+    scattered = np.random.default_rng(0).uniform(size=(40, 3))  # not a grid: nothing to group
+    assert not separable_response(ColorCalibration(np.eye(3), np.zeros(3), scattered, scattered**2.2))[0]
+
+
+def test_channel_table_inverts_gamma_curves_per_channel():
+    """Closed form: the inverse of o = u^gamma is u = o^(1/gamma), channel by channel."""
+    gammas = np.array([2.2, 1.8, 2.4])
+    table = ChannelInverseTable.from_color(gamma_color(tuple(gammas)))
+    light = torch.rand(50, 60, 3, generator=torch.Generator().manual_seed(1))
+    inputs = table.apply(light).numpy()
+    error = np.abs(inputs - light.numpy() ** (1 / gammas))
+    assert error.mean() < 0.002  # a monotone cubic through 6 levels; the local linear 3-D table: 0.03
+    bright = light.numpy() > 0.05  # away from black, where o^(1/gamma) is steepest
+    assert error[bright].max() < 0.01
+    # the ends and the clamp: o <= 0 -> 0 and o >= 1 -> 1, NaN refused
+    ends = table.apply(torch.tensor([[[-0.5, 0.0, 1.0], [1.0, 2.0, 0.0]]])).numpy()
+    np.testing.assert_allclose(ends, [[[0, 0, 1], [1, 1, 0]]], atol=1e-6)
+    with pytest.raises(EdofprojError, match="NaN"):
+        table.apply(torch.full((2, 2, 3), float("nan")))
+
+
+def test_channel_table_writes_into_the_buffer_given():
+    table = ChannelInverseTable.from_color(gamma_color())
+    light = torch.rand(4, 5, 3)
+    out = torch.empty(4, 5, 3)
+    assert table.apply(light, out=out) is out
+    torch.testing.assert_close(out, table.apply(light))
+    strided = light.permute(2, 0, 1).contiguous().permute(1, 2, 0)  # the network's (C, H, W) output seen as HWC
+    torch.testing.assert_close(table.apply(strided), table.apply(light))
+
+
+def test_trilinear_table_agrees_with_grid_sample():
+    """The gather-based trilinear reading equals ResponseLUT's grid_sample on the same table, and
+    is exact for an affine map (which also pins the axis order)."""
+    rng = np.random.default_rng(2)
+    A = np.array([[0.9, 0.2, -0.1], [0.05, 0.7, 0.3], [-0.2, 0.1, 0.6]])
+    affine = ResponseLUT.from_function(lambda v: v @ A.T + 0.01, size=9)
+    light = rng.uniform(size=(7, 9, 3)).astype(np.float32)
+    np.testing.assert_allclose(
+        TrilinearInverseTable(affine.table).apply(torch.from_numpy(light)).numpy(), light @ A.T + 0.01, atol=1e-5
+    )
+    curved = ResponseLUT(rng.uniform(size=(5, 5, 5, 3)))
+    reference = curved(torch.from_numpy(light).permute(2, 0, 1)[None])[0].permute(1, 2, 0)
+    torch.testing.assert_close(TrilinearInverseTable(curved.table).apply(torch.from_numpy(light)), reference)
+
+
+def test_inverse_response_table_chooses_by_separability():
+    assert isinstance(inverse_response_table(gamma_color(), 9), ChannelInverseTable)
+    inputs = grid_inputs(np.linspace(0, 1, 3))
+    crossed = ColorCalibration(np.eye(3), np.zeros(3), inputs, inputs**2.2 + 0.05 * inputs[:, [1, 2, 0]])
+    assert isinstance(inverse_response_table(crossed, 9), TrilinearInverseTable)
+
+
+def test_rectifier_is_the_direct_rectification():
+    """Folding the black image and the unmixing into one offset and one 3x3 transform gives
+    o = M^-1 (c(q(x)) - c_black(q(x))) as computed directly (float32 rounding apart)."""
+    rng = np.random.default_rng(3)
+    H, W, Hc, Wc = 12, 16, 30, 40
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    camera_map = CameraMap(
+        map_x=1.9 * x + 0.3 * y + 2.2, map_y=1.7 * y + 0.1 * x + 1.6,
+        homography=np.eye(3), dots_proj=np.zeros((0, 2)), dots_cam=np.zeros((0, 2)), camera_hw=(Hc, Wc),
+    )  # fmt: skip
+    mixing = np.array([[0.8, 0.1, 0.05], [0.1, 0.7, 0.1], [0.02, 0.15, 0.9]])
+    color = ColorCalibration(mixing, np.full(3, 0.02), grid_inputs(), grid_inputs() ** 2.2)
+    black = rng.uniform(0.01, 0.05, (H, W, 3))
+    frame = rng.uniform(size=(Hc, Wc, 3)).astype(np.float32)
+    direct = color.camera_to_output(camera_map.warp(frame), black)
+    rectifier = Rectifier(camera_map, color, black)
+    out = np.empty((H, W, 3), np.float32)
+    assert rectifier(frame, out=out) is out
+    np.testing.assert_allclose(out, direct, atol=1e-5)
+    with pytest.raises(EdofprojError, match="is 16x12 pixels, the calibrated camera 40x30"):
+        rectifier(frame[:12, :16])
