@@ -61,7 +61,7 @@ from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..limits import check_memory
 from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
-from .pixel_integration import hat_pixel_weights
+from .pixel_integration import cubic_pixel_weights
 from .sampling import MAX_PHASE_STEP_RAD, check_pupil_sampling
 
 MAX_DEFOCUS_STEP_RAD = MAX_PHASE_STEP_RAD
@@ -181,8 +181,9 @@ def normalized_radius_grid(
     at nu = 1.22; the intensity oscillates with period >= 1 in nu): 1/64 up to ``fine_until``
     (the centre pixel, where the in-focus core sits), 1/4 beyond; from 0 to at least ``nu_max``.
 
-    Measured against the closed-form Airy pattern integrated over the centre pixel
-    (D = 7 mm, 550 nm, T W = 1200): error 1.0e-4 of the pupil energy (1/32: 4.0e-4)."""
+    Measured against the closed-form Airy pattern integrated over the pixels of a 7 x 7 window
+    (D = 7 mm, 550 nm, T W = 1200) with the cubic interpolation between samples: centre pixel
+    within 2e-8 of the pupil energy, 5.9e-6 L1 over the window (piecewise linear: 1.0e-4, 1.5e-4)."""
     near = np.arange(0.0, min(fine_until, nu_max) + fine_step / 2, fine_step)
     far = np.arange(near[-1] + coarse_step, nu_max + coarse_step, coarse_step) if nu_max > near[-1] else np.empty(0)
     return np.concatenate([near, far])
@@ -194,8 +195,8 @@ class RadialPSFEngine:
     Radii are sampled in diffraction units nu = rho_px D / (lambda T W), in which the ring
     kernel is the same for every wavelength (f = nu / D): one kernel (three ring moments)
     is built once and shared. Each wavelength has its own pixel weights (its nu grid maps to
-    different pixel radii), with the intensity taken piecewise linear between samples and
-    integrated exactly over each pixel square (:func:`.pixel_integration.hat_pixel_weights`).
+    different pixel radii), with the intensity interpolated by cubics between samples and
+    integrated over each pixel square (:func:`.pixel_integration.cubic_pixel_weights`).
     A call is two batched real matrix products for the field and one for the pixels,
     differentiable with respect to the DOE heights.
     """
@@ -238,7 +239,7 @@ class RadialPSFEngine:
         )  # the tables are built on the host (NumPy) first
         weights = []
         for scale in px_per_nu:
-            w, index = hat_pixel_weights(self.nu * scale, self.window)
+            w, index = cubic_pixel_weights(self.nu * scale, self.window)
             weights.append(w.T)
         self.pixel_weights = torch.as_tensor(np.stack(weights), dtype=dtype, device=self.device)  # (L, n_nu, n_px)
         self.pixel_index = torch.as_tensor(index.reshape(-1), device=self.device)
