@@ -361,25 +361,26 @@ class RadialPSFEngine:
         self.check_sampling(doe, depths_m)
         phase, alpha = self.pupil_phase(doe, depths_m)
         centres, kernel = self.rings_for(doe)
-        b_re, b_im, offset = self.defocus_coefficients(alpha, centres)  # (L, Z, 3 M) each: b0 | b1 | b2
+        b_re, b_im, offset = self.defocus_coefficients(alpha, centres)  # (L, Z, 3, M) each: b0, b1, b2
         stacked = self._stacked_kernel(kernel)  # (3 M, n_nu): K0 over K1 over K2
         phase = phase + offset
-        cos, sin = torch.cos(phase).to(self.dtype), torch.sin(phase).to(self.dtype)
-        cos3, sin3 = cos.repeat(1, 1, 3), sin.repeat(1, 1, 3)
+        cos = torch.cos(phase).to(self.dtype).unsqueeze(-2)  # (L, Z, 1, M) against b (L, Z, 3, M)
+        sin = torch.sin(phase).to(self.dtype).unsqueeze(-2)
+        shape = b_re.shape[:-2] + (b_re.shape[-2] * b_re.shape[-1],)
         # G = sum_n (g b_n) K_n with g = cos + i sin
-        re = torch.matmul(cos3 * b_re - sin3 * b_im, stacked)
-        im = torch.matmul(sin3 * b_re + cos3 * b_im, stacked)
+        re = torch.matmul((cos * b_re - sin * b_im).reshape(shape), stacked)
+        im = torch.matmul((sin * b_re + cos * b_im).reshape(shape), stacked)
         return (re * re + im * im) * self.intensity_norm
 
     def defocus_coefficients(
         self, alpha: torch.Tensor, centres_m: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Real and imaginary parts of ``b0 | b1 | b2`` (L, Z, 3 M) with exp(i alpha s) ~ exp(i alpha c) (b0 + b1 s
+        """Real and imaginary parts of ``b0, b1, b2`` (L, Z, 3, M) with exp(i alpha s) ~ exp(i alpha c) (b0 + b1 s
         + b2 s^2) on each ring (module docstring), for ``alpha`` (L, Z, 1) and the rings of ``centres_m`` (M,),
         and the phase ``alpha c`` (L, Z, M) of the factor in front (c: the centre of the ring's s-interval).
 
         The spherical Bessel functions come from their power series, j_n(x) = x^n sum_k (-x^2/2)^k /
-        (k! (2n + 2k + 1)!!) (8 terms: below 1e-15 for |x| <= 2; the sampling check keeps |omega| <= pi/4)."""
+        (k! (2n + 2k + 1)!!) (7 terms: below 1e-13 for |x| <= pi/4, which the sampling check keeps)."""
         edges = torch.as_tensor(self._edges_for(centres_m), dtype=torch.float64, device=self.device)
         r_m = centres_m.to(torch.float64)
         s_lo, s_hi = edges[:-1] ** 2 - r_m**2, edges[1:] ** 2 - r_m**2
@@ -391,7 +392,7 @@ class RadialPSFEngine:
         for n in range(3):
             term = torch.ones_like(x) / math.prod(range(1, 2 * n + 2, 2))
             total = term
-            for k in range(1, 8):
+            for k in range(1, 7):
                 term = term * y / (k * (2 * n + 2 * k + 1))
                 total = total + term
             j.append(total * x**n)
@@ -402,8 +403,8 @@ class RadialPSFEngine:
         b0 = (j0_ - 2.5 * j2_ * (3 * ch**2 - 1), -3 * j1_ * ch)
         b1 = (15 * j2_ * ch / h, 3 * j1_ / h)
         b2 = (-7.5 * j2_ / h**2, torch.zeros_like(x))
-        b_re = torch.cat([b0[0], b1[0], b2[0].expand_as(b0[0])], dim=-1).to(self.dtype)
-        b_im = torch.cat([b0[1], b1[1], b2[1].expand_as(b0[0])], dim=-1).to(self.dtype)
+        b_re = torch.stack([b0[0], b1[0], b2[0].expand_as(b0[0])], dim=-2).to(self.dtype)
+        b_im = torch.stack([b0[1], b1[1], b2[1].expand_as(b0[0])], dim=-2).to(self.dtype)
         return b_re, b_im, a * c
 
     def _edges_for(self, centres: torch.Tensor) -> np.ndarray:
