@@ -73,7 +73,7 @@ def test_a_kinoform_with_unequal_rings_matches_an_independent_hankel_integration
     doe = TabulatedRadialDOE(edges, height, R, DESIGN_LAMBDA, LEVELS)
     psf = RadialPSFEngine(GEO, [lam], 11, 1024).psf(doe, [depth_m])[0, 0].numpy()
     exact = reference_psf(edges, height, lam, depth_m, 11)
-    assert np.abs(psf - exact).sum() < 1e-3  # 0.1 % of the pupil energy (resampled rings: 0.3-0.75 %)
+    assert np.abs(psf - exact).sum() < 2e-4  # resampled rings: 0.3-0.75 %; the goal: 0.1 %
     assert psf.max() / exact.max() == pytest.approx(1.0, abs=1e-3)
 
 

@@ -55,15 +55,20 @@ from .radial_engine import (
 from .sampling import check_pupil_sampling
 
 
-def fourier_engine_bytes(pupil_samples: int, window: int, n_wavelengths: int, depth_chunk: int, n_depths: int) -> int:
+def fourier_engine_bytes(
+    pupil_samples: int, window: int, n_wavelengths: int, depth_chunk: int, n_depths: int, recording: bool = False
+) -> int:
     """Bytes the 2-D engine holds: about eight ``M x M`` float64 grids (coordinates, ``r^2``, the
     aperture, heights, phases), per chunk of depths the ``N x N`` complex128 FFT (``N ~ 2M``) three
-    times over (field, spectrum, shifted copy), and the ``K x K`` PSFs of all depths (x2)."""
+    times over (field, spectrum, intensity), and the ``K x K`` PSFs of all depths (x2). While
+    gradients are recorded (``recording``), autograd keeps every depth's and wavelength's spectrum
+    (the exact pixel integrals depend on all of it) and pupil field for the backward pass."""
     m = int(pupil_samples)
     n = 2 * m
     grids = 8 * 8 * m * m
     fft = 16 * 3 * max(min(depth_chunk, n_depths), 1) * n * n
-    return grids + fft + 8 * 2 * n_depths * n_wavelengths * window * window
+    kept = 16 * n_depths * n_wavelengths * (n * n + m * m) if recording else 0
+    return grids + fft + kept + 8 * 2 * n_depths * n_wavelengths * window * window
 
 
 class FourierPSFEngine:
@@ -179,7 +184,16 @@ class FourierPSFEngine:
         warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
         self._check_sampling(doe, depths_m)
         check_memory(
-            fourier_engine_bytes(self.M, self.window, len(self.wavelengths_m), self.depth_chunk, len(depths_m)),
+            fourier_engine_bytes(
+                self.M,
+                self.window,
+                len(self.wavelengths_m),
+                self.depth_chunk,
+                len(depths_m),
+                recording=torch.is_grad_enabled()
+                and doe is not None
+                and any(p.requires_grad for p in doe.parameters()),
+            ),
             f"2-D PSFs at {len(depths_m)} depths (pupil_samples {self.M}, window {self.window} px)",
             "simulate fewer depths at once, or use fewer psf.pupil_samples",
             device=self.device,

@@ -93,6 +93,62 @@ def hat_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.n
     return weights, index
 
 
+def cubic_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights ``W`` (n_unique_pixels, n_rho) with ``E_p = sum_k W[p, k] I(rho_k)`` for the intensity
+    interpolated between the samples ``rho_px`` (increasing, from 0, at least 4) by cubics: on
+    [rho_k, rho_k+1] the Lagrange cubic through the samples k-1..k+2 (k..k+3 at the first interval,
+    the last four at the end).
+
+    With ``L_j`` the cubic's basis on an interval [a, b], integration by parts gives
+    ``int_a^b L_j dA_p = L_j(b) A_p(b) - L_j(a) A_p(a) - int_a^b L_j'(rho) A_p(rho) drho``; ``L_j(a)``,
+    ``L_j(b)`` are 0 or 1 (a and b are samples) and the last integral, of a quadratic times the smooth
+    ``A_p``, takes 3-point Gauss-Legendre (exact when ``A_p`` is a cubic). Only intervals that cross the
+    pixel's radial span are evaluated. Against the hat functions' piecewise-linear intensity
+    (:func:`hat_pixel_weights`) the PSF error from the radial sampling drops about eightfold.
+    """
+    offsets, index = octant_pixels(window)
+    rho = np.asarray(rho_px, dtype=float)
+    n = len(rho)
+    if n < 4:
+        return hat_pixel_weights(rho, window)
+    k = np.arange(n - 1)
+    first = np.clip(k - 1, 0, n - 4)
+    stencil = first[:, None] + np.arange(4)[None, :]  # (n_int, 4)
+    x = rho[stencil]  # stencil nodes
+    a_edge, b_edge = rho[:-1], rho[1:]
+    g, gw = np.polynomial.legendre.leggauss(3)
+    nodes = 0.5 * (a_edge + b_edge)[:, None] + 0.5 * (b_edge - a_edge)[:, None] * g[None, :]  # (n_int, 3)
+    gweights = 0.5 * (b_edge - a_edge)[:, None] * gw[None, :]
+    # L_j'(t) = sum_{m != j} 1 / (x_j - x_m) prod_{l != j, m} (t - x_l) / (x_j - x_l), at the Gauss nodes
+    deriv = np.zeros((n - 1, 4, 3))
+    for j in range(4):
+        for m in range(4):
+            if m == j:
+                continue
+            term = 1.0 / (x[:, j] - x[:, m])[:, None]
+            for q in range(4):
+                if q not in (j, m):
+                    term = term * (nodes - x[:, q : q + 1]) / (x[:, j] - x[:, q])[:, None]
+            deriv[:, j, :] += term
+    deriv *= gweights[:, None, :]
+    weights = np.zeros((len(offsets), n))
+    for p, (ia, ib) in enumerate(offsets):
+        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
+        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
+        far = np.hypot(x1, y1)
+        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
+        if sel.size == 0:
+            continue
+        lo, hi = sel[0], sel[-1] + 1  # the intervals crossing the span are contiguous
+        edge_area = disk_rectangle_area(rho[lo : hi + 1], x0, x1, y0, y1)  # A_p at the samples lo..hi
+        area_g = disk_rectangle_area(nodes[lo:hi], x0, x1, y0, y1)  # (n_sel, 3)
+        weights[p, lo + 1 : hi + 1] += edge_area[1:]
+        weights[p, lo:hi] -= edge_area[:-1]
+        inner = np.einsum("sjg,sg->sj", deriv[lo:hi], area_g)  # (n_sel, 4)
+        weights[p] -= np.bincount(stencil[lo:hi].ravel(), inner.ravel(), minlength=n)
+    return weights, index
+
+
 def annulus_pixel_weights(annulus_edges_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
     """Weights ``W`` (n_unique_pixels, n_annuli) with ``E_p = sum_k W[p, k] I_k``.
 

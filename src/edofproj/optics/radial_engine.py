@@ -55,13 +55,13 @@ import warnings
 
 import numpy as np
 import torch
-from scipy.special import j0, j1, spherical_jn
+from scipy.special import j0, j1
 
 from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..limits import check_memory
 from .aberrations import PupilAberration, pupil_phase_step_rad
 from .geometry import ProjectorGeometry
-from .pixel_integration import hat_pixel_weights
+from .pixel_integration import cubic_pixel_weights
 from .sampling import MAX_PHASE_STEP_RAD, check_pupil_sampling
 
 MAX_DEFOCUS_STEP_RAD = MAX_PHASE_STEP_RAD
@@ -181,8 +181,9 @@ def normalized_radius_grid(
     at nu = 1.22; the intensity oscillates with period >= 1 in nu): 1/64 up to ``fine_until``
     (the centre pixel, where the in-focus core sits), 1/4 beyond; from 0 to at least ``nu_max``.
 
-    Measured against the closed-form Airy pattern integrated over the centre pixel
-    (D = 7 mm, 550 nm, T W = 1200): error 1.0e-4 of the pupil energy (1/32: 4.0e-4)."""
+    Measured against the closed-form Airy pattern integrated over the pixels of a 7 x 7 window
+    (D = 7 mm, 550 nm, T W = 1200) with the cubic interpolation between samples: centre pixel
+    within 2e-8 of the pupil energy, 5.9e-6 L1 over the window (piecewise linear: 1.0e-4, 1.5e-4)."""
     near = np.arange(0.0, min(fine_until, nu_max) + fine_step / 2, fine_step)
     far = np.arange(near[-1] + coarse_step, nu_max + coarse_step, coarse_step) if nu_max > near[-1] else np.empty(0)
     return np.concatenate([near, far])
@@ -194,8 +195,8 @@ class RadialPSFEngine:
     Radii are sampled in diffraction units nu = rho_px D / (lambda T W), in which the ring
     kernel is the same for every wavelength (f = nu / D): one kernel (three ring moments)
     is built once and shared. Each wavelength has its own pixel weights (its nu grid maps to
-    different pixel radii), with the intensity taken piecewise linear between samples and
-    integrated exactly over each pixel square (:func:`.pixel_integration.hat_pixel_weights`).
+    different pixel radii), with the intensity interpolated by cubics between samples and
+    integrated over each pixel square (:func:`.pixel_integration.cubic_pixel_weights`).
     A call is two batched real matrix products for the field and one for the pixels,
     differentiable with respect to the DOE heights.
     """
@@ -238,7 +239,7 @@ class RadialPSFEngine:
         )  # the tables are built on the host (NumPy) first
         weights = []
         for scale in px_per_nu:
-            w, index = hat_pixel_weights(self.nu * scale, self.window)
+            w, index = cubic_pixel_weights(self.nu * scale, self.window)
             weights.append(w.T)
         self.pixel_weights = torch.as_tensor(np.stack(weights), dtype=dtype, device=self.device)  # (L, n_nu, n_px)
         self.pixel_index = torch.as_tensor(index.reshape(-1), device=self.device)
@@ -360,34 +361,52 @@ class RadialPSFEngine:
         self.check_sampling(doe, depths_m)
         phase, alpha = self.pupil_phase(doe, depths_m)
         centres, kernel = self.rings_for(doe)
-        b_re, b_im = self.defocus_coefficients(alpha, centres)  # (L, Z, 3 M) each: b0 | b1 | b2
+        b_re, b_im, offset = self.defocus_coefficients(alpha, centres)  # (L, Z, 3, M) each: b0, b1, b2
         stacked = self._stacked_kernel(kernel)  # (3 M, n_nu): K0 over K1 over K2
-        cos, sin = torch.cos(phase).to(self.dtype), torch.sin(phase).to(self.dtype)
-        cos3, sin3 = cos.repeat(1, 1, 3), sin.repeat(1, 1, 3)
+        phase = phase + offset
+        cos = torch.cos(phase).to(self.dtype).unsqueeze(-2)  # (L, Z, 1, M) against b (L, Z, 3, M)
+        sin = torch.sin(phase).to(self.dtype).unsqueeze(-2)
+        shape = b_re.shape[:-2] + (b_re.shape[-2] * b_re.shape[-1],)
         # G = sum_n (g b_n) K_n with g = cos + i sin
         # both parts in one product: the kernel (3 M x n_nu, tens of MB) is read once per pass
-        re, im = torch.matmul(torch.stack([cos3 * b_re - sin3 * b_im, sin3 * b_re + cos3 * b_im]), stacked)
+        parts = torch.stack([(cos * b_re - sin * b_im).reshape(shape), (sin * b_re + cos * b_im).reshape(shape)])
+        re, im = torch.matmul(parts, stacked)
         return (re * re + im * im) * self.intensity_norm
 
-    def defocus_coefficients(self, alpha: torch.Tensor, centres_m: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Real and imaginary parts of ``b0 | b1 | b2`` (L, Z, 3 M): exp(i alpha s) ~ b0 + b1 s + b2 s^2
-        on each ring (module docstring), for ``alpha`` (L, Z, 1) and the rings of ``centres_m`` (M,)."""
-        r_m = centres_m.detach().cpu().numpy()
-        edges = self._edges_for(centres_m)
+    def defocus_coefficients(
+        self, alpha: torch.Tensor, centres_m: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Real and imaginary parts of ``b0, b1, b2`` (L, Z, 3, M) with exp(i alpha s) ~ exp(i alpha c) (b0 + b1 s
+        + b2 s^2) on each ring (module docstring), for ``alpha`` (L, Z, 1) and the rings of ``centres_m`` (M,),
+        and the phase ``alpha c`` (L, Z, M) of the factor in front (c: the centre of the ring's s-interval).
+
+        The spherical Bessel functions come from their power series, j_n(x) = x^n sum_k (-x^2/2)^k /
+        (k! (2n + 2k + 1)!!) (7 terms: below 1e-13 for |x| <= pi/4, which the sampling check keeps)."""
+        edges = torch.as_tensor(self._edges_for(centres_m), dtype=torch.float64, device=self.device)
+        r_m = centres_m.to(torch.float64)
         s_lo, s_hi = edges[:-1] ** 2 - r_m**2, edges[1:] ** 2 - r_m**2
         c, h = 0.5 * (s_lo + s_hi), 0.5 * (s_hi - s_lo)  # (M,)
-        a = alpha.detach().cpu().numpy()  # (L, Z, 1)
-        omega = a * h
-        a0 = spherical_jn(0, omega)
-        a1 = 3j * spherical_jn(1, omega)
-        a2 = -5 * spherical_jn(2, omega)
-        e = np.exp(1j * a * c)
-        b2 = e * a2 * 1.5 / h**2
-        b1 = e * (a1 / h - 3 * a2 * c / h**2)
-        b0 = e * (a0 - a1 * c / h + a2 * (3 * c**2 / h**2 - 1) / 2)
-        b = np.concatenate([b0, b1, b2], axis=-1)
-        as_t = lambda x: torch.as_tensor(x, dtype=self.dtype, device=self.device)  # noqa: E731
-        return as_t(b.real), as_t(b.imag)
+        a = alpha.to(torch.float64)  # (L, Z, 1)
+        x = a * h
+        y = -0.5 * x * x
+        j = []
+        for n in range(3):
+            term = torch.ones_like(x) / math.prod(range(1, 2 * n + 2, 2))
+            total = term
+            for k in range(1, 7):
+                term = term * y / (k * (2 * n + 2 * k + 1))
+                total = total + term
+            j.append(total * x**n)
+        j0_, j1_, j2_ = j
+        ch = c / h
+        # a0 = j0, a1 = 3 i j1, a2 = -5 j2 in  b2 = 1.5 a2 / h^2,  b1 = a1 / h - 3 a2 c / h^2,
+        # b0 = a0 - a1 c / h + a2 (3 c^2 / h^2 - 1) / 2
+        b0 = (j0_ - 2.5 * j2_ * (3 * ch**2 - 1), -3 * j1_ * ch)
+        b1 = (15 * j2_ * ch / h, 3 * j1_ / h)
+        b2 = (-7.5 * j2_ / h**2, torch.zeros_like(x))
+        b_re = torch.stack([b0[0], b1[0], b2[0].expand_as(b0[0])], dim=-2).to(self.dtype)
+        b_im = torch.stack([b0[1], b1[1], b2[1].expand_as(b0[0])], dim=-2).to(self.dtype)
+        return b_re, b_im, a * c
 
     def _edges_for(self, centres: torch.Tensor) -> np.ndarray:
         """Ring edges (M + 1,) of the rings whose centres :meth:`rings_for` returned."""

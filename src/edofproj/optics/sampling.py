@@ -145,7 +145,7 @@ def check_pupil_sampling(pupil_samples: int, **requirements) -> None:
     reasons = {name: why for name, (_, why) in unmet.items()}
     target = int(pupil_samples)
     while unmet and target <= MAX_PUPIL_SAMPLES:
-        target = max(target, *(need for need, _ in unmet.values()))
+        target = max(target + 2, *(need for need, _ in unmet.values()))
         unmet = unmet_requirements(target, **requirements)
         for name, (_, why) in unmet.items():
             reasons.setdefault(name, why)

@@ -31,8 +31,8 @@ that integrate polynomials up to degree 2n - 1 exactly against it; :func:`gauss_
 samples on a common grid: each primary gets ``nodes_per_primary`` wavelengths of its own, and its
 channel weights only those. Measured for the reference design of the ``cpu`` preset
 (docs/experiments/2026-11-25-exact-pixels.md, worst of 43 depths): 2 nodes per primary (6
-wavelengths) are 0.16, 0.55, 0.41 % L1 from the 1 nm integration in R, G, B, where one sample near
-each peak (460, 540, 620 nm) is off by several percent in green. The PSFs vary with wavelength on periods of 17-33 nm, comparable to the
+wavelengths) are 0.17, 0.57, 0.42 % L1 from the 1 nm integration in R, G, B, where one sample near
+each peak (460, 540, 620 nm) was 5.6 % off in green. The PSFs vary with wavelength on periods of 17-33 nm, comparable to the
 primaries' widths, so neither rule reaches 0.1 % with fewer than about 9 wavelengths. A
 configuration that accepts a known error states it (``stated_l1_error``) and is not warned about.
 
