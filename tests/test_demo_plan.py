@@ -41,19 +41,39 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
     assert all(job.required for job in _jobs(tmp_path, retrain_baselines=True))
 
 
-def test_a_skipped_baseline_is_replaced_by_its_shipped_run(tmp_path, monkeypatch):
-    # the mechanism, with the shipped reference model standing for a shipped cubic+net run
-    monkeypatch.setitem(demo.BUILTIN_BASELINES, "cubic+net", "cpu-doe-net")
+def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path):
+    jobs = _jobs(tmp_path)
+    by_method = {job.method: job for job in jobs}
+    for method in ("axicon+net", "cubic+net", "lens+onlineprodeb"):
+        by_method[method].status = "skipped"
+        by_method[method].note = "not trained: predicted 5:00 (min:s) would end after the time budget"
+    demo.use_builtin_baselines(jobs, ["evaluation.depths_mm=[300,800]"], "cpu")
+    for method in ("cubic+net", "lens+onlineprodeb"):  # shipped, and trained with the cpu preset as it is now
+        job = by_method[method]
+        assert job.status == "built-in", job.note
+        assert f"builtin:{demo.BUILTIN_BASELINES[method]}" in job.note and "--retrain-baselines" in job.note
+        assert load_run(job.run_dir).step == load_config("cpu").train.steps
+        assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
+    axicon = by_method["axicon+net"]
+    assert axicon.status == "skipped" and not Path(axicon.run_dir).exists()  # nothing shipped for it
+
+
+def test_a_shipped_run_of_another_recipe_is_not_used(tmp_path, monkeypatch):
+    monkeypatch.setitem(demo.BUILTIN_BASELINES, "cubic+net", "cpu-doe-net")  # a doe+net run, not a cubic one
     jobs = _jobs(tmp_path)
     cubic = next(job for job in jobs if job.method == "cubic+net")
-    axicon = next(job for job in jobs if job.method == "axicon+net")
-    for job in (cubic, axicon):
-        job.status, job.note = "skipped", "not trained: predicted 5:00 (min:s) would end after the time budget"
-    demo.use_builtin_baselines(jobs, ["evaluation.depths_mm=[300,800]"])
-    assert cubic.status == "built-in" and "builtin:cpu-doe-net" in cubic.note and "--retrain-baselines" in cubic.note
-    assert load_run(cubic.run_dir).step == 10000
-    assert load_run(cubic.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
-    assert axicon.status == "skipped" and not Path(axicon.run_dir).exists()  # nothing shipped for it
+    cubic.status, cubic.note = "skipped", "not trained: predicted 5:00 (min:s) would end after the time budget"
+    demo.use_builtin_baselines(jobs, [], "cpu")
+    assert cubic.status == "skipped"
+    assert "builtin:cpu-doe-net was trained with another recipe: doe.kind='mlp' (the demo: 'cubic')" in cubic.note
+    assert not Path(cubic.run_dir).exists()
+
+
+def test_recipe_difference_ignores_bookkeeping_and_names_the_first_real_difference():
+    a = load_config("cpu", ["train.checkpoint_every=7", "train.threads=1", "evaluation.depths_mm=[300]"])
+    assert demo.recipe_difference(a, load_config("cpu")) is None
+    b = load_config("cpu", ["train.lr_net=0.5"])
+    assert demo.recipe_difference(b, load_config("cpu")) == "train.lr_net=0.5 (the demo: 0.001)"
 
 
 def test_every_help_text_states_the_same_durations():
@@ -76,11 +96,3 @@ def test_every_help_text_states_the_same_durations():
 def test_the_report_budget_is_the_stated_one(settings):
     minutes = FULL_BUDGET_MIN if settings is demo.FULL else demo.QUICK_BUDGET_MIN
     assert settings.budget_s == minutes * 60
-
-
-def test_the_shipped_cubic_baseline_is_a_trained_run_of_the_demo_recipe():
-    from edofproj.builtin_runs import builtin_run_dir
-
-    run = load_run(builtin_run_dir(demo.BUILTIN_BASELINES["cubic+net"]))
-    assert run.cfg.doe.kind == "cubic" and run.step == load_config("cpu").train.steps
-    assert run.cfg.net.widths == load_config("cpu").net.widths

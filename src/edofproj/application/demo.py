@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from ..builtin_runs import BUILTIN_RUNS, PREFIX
-from ..config import apply_overrides, load_config
+from ..config import apply_overrides, load_config, to_dict
 from ..errors import EdofprojError
 from ..evaluation import timing
 from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
@@ -44,7 +44,6 @@ from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
 from ..evaluation.pipeline import (
     EVALUATION_OVERRIDE_PREFIXES,
     Evaluation,
-    baseline_mismatch,
     evaluate_run,
     require_trained_run,
 )
@@ -226,28 +225,52 @@ def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" 
     )
 
 
-def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str], ours_dir: Path | None = None) -> None:
+#: Config keys that do not change what a run learns (bookkeeping, threads, evaluation settings): a
+#: shipped baseline may differ from the demo's recipe in these only.
+RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "train.checkpoint_every",
+                  "train.keep_checkpoints", "train.threads", "train.device")  # fmt: skip
+
+
+def _flat(tree: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def recipe_difference(shipped, expected) -> str | None:
+    """The first config key (outside :data:`RECIPE_IGNORED`) where the shipped run's configuration differs
+    from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
+    a, b = _flat(to_dict(shipped)), _flat(to_dict(expected))
+    for key in sorted(set(a) | set(b)):
+        if key.startswith(RECIPE_IGNORED) or a.get(key) == b.get(key):
+            continue
+        return f"{key}={a.get(key)!r} (the demo: {b.get(key)!r})"
+    return None
+
+
+def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str], training_config: str) -> None:
     """Put the shipped run of each skipped baseline (:data:`BUILTIN_BASELINES`) in its run directory,
-    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in``. With ``ours_dir``
-    (the evaluated run), a shipped run whose projector differs from it (another spectrum, optics or
-    PSF sampling: :func:`~edofproj.evaluation.pipeline.baseline_mismatch`) is not used; the note says why."""
+    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in`` -- if it was trained
+    with exactly the recipe the demo would train it with (``training_config`` with the job's overrides;
+    :func:`recipe_difference`). Otherwise the job stays skipped and its note names the first difference."""
     for job in jobs:
         name = BUILTIN_BASELINES.get(job.method)
         if job.status != "skipped" or name is None or name not in BUILTIN_RUNS:
             continue
-        if ours_dir is not None and (ours_dir / "config.yaml").is_file():
-            shipped_dir = require_trained_run(PREFIX + name)
-            problem = baseline_mismatch(
-                method_spec(job.method), shipped_dir, saved_config(ours_dir), saved_config(shipped_dir)
-            )
-            if problem:
-                job.note += f"; its shipped run {PREFIX}{name} does not fit: {problem}"
-                continue
+        shipped_dir = require_trained_run(PREFIX + name)
+        difference = recipe_difference(saved_config(shipped_dir), load_config(training_config, job.overrides))
+        if difference:
+            job.note += f"; its shipped run {PREFIX}{name} was trained with another recipe: {difference}"
+            continue
         shipped = copy_pretrained(PREFIX + name, job.run_dir, overrides)
         job.status = "built-in"
         job.note = (
             f"{job.note.replace('not trained: ', 'not trained here: ')}; shipped run {shipped.source} "
-            f"({shipped.steps} steps, trained beforehand; --retrain-baselines trains it here)"
+            f"({shipped.steps} steps, trained beforehand with the same recipe; --retrain-baselines trains it here)"
         )
 
 
@@ -415,7 +438,7 @@ def run_demo(
     progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
     trainer = ParallelTrainer(jobs, training_config, out / LOG_DIR, workers, deadline, progress, later_s=later)
     trainer.run()
-    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), out / OURS_RUN_DIR)
+    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
