@@ -3,8 +3,8 @@
     edofproj evaluate RUN [--images DIR] [--depths-mm 300,350,...] [--methods a,b,...] [--baselines DIR]
     edofproj evaluate RUN --scene S [--scene S2 ...] [--images DIR] [--methods a,b,...]
 
-Writes into RUN (or ``--out``): ``metrics.csv`` (method, depth_mm, image, psnr, ssim, ms_ssim[,
-lpips, dists]), ``tilted_metrics.csv``, ``summary.md``, ``report.md`` + ``report.html`` and
+Writes into RUN (or ``--out``): ``metrics.csv`` (method, depth_mm, image, psnr, ssim, ms_ssim,
+de2000, de2000_p95, ssim_r, ssim_g, ssim_b[, lpips, dists]), ``tilted_metrics.csv``, ``summary.md``, ``report.md`` + ``report.html`` and
 ``figures/eval_*.png``. Methods: lens, lens+wiener, lens+cls, lens+net, lens+onlineprodeb, doe,
 doe+wiener, doe+net, cubic+net, axicon+net; those needing a separate run are looked up in
 ``--baselines`` (default: RUN's parent directory) as lens_net/, lens_onlineprodeb/, cubic_net/,
@@ -143,6 +143,7 @@ def run(args) -> int:
 
 def _evaluate_locked(args, methods, depths, device, progress) -> int:
     from ..evaluation.claims import ssim_claims
+    from ..evaluation.image_checks import behind_linear_filter
     from ..evaluation.pipeline import evaluate_run
     from ..evaluation.summary import format_text_table, range_table
     from ..evaluation.writeup import claims_section, write_documents
@@ -163,7 +164,12 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
     paths = write_documents(
         evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
     )
-    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
+    shown = [m for m in ("ssim", "psnr", "de2000") if m in evaluation.table.metrics]
+    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, shown, evaluation.frame_ms)))
+    behind = [c for c in behind_linear_filter(evaluation.table, evaluation.range_mm) if c.behind]
+    if behind:
+        names = ", ".join(f"{c.image} ({c.ssim_net - c.ssim_linear:+.4f})" for c in behind)
+        print(f"warning: doe+net is behind doe+ensemble (its DOE's linear filter) on {len(behind)} image(s): {names}")
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     if evaluation.perceptual_missing:
