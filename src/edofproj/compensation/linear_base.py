@@ -82,7 +82,9 @@ class LinearBase(nn.Module):
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         r = self.radius
         padded = F.pad(image, (r, r, r, r), mode="reflect")
-        filtered = convolve_same(padded, self.kernel.unsqueeze(0).to(image.dtype))
+        # in an ONNX export the FFTs become DFT nodes, computed in double (as the radial filter's)
+        work = padded.double() if torch.onnx.is_in_onnx_export() else padded
+        filtered = convolve_same(work, self.kernel.unsqueeze(0).to(work.dtype)).to(image.dtype)
         return filtered[..., r:-r, r:-r].clamp(0.0, 1.0)
 
 
