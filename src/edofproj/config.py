@@ -275,8 +275,8 @@ class NetConfig:
     starts as the depth-ensemble Wiener filter of the DOE's training PSFs with this
     noise-to-signal ratio (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`);
     0 starts it at zero (the identity).
-    ``linear_base``: ``none``, or ``ensemble``: the U-Net (``architecture: unet``, no pre-filter)
-    adds a bounded correction to the depth-ensemble linear filter of the current DOE,
+    ``linear_base``: ``none``, or ``ensemble``: the U-Net (``architecture: unet``, no pre-filter;
+    the other architectures ignore it) adds a bounded correction to the depth-ensemble linear filter of the current DOE,
     ``x = E(I) + c`` with ``|c| <= correction_bound`` everywhere and ``c`` free of local means
     beyond a Gaussian of ``correction_highpass_px`` (0: not high-passed); ``E`` (``(2 linear_radius + 1)^2`` taps,
     as ``doe+ensemble`` with ``linear_radius = psf.window``) uses the NSR
@@ -302,10 +302,9 @@ class NetConfig:
     def validate(self) -> None:
         if self.linear_base not in ("none", "ensemble"):
             raise ConfigError(_unknown_choice("net.linear_base", self.linear_base, ("none", "ensemble")))
-        if self.linear_base != "none" and (self.architecture != "unet" or self.prefilter_bins):
+        if self.linear_base != "none" and self.architecture == "unet" and self.prefilter_bins:
             raise ConfigError(
-                "net.linear_base=ensemble goes with net.architecture=unet and net.prefilter_bins=0 "
-                "(the linear filter replaces the learned pre-filter)"
+                "net.linear_base=ensemble goes with net.prefilter_bins=0 (the linear filter replaces the learned pre-filter)"
             )
         if self.linear_radius < 1:
             raise ConfigError(f"net.linear_radius={self.linear_radius} must be >= 1")
