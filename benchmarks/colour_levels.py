@@ -75,7 +75,9 @@ def main() -> None:
     warnings.simplefilter("ignore")
     depths_m = np.array([float(z) for z in args.depths_mm.split(",")]) * 1e-3
     images = test_images(args.size)
-    print("| run | image | depth (mm) | target | base | x (unclamped) | x < 0 | emitted | display | doe+ensemble display |")
+    print(
+        "| run | image | depth (mm) | target | base | x (unclamped) | x < 0 | emitted | display | doe+ensemble display |"
+    )
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for run_name in args.runs:
         run = load_run(run_name)

@@ -39,7 +39,9 @@ def main() -> None:
     print("| --- |" + " ---: |" * len(columns))
     per_image = [c[1].per_image_range_means(c[2], args.metric, lo, hi) for c in columns]
     for image in images:
-        print(f"| {image} | " + " | ".join(f"{values.get(image, float('nan')):.{digits}f}" for values in per_image) + " |")
+        print(
+            f"| {image} | " + " | ".join(f"{values.get(image, float('nan')):.{digits}f}" for values in per_image) + " |"
+        )
     stats = [c[1].range_stats(c[2], args.metric, lo, hi) for c in columns]
     print("| **mean** | " + " | ".join(f"**{s.mean:.{digits}f}**" for s in stats) + " |")
     print("| worst depth | " + " | ".join(f"{s.worst:.{digits}f} ({s.worst_depth_mm:.0f})" for s in stats) + " |")

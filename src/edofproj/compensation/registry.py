@@ -36,9 +36,7 @@ def _describe_unet(net_cfg) -> str:
     if net_cfg.prefilter_bins:
         text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
     if getattr(net_cfg, "linear_base", "none") == "ensemble":
-        text += (
-            f" as a correction of at most {net_cfg.correction_bound:g} on the DOE's depth-ensemble linear filter"
-        )
+        text += f" as a correction of at most {net_cfg.correction_bound:g} on the DOE's depth-ensemble linear filter"
     return text
 
 

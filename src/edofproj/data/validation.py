@@ -88,7 +88,9 @@ def _chw(pixels: np.ndarray) -> torch.Tensor:
 
 def _grating(size: int = PROCEDURAL_SIZE) -> np.ndarray:
     """Each primary a sinusoidal grating of its own period (3, 5, 8 px) and direction, in [0, 1]."""
-    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    y, x = torch.meshgrid(
+        torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij"
+    )
     channels = []
     for period, angle in ((3.0, 0.0), (5.0, 1.0), (8.0, 2.2)):
         phase = (x * np.cos(angle) + y * np.sin(angle)) * (2 * np.pi / period)

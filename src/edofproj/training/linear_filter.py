@@ -44,15 +44,11 @@ def current_linear_filter(cfg: Config, psf_source: nn.Module, into: LinearBase |
     return linear
 
 
-def has_linear_base(net: nn.Module) -> bool:
-    """Whether ``net`` adds its correction to a linear base filter (``net.linear_base: ensemble``)."""
-    return isinstance(getattr(net, "linear_base", None), LinearBase)
-
-
 def refresh_linear_base(cfg: Config, net: nn.Module, psf_source: nn.Module) -> None:
     """Set a safe network's base filter to the current DOE's depth-ensemble filter (no-op otherwise)."""
-    if has_linear_base(net):
-        current_linear_filter(cfg, psf_source, into=net.linear_base)
+    linear = getattr(net, "linear_base", None)
+    if isinstance(linear, LinearBase):
+        current_linear_filter(cfg, psf_source, into=linear)
 
 
 def refresh_due(cfg: Config, step: int) -> bool:

@@ -34,12 +34,13 @@ import torch
 from torch import nn
 
 from ..compensation.closed_loop import closed_loop, flat_screen
+from ..compensation.linear_base import LinearBase
 from ..config import Config
 from ..data.validation import COLOUR_CLASSES, validation_images
 from ..errors import BlurExceedsWindowWarning
 from ..fileio import write_text_atomic
 from ..metrics import delta_e2000, ssim
-from .linear_filter import current_linear_filter, has_linear_base, refresh_due, refresh_linear_base, scored_range_m
+from .linear_filter import current_linear_filter, refresh_due, refresh_linear_base, scored_range_m
 
 VALIDATION_LOG = "validation_log.csv"
 #: SSIM below the linear filter's by more than this counts as behind (smaller: rounding).
@@ -70,7 +71,8 @@ def compare_with_linear_filter(
     ``de2000_net``, ``de2000_linear`` (module docstring). ``images`` ``(N, 3, H, W)``."""
     was_training = net.training
     net.eval()
-    linear = net.linear_base if has_linear_base(net) else current_linear_filter(cfg, psf_source)
+    own = getattr(net, "linear_base", None)
+    linear: LinearBase = own if isinstance(own, LinearBase) else current_linear_filter(cfg, psf_source)
     linear = linear.to(images.device)
     sums = {key: np.zeros(images.shape[0]) for key in ("ssim_net", "ssim_linear", "de2000_net", "de2000_linear")}
     depths = validation_depths_m(cfg)
@@ -120,7 +122,9 @@ class StepChecks:
 
     def validate(self, step: int, say: Callable[[str], None] = print) -> dict:
         names = [n for n, _ in self.images]
-        scores = compare_with_linear_filter(self.cfg, self.net, self.psf_source, torch.stack([i for _, i in self.images]))
+        scores = compare_with_linear_filter(
+            self.cfg, self.net, self.psf_source, torch.stack([i for _, i in self.images])
+        )
         difference = scores["ssim_net"] - scores["ssim_linear"]
         worst = int(np.argmin(difference))
         behind = int((difference < -BEHIND_TOLERANCE).sum())
