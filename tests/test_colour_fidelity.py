@@ -120,3 +120,16 @@ def test_channel_imbalance_is_reported_only_beyond_the_spread():
     assert [row[:2] for row in blocks[0].rows] == [["doe+net", "a"]]
     calm = channel_imbalance_blocks(_table({"a": 0.95}, {"a": 0.94}, blue_net=0.96), (300.0, 800.0))
     assert "No method" in calm[0].text
+
+
+def test_grating_keeps_the_channel_means_and_has_its_period():
+    from edofproj.data.colour import grating
+
+    image = torch.full((3, 96, 96), 0.4)
+    image[2] = 0.7
+    out = grating(image, torch.Generator().manual_seed(5))
+    assert out.shape == image.shape and float(out.min()) >= 0 and float(out.max()) <= 1
+    torch.testing.assert_close(out.mean(dim=(-2, -1)), image.mean(dim=(-2, -1)), atol=0.03, rtol=0)
+    spectrum = torch.fft.rfft2(out - out.mean(dim=(-2, -1), keepdim=True)).abs()
+    peak = spectrum.flatten(1).argmax(1)  # one sinusoid per channel: its peak is off zero frequency
+    assert bool((peak > 0).all())

@@ -374,7 +374,8 @@ class DataConfig:
     ``procedural`` (source) / ``procedural_fraction``: textured dead leaves and smooth random
     fields (:mod:`edofproj.data.procedural`), alone or mixed into photographs.
     ``colour_augment``: the share of training images given a random colour transform (saturated,
-    dark, high-key, one primary nearly empty; :mod:`edofproj.data.colour`).
+    dark, high-key, one primary nearly empty; with ``colour_gratings`` also fine sinusoidal
+    gratings of 2.5-12 px periods; :mod:`edofproj.data.colour`).
     """
 
     source: str = "builtin"
@@ -388,6 +389,7 @@ class DataConfig:
     dead_leaves_fraction: float = 0.0
     procedural_fraction: float = 0.0
     colour_augment: float = 0.0
+    colour_gratings: bool = False
 
     def validate(self) -> None:
         if not (0.0 <= self.colour_augment <= 1.0):

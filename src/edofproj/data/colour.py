@@ -8,7 +8,10 @@ an image ``x`` ``(3, H, W)`` in ``[0, 1]`` to another in ``[0, 1]``:
 * ``dark`` -- ``y = k x`` with ``0 < k < 1``;
 * ``high_key`` -- ``y = 1 - k (1 - x)``;
 * ``empty_primary`` -- one channel ``c``: ``y_c = k x_c`` with ``k`` small (the primary at a few
-  per cent of its level).
+  per cent of its level);
+* ``grating`` (with ``gratings=True``) -- fine periodic texture: each channel ``c`` becomes
+  ``m_c + a_c sin(2 pi (u . p) / T_c + phi_c)`` around the image's channel mean ``m_c``, with a
+  period ``T_c`` of 2.5-12 px, a direction, phase and amplitude of its own (clipped to [0, 1]).
 
 :class:`ColourAugmentedSource` applies one of them, drawn at random, to a share
 ``data.colour_augment`` of a training source's samples; every draw comes from the sample's own
@@ -26,6 +29,7 @@ SATURATION_RANGE = (1.5, 3.0)
 DARK_RANGE = (0.1, 0.4)
 HIGH_KEY_RANGE = (0.1, 0.4)
 EMPTY_PRIMARY_RANGE = (0.0, 0.12)
+GRATING_PERIOD_PX = (2.5, 12.0)
 
 
 def saturate(image: torch.Tensor, factor: float) -> torch.Tensor:
@@ -47,14 +51,36 @@ def empty_primary(image: torch.Tensor, channel: int, gain: float) -> torch.Tenso
     return out
 
 
+def grating(image: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """Sinusoidal gratings around the image's channel means (module docstring), same shape."""
+    height, width = image.shape[-2:]
+    y, x = torch.meshgrid(
+        torch.arange(height, dtype=image.dtype), torch.arange(width, dtype=image.dtype), indexing="ij"
+    )
+    channels = []
+    for mean in image.mean(dim=(-2, -1)):
+        period = _uniform(generator, GRATING_PERIOD_PX)
+        angle, phase = (2 * torch.pi * torch.rand(2, generator=generator)).tolist()
+        amplitude = float(torch.rand((), generator=generator)) * float(min(mean, 1 - mean))
+        wave = torch.sin(
+            (x * torch.cos(torch.tensor(angle)) + y * torch.sin(torch.tensor(angle))) * 2 * torch.pi / period + phase
+        )
+        channels.append(mean + amplitude * wave)
+    return torch.stack(channels).clamp(0.0, 1.0)
+
+
 def _uniform(generator: torch.Generator, bounds: tuple[float, float]) -> float:
     low, high = bounds
     return low + (high - low) * float(torch.rand((), generator=generator))
 
 
-def random_colour_transform(image: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-    """One of :data:`TRANSFORMS`, drawn uniformly, with its strength drawn from its range."""
-    kind = TRANSFORMS[int(torch.randint(len(TRANSFORMS), (), generator=generator))]
+def random_colour_transform(image: torch.Tensor, generator: torch.Generator, gratings: bool = False) -> torch.Tensor:
+    """One of :data:`TRANSFORMS` (and ``grating`` when ``gratings``), drawn uniformly, with its
+    strength drawn from its range."""
+    kinds = TRANSFORMS + (("grating",) if gratings else ())
+    kind = kinds[int(torch.randint(len(kinds), (), generator=generator))]
+    if kind == "grating":
+        return grating(image, generator)
     if kind == "saturate":
         return saturate(image, _uniform(generator, SATURATION_RANGE))
     if kind == "dark":
@@ -67,11 +93,13 @@ def random_colour_transform(image: torch.Tensor, generator: torch.Generator) -> 
 
 class ColourAugmentedSource:
     """A training source whose samples get :func:`random_colour_transform` with probability
-    ``probability`` (one uniform draw per sample, after the sample itself)."""
+    ``probability`` (one uniform draw per sample, after the sample itself); ``gratings`` adds the
+    grating to the transforms drawn from (``data.colour_gratings``)."""
 
-    def __init__(self, source, probability: float) -> None:
+    def __init__(self, source, probability: float, gratings: bool = False) -> None:
         self.source = source
         self.probability = float(probability)
+        self.gratings = bool(gratings)
         self.crop = getattr(source, "crop", None)
 
     def sample(
@@ -83,6 +111,6 @@ class ColourAugmentedSource:
         out = []
         for image in images:
             if float(torch.rand((), generator=generator)) < self.probability:
-                image = random_colour_transform(image, generator)
+                image = random_colour_transform(image, generator, self.gratings)
             out.append(image)
         return torch.stack(out)

@@ -68,7 +68,8 @@ def build_training_source(data_cfg, seed: int = 0):
     (:class:`~edofproj.data.colour.ColourAugmentedSource`)."""
     source = _build_source(data_cfg, seed)
     share = float(getattr(data_cfg, "colour_augment", 0.0))
-    return ColourAugmentedSource(source, share) if share > 0 else source
+    gratings = bool(getattr(data_cfg, "colour_gratings", False))
+    return ColourAugmentedSource(source, share, gratings) if share > 0 else source
 
 
 def _build_source(data_cfg, seed: int = 0):
