@@ -61,7 +61,8 @@ def test_unet_with_prefilter_starts_as_identity_and_trains_the_filter():
 
 
 def test_config_and_bad_values():
-    assert CompensationUNet.from_config(load_config("cpu", ["net.prefilter_bins=16"]).net).prefilter is not None
+    cfg = load_config("cpu", ["net.prefilter_bins=16", "net.linear_base=none"])
+    assert CompensationUNet.from_config(cfg.net).prefilter is not None
     with pytest.raises(ConfigError, match="prefilter_bins"):
         load_config("cpu", ["net.prefilter_bins=1"])
     with pytest.raises(EdofprojError, match="bins"):
@@ -80,7 +81,11 @@ def test_inference_cache_follows_parameter_updates():
 def test_network_description_names_the_prefilter():
     from edofproj.compensation.registry import describe_network
 
-    assert describe_network(load_config("cpu").net) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
+    prefiltered = load_config("cpu", ["net.prefilter_bins=48", "net.linear_base=none"]).net
+    assert describe_network(prefiltered) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
+    assert describe_network(load_config("cpu").net) == (
+        "U-Net 16-128 (4 scales) as a correction of at most 0.2 on the DOE's depth-ensemble linear filter"
+    )
     assert describe_network(load_config("paper").net) == "U-Net 32-256 (7 scales)"
 
 

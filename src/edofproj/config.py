@@ -301,6 +301,13 @@ class NetConfig:
     starts as the depth-ensemble Wiener filter of the DOE's training PSFs with this
     noise-to-signal ratio (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`);
     0 starts it at zero (the identity).
+    ``linear_base``: ``none``, or ``ensemble``: the U-Net (``architecture: unet``, no pre-filter;
+    the other architectures ignore it) adds a bounded correction to the depth-ensemble linear filter of the current DOE,
+    ``x = E(I) + c`` with ``|c| <= correction_bound`` everywhere and ``c`` free of local means
+    beyond a Gaussian of ``correction_highpass_px`` (0: not high-passed); ``E`` (``(2 linear_radius + 1)^2`` taps,
+    as ``doe+ensemble`` with ``linear_radius = psf.window``) uses the NSR
+    ``linear_nsr`` and is recomputed from the DOE's PSFs every ``train.linear_every`` steps
+    (:mod:`edofproj.compensation.linear_base`, the rule that makes it safe).
     """
 
     widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -312,8 +319,29 @@ class NetConfig:
     space_to_depth: int = 1
     prefilter_bins: int = 0
     init_nsr: float = 0.01
+    linear_base: str = "none"
+    linear_nsr: float = 0.01
+    linear_radius: int = 33
+    correction_bound: float = 0.2
+    correction_highpass_px: float = 8.0
 
     def validate(self) -> None:
+        if self.linear_base not in ("none", "ensemble"):
+            raise ConfigError(_unknown_choice("net.linear_base", self.linear_base, ("none", "ensemble")))
+        if self.linear_base != "none" and self.architecture == "unet" and self.prefilter_bins:
+            raise ConfigError(
+                "net.linear_base=ensemble goes with net.prefilter_bins=0 (the linear filter replaces the learned pre-filter)"
+            )
+        if self.linear_radius < 1:
+            raise ConfigError(f"net.linear_radius={self.linear_radius} must be >= 1")
+        if not (math.isfinite(self.linear_nsr) and self.linear_nsr > 0):
+            raise ConfigError(f"net.linear_nsr={self.linear_nsr} must be a finite number > 0")
+        if not (math.isfinite(self.correction_bound) and self.correction_bound > 0):
+            raise ConfigError(f"net.correction_bound={self.correction_bound} must be a finite number > 0")
+        if not (math.isfinite(self.correction_highpass_px) and self.correction_highpass_px >= 0):
+            raise ConfigError(
+                f"net.correction_highpass_px={self.correction_highpass_px} must be a finite number >= 0 (0: off)"
+            )
         if not (math.isfinite(self.init_nsr) and self.init_nsr >= 0):
             raise ConfigError(f"net.init_nsr={self.init_nsr} must be a finite number >= 0 (0: no Wiener start)")
         if self.space_to_depth < 1:
@@ -371,6 +399,9 @@ class DataConfig:
     ``dead_leaves_fraction`` > 0 mixes that share of dead-leaves images into a photo source.
     ``procedural`` (source) / ``procedural_fraction``: textured dead leaves and smooth random
     fields (:mod:`edofproj.data.procedural`), alone or mixed into photographs.
+    ``colour_augment``: the share of training images given a random colour transform (saturated,
+    dark, high-key, one primary nearly empty; with ``colour_gratings`` also fine sinusoidal
+    gratings of 2.5-12 px periods; :mod:`edofproj.data.colour`).
     """
 
     source: str = "builtin"
@@ -383,8 +414,12 @@ class DataConfig:
     dead_leaves_max_radius_px: float = 128.0
     dead_leaves_fraction: float = 0.0
     procedural_fraction: float = 0.0
+    colour_augment: float = 0.0
+    colour_gratings: bool = False
 
     def validate(self) -> None:
+        if not (0.0 <= self.colour_augment <= 1.0):
+            raise ConfigError(f"data.colour_augment={self.colour_augment} must be in [0, 1]")
         choices = ("builtin", "dead-leaves", "folder", "procedural")
         if self.source not in choices:
             raise ConfigError(_unknown_choice("data.source", self.source, choices))
@@ -460,6 +495,10 @@ class TrainConfig:
     (each crop on a random depth-varying screen: flat, tilted, a step or smooth relief,
     :mod:`edofproj.scenes.random_screens`, rendered with ``imaging.depth_layers`` layers spanning
     the PSF range).
+    ``linear_every``: steps between recomputations of a ``net.linear_base`` network's linear filter
+    from the current DOE. ``validate_every`` (0: never): every that many steps (and at the end) the
+    network and the linear filter of the current DOE are scored on ``validation_images`` held-back
+    validation images (:mod:`edofproj.training.validation`; ``validation_log.csv``).
     """
 
     steps: int = 400
@@ -483,8 +522,15 @@ class TrainConfig:
     device: str = "auto"
     mixed_precision: str = "none"
     screens: str = "flat"
+    linear_every: int = 10
+    validate_every: int = 0
+    validation_images: int = 5
 
     def validate(self) -> None:
+        if self.linear_every < 1 or self.validate_every < 0 or self.validation_images < 1:
+            raise ConfigError(
+                "train.linear_every and train.validation_images must be >= 1, train.validate_every >= 0 (0: never)"
+            )
         if self.screens not in ("flat", "varying"):
             raise ConfigError(f"train.screens={self.screens!r} must be flat or varying")
         if self.steps < 1 or self.batch_size < 1 or self.checkpoint_every < 1:

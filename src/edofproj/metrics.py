@@ -11,6 +11,9 @@ They are differentiable (the training losses reuse them).
   ``skimage.metrics.structural_similarity(..., channel_axis, data_range=1,
   gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
 * :func:`ms_ssim` - multi-scale SSIM (Wang, Simoncelli, Bovik 2003), see its docstring.
+* :func:`delta_e2000` - colour fidelity: the CIEDE2000 difference per pixel (scikit-image),
+  its mean and 95th percentile per image; :func:`ssim_per_channel` - SSIM of each colour
+  channel ``(B, C)`` (these two are measured, not trained on).
 * :func:`dists`, :func:`lpips` - perceptual metric objects with pretrained networks; they raise
   :class:`~edofproj.perceptual.PerceptualWeightsMissing` when the weights are not on this
   machine (report such a metric as unavailable, never as 0).
@@ -22,6 +25,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
+import numpy as np
 import torch
 from torch.nn import functional as F
 
@@ -35,6 +39,7 @@ __all__ = [
     "PERCEPTUAL_METRICS",
     "PerceptualWeightsMissing",
     "available_perceptual_metrics",
+    "delta_e2000",
     "dists",
     "lpips",
     "ms_ssim",
@@ -42,6 +47,7 @@ __all__ = [
     "perceptual_metric",
     "psnr",
     "ssim",
+    "ssim_per_channel",
 ]
 
 SSIM_SIGMA = 1.5
@@ -182,6 +188,38 @@ def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         term = full if scale == scales - 1 else contrast_structure
         result = result * F.relu(term) ** weights[scale]
     return result
+
+
+# --------------------------------------------------------------------------- colour fidelity
+
+#: Percentile of the per-pixel colour difference reported beside its mean.
+DELTA_E_PERCENTILE = 95.0
+
+
+def delta_e2000_map(pred: torch.Tensor, target: torch.Tensor) -> np.ndarray:
+    """Per-pixel CIEDE2000 difference ``(B, H, W)`` (float64) of two batches read as sRGB in [0, 1]
+    (values outside are clipped first, as a display would)."""
+    _check_pair(pred, target, "delta_e2000")
+    from skimage.color import deltaE_ciede2000, rgb2lab  # start-up: scikit-image's colour module is slow to import
+
+    a = pred.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float64)
+    b = target.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float64)
+    return np.stack([deltaE_ciede2000(rgb2lab(b[i]), rgb2lab(a[i])) for i in range(a.shape[0])])
+
+
+def delta_e2000(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mean, p95)`` of the per-pixel CIEDE2000 difference, each ``(B,)`` float32 (module docstring)."""
+    maps = delta_e2000_map(pred, target).reshape(pred.shape[0], -1)
+    mean = torch.from_numpy(maps.mean(axis=1)).float()
+    p95 = torch.from_numpy(np.percentile(maps, DELTA_E_PERCENTILE, axis=1)).float()
+    return mean, p95
+
+
+def ssim_per_channel(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """SSIM of each channel ``(B, C)``: the local SSIM map of :func:`edofproj.metrics.ssim` averaged
+    over the positions only (not over the channels)."""
+    _check_pair(pred, target, "ssim_per_channel")
+    return _ssim_maps(pred, target)[0].flatten(2).mean(2)
 
 
 # --------------------------------------------------------------------------- perceptual

@@ -102,7 +102,7 @@ def slim_checkpoint(source: str | Path, target: str | Path) -> Path:
 
 def package_run(run_dir: str | Path, name: str, log_every: int = 10) -> Path:
     """Copy the trained run ``run_dir`` into the package as ``builtin:NAME`` (a maintainer's step):
-    ``config.yaml`` and ``doe.npz`` as they are, ``checkpoints/last.pt`` slimmed
+    ``config.yaml``, ``doe.npz`` and ``validation_log.csv`` (when the run validated) as they are, ``checkpoints/last.pt`` slimmed
     (:func:`slim_checkpoint`), and every ``log_every``-th row of ``train_log.csv`` (plus the last).
     The model card ``MODEL.md`` is written by hand. Returns the packaged directory."""
     import shutil
@@ -113,7 +113,7 @@ def package_run(run_dir: str | Path, name: str, log_every: int = 10) -> Path:
         if not (source / required).is_file():
             raise EdofprojError(f"'{source}' has no {required}: not a trained run")
     target.mkdir(parents=True, exist_ok=True)
-    for file_name in ("config.yaml", "doe.npz"):
+    for file_name in ("config.yaml", "doe.npz", "validation_log.csv"):
         if (source / file_name).is_file():
             with atomic_path(target / file_name) as tmp:
                 shutil.copyfile(source / file_name, tmp)

@@ -3,8 +3,8 @@
     edofproj evaluate RUN [--images DIR] [--depths-mm 300,350,...] [--methods a,b,...] [--baselines DIR]
     edofproj evaluate RUN --scene S [--scene S2 ...] [--images DIR] [--methods a,b,...]
 
-Writes into RUN (or ``--out``): ``metrics.csv`` (method, depth_mm, image, psnr, ssim, ms_ssim[,
-lpips, dists]), ``tilted_metrics.csv``, ``summary.md``, ``report.md`` + ``report.html`` and
+Writes into RUN (or ``--out``): ``metrics.csv`` (method, depth_mm, image, psnr, ssim, ms_ssim,
+de2000, de2000_p95, ssim_r, ssim_g, ssim_b[, lpips, dists]), ``tilted_metrics.csv``, ``summary.md``, ``report.md`` + ``report.html`` and
 ``figures/eval_*.png``. Methods: lens, lens+wiener, lens+cls, lens+net, lens+onlineprodeb, doe,
 doe+wiener, doe+net, cubic+net, axicon+net; those needing a separate run are looked up in
 ``--baselines`` (default: RUN's parent directory) as lens_net/, lens_onlineprodeb/, cubic_net/,
@@ -146,6 +146,7 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
 
     from ..builtin_runs import resolve_run_dir
     from ..evaluation.claims import ssim_claims
+    from ..evaluation.image_checks import behind_linear_filter
     from ..evaluation.output_set import moved_path, staged_output_set
     from ..evaluation.pipeline import evaluate_run
     from ..evaluation.summary import format_text_table, range_table
@@ -174,6 +175,28 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
     paths = {key: moved_path(path, stage, out) for key, path in paths.items()}
     evaluation.out_dir = out
     print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
+    evaluation = evaluate_run(
+        args.run,
+        out_dir=args.out,
+        images_dir=args.images,
+        validation=args.validation,
+        depths_mm=depths,
+        methods=methods,
+        baselines_dir=args.baselines,
+        overrides=args.overrides,
+        progress=progress,
+        device=device,
+    )
+    claims = ssim_claims(evaluation.table, evaluation.range_mm)
+    paths = write_documents(
+        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
+    )
+    shown = [m for m in ("ssim", "psnr", "de2000") if m in evaluation.table.metrics]
+    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, shown, evaluation.frame_ms)))
+    behind = [c for c in behind_linear_filter(evaluation.table, evaluation.range_mm) if c.behind]
+    if behind:
+        names = ", ".join(f"{c.image} ({c.ssim_net - c.ssim_linear:+.4f})" for c in behind)
+        print(f"warning: doe+net is behind doe+ensemble (its DOE's linear filter) on {len(behind)} image(s): {names}")
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     if evaluation.perceptual_missing:

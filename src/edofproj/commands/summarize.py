@@ -6,7 +6,9 @@ Each argument is an output directory of ``edofproj evaluate`` (or its ``metrics.
 per training seed, scored on the same images and depths (refused otherwise, as are incomplete or
 truncated files, NA scores and an unknown ``--reference``). Prints, as Markdown, each method's mean
 and worst-depth score over ``--range-mm`` as mean ± standard deviation over the evaluations, and
-the paired difference to ``--reference`` (:func:`edofproj.evaluation.summary.run_spread_table`).
+the paired difference to ``--reference`` (:func:`edofproj.evaluation.summary.run_spread_table`);
+then the same for the CIEDE2000 colour difference (``de2000``, ``de2000_p95``; lower is better)
+where every evaluation has those columns.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ def run(args) -> int:
 
     from ..errors import EdofprojError
     from ..evaluation.report import markdown_table
-    from ..evaluation.results import MetricsTable
+    from ..evaluation.results import COLOUR_METRICS, MetricsTable
     from ..evaluation.summary import check_like_runs, run_spread_table
 
     parts = str(args.range_mm).split(":")
@@ -52,4 +54,8 @@ def run(args) -> int:
         tables[str(csv_path)] = MetricsTable.read_csv(csv_path, ("method", "depth_mm", "image"))
     check_like_runs(tables, (near, far), args.metric, args.reference)
     print(markdown_table(run_spread_table(tables, (near, far), args.metric, args.reference)))
+    for colour in COLOUR_METRICS:  # colour fidelity beside the chosen metric, where every table has it
+        if colour != args.metric and all(colour in table.metrics for table in tables.values()):
+            print()
+            print(markdown_table(run_spread_table(tables, (near, far), colour, args.reference)))
     return 0

@@ -7,8 +7,8 @@ trace. Before the file is moved into place, the export is run on two frame sizes
 requested one and a smaller odd one) and compared with PyTorch: a maximum absolute
 difference above 1e-4 is an error and nothing is written.
 
-Networks with a radial Fourier filter (``net.prefilter_bins > 0``: the ``cpu`` preset's, the
-real-time network) go through ``torch.export`` instead (``dynamo=True``, which writes the FFTs
+Networks with a radial Fourier filter (``net.prefilter_bins > 0``: the real-time network) or a
+linear base filter (``net.linear_base: ensemble``, the ``cpu`` preset's) go through ``torch.export`` instead (``dynamo=True``, which writes the FFTs
 as ONNX ``DFT`` and needs the ``onnxscript`` package). Their padding and FFT sizes follow the
 frame size in Python, so the file is for *one* frame size (``--height``/``--width``, 1 x 3 x H x W)
 and is verified at that size only. Its FFTs run in double precision (ONNX Runtime's
@@ -61,8 +61,8 @@ def require_onnx(fourier: bool = False) -> None:
 
 def fixed_size_onnx(net: torch.nn.Module) -> bool:
     """Whether an ONNX export of ``net`` is for one frame size only: it holds a radial Fourier
-    filter (module docstring)."""
-    return getattr(net, "prefilter", None) is not None
+    filter or a linear base filter (an FFT convolution; module docstring)."""
+    return getattr(net, "prefilter", None) is not None or getattr(net, "linear_base", None) is not None
 
 
 def verification_sizes(height: int, width: int, fixed_size: bool = False) -> list[tuple[int, int]]:

@@ -47,6 +47,8 @@ def _describe_unet(net_cfg) -> str:
         text += f" on {net_cfg.space_to_depth}x{net_cfg.space_to_depth} pixel blocks"
     if net_cfg.prefilter_bins:
         text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
+    if getattr(net_cfg, "linear_base", "none") == "ensemble":
+        text += f" as a correction of at most {net_cfg.correction_bound:g} on the DOE's depth-ensemble linear filter"
     return text
 
 

@@ -26,6 +26,12 @@ real FFT pair, starts as the identity) is applied to the target first; the U-Net
 
     projector_input = J + f([I, I*, J])
 
+Safe variant (``linear_radius = R > 0``): the depth-ensemble linear filter of the DOE,
+``E(I)`` (:class:`~edofproj.compensation.linear_base.LinearBase`, a fixed kernel the trainer sets),
+replaces the pre-filter, and the U-Net's output becomes a bounded, mean-free correction of it:
+
+    projector_input = E(I) + c,   |c| <= correction_bound   (:mod:`edofproj.compensation.linear_base`)
+
 Images of any size are padded on the bottom and right to a multiple of ``s 2**(S-1)``
 (replicate or reflect) and the output is cropped back. The output is *not* clamped: the
 caller clamps to the projector's ``[0, 1]`` range before projecting.
@@ -46,6 +52,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
+from .linear_base import LinearBase, bounded_correction
 from .radial_filter import RadialFourierFilter
 
 #: Named channel widths (one entry per scale, 7 scales as in the paper).
@@ -178,6 +185,9 @@ class CompensationUNet(nn.Module):
         padding_mode: str = "replicate",
         space_to_depth: int = 1,
         prefilter_bins: int = 0,
+        linear_radius: int = 0,
+        correction_bound: float = 0.2,
+        correction_highpass_px: float = 8.0,
     ) -> None:
         super().__init__()
         if int(space_to_depth) != space_to_depth or space_to_depth < 1:
@@ -203,7 +213,13 @@ class CompensationUNet(nn.Module):
         if int(prefilter_bins) != prefilter_bins or prefilter_bins < 0:
             raise EdofprojError(f"U-Net prefilter_bins={prefilter_bins} must be an integer >= 0 (0: none)")
         self.prefilter = RadialFourierFilter(out_channels, int(prefilter_bins)) if prefilter_bins else None
-        unet_inputs = in_channels + (out_channels if self.prefilter is not None else 0)
+        if linear_radius and self.prefilter is not None:
+            raise EdofprojError("a U-Net has either a learned pre-filter or a linear base filter, not both")
+        self.linear_base = LinearBase(out_channels, int(linear_radius)) if linear_radius else None
+        self.correction_bound = float(correction_bound)
+        self.correction_highpass_px = float(correction_highpass_px)
+        has_base = self.prefilter is not None or self.linear_base is not None
+        unet_inputs = in_channels + (out_channels if has_base else 0)
 
         self.encoder, self.down, self.up, self.decoder = unet_layers(
             ConvBlock(unet_inputs * block, widths[0], leaky_slope), widths, downsampling, upsampling, leaky_slope
@@ -224,6 +240,9 @@ class CompensationUNet(nn.Module):
             padding_mode=net_cfg.padding_mode,
             space_to_depth=net_cfg.space_to_depth,
             prefilter_bins=net_cfg.prefilter_bins,
+            linear_radius=net_cfg.linear_radius if getattr(net_cfg, "linear_base", "none") == "ensemble" else 0,
+            correction_bound=getattr(net_cfg, "correction_bound", 0.2),
+            correction_highpass_px=getattr(net_cfg, "correction_highpass_px", 8.0),
         )
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
@@ -239,8 +258,12 @@ class CompensationUNet(nn.Module):
                 f"{tuple(target.shape)} and {tuple(captured.shape)}"
             )
         height, width = target.shape[-2], target.shape[-1]
-        base = target if self.prefilter is None else self.prefilter(target)
-        inputs = [target, captured] if self.prefilter is None else [target, captured, base]
+        if self.linear_base is not None:
+            base = self.linear_base(target)
+        else:
+            base = target if self.prefilter is None else self.prefilter(target)
+        has_base = self.prefilter is not None or self.linear_base is not None
+        inputs = [target, captured, base] if has_base else [target, captured]
         x = torch.cat(inputs, dim=1)
         x = self._pad_to_multiple(x, height, width)
         if self.space_to_depth > 1:
@@ -251,6 +274,8 @@ class CompensationUNet(nn.Module):
         if self.space_to_depth > 1:
             residual = F.pixel_shuffle(residual, self.space_to_depth)
         residual = residual[..., :height, :width].contiguous()
+        if self.linear_base is not None:
+            return base + bounded_correction(residual, self.correction_bound, self.correction_highpass_px)
         return base + residual
 
     def _pad_to_multiple(self, x: torch.Tensor, height, width) -> torch.Tensor:

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from ..errors import EdofprojError
+from .colour import ColourAugmentedSource
 from .dead_leaves import DeadLeavesSource, natural_color_palette
 from .photos import (
     BUILTIN_PHOTOS,
@@ -72,6 +73,16 @@ class MixedSource:
 
 
 def build_training_source(data_cfg, seed: int = 0):
+    """The training source of a :class:`~edofproj.config.DataConfig` (:func:`_build_source`), with
+    ``data.colour_augment > 0`` that share of its samples colour-transformed
+    (:class:`~edofproj.data.colour.ColourAugmentedSource`)."""
+    source = _build_source(data_cfg, seed)
+    share = float(getattr(data_cfg, "colour_augment", 0.0))
+    gratings = bool(getattr(data_cfg, "colour_gratings", False))
+    return ColourAugmentedSource(source, share, gratings) if share > 0 else source
+
+
+def _build_source(data_cfg, seed: int = 0):
     """The training source of a :class:`~edofproj.config.DataConfig`: an object with
     ``sample(batch_size, crop=None, generator=None) -> (B, 3, crop, crop)``. Without a
     generator, ``sample`` draws from the source's own generator seeded with ``seed``.

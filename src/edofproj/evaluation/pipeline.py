@@ -58,7 +58,7 @@ from .methods import (
 )
 from .progress import StageProgress
 from .psf_plots import plot_psf_comparison
-from .results import MetricsTable
+from .results import MetricsTable, headline_metrics
 from .sweep import PERCEPTUAL_COLUMNS, example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
 from .timing import time_methods
 
@@ -438,7 +438,7 @@ def write_figures(ev: Evaluation) -> None:
     """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
     figures = ev.out_dir / FIGURES_DIR
     figures.mkdir(parents=True, exist_ok=True)
-    for metric in ev.table.metrics:
+    for metric in headline_metrics(ev.table.metrics):
         path = figures / f"eval_{metric}_vs_depth.png"
         plot_metric_vs_depth(ev.table, metric, path, ev.range_mm)
         ev.figures[f"{metric}_vs_depth"] = path

@@ -1,7 +1,9 @@
 """The metrics table of an evaluation: one row per (method, depth, image), and its statistics.
 
-``metrics.csv`` columns: ``method,depth_mm,image,psnr,ssim,ms_ssim`` and, when their weights are
-present on the machine, ``lpips,dists``. A perceptual metric that cannot be computed is *left
+``metrics.csv`` columns: ``method,depth_mm,image,psnr,ssim,ms_ssim,de2000,de2000_p95,ssim_r,ssim_g,ssim_b``
+(``de2000``/``de2000_p95``: mean and 95th percentile of the CIEDE2000 colour difference over the
+pixels; ``ssim_r/g/b``: SSIM of each colour channel, :mod:`edofproj.metrics`) and, when their
+weights are present on the machine, ``lpips,dists``. A perceptual metric that cannot be computed is *left
 out* (never written as 0). The tilted screen has its own table (``tilted_metrics.csv``:
 ``method,near_mm,far_mm,image,...``).
 
@@ -26,11 +28,42 @@ import numpy as np
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
 
-BASE_METRICS = ("psnr", "ssim", "ms_ssim")
+#: Colour fidelity: CIEDE2000 difference, mean and 95th percentile over the pixels.
+COLOUR_METRICS = ("de2000", "de2000_p95")
+#: SSIM of each colour channel: detail columns, reported where a method's channels disagree.
+CHANNEL_METRICS = ("ssim_r", "ssim_g", "ssim_b")
+BASE_METRICS = ("psnr", "ssim", "ms_ssim") + COLOUR_METRICS + CHANNEL_METRICS
 PERCEPTUAL_METRICS = ("lpips", "dists")
 #: Whether a larger value is better, per metric column.
-HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "ms_ssim": True, "lpips": False, "dists": False}
-METRIC_LABELS = {"psnr": "PSNR (dB)", "ssim": "SSIM", "ms_ssim": "MS-SSIM", "lpips": "LPIPS", "dists": "DISTS"}
+HIGHER_IS_BETTER = {
+    "psnr": True,
+    "ssim": True,
+    "ms_ssim": True,
+    "lpips": False,
+    "dists": False,
+    "de2000": False,
+    "de2000_p95": False,
+    "ssim_r": True,
+    "ssim_g": True,
+    "ssim_b": True,
+}
+METRIC_LABELS = {
+    "psnr": "PSNR (dB)",
+    "ssim": "SSIM",
+    "ms_ssim": "MS-SSIM",
+    "lpips": "LPIPS",
+    "dists": "DISTS",
+    "de2000": "ΔE2000",
+    "de2000_p95": "ΔE2000 p95",
+    "ssim_r": "SSIM red",
+    "ssim_g": "SSIM green",
+    "ssim_b": "SSIM blue",
+}
+
+
+def headline_metrics(metrics) -> tuple[str, ...]:
+    """The metrics of the summary tables and figures: all but the per-channel SSIM columns."""
+    return tuple(m for m in metrics if m not in CHANNEL_METRICS)
 
 
 def better(metric: str, a: float, b: float) -> bool:

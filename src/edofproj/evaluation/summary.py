@@ -20,13 +20,13 @@ import numpy as np
 from ..errors import EdofprojError
 from .methods import METHOD_NAMES, method_spec
 from .report import Table
-from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better
+from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
 
 
 def _fmt(metric: str, value: float) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "NA"
-    return f"{value:.2f}" if metric == "psnr" else f"{value:.4f}"
+    return f"{value:.2f}" if metric in ("psnr", "de2000", "de2000_p95") else f"{value:.4f}"
 
 
 def _bold_best(metric: str, values: list[float]) -> list[bool]:
@@ -67,7 +67,7 @@ def range_table(
     """Rows = methods, blind ones first; columns = what the method knows at run time, the mean and
     worst depth of each metric over ``range_mm`` (the best of each group in bold) and, with
     ``frame_ms``, the milliseconds per compensated frame."""
-    metrics = list(metrics or table.metrics)
+    metrics = list(metrics or headline_metrics(table.metrics))
     methods = grouped_methods(table.methods())
     kinds = [method_kind(m) for m in methods]
     groups = {kind: [i for i, k in enumerate(kinds) if k == kind] for kind in dict.fromkeys(kinds)}
@@ -280,8 +280,9 @@ def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float])
 def tilted_table(table: MetricsTable) -> Table:
     """Rows = methods; columns = the mean of each metric over the images on the tilted screen."""
     methods = table.methods()
-    columns = [_cells(metric, [table.mean(metric, method=m) for m in methods]) for metric in table.metrics]
-    header = ["method"] + [METRIC_LABELS.get(m, m) for m in table.metrics]
+    shown = headline_metrics(table.metrics)
+    columns = [_cells(metric, [table.mean(metric, method=m) for m in methods]) for metric in shown]
+    header = ["method"] + [METRIC_LABELS.get(m, m) for m in shown]
     rows = [[m] + [col[i] for col in columns] for i, m in enumerate(methods)]
     near, far = (table.rows[0]["near_mm"], table.rows[0]["far_mm"]) if table.rows else (math.nan, math.nan)
     return Table(header, rows, f"Tilted screen, depth {near:.0f}-{far:.0f} mm: mean over the test images")

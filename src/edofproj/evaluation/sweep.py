@@ -19,8 +19,9 @@ one PSF: they get ``p_c``, the PSF at the depth of the screen's middle column
 (``1/z_c = (1/near + 1/far) / 2``) -- a spatially invariant deconvolution, which is what those
 methods can do on a screen whose blur varies across the image.
 
-Scores per image: PSNR, SSIM, MS-SSIM (:mod:`edofproj.metrics`) and the perceptual
-metrics whose weights are present (LPIPS with AlexNet, DISTS).
+Scores per image: PSNR, SSIM, MS-SSIM, the CIEDE2000 colour difference (mean and 95th percentile),
+the SSIM of each colour channel (:mod:`edofproj.metrics`) and the perceptual metrics whose weights
+are present (LPIPS with AlexNet, DISTS).
 """
 
 from __future__ import annotations
@@ -63,10 +64,17 @@ def load_perceptual_metrics(weights_dir=None) -> dict:
 
 def score(display: torch.Tensor, target: torch.Tensor, perceptual: dict) -> list[dict[str, float]]:
     """Metrics of each displayed image of a batch ``(B, 3, H, W)`` against its target: ``B`` dicts."""
+    de_mean, de_p95 = metrics.delta_e2000(display, target)
+    channels = metrics.ssim_per_channel(display, target)
     columns = {
         "psnr": metrics.psnr(display, target),
         "ssim": metrics.ssim(display, target),
         "ms_ssim": metrics.ms_ssim(display, target),
+        "de2000": de_mean,
+        "de2000_p95": de_p95,
+        "ssim_r": channels[:, 0],
+        "ssim_g": channels[:, 1],
+        "ssim_b": channels[:, 2],
     }
     for column, metric in perceptual.items():
         columns[column] = metric(display, target)

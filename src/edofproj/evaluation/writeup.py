@@ -11,9 +11,10 @@ from pathlib import Path
 from typing import Sequence
 
 from .claims import Claim
+from .image_checks import behind_linear_filter_blocks, channel_imbalance_blocks
 from .methods import METHOD_NAMES
 from .report import Bullets, Figure, Heading, Paragraph, Report, Table
-from .results import METRIC_LABELS
+from .results import METRIC_LABELS, headline_metrics
 from .summary import depth_table, image_spread_table, range_table, tilted_table
 
 SUMMARY_NAME = "summary.md"
@@ -95,9 +96,15 @@ def methods_section(ev) -> list:
 
 def results_tables(ev) -> list:
     blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms), image_spread_table(ev.table, ev.range_mm)]
-    for metric in ev.table.metrics:
+    for metric in headline_metrics(ev.table.metrics):
         blocks.append(depth_table(ev.table, metric, ev.range_mm))
     return blocks
+
+
+def image_checks_section(ev) -> list:
+    """The network against its own DOE's linear filter per image (flags), and lost colour channels."""
+    blocks = behind_linear_filter_blocks(ev.table, ev.range_mm) + channel_imbalance_blocks(ev.table, ev.range_mm)
+    return [Heading("Per image: network vs linear filter, colour channels")] + blocks if blocks else []
 
 
 def claims_section(claims: Sequence[Claim]) -> list:
@@ -126,6 +133,7 @@ def summary_report(ev) -> Report:
     report.extend(overview(ev))
     report.add(Heading("Flat screen"))
     report.extend(results_tables(ev))
+    report.extend(image_checks_section(ev))
     report.add(Heading("Tilted screen"))
     report.add(tilted_table(ev.tilted))
     report.extend(methods_section(ev))
@@ -140,9 +148,10 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.add(Heading("Summary"))
     report.add(range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms))
     report.add(image_spread_table(ev.table, ev.range_mm))
+    report.extend(image_checks_section(ev))
     figures = ev.figures
     report.add(Heading("Quality against depth"))
-    for metric in ev.table.metrics:
+    for metric in headline_metrics(ev.table.metrics):
         if f"{metric}_vs_depth" in figures:
             report.add(
                 Figure(

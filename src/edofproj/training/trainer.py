@@ -82,6 +82,7 @@ from .end_to_end import EndToEndProjector, SimulatedPSF, resolve_mixed_precision
 from .losses import build_loss
 from .psf_table import DepthPSFTable
 from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise
+from .validation import StepChecks
 
 #: Depths shown in ``figures/psf_depths.png``.
 FIGURE_DEPTHS = 6
@@ -195,6 +196,7 @@ class _Session:
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
         start_from_wiener(cfg, self.net, psf_source)
+        self.checks = StepChecks(cfg, self.net, psf_source, run_dir, group.is_main, device)
         layers_m = None
         if cfg.train.screens == "varying":
             layers_m = layer_depths_m(cfg.psf.depth_min_m, cfg.psf.depth_max_m, max(2, cfg.imaging.depth_layers))
@@ -445,6 +447,7 @@ def _train(
     if checkpoint is not None:
         session.restore(checkpoint)
     start = session.step
+    session.checks.start(start, resumed=checkpoint is not None)
     end = cfg.train.steps if stop_after is None else min(cfg.train.steps, int(stop_after))
     if group.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -471,6 +474,7 @@ def _train(
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss:.4g}")
+            session.checks.after_step(session.step, tqdm.write if bar is not None else print)
             if session.step % cfg.train.checkpoint_every == 0 or session.step == end:
                 session.save()
     finally:

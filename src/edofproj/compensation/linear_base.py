@@ -1,0 +1,111 @@
+"""A network that is never far from its DOE's linear filter: a bounded correction on top of it.
+
+The *safe* compensation (``net.linear_base: ensemble``) predicts the projector input as
+
+    x = E(I) + c,      E(I) = clamp(g * I, 0, 1),      c = HP_s( b_t tanh(r / b_t) )
+
+* ``g`` is the depth-ensemble Wiener filter of the current DOE
+  (:func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel` of its PSFs at
+  :func:`ensemble_depths_m`, ``(2 R + 1)^2`` taps, applied after reflecting the border by ``R``
+  pixels): with the same PSFs, NSR and radius, ``E`` is exactly the blind baseline ``doe+ensemble``
+  of the evaluation. The trainer recomputes ``g`` from the DOE it is optimizing
+  (:mod:`edofproj.training.linear_base`) and keeps it in the network's state (a buffer), so a
+  trained run carries the filter of its final DOE.
+* ``r`` is the U-Net's output (it sees ``[I, I*, E(I)]``); its last layer starts at zero, so an
+  untrained network *is* the linear filter, ``x = E(I)``.
+* ``b_t tanh(r / b_t)`` bounds the correction per pixel by ``b_t``; ``HP_s(v) = v - G_s * v``
+  removes its local mean (``G_s`` a normalized Gaussian of ``s`` pixels, replicate border), so
+  that the correction carries no level of its own: over any flat area wider than a few ``s``,
+  the emitted colour is the linear filter's, whatever the weights. ``b_t = b / 2`` with the
+  high-pass (``|HP_s(v)| <= 2 max|v|``), ``b`` without it.
+
+**The rule that makes it safe.** ``|x - E(I)| <= b`` at every pixel, for any weights. The
+projection ``A(x) = clamp(x, 0, 1) * p + (1 - sum p) mean(clamp(x, 0, 1))`` is non-expansive in
+the maximum norm (``clamp`` is 1-Lipschitz, ``p >= 0`` and the haze gain ``1 - sum p`` add up to
+1), so at *every* depth ``|A(x) - A(E(I))| <= b`` per pixel: the network's display differs from the
+linear filter's by at most ``b`` anywhere, on any image, and its RMS error exceeds the linear
+filter's by at most ``b``. Flat colours (a near-empty primary included) keep the linear filter's
+level, ``G(0) = 1 / (1 + NSR)`` of the target. Training then only has to find where the correction
+helps; :mod:`edofproj.training.validation` checks that it does, image by image.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..imaging.convolution import convolve_same
+from .wiener import depth_ensemble_wiener_kernel
+
+#: Depths of the ensemble (uniform in 1/z over the scored range), as :func:`edofproj.evaluation.methods.ensemble_depths_m`.
+ENSEMBLE_DEPTHS = 32
+#: Frame (px) on which the ensemble filter is computed before it is cut to its taps (as the evaluation's).
+ENSEMBLE_GRID = 256
+
+
+def ensemble_depths_m(near_m: float, far_m: float, count: int = ENSEMBLE_DEPTHS) -> np.ndarray:
+    """``count`` depths from ``near_m`` to ``far_m`` uniform in ``1/z`` (uniform in defocus)."""
+    return 1.0 / np.linspace(1.0 / near_m, 1.0 / far_m, int(count))
+
+
+class LinearBase(nn.Module):
+    """``E(I) = clamp(g * reflect_pad(I, R), 0, 1)`` cropped back; ``g`` a buffer ``(C, 2R+1, 2R+1)``,
+    the identity (a centred delta) until :meth:`set_kernel` or :meth:`set_from_psfs` is called."""
+
+    kernel: torch.Tensor
+
+    def __init__(self, channels: int = 3, radius: int = 33) -> None:
+        super().__init__()
+        self.radius = int(radius)
+        size = 2 * self.radius + 1
+        delta = torch.zeros(int(channels), size, size)
+        delta[:, self.radius, self.radius] = 1.0
+        self.register_buffer("kernel", delta)
+
+    def set_kernel(self, kernel) -> None:
+        """Use ``kernel`` ``(C, 2R+1, 2R+1)`` (a convolution kernel, as the depth-ensemble filter returns)."""
+        value = torch.as_tensor(np.asarray(kernel), dtype=torch.float32)
+        if value.shape != self.kernel.shape:
+            raise ValueError(f"linear filter kernel must be {tuple(self.kernel.shape)}, got {tuple(value.shape)}")
+        self.kernel.copy_(value.to(self.kernel.device))
+
+    def set_from_psfs(self, psfs, nsr: float, grid: int = ENSEMBLE_GRID) -> None:
+        """Set ``g`` to the depth-ensemble Wiener filter of ``psfs`` ``(N, C, K, K)`` with ``nsr``."""
+        if isinstance(psfs, torch.Tensor):
+            psfs = psfs.detach().cpu().numpy()
+        self.set_kernel(depth_ensemble_wiener_kernel(psfs, nsr, radius=self.radius, grid=grid))
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        r = self.radius
+        padded = F.pad(image, (r, r, r, r), mode="reflect")
+        # in an ONNX export the FFTs become DFT nodes, computed in double (as the radial filter's)
+        work = padded.double() if torch.onnx.is_in_onnx_export() else padded
+        filtered = convolve_same(work, self.kernel.unsqueeze(0).to(work.dtype)).to(image.dtype)
+        return filtered[..., r:-r, r:-r].clamp(0.0, 1.0)
+
+
+def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Separable normalized Gaussian blur (radius ``ceil(3 sigma)``, replicate border) of ``(B, C, H, W)``."""
+    radius = max(1, math.ceil(3 * sigma_px))
+    x = torch.arange(-radius, radius + 1, dtype=image.dtype, device=image.device)
+    window = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    window = window / window.sum()
+    channels = image.shape[1]
+    padded = F.pad(image, (radius, radius, radius, radius), mode="replicate")
+    rows = window.view(1, 1, 1, -1).expand(channels, 1, 1, -1)
+    cols = window.view(1, 1, -1, 1).expand(channels, 1, -1, 1)
+    return F.conv2d(F.conv2d(padded, rows, groups=channels), cols, groups=channels)
+
+
+def bounded_correction(residual: torch.Tensor, bound: float, highpass_px: float) -> torch.Tensor:
+    """``c = HP_s(b_t tanh(r / b_t))`` (module docstring): ``|c| <= bound`` at every pixel, and with
+    ``highpass_px = s > 0`` no local mean beyond a Gaussian of ``s`` pixels."""
+    if highpass_px <= 0:
+        return bound * torch.tanh(residual / bound)
+    half = 0.5 * bound
+    limited = half * torch.tanh(residual / half)
+    return limited - gaussian_blur(limited, highpass_px)

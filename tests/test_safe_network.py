@@ -1,0 +1,145 @@
+"""The safe compensation network (``net.linear_base: ensemble``): its construction, checked against
+the evaluation's own linear baseline and against closed forms.
+
+* untrained, it *is* the depth-ensemble linear filter ``doe+ensemble`` (the evaluation's
+  independent implementation), bit for bit up to float rounding;
+* for any weights, ``|x - E(I)| <= b`` and, at any depth, ``|A(x) - A(E(I))| <= b`` (the projection
+  is non-expansive in the maximum norm);
+* a uniform colour with one primary at 5 % is sent at 5 % +- 0.5 % whatever the weights (the
+  correction carries no local mean) and comes back so on the screen while the correction stays
+  within the level; without the high-pass a uniform correction shifts it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.compensation.linear_base import LinearBase, bounded_correction, ensemble_depths_m
+from edofproj.compensation.registry import build_network
+from edofproj.compensation.unet import CompensationUNet
+from edofproj.config import ConfigError, load_config
+from edofproj.evaluation.methods import EnsembleWienerCompensation
+from edofproj.imaging.projection import project
+
+RADIUS = 12
+NSR = 0.01
+
+
+def gaussian_psfs(sigmas_px, window: int = 15, energy: float = 0.95) -> torch.Tensor:
+    """Normalized Gaussian PSFs ``(N, 3, K, K)`` carrying ``energy`` (the rest is haze)."""
+    y, x = np.mgrid[-(window // 2) : window // 2 + 1, -(window // 2) : window // 2 + 1]
+    stack = []
+    for sigma in sigmas_px:
+        g = np.exp(-(x**2 + y**2) / (2 * sigma**2))
+        stack.append(np.repeat((energy * g / g.sum())[None], 3, axis=0))
+    return torch.tensor(np.stack(stack), dtype=torch.float32)
+
+
+def safe_unet(bound: float = 0.2, highpass_px: float = 4.0) -> CompensationUNet:
+    torch.manual_seed(0)
+    net = CompensationUNet([4, 8, 8], linear_radius=RADIUS, correction_bound=bound, correction_highpass_px=highpass_px)
+    net.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5, 3.5]), NSR)
+    return net.eval()
+
+
+def scramble_head(net: CompensationUNet, scale: float = 1.0) -> None:
+    """Large random weights in every layer: the correction is far from zero and varies across the image."""
+    generator = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for parameter in net.parameters():
+            parameter.copy_(scale * torch.randn(parameter.shape, generator=generator))
+
+
+def test_untrained_safe_network_is_the_evaluations_depth_ensemble_filter():
+    psfs = gaussian_psfs([0.8, 1.5, 2.5, 3.5])
+    net = safe_unet()
+    baseline = EnsembleWienerCompensation(psfs, NSR, RADIUS)
+    image = torch.rand(2, 3, 48, 64, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        x = net(image, project(image, psfs[:1]))
+    torch.testing.assert_close(x, baseline(image, image, psfs[:1]), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("highpass_px", [0.0, 4.0])
+def test_correction_is_bounded_and_so_is_the_display_difference_at_every_depth(highpass_px):
+    bound = 0.1
+    net = safe_unet(bound, highpass_px)
+    scramble_head(net)
+    image = torch.rand(2, 3, 48, 64, generator=torch.Generator().manual_seed(3))
+    psfs = gaussian_psfs([0.5, 2.0, 4.0])
+    with torch.no_grad():
+        base = net.linear_base(image)
+        for psf in psfs:
+            x = net(image, project(image, psf[None]))
+            assert (x - base).abs().max() <= bound + 1e-6
+            assert (x - base).abs().max() > 0.2 * bound  # the scrambled correction is far from zero
+            difference = project(x, psf[None]) - project(base, psf[None])
+            assert difference.abs().max() <= bound + 1e-6
+
+
+def test_bounded_correction_closed_form_without_highpass():
+    r = torch.linspace(-3, 3, 61).view(1, 1, 1, 61).expand(1, 3, 4, 61)
+    torch.testing.assert_close(bounded_correction(r, 0.2, 0.0), 0.2 * torch.tanh(r / 0.2))
+
+
+def uniform_colour(level_blue: float = 0.05, size: int = 64) -> torch.Tensor:
+    colour = torch.tensor([0.8, 0.7, level_blue]).view(1, 3, 1, 1)
+    return colour.expand(1, 3, size, size).contiguous()
+
+
+@pytest.mark.parametrize("scale", [0.1, 0.3, 1.0])
+def test_a_nearly_empty_primary_keeps_its_level_whatever_the_weights(scale):
+    """5 % blue stays at 5 % +- 0.5 % in the projector input for any weights (the correction has no
+    local mean; the filter's DC gain is 1 / (1 + NSR)), and on the screen while the correction's
+    swings stay within the level (larger negative swings are clipped by the projector, module
+    docstring of :mod:`edofproj.compensation.linear_base`)."""
+    net = safe_unet()
+    scramble_head(net, scale)
+    target = uniform_colour()
+    psf = gaussian_psfs([2.0])
+    with torch.no_grad():
+        x = net(target, project(target, psf))
+        display = project(x, psf)
+    base = net.linear_base(target)[0, 2, 16:-16, 16:-16]
+    assert float(base.mean()) == pytest.approx(0.05 / (1 + NSR), abs=1e-4)
+    assert abs(float(x[0, 2, 16:-16, 16:-16].mean()) - 0.05) < 0.005
+    if float((x - net.linear_base(target))[0, 2].min()) > -0.05:  # no clipped swing
+        assert abs(float(display[0, 2, 16:-16, 16:-16].mean()) - 0.05) < 0.005
+
+
+def test_without_the_highpass_a_uniform_correction_would_shift_the_level():
+    """The check above can fail: a bias of -0.1 on blue empties the channel unless the correction is mean-free."""
+    target, psf = uniform_colour(), gaussian_psfs([2.0])
+    levels = {}
+    for highpass_px in (0.0, 4.0):
+        net = safe_unet(0.2, highpass_px)
+        with torch.no_grad():
+            net.head.bias[2] = -0.1
+            levels[highpass_px] = float(project(net(target, target), psf)[0, 2, 16:-16, 16:-16].mean())
+    assert levels[0.0] < 0.01
+    assert abs(levels[4.0] - 0.05) < 0.005
+
+
+def test_linear_base_keeps_its_kernel_in_the_state_dict():
+    net = safe_unet()
+    state = net.state_dict()
+    fresh = CompensationUNet([4, 8, 8], linear_radius=RADIUS)
+    assert torch.equal(fresh.linear_base.kernel[:, RADIUS, RADIUS], torch.ones(3))  # starts as the identity
+    fresh.load_state_dict(state)
+    torch.testing.assert_close(fresh.linear_base.kernel, net.linear_base.kernel)
+
+
+def test_ensemble_depths_are_uniform_in_inverse_depth():
+    depths = ensemble_depths_m(0.3, 0.8, 5)
+    assert depths[0] == pytest.approx(0.3) and depths[-1] == pytest.approx(0.8)
+    np.testing.assert_allclose(np.diff(1 / depths), (1 / 0.8 - 1 / 0.3) / 4)
+
+
+def test_config_builds_the_safe_network_and_rejects_it_with_a_prefilter():
+    cfg = load_config("cpu")
+    net = build_network(cfg.net)
+    assert isinstance(net.linear_base, LinearBase) and net.linear_base.radius == cfg.psf.window
+    with pytest.raises(ConfigError, match="linear_base"):
+        load_config("cpu", ["net.prefilter_bins=48"])
