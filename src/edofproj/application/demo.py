@@ -81,13 +81,13 @@ class DemoSettings:
 
 #: Steps the full demo trains ``doe+net`` for: the time the faster step saves goes to our method
 #: (the baselines keep the preset's steps; docs/experiments/2026-11-25-training-speed.md).
-OURS_DEMO_STEPS = 3000
+OURS_DEMO_STEPS = 2400
 
 FULL = DemoSettings(
     name="full",
     budget_s=FULL_BUDGET_MIN * 60,
     overrides=("train.checkpoint_every=100",),
-    evaluation_estimate_s=130.0,
+    evaluation_estimate_s=200.0,
     timing_sizes=((256, 256), (600, 800)),
     timing_repeats=3,
     cubic_table_depths=24,
@@ -130,9 +130,12 @@ JOB_COSTS = {
 }
 #: The run the package ships for a baseline (``builtin:NAME``), trained beforehand with the ``cpu``
 #: preset and the demo's settings; the demo uses it when training the baseline would overrun the
-#: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used. ``lens+onlineprodeb``
-#: has none yet (its 1800 steps take about 25 minutes on one core): a demo that cannot train it skips it.
-BUILTIN_BASELINES = {"cubic+net": "demo-cubic-net"}
+#: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
+BUILTIN_BASELINES = {
+    "axicon+net": "demo-axicon-net",
+    "cubic+net": "demo-cubic-net",
+    "lens+onlineprodeb": "demo-lens-onlineprodeb",
+}
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
 OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
