@@ -174,23 +174,6 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
     evaluation.files = {key: moved_path(path, stage, out) for key, path in evaluation.files.items()}
     paths = {key: moved_path(path, stage, out) for key, path in paths.items()}
     evaluation.out_dir = out
-    print(format_text_table(range_table(evaluation.table, evaluation.range_mm, ["ssim", "psnr"], evaluation.frame_ms)))
-    evaluation = evaluate_run(
-        args.run,
-        out_dir=args.out,
-        images_dir=args.images,
-        validation=args.validation,
-        depths_mm=depths,
-        methods=methods,
-        baselines_dir=args.baselines,
-        overrides=args.overrides,
-        progress=progress,
-        device=device,
-    )
-    claims = ssim_claims(evaluation.table, evaluation.range_mm)
-    paths = write_documents(
-        evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
-    )
     shown = [m for m in ("ssim", "psnr", "de2000") if m in evaluation.table.metrics]
     print(format_text_table(range_table(evaluation.table, evaluation.range_mm, shown, evaluation.frame_ms)))
     behind = [c for c in behind_linear_filter(evaluation.table, evaluation.range_mm) if c.behind]
