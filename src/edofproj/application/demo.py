@@ -54,6 +54,7 @@ from ..evaluation.summary import format_text_table, range_table
 from ..evaluation.writeup import claims_section, write_documents
 from ..fileio import read_arrays
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
+from ..runs.directory import flatten_keys
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
@@ -235,20 +236,10 @@ RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "tr
                   "train.keep_checkpoints", "train.threads", "train.device")  # fmt: skip
 
 
-def _flat(tree: dict, prefix: str = "") -> dict:
-    flat = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            flat.update(_flat(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
-
-
 def recipe_difference(shipped, expected) -> str | None:
     """The first config key (outside :data:`RECIPE_IGNORED`) where the shipped run's configuration differs
     from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
-    a, b = _flat(to_dict(shipped)), _flat(to_dict(expected))
+    a, b = flatten_keys(to_dict(shipped)), flatten_keys(to_dict(expected))
     for key in sorted(set(a) | set(b)):
         if key.startswith(RECIPE_IGNORED) or a.get(key) == b.get(key):
             continue

@@ -86,11 +86,12 @@ def saved_config(run_dir: str | Path, overrides=()) -> Config:
     return load_config(str(path), overrides)
 
 
-def _flatten(data: dict, prefix: str = "") -> dict:
+def flatten_keys(data: dict, prefix: str = "") -> dict:
+    """``{"section.key": value}`` of a nested configuration dictionary (:func:`~edofproj.config.to_dict`)."""
     flat = {}
     for key, value in data.items():
         if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
+            flat.update(flatten_keys(value, f"{prefix}{key}."))
         else:
             flat[f"{prefix}{key}"] = value
     return flat
@@ -98,8 +99,8 @@ def _flatten(data: dict, prefix: str = "") -> dict:
 
 def check_resume_config(run_dir: str | Path, cfg: Config) -> None:
     """Refuse to resume with a configuration that changes what the run computes."""
-    old = _flatten(to_dict(with_absolute_paths(saved_config(run_dir))))  # a run saved before paths were absolute
-    new = _flatten(to_dict(with_absolute_paths(cfg)))
+    old = flatten_keys(to_dict(with_absolute_paths(saved_config(run_dir))))  # a run saved before paths were absolute
+    new = flatten_keys(to_dict(with_absolute_paths(cfg)))
     changed = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMABLE_KEYS)
     if changed:
         shown = ", ".join(f"{k} ({old.get(k)!r} -> {new.get(k)!r})" for k in changed[:3])
