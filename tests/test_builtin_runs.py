@@ -82,7 +82,7 @@ def test_a_builtin_run_is_named_wherever_a_run_is(tmp_path, capsys):
         main(["evaluate", "builtin:nope", "--out", str(tmp_path / "e")])
     assert exit_info.value.code == 2
     assert (
-        "the built-in runs are builtin:cpu-doe-net, builtin:demo-axicon-net, builtin:demo-cubic-net"
+        "the built-in runs are builtin:cpu-doe-net, builtin:demo-axicon-net, builtin:demo-cubic-net, builtin:demo-lens-onlineprodeb"
         in capsys.readouterr().err
     )
 
