@@ -11,5 +11,5 @@ FULL_BUDGET_MIN = 10
 #: Budget of ``edofproj demo --quick`` (minutes).
 QUICK_BUDGET_MIN = 2
 #: How long each takes, as measured, in the words every help text uses.
-FULL_DURATION = "about 10 minutes on 2 CPU cores"
+FULL_DURATION = "about 7 minutes on 2 CPU cores"
 QUICK_DURATION = "about a minute"
