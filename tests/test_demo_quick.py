@@ -16,6 +16,7 @@ TINY = TINY_EVALUATION + [
     "train.checkpoint_every=3",
     "evaluation.depths_mm=[300,500,800]",
     "evaluation.comparison_depths_mm=[320,800]",
+    "net.linear_radius=15",  # the linear base's radius = the tiny psf.window (it mirrors the 32-px crops by it)
 ]
 
 

@@ -38,6 +38,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from ..errors import EdofprojError
 from ..imaging.convolution import convolve_same
 from .wiener import depth_ensemble_wiener_kernel
 
@@ -81,6 +82,11 @@ class LinearBase(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         r = self.radius
+        if r >= min(image.shape[-2:]):
+            raise EdofprojError(
+                f"net.linear_radius={r} needs images larger than {r} px (the filter mirrors them by its radius), got "
+                f"{image.shape[-2]}x{image.shape[-1]}: use a smaller net.linear_radius (e.g. psf.window) or larger crops"
+            )
         padded = F.pad(image, (r, r, r, r), mode="reflect")
         # in an ONNX export the FFTs become DFT nodes, computed in double (as the radial filter's)
         work = padded.double() if torch.onnx.is_in_onnx_export() else padded
