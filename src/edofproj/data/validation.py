@@ -15,7 +15,7 @@ They come from sources the training and test splits never use (:data:`VALIDATION
 * colour classes (``colour/...``, :mod:`.colour`): the Minduka photograph with its blue primary at
   8 % of its level (a yellow-green scene, one primary nearly empty), dead leaves of saturated
   colours, the camera photograph darkened to a quarter, textured dead leaves in high key, a fine
-  periodic grating (periods of 3-8 px, each primary its own) and flat graphics (discs and bars of
+  periodic grating (a different period, 3 to 8 pixels, in each primary) and flat graphics (discs and bars of
   pure primaries and secondaries with sharp edges). :data:`COLOUR_CLASSES` are the ones training
   validates on (``train.validate_every``).
 
@@ -99,7 +99,7 @@ def _grating(size: int = PROCEDURAL_SIZE) -> np.ndarray:
 
 
 def _flat_graphics(size: int = PROCEDURAL_SIZE) -> np.ndarray:
-    """Discs and bars of pure primaries and secondaries on black and white halves, sharp edges."""
+    """Sharp-edged discs and bars in the pure primaries and secondaries, over a black left half and a white right half."""
     generator = torch.Generator().manual_seed(VALIDATION_SEED + 3)
     image = torch.zeros(3, size, size)
     image[:, :, size // 2 :] = 1.0
