@@ -5,7 +5,8 @@
 * ``reference/config.md``: every configuration key with its type, unit, default and the rule its
   validation enforces (the rule is the message the validator gives for an invalid value, so the page
   cannot drift from the code);
-* ``reference/api/<package>.md``: the API reference from the docstrings (mkdocstrings).
+* ``reference/api/<package>.md``: the API reference from the docstrings (mkdocstrings);
+* no other page: the rest of the site, results and performance included, is written in ``docs/``.
 """
 
 from __future__ import annotations
@@ -16,12 +17,15 @@ import math
 import os
 import pkgutil
 import re
+from pathlib import Path
 
 import mkdocs_gen_files
 
 import edofproj
 from edofproj.cli import build_parser
 from edofproj.config import Config, ConfigError
+
+ROOT = Path(__file__).resolve().parents[2]
 
 # --------------------------------------------------------------------------- CLI
 
