@@ -21,8 +21,8 @@ from .errors import EdofprojError
 
 
 class TerminalHelpFormatter(argparse.HelpFormatter):
-    """argparse's help with the Markdown code spans of descriptions and option help (```x```,
-    reStructuredText's ````x````) shown as their content: no raw backticks in a terminal
+    """argparse's help with the code spans of descriptions and option help (text between single or
+    double backticks) shown as their content: no raw backticks in a terminal
     (:func:`edofproj.reporting.markdown.terminal_text`)."""
 
     def _format_text(self, text: str) -> str:

@@ -11,7 +11,7 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
    which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
    others as baselines, on the held-out built-in photographs;
-3. **timing** -- milliseconds per compensated frame (:mod:`.timing`), and one scene,
+3. **timing** -- milliseconds per compensated frame (:mod:`edofproj.evaluation.timing`), and one scene,
    :data:`DEMO_SCENE` (a sphere in front of a wall: a depth edge), scored on the first held-out
    image at the panel size (:mod:`edofproj.evaluation.scenes`; the quick demo scores only
    ``lens``, ``doe`` and ``doe+net`` there);

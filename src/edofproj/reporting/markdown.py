@@ -1,15 +1,15 @@
 """Inline Markdown rendered by a CommonMark parser (markdown-it-py): for an HTML page and for a terminal.
 
-The texts of a report and of the command-line help are written in Markdown's inline syntax:
-```code``` (and reStructuredText's ````literal````, the same code span with a double fence),
-``**bold**``, ``*emphasis*``. A report's Markdown file carries them as they are; the two
-renderings here turn them into what a reader sees:
+The texts of a report and of the command-line help are written in Markdown's inline syntax: code
+spans (text between backticks; reStructuredText's double backticks are the same span with a
+double fence), ``**bold**``, ``*emphasis*``. A report's Markdown file carries them as they are;
+the two renderings here turn them into what a reader sees:
 
-* :func:`inline_html` -- HTML of one line of inline Markdown (CommonMark, raw HTML disabled: every
-  ``<``, ``>`` and ``&`` of the text is escaped); the text between the markup goes through
+* :func:`inline_html` -- HTML of one paragraph of inline Markdown (CommonMark, raw HTML disabled:
+  every ``<``, ``>`` and ``&`` of the text is escaped); the text between the markup goes through
   ``text_html`` (default: HTML-escaped), so that a caller can style words of it;
-* :func:`terminal_text` -- the same line as plain text for a terminal: a code span becomes its
-  content, nothing else is read as markup (an ``*`` in ``*.png`` stays).
+* :func:`terminal_text` -- the same text for a terminal: a code span becomes its content, nothing
+  else is read as markup (the ``*`` of ``*.png`` stays).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def inline_html(text: str, text_html: Callable[[str], str] = html.escape) -> str
 
 
 def terminal_text(text: str) -> str:
-    """``text`` for a terminal: each code span (```x```, ````x````) replaced by its content ``x``;
+    """``text`` for a terminal: each code span (single or double backticks) replaced by its content;
     the rest kept as written."""
     tokens = _code_span_parser().parseInline(str(text))
     return "".join(child.content for token in tokens for child in token.children or ())
