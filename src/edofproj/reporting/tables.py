@@ -5,8 +5,10 @@
 * :func:`depth_table` -- one metric, one row per method, one column per depth, plus the mean
   and worst over the range;
 * :func:`tilted_table` -- the tilted screen, mean over the images per method;
+* :func:`image_spread_table` -- how much the images disagree: mean ± standard deviation over the
+  images, the lowest image, the paired difference to a reference method;
 * :func:`run_spread_table` -- several evaluations of the same methods (e.g. training seeds):
-  mean ± standard deviation over the runs;
+  mean ± standard deviation over the runs (:func:`check_like_runs` first: ``edofproj summarize``);
 * :func:`format_text_table` -- any :class:`~edofproj.reporting.document.Table` as aligned text.
 """
 
