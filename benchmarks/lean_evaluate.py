@@ -1,9 +1,9 @@
 """``edofproj evaluate`` without its timing stage and with a 2-layer tilted screen: the same flat-screen
 ``metrics.csv``, ``summary.md`` and report, for a loaded machine where the full evaluation takes too long.
 
-    PYTHONPATH=src python benchmarks/lean_evaluate.py RUN OUT METHODS DEPTHS [--validation]
+    PYTHONPATH=src python benchmarks/lean_evaluate.py RUN OUT METHODS DEPTHS [--validation] [KEY=VALUE ...]
 
-``METHODS`` comma-separated, ``DEPTHS`` as ``edofproj evaluate --depths-mm`` (``300:800:50``). The
+``KEY=VALUE``: config overrides (e.g. ``evaluation.display_guard=false``). ``METHODS`` comma-separated, ``DEPTHS`` as ``edofproj evaluate --depths-mm`` (``300:800:50``). The
 flat-screen scores are those of ``edofproj evaluate`` (same code path); the tilted-screen table is
 not comparable (2 depth layers instead of ``imaging.depth_layers``) and ms/frame is absent.
 """
@@ -37,7 +37,7 @@ def main() -> None:
         out_dir=out,
         depths_mm=depths(depth_text),
         methods=methods.split(","),
-        overrides=["imaging.depth_layers=2"],
+        overrides=["imaging.depth_layers=2", *(arg for arg in sys.argv[5:] if "=" in arg)],
         timing=False,
         validation="--validation" in sys.argv[5:],
     )

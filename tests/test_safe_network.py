@@ -7,7 +7,10 @@ the evaluation's own linear baseline and against closed forms.
   is non-expansive in the maximum norm);
 * a uniform colour with one primary at 5 % is sent at 5 % +- 0.5 % whatever the weights (the
   correction carries no local mean) and comes back so on the screen while the correction stays
-  within the level; without the high-pass a uniform correction shifts it.
+  within the level; without the high-pass a uniform correction shifts it;
+* the correction ignores a constant added to the U-Net's residual, so a residual whose mean has
+  drifted far beyond the bound (what killed a 10,000-step reference run when the bound came before
+  the high-pass) still passes gradients and still trains.
 """
 
 from __future__ import annotations
@@ -82,6 +85,47 @@ def test_correction_is_bounded_and_so_is_the_display_difference_at_every_depth(h
 def test_bounded_correction_closed_form_without_highpass():
     r = torch.linspace(-3, 3, 61).view(1, 1, 1, 61).expand(1, 3, 4, 61)
     torch.testing.assert_close(bounded_correction(r, 0.2, 0.0), 0.2 * torch.tanh(r / 0.2))
+
+
+def test_correction_ignores_a_drifted_residual_mean():
+    """``HP_s`` before the bound: ``c(r + m) = c(r)`` for any constant ``m`` (to float rounding at ``|m|``)."""
+    r = 0.3 * torch.randn(2, 3, 40, 48, generator=torch.Generator().manual_seed(5))
+    reference = bounded_correction(r, 0.2, 4.0)
+    for drift in (-100.0, 3.0, 100.0):
+        torch.testing.assert_close(bounded_correction(r + drift, 0.2, 4.0), reference, atol=1e-4, rtol=0)
+    assert reference.abs().max() > 0.05  # not trivially zero
+
+
+def test_a_drifted_residual_still_trains():
+    """A residual 1000 beyond the bound (tanh of the old form saturated at every pixel: zero gradient)
+    still gets a gradient, and a few Adam steps on a deblurring loss move the display towards the target."""
+    net = safe_unet(0.2, 4.0).train()
+    with torch.no_grad():
+        net.head.bias.fill_(-1000.0)
+    target = torch.rand(2, 3, 48, 64, generator=torch.Generator().manual_seed(6))
+    psf = gaussian_psfs([2.5])
+    captured = project(target, psf)
+
+    def loss() -> torch.Tensor:
+        return ((project(net(target, captured), psf) - target) ** 2).mean()
+
+    start = float(loss().detach())
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-2)
+    for _ in range(20):
+        optimizer.zero_grad()
+        value = loss()
+        value.backward()
+        assert net.head.weight.grad is not None and float(net.head.weight.grad.abs().max()) > 1e-6
+        optimizer.step()
+    assert float(loss().detach()) < start - 1e-3
+
+
+def test_correction_is_float32_under_bfloat16_autocast():
+    r = 0.3 * torch.randn(1, 3, 32, 32, generator=torch.Generator().manual_seed(7))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        c = bounded_correction(r.bfloat16(), 0.2, 4.0)
+    assert c.dtype == torch.float32
+    torch.testing.assert_close(c, bounded_correction(r.bfloat16().float(), 0.2, 4.0))
 
 
 def uniform_colour(level_blue: float = 0.05, size: int = 64) -> torch.Tensor:

@@ -6,8 +6,7 @@
   validation enforces (the rule is the message the validator gives for an invalid value, so the page
   cannot drift from the code);
 * ``reference/api/<package>.md``: the API reference from the docstrings (mkdocstrings);
-* ``results.md`` and ``performance.md``: the README's sections of the same names, the one source of
-  the project's measured figures.
+* no other page: the rest of the site, results and performance included, is written in ``docs/``.
 """
 
 from __future__ import annotations
@@ -255,25 +254,9 @@ def api_pages() -> dict[str, str]:
     return pages
 
 
-# --------------------------------------------------------------------------- README sections
-
-
-def readme_section(title: str) -> str:
-    """The README's ``## title`` section, its links rewritten for pages at the root of the site."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
-    if match is None:
-        raise SystemExit(f"README.md has no '## {title}' section")
-    body = match.group(1)
-    body = body.replace("](docs/", "](")
-    return f"# {title}\n\nFrom the project's README, where the same section sits.\n\n{body}"
-
-
 def main() -> None:
     pages = {"reference/cli.md": cli_reference(), "reference/config.md": config_reference()}
     pages.update(api_pages())
-    pages["results.md"] = readme_section("Results")
-    pages["performance.md"] = readme_section("Performance")
     for path, text in pages.items():
         with mkdocs_gen_files.open(path, "w") as handle:
             handle.write(text)

@@ -577,7 +577,10 @@ class EvaluationConfig:
     over which summaries and the demo's claims take the mean and the worst depth (``[]``: the
     training range ``psf.depth_min_mm`` - ``psf.depth_max_mm``). ``wiener_tuning_metric``: what
     the NSR maximizes, ``ssim`` (the metric of the demo's claims, so the baseline is as strong as
-    it can be there) or ``psnr`` (the MSE-optimal choice).
+    it can be there) or ``psnr`` (the MSE-optimal choice). ``display_guard``: a safe network's input
+    is sent only where its display, predicted at three depths of the scored range, scores at least
+    the SSIM of its linear filter's, else the filter's (:mod:`edofproj.evaluation.guard`; ``false``:
+    the network's input always).
     """
 
     depths_mm: list[float] = field(
@@ -607,6 +610,7 @@ class EvaluationConfig:
     wiener_tuning_depths: int = 6
     score_range_mm: list[float] = field(default_factory=list)
     wiener_tuning_metric: str = "ssim"
+    display_guard: bool = True
 
     @property
     def tilt_span_m(self) -> float:

@@ -2,7 +2,7 @@
 
 The *safe* compensation (``net.linear_base: ensemble``) predicts the projector input as
 
-    x = E(I) + c,      E(I) = clamp(g * I, 0, 1),      c = HP_s( b_t tanh(r / b_t) )
+    x = E(I) + c,      E(I) = clamp(g * I, 0, 1),      c = HP_s( b_t tanh( HP_s(r) / b_t ) )
 
 * ``g`` is the depth-ensemble Wiener filter of the current DOE
   (:func:`~edofproj.compensation.wiener.depth_ensemble_wiener_kernel` of its PSFs at
@@ -13,11 +13,17 @@ The *safe* compensation (``net.linear_base: ensemble``) predicts the projector i
   trained run carries the filter of its final DOE.
 * ``r`` is the U-Net's output (it sees ``[I, I*, E(I)]``); its last layer starts at zero, so an
   untrained network *is* the linear filter, ``x = E(I)``.
-* ``b_t tanh(r / b_t)`` bounds the correction per pixel by ``b_t``; ``HP_s(v) = v - G_s * v``
-  removes its local mean (``G_s`` a normalized Gaussian of ``s`` pixels, replicate border), so
-  that the correction carries no level of its own: over any flat area wider than a few ``s``,
-  the emitted colour is the linear filter's, whatever the weights. ``b_t = b / 2`` with the
-  high-pass (``|HP_s(v)| <= 2 max|v|``), ``b`` without it.
+* ``HP_s(v) = v - G_s * v`` removes a local mean (``G_s`` a normalized Gaussian of ``s`` pixels,
+  replicate border). It is applied twice. Inside, ``HP_s(r)``: the residual's local mean never
+  reaches the output, so it cannot push ``tanh`` into saturation (a residual whose mean has drifted
+  would otherwise saturate ``tanh`` at every pixel, and with it stop every gradient to the
+  U-Net). Outside, on the bounded value: the correction carries no level of its own, so over any
+  flat area wider than a few ``s`` the emitted colour is the linear filter's, whatever the
+  weights.
+* ``b_t tanh(u / b_t)`` bounds the correction per pixel by ``b_t``. ``b_t = b / 2`` with the
+  high-pass (``|HP_s(v)| <= 2 max|v|``), ``b`` without it (``c = b tanh(r / b)``).
+* ``c`` is computed in float32 whatever the autocast (``HP_s`` of a bfloat16 residual would
+  resolve only 8 bits of its value).
 
 **The rule that makes it safe.** ``|x - E(I)| <= b`` at every pixel, for any weights. The
 projection ``A(x) = clamp(x, 0, 1) * p + (1 - sum p) mean(clamp(x, 0, 1))`` is non-expansive in
@@ -108,10 +114,14 @@ def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
 
 
 def bounded_correction(residual: torch.Tensor, bound: float, highpass_px: float) -> torch.Tensor:
-    """``c = HP_s(b_t tanh(r / b_t))`` (module docstring): ``|c| <= bound`` at every pixel, and with
-    ``highpass_px = s > 0`` no local mean beyond a Gaussian of ``s`` pixels."""
-    if highpass_px <= 0:
-        return bound * torch.tanh(residual / bound)
-    half = 0.5 * bound
-    limited = half * torch.tanh(residual / half)
-    return limited - gaussian_blur(limited, highpass_px)
+    """``c = HP_s(b_t tanh(HP_s(r) / b_t))`` (module docstring) of ``residual`` ``r`` ``(B, C, H, W)``,
+    in float32: ``|c| <= bound`` at every pixel; with ``highpass_px = s > 0``, no local mean beyond a
+    Gaussian of ``s`` pixels and independent of any constant added to ``r``."""
+    with torch.autocast(residual.device.type, enabled=False):
+        residual = residual.float()
+        if highpass_px <= 0:
+            return bound * torch.tanh(residual / bound)
+        half = 0.5 * bound
+        centred = residual - gaussian_blur(residual, highpass_px)
+        limited = half * torch.tanh(centred / half)
+        return limited - gaussian_blur(limited, highpass_px)

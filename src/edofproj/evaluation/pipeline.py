@@ -1,4 +1,4 @@
-"""``evaluate``: score a trained run and its baselines on held-out images; write tables and figures.
+"""``evaluate``: score a trained run and its baselines on held-out images; write the tables of scores.
 
 The straight line of an evaluation:
 
@@ -37,6 +37,7 @@ from ..errors import EdofprojError
 from ..progress import StageProgress
 from ..runs import CONFIG_NAME, TrainedRun, last_checkpoint_path, load_run
 from .designs import OpticalDesign
+from .guard import GuardedNetworkCompensation, guard_depths_m, guard_notes, network_filter
 from .methods import (
     ConstrainedCompensation,
     EnsembleWienerCompensation,
@@ -268,7 +269,14 @@ class MethodBuilder:
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
         else:
             source = baseline if baseline is not None else self.run
-            compensate = NetworkCompensation(source.net.to(self.device))
+            net = source.net.to(self.device)
+            guarded = self.cfg.evaluation.display_guard and network_filter(net) is not None
+            near_mm, far_mm = score_range_mm(self.cfg)
+            compensate = (
+                GuardedNetworkCompensation(net, design.psf(guard_depths_m(near_mm * 1e-3, far_mm * 1e-3)))
+                if guarded
+                else NetworkCompensation(net)
+            )
             loss = source.cfg.loss
             perceptual = (
                 f" + {loss.beta:g} (1 - {loss.perceptual.upper()})"
@@ -277,7 +285,7 @@ class MethodBuilder:
             )
             detail = (
                 f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
-                f"({source.run_dir})"
+                f"({source.run_dir})" + ("; display guard on" if guarded else "")
             )
         return PreparedMethod(spec, design, compensate, detail)
 
@@ -372,6 +380,7 @@ def evaluate_run(
     )
     table = flat_screen_sweep(prepared, images, depths, perceptual, progress.advance, device)
     progress.finish()
+    builder.notes.extend(guard_notes(prepared))
     progress.start("tilted screen", units)
     tilted, tilted_examples = tilted_screen_sweep(prepared, images, cfg, perceptual, progress.advance, device)
     comparison_depths = [float(z) for z in cfg.evaluation.comparison_depths_mm]
