@@ -17,7 +17,7 @@ import torch
 
 from edofproj.commands._common import parse_number_list
 from edofproj.evaluation.pipeline import evaluate_run
-from edofproj.evaluation.writeup import write_documents
+from edofproj.reporting.writeup import write_documents
 
 
 def depths(text: str) -> list[float]:

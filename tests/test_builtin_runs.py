@@ -90,7 +90,7 @@ def test_a_builtin_run_is_named_wherever_a_run_is(tmp_path, capsys):
 def test_builtin_runs_are_named_not_pathed_in_outputs(tmp_path, capsys, monkeypatch):
     """``export-doe builtin:NAME`` reports its source as builtin:NAME (not the package's path), and
     ``psf --plot`` labels the design builtin:NAME (not 'file')."""
-    import edofproj.evaluation.psf_plots as psf_plots
+    import edofproj.reporting.psf_plots as psf_plots
 
     out = tmp_path / "fab"
     assert main(["export-doe", SHIPPED, "--out", str(out), "--map-px", "512"]) == 0

@@ -10,9 +10,10 @@ from skimage.color import lab2rgb
 
 from edofproj.data.colour import ColourAugmentedSource, dark, empty_primary, high_key, saturate
 from edofproj.data.validation import COLOUR_CLASSES, validation_images
-from edofproj.evaluation.image_checks import behind_linear_filter, behind_linear_filter_blocks, channel_imbalance_blocks
+from edofproj.evaluation.image_checks import behind_linear_filter
 from edofproj.evaluation.results import BASE_METRICS, MetricsTable
 from edofproj.metrics import delta_e2000, ssim, ssim_per_channel
+from edofproj.reporting.image_checks import behind_linear_filter_blocks, channel_imbalance_blocks
 
 
 def lab_image(lab) -> torch.Tensor:

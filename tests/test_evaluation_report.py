@@ -9,12 +9,12 @@ import pytest
 
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.claims import ssim_claims, wall_time_claim
 from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
-from edofproj.evaluation.progress import StageProgress, format_duration
-from edofproj.evaluation.report import Figure, Heading, Paragraph, Report, Table
 from edofproj.evaluation.results import MetricsTable
-from edofproj.evaluation.summary import format_text_table, image_spread_table, range_table, run_spread_table
+from edofproj.progress import StageProgress, format_duration
+from edofproj.reporting.claims import ssim_claims, wall_time_claim
+from edofproj.reporting.document import Figure, Heading, Paragraph, Report, Table
+from edofproj.reporting.tables import format_text_table, image_spread_table, range_table, run_spread_table
 
 
 def table_from(ssim_by_method: dict[str, dict[float, float]]) -> MetricsTable:
@@ -277,8 +277,8 @@ def test_a_method_left_out_is_named_once_in_the_notes():
     methods not evaluated names only the others, so no method is reported twice (issue 29)."""
     from types import SimpleNamespace
 
-    from edofproj.evaluation.report import Bullets
-    from edofproj.evaluation.writeup import methods_section
+    from edofproj.reporting.document import Bullets
+    from edofproj.reporting.writeup import methods_section
 
     evaluated = [SimpleNamespace(name=n, spec=method_spec(n), detail="") for n in ("doe", "doe+net")]
     ev = SimpleNamespace(
@@ -311,7 +311,7 @@ def test_comparison_labels_are_readable_at_page_width(tmp_path):
     figure is shown 800 px wide (a report page), measured on the written PNG (issue 29)."""
     from PIL import Image
 
-    from edofproj.evaluation import figures
+    from edofproj.reporting import figures
 
     target = np.random.default_rng(0).random((48, 64, 3))
     methods = [m for m in METHOD_NAMES if m != "cubic+net"]
@@ -325,7 +325,7 @@ def test_comparison_labels_are_readable_at_page_width(tmp_path):
 
 def test_training_curves_draw_each_run_in_its_own_panel(tmp_path, monkeypatch):
     """Two runs with the same losses step for step: each still has its own visible curve (issue 29)."""
-    from edofproj.evaluation import figures
+    from edofproj.reporting import figures
 
     drawn = {}
     monkeypatch.setattr(figures, "_save", lambda fig, path, dpi=110: drawn.setdefault("fig", fig))

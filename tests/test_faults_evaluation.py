@@ -110,7 +110,7 @@ def test_finetune_into_a_used_directory_does_not_suggest_resume(run, tmp_path, c
 def test_an_interrupted_evaluate_leaves_the_previous_set_alone(run, tmp_path, capsys, monkeypatch):
     """Killed after its tables but before its reports: the folder keeps the previous evaluation's
     files, unchanged, and no new table beside them."""
-    import edofproj.evaluation.writeup as writeup
+    import edofproj.reporting.writeup as writeup
 
     out = tmp_path / "ev"
     args = ["evaluate", str(run), "--out", str(out), "--methods", "doe", "--quiet"]

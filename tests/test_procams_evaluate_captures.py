@@ -9,9 +9,9 @@ from scipy.ndimage import gaussian_filter
 
 from edofproj.cli import main
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.captures import evaluate_captures
 from edofproj.imaging.image_io import read_image_array, to_unit_float
 from edofproj.procams.capture_io import write_rgb_png
+from edofproj.reporting.captures import evaluate_captures
 from virtual_rigs import delta_psf, exact_calibration, straight_rig
 
 HW = (32, 40)

@@ -62,7 +62,7 @@ def _markdown_cell(text: str) -> str:
 def _command_sections(parser: argparse.ArgumentParser, name: str, level: int) -> list[str]:
     """One command: its description, its usage line and a table of its arguments (what ``--help`` says,
     laid out for a page), then its subcommands."""
-    formatter = parser._get_formatter()
+    formatter = argparse.HelpFormatter(parser.prog)  # the help as written (Markdown), not its terminal rendering
     lines = [f"{'#' * level} `{name}`", ""]
     if parser.description:
         lines += [_markdown_cell(parser.description), ""]

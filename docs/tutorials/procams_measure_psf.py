@@ -22,7 +22,6 @@ import torch
 
 from edofproj.config import load_config
 from edofproj.doe import build_doe
-from edofproj.evaluation.psf_plots import psf_to_rgb
 from edofproj.fileio import atomic_path, write_text_atomic
 from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.optics.psf_bank import design_engine, simulator_from_config
@@ -30,6 +29,7 @@ from edofproj.procams import PatternSpec, VirtualProCams, build_pattern_set, cal
 from edofproj.procams.calibration import calibration_files
 from edofproj.procams.capture_io import write_rgb_png
 from edofproj.procams.psf_estimation import bernoulli_files
+from edofproj.reporting.psf_plots import psf_to_rgb
 
 
 def parse_args() -> argparse.Namespace:

@@ -20,10 +20,10 @@ import torch
 
 from edofproj.config import load_config
 from edofproj.doe import build_doe
-from edofproj.evaluation.psf_plots import plot_psf_comparison
 from edofproj.fabrication.tolerance import energy_concentration
 from edofproj.fileio import atomic_path, write_text_atomic
 from edofproj.optics.psf_bank import design_engine, simulator_from_config
+from edofproj.reporting.psf_plots import plot_psf_comparison
 
 DESIGNS = ("lens", "axicon", "cubic", "multifocal")
 

@@ -20,8 +20,28 @@ from . import __version__, commands
 from .errors import EdofprojError
 
 
+class TerminalHelpFormatter(argparse.HelpFormatter):
+    """argparse's help with the code spans of descriptions and option help (text between single or
+    double backticks) shown as their content: no raw backticks in a terminal
+    (:func:`edofproj.reporting.markdown.terminal_text`)."""
+
+    def _format_text(self, text: str) -> str:
+        from .reporting.markdown import terminal_text  # start-up: loaded only when help is shown
+
+        return super()._format_text(terminal_text(text))
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        from .reporting.markdown import terminal_text  # start-up: loaded only when help is shown
+
+        return terminal_text(super()._expand_help(action))
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """argparse with one-line errors."""
+    """argparse with one-line errors and :class:`TerminalHelpFormatter` help."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", TerminalHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):  # noqa: D401 - argparse API
         """Exit with code 2 after one line on stderr, ``edofproj: error: MESSAGE (see 'PROG --help')``,

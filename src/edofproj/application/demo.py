@@ -1,6 +1,6 @@
 """The demo: train our method and its baselines on built-in data, evaluate, and write the report.
 
-Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StageProgress`):
+Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 
 1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
    (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
@@ -11,12 +11,12 @@ Stages (each shown with its ETA by :class:`~edofproj.evaluation.progress.StagePr
    which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
    others as baselines, on the held-out built-in photographs;
-3. **timing** -- milliseconds per compensated frame (:mod:`.timing`), and one scene,
+3. **timing** -- milliseconds per compensated frame (:mod:`edofproj.evaluation.timing`), and one scene,
    :data:`DEMO_SCENE` (a sphere in front of a wall: a depth edge), scored on the first held-out
    image at the panel size (:mod:`edofproj.evaluation.scenes`; the quick demo scores only
    ``lens``, ``doe`` and ``doe+net`` there);
 4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
-   ``metrics.csv``, with the paper's claims (:mod:`edofproj.evaluation.claims`) measured on the held-out images.
+   ``metrics.csv``, with the paper's claims (:mod:`edofproj.reporting.claims`) measured on the held-out images.
 
 ``--quick`` shrinks everything (few steps, small crops, two small test images, three depths)
 into a smoke run of about a minute; its numbers are not meant to be judged. Its DOE trains for too
@@ -39,7 +39,6 @@ from ..builtin_runs import BUILTIN_RUNS, PREFIX
 from ..config import apply_overrides, load_config, to_dict
 from ..errors import EdofprojError
 from ..evaluation import timing
-from ..evaluation.claims import Claim, ssim_claims, wall_time_claim
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
 from ..evaluation.pipeline import (
     EVALUATION_OVERRIDE_PREFIXES,
@@ -47,12 +46,14 @@ from ..evaluation.pipeline import (
     evaluate_run,
     require_trained_run,
 )
-from ..evaluation.progress import StageProgress, format_duration
-from ..evaluation.report import Figure, Heading, Paragraph, Table
-from ..evaluation.scenes import evaluate_scenes, scene_summary_table
-from ..evaluation.summary import format_text_table, range_table
-from ..evaluation.writeup import claims_section, write_documents
+from ..evaluation.scenes import evaluate_scenes
 from ..fileio import read_arrays
+from ..progress import StageProgress, format_duration
+from ..reporting.claims import Claim, ssim_claims, wall_time_claim
+from ..reporting.document import Figure, Heading, Paragraph, Table
+from ..reporting.scenes import scene_summary_table, write_scene_report
+from ..reporting.tables import format_text_table, range_table
+from ..reporting.writeup import claims_section, write_documents
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
 from ..runs.directory import flatten_keys
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
@@ -506,6 +507,7 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
         )
     except EdofprojError as exc:  # e.g. a configuration whose PSF range does not cover the scene
         return [Heading("Projection onto a 3-D scene"), Paragraph(f"Scene `{DEMO_SCENE}` not scored: {exc}.")]
+    write_scene_report(scenes)
     low, high = scenes.depth_ranges_mm[DEMO_SCENE]
     table = scene_summary_table(scenes, "ssim")
     table.caption = "SSIM over the object's pixels"

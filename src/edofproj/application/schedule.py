@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import EdofprojError
-from ..evaluation.progress import StageProgress, format_duration
+from ..progress import StageProgress, format_duration
 
 POLL_S = 1.0
 

@@ -90,7 +90,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..application.demo import demo_finished_message, run_demo
-    from ..evaluation.progress import StageProgress
+    from ..progress import StageProgress
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
     result = run_demo(

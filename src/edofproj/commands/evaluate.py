@@ -19,6 +19,7 @@ file; repeatable) the methods are scored on 3-D scenes instead, over the objects
 from __future__ import annotations
 
 import sys
+import time
 
 from ._common import RUN_HELP_SUFFIX, add_set_option, parse_name_list, parse_number_list, run_directory
 
@@ -83,9 +84,10 @@ def register(subparsers) -> None:
 
 def run_scenes(args) -> int:
     from ..evaluation.methods import method_spec
-    from ..evaluation.progress import StageProgress
-    from ..evaluation.scenes import evaluate_scenes, scene_summary_table
-    from ..evaluation.summary import format_text_table
+    from ..evaluation.scenes import evaluate_scenes
+    from ..progress import StageProgress
+    from ..reporting.scenes import scene_summary_table, write_scene_report
+    from ..reporting.tables import format_text_table
     from ..training.distributed import choose_device
 
     if args.depths_mm is not None:
@@ -95,6 +97,7 @@ def run_scenes(args) -> int:
     methods = parse_name_list(args.methods) if args.methods is not None else None
     for name in methods or ():
         method_spec(name)
+    clock = time.perf_counter()
     evaluation = evaluate_scenes(
         args.run,
         [item for text in args.scenes for item in parse_name_list(text)],
@@ -106,13 +109,14 @@ def run_scenes(args) -> int:
         progress=StageProgress("evaluate", enabled=not args.quiet),
         device=choose_device(args.device, option="--device"),
     )
+    write_scene_report(evaluation)
     print("SSIM over the objects' pixels:")
     print(format_text_table(scene_summary_table(evaluation, "ssim")))
     for note in evaluation.notes:
         print(f"note: {note}", file=sys.stderr)
     print(
         f"wrote {evaluation.files['summary']}, {evaluation.files['metrics']} and {evaluation.files['figure']} "
-        f"({evaluation.seconds:.0f} s)"
+        f"({time.perf_counter() - clock:.0f} s)"
     )
     return 0
 
@@ -123,8 +127,8 @@ def run(args) -> int:
     from ..builtin_runs import require_output_outside
     from ..evaluation.methods import method_spec
     from ..evaluation.pipeline import require_trained_run
-    from ..evaluation.progress import StageProgress
     from ..locking import directory_lock
+    from ..progress import StageProgress
     from ..training.distributed import choose_device
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
@@ -145,13 +149,14 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
     from pathlib import Path
 
     from ..builtin_runs import resolve_run_dir
-    from ..evaluation.claims import ssim_claims
     from ..evaluation.image_checks import behind_linear_filter
     from ..evaluation.output_set import moved_path, staged_output_set
     from ..evaluation.pipeline import evaluate_run
-    from ..evaluation.summary import format_text_table, range_table
-    from ..evaluation.writeup import claims_section, write_documents
+    from ..reporting.claims import ssim_claims
+    from ..reporting.tables import format_text_table, range_table
+    from ..reporting.writeup import claims_section, write_documents
 
+    clock = time.perf_counter()
     out = Path(args.out or resolve_run_dir(args.run))
     # the whole set (tables, figures, reports) is written aside, then swapped in: never a mix of two
     with staged_output_set(out) as stage:
@@ -169,7 +174,10 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
         )
         claims = ssim_claims(evaluation.table, evaluation.range_mm)
         paths = write_documents(
-            evaluation, title=f"edofproj evaluation of {evaluation.run.run_dir}", preface=claims_section(claims)
+            evaluation,
+            title=f"edofproj evaluation of {evaluation.run.run_dir}",
+            preface=claims_section(claims),
+            progress=progress,
         )
     evaluation.files = {key: moved_path(path, stage, out) for key, path in evaluation.files.items()}
     paths = {key: moved_path(path, stage, out) for key, path in paths.items()}
@@ -189,6 +197,6 @@ def _evaluate_locked(args, methods, depths, device, progress) -> int:
         )
     print(
         f"wrote {paths['summary']}, {evaluation.files['metrics']} and {paths['report_html']} "
-        f"({evaluation.seconds:.0f} s)"
+        f"({time.perf_counter() - clock:.0f} s)"
     )
     return 0

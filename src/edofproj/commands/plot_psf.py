@@ -30,8 +30,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..doe import build_doe
     from ..doe.factory import design_label
-    from ..evaluation.psf_plots import plot_psf_comparison
     from ..optics.psf_bank import design_engine, simulator_from_config
+    from ..reporting.psf_plots import plot_psf_comparison
 
     cfg = config_from_args(args, psf_overrides(args))
     specs = list(args.doe) or ["lens", cfg.doe.kind]

@@ -451,7 +451,7 @@ def run_rectify(args) -> int:
 
 
 def run_evaluate(args) -> int:
-    from ..evaluation.captures import evaluate_captures
+    from ..reporting.captures import evaluate_captures
 
     result = evaluate_captures(
         args.targets, args.captures, args.calib, args.out, weights_dir=args.weights_dir, overwrite=args.overwrite

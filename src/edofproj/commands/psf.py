@@ -117,7 +117,7 @@ def run(args) -> int:
     for z, e in zip(depths_m, energy):
         print(f"  {z * 1e3:7.1f} mm  energy in window " + " ".join(f"{v:.4f}" for v in e))
     if panels is not None:
-        from ..evaluation.psf_plots import plot_psf_comparison
+        from ..reporting.psf_plots import plot_psf_comparison
 
         plot_psf_comparison(panels, args.plot)
         print(f"wrote {args.plot}")

@@ -6,7 +6,7 @@ Each argument is an output directory of ``edofproj evaluate`` (or its ``metrics.
 per training seed, scored on the same images and depths (refused otherwise, as are incomplete or
 truncated files, NA scores and an unknown ``--reference``). Prints, as Markdown, each method's mean
 and worst-depth score over ``--range-mm`` as mean ± standard deviation over the evaluations, and
-the paired difference to ``--reference`` (:func:`edofproj.evaluation.summary.run_spread_table`);
+the paired difference to ``--reference`` (:func:`edofproj.reporting.tables.run_spread_table`);
 then the same for the CIEDE2000 colour difference (``de2000``, ``de2000_p95``; lower is better)
 where every evaluation has those columns.
 """
@@ -33,9 +33,9 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import EdofprojError
-    from ..evaluation.report import markdown_table
     from ..evaluation.results import COLOUR_METRICS, MetricsTable
-    from ..evaluation.summary import check_like_runs, run_spread_table
+    from ..reporting.document import markdown_table
+    from ..reporting.tables import check_like_runs, run_spread_table
 
     parts = str(args.range_mm).split(":")
     if len(parts) != 2:

@@ -10,9 +10,8 @@ Layout::
 Each raw capture ``c`` is rectified into projector output light per projector pixel,
 ``o = M^-1 (c(q(x)) - c_black(q(x)))`` (:meth:`ProCamsCalibration.to_output_space`), clipped
 to ``[0, 1]`` and scored against its target with PSNR and SSIM (:mod:`edofproj.metrics`), and
-LPIPS (AlexNet) and DISTS where their weights are present. Written (atomically, one folder):
-``scores.csv`` (one row per method and image), ``comparison.png`` (targets and rectified
-captures side by side), ``report.md`` and ``report.html`` (the table of means per method).
+LPIPS (AlexNet) and DISTS where their weights are present (:func:`score_captures`). The files,
+``scores.csv`` and the report, are :func:`edofproj.reporting.captures.evaluate_captures`'s.
 """
 
 from __future__ import annotations
@@ -29,13 +28,12 @@ from ..errors import EdofprojError
 from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
 from ..metrics import available_perceptual_metrics, perceptual_metric, psnr, ssim
 from ..procams.calibration import ProCamsCalibration
-from ..procams.capture_io import atomic_folder, read_rgb
-from .figures import plot_captured_comparison
-from .report import Figure, Heading, Paragraph, Report, Table
+from ..procams.capture_io import read_rgb
 
 #: Perceptual metrics scored when their weights are present: ``{metric name: column}``.
 PERCEPTUAL_COLUMNS = {"lpips-alex": "lpips", "dists": "dists"}
-FIGURE_ROWS = 4
+#: How many targets keep their rectified captures as examples (the report's figure).
+EXAMPLE_ROWS = 4
 
 
 def _images(folder: Path) -> dict[str, Path]:
@@ -49,10 +47,13 @@ def _tensor(image: np.ndarray) -> torch.Tensor:
 
 @dataclass
 class CaptureEvaluation:
-    """Scores ``{method: {image: {metric: value}}}`` and the metrics scored, in column order."""
+    """Scores ``{method: {image: {metric: value}}}``, the metrics scored (in column order) and examples:
+    ``(target name, target (H, W, 3), [(method, rectified capture (H, W, 3), scores), ...])`` of the
+    first targets."""
 
     metrics: list[str]
     scores: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    examples: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]] = field(default_factory=list)
 
     def means(self, method: str) -> dict[str, float]:
         rows = self.scores[method].values()
@@ -103,61 +104,33 @@ def read_methods(targets_dir: Path, captures_dir: Path) -> tuple[dict[str, Path]
     return targets, methods
 
 
-def evaluate_captures(
-    targets_dir: str | Path,
-    captures_dir: str | Path,
-    calib: str | Path | ProCamsCalibration,
-    out_dir: str | Path,
+def score_captures(
+    targets: dict[str, Path],
+    methods: dict[str, dict[str, Path]],
+    calibration: ProCamsCalibration,
     weights_dir: str | Path | None = None,
-    overwrite: bool = False,
+    examples: int = EXAMPLE_ROWS,
 ) -> CaptureEvaluation:
-    """Score every method's rectified captures against the targets and write the report (module docstring)."""
-    calibration = calib if isinstance(calib, ProCamsCalibration) else ProCamsCalibration.load(calib)
-    targets, methods = read_methods(Path(targets_dir), Path(captures_dir))
+    """Score every method's rectified captures against the targets (:func:`read_methods`; module
+    docstring), keeping the first ``examples`` targets' rectified captures."""
     available = available_perceptual_metrics(weights_dir)
     perceptual = {
         column: perceptual_metric(name, weights_dir) for name, column in PERCEPTUAL_COLUMNS.items() if available[name]
     }
     result = CaptureEvaluation(metrics=["psnr", "ssim"] + list(perceptual))
-    figure_rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]] = []
-    with atomic_folder(out_dir, overwrite=overwrite) as tmp:
-        for stem, path in targets.items():
-            target = to_unit_float(read_image_array(path))
-            calibration.check_projector_hw(target.shape[:2], what=f"target '{path.name}'")
-            target_t = _tensor(target)
-            tiles = []
-            for method, captures in methods.items():
-                rectified = np.clip(calibration.to_output_space(read_rgb(captures[stem], what="capture")), 0.0, 1.0)
-                shown = _tensor(rectified)
-                with torch.no_grad():
-                    row = {"psnr": float(psnr(shown, target_t)[0]), "ssim": float(ssim(shown, target_t)[0])}
-                    row.update({column: float(metric(shown, target_t)[0]) for column, metric in perceptual.items()})
-                result.scores.setdefault(method, {})[stem] = row
-                tiles.append((method, rectified, row))
-            if len(figure_rows) < FIGURE_ROWS:
-                figure_rows.append((stem, target, tiles))
-        plot_captured_comparison(figure_rows, tmp / "comparison.png")
-        (tmp / "scores.csv").write_text(result.csv_text(), encoding="utf-8")
-        report = Report(title="Captured projections against their targets")
-        report.add(
-            Paragraph(
-                f"{len(targets)} targets, {len(methods)} methods. Each raw capture is rectified into projector output "
-                "light per projector pixel with the calibration (geometric warp, black level, inverse colour mixing), "
-                "clipped to [0, 1] and scored against its target."
-                + ("" if perceptual else " LPIPS and DISTS are left out: their weights are not present.")
-            )
-        )
-        report.add(Heading("Mean scores per method"))
-        report.add(
-            Table(
-                header=["method"] + [m.upper() for m in result.metrics],
-                rows=[[method] + [f"{v:.4f}" for v in result.means(method).values()] for method in result.scores],
-                caption="PSNR in dB and SSIM: higher is better; LPIPS and DISTS: lower is better.",
-            )
-        )
-        report.add(Heading("Side by side"))
-        report.add(
-            Figure(tmp / "comparison.png", f"The first {len(figure_rows)} targets and each method's rectified capture.")
-        )
-        report.write(tmp / "report.md", tmp / "report.html")
+    for stem, path in targets.items():
+        target = to_unit_float(read_image_array(path))
+        calibration.check_projector_hw(target.shape[:2], what=f"target '{path.name}'")
+        target_t = _tensor(target)
+        tiles = []
+        for method, captures in methods.items():
+            rectified = np.clip(calibration.to_output_space(read_rgb(captures[stem], what="capture")), 0.0, 1.0)
+            shown = _tensor(rectified)
+            with torch.no_grad():
+                row = {"psnr": float(psnr(shown, target_t)[0]), "ssim": float(ssim(shown, target_t)[0])}
+                row.update({column: float(metric(shown, target_t)[0]) for column, metric in perceptual.items()})
+            result.scores.setdefault(method, {})[stem] = row
+            tiles.append((method, rectified, row))
+        if len(result.examples) < examples:
+            result.examples.append((stem, target, tiles))
     return result

@@ -1,7 +1,7 @@
 """Per-image checks of an evaluation: where the network is behind its own linear filter, and where
-a method loses one colour channel.
+a method loses one colour channel (their report sections: :mod:`edofproj.reporting.image_checks`).
 
-* :func:`behind_linear_filter` / :func:`behind_linear_filter_blocks` -- for every image, the mean
+* :func:`behind_linear_filter` -- for every image, the mean
   over the scored depth range of the SSIM of ``doe+net`` and of ``doe+ensemble`` (the blind
   depth-ensemble linear filter of the same DOE) and their CIEDE2000 colour differences; an image
   is *flagged* where
@@ -10,7 +10,7 @@ a method loses one colour channel.
 
   A trained network that is behind the fixed linear filter it could have been on some image
   is a defect to fix, not a trade-off.
-* :func:`channel_imbalance_blocks` -- images where a method's per-channel SSIMs (red, green, blue,
+* :func:`channel_imbalances` -- images where a method's per-channel SSIMs (red, green, blue,
   means over the scored depths) differ by more than :data:`CHANNEL_SPREAD` (0.05): the mark of a
   near-empty primary whose level was lost.
 """
@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .methods import OURS
-from .report import Paragraph, Table
 from .results import CHANNEL_METRICS, MetricsTable
 
 #: The blind linear baseline the network is checked against.
@@ -62,63 +61,32 @@ def behind_linear_filter(
     ]
 
 
-def behind_linear_filter_blocks(
-    table: MetricsTable, range_mm: tuple[float, float], ours: str = OURS, linear: str = LINEAR_FILTER
-) -> list:
-    """A verdict paragraph and a per-image table (flagged images marked **behind**); [] when the
-    evaluation did not score both methods."""
-    rows = behind_linear_filter(table, range_mm, ours, linear)
-    if not rows:
-        return []
-    behind = [r for r in rows if r.behind]
-    lo, hi = range_mm
-    if behind:
-        names = ", ".join(f"{r.image} ({r.ssim_net - r.ssim_linear:+.4f})" for r in behind)
-        verdict = (
-            f"**{ours} is behind {linear}, its own DOE's blind linear filter, on {len(behind)} of {len(rows)} "
-            f"image(s)** (mean SSIM over {lo:.0f}-{hi:.0f} mm): {names}."
-        )
-    else:
-        verdict = f"{ours} is at least as good as {linear} on every image (mean SSIM over {lo:.0f}-{hi:.0f} mm)."
-    table_rows = [
-        [
-            r.image,
-            f"{r.ssim_net:.4f}",
-            f"{r.ssim_linear:.4f}",
-            f"{r.ssim_net - r.ssim_linear:+.4f}",
-            f"{r.de_net:.2f}",
-            f"{r.de_linear:.2f}",
-            "**behind**" if r.behind else "",
-        ]
-        for r in rows
-    ]
-    header = ["image", f"SSIM {ours}", f"SSIM {linear}", "difference", f"ΔE2000 {ours}", f"ΔE2000 {linear}", ""]
-    caption = f"Per image, means over {lo:.0f}-{hi:.0f} mm: the network against the linear filter of the same DOE."
-    return [Paragraph(verdict), Table(header, table_rows, caption)]
+@dataclass(frozen=True)
+class ChannelImbalance:
+    """One method on one image: its per-channel SSIMs (red, green, blue; means over the scored depths)."""
+
+    method: str
+    image: str
+    ssim_rgb: tuple[float, float, float]
+
+    @property
+    def spread(self) -> float:
+        return max(self.ssim_rgb) - min(self.ssim_rgb)
 
 
-def channel_imbalance_blocks(
+def channel_imbalances(
     table: MetricsTable, range_mm: tuple[float, float], spread: float = CHANNEL_SPREAD
-) -> list:
-    """A table of (method, image) whose per-channel SSIMs differ by more than ``spread``, or a
-    sentence saying there is none; [] when the table has no per-channel columns."""
+) -> list[ChannelImbalance] | None:
+    """Every (method, image) whose per-channel SSIMs differ by more than ``spread``; None when the
+    table has no per-channel columns."""
     if not all(m in table.metrics for m in CHANNEL_METRICS):
-        return []
+        return None
     lo, hi = range_mm
-    rows = []
+    found = []
     for method in table.methods():
         channels = [table.per_image_range_means(method, m, lo, hi) for m in CHANNEL_METRICS]
         for image in channels[0]:
-            values = [c[image] for c in channels]
+            values = (channels[0][image], channels[1][image], channels[2][image])
             if max(values) - min(values) > spread:
-                rows.append([method, image] + [f"{v:.4f}" for v in values] + [f"{max(values) - min(values):.4f}"])
-    if not rows:
-        return [Paragraph(f"No method's colour channels differ in SSIM by more than {spread:g} on any image.")]
-    return [
-        Table(
-            ["method", "image", "SSIM red", "SSIM green", "SSIM blue", "spread"],
-            rows,
-            f"Images where a method's per-channel SSIMs (means over {lo:.0f}-{hi:.0f} mm) differ by more than "
-            f"{spread:g}: a colour channel, often a nearly empty primary, is rendered worse than the others.",
-        )
-    ]
+                found.append(ChannelImbalance(method, image, values))
+    return found

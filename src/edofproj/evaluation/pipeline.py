@@ -1,4 +1,4 @@
-"""``evaluate``: score a trained run and its baselines on held-out images; write tables and figures.
+"""``evaluate``: score a trained run and its baselines on held-out images; write the tables of scores.
 
 The straight line of an evaluation:
 
@@ -9,8 +9,8 @@ The straight line of an evaluation:
    Wiener NSR of each design tuned on *training* crops, the networks;
 3. score every method on every held-out image at every depth (:func:`.sweep.flat_screen_sweep`)
    and on the tilted screen (:func:`.sweep.tilted_screen_sweep`);
-4. write ``metrics.csv``, ``tilted_metrics.csv`` and the figures into the output directory
-   (:mod:`.figures`); the write-up is :mod:`.writeup`.
+4. write ``metrics.csv`` and ``tilted_metrics.csv`` into the output directory. The figures and
+   documents about the scores are :mod:`edofproj.reporting.writeup`'s.
 
 A method whose run does not exist is skipped with a note, unless it was asked for by name.
 """
@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
 import torch
 
 from ..builtin_runs import require_output_outside, resolve_run_dir
@@ -35,11 +34,9 @@ from ..data import evaluation_images
 from ..data.validation import validation_images
 from ..doe import build_doe
 from ..errors import EdofprojError
+from ..progress import StageProgress
 from ..runs import CONFIG_NAME, TrainedRun, last_checkpoint_path, load_run
-from ..runs.figures import plot_doe_profile
-from ..runs.log import read_log
 from .designs import OpticalDesign
-from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
 from .guard import GuardedNetworkCompensation, guard_depths_m, guard_notes, network_filter
 from .methods import (
     ConstrainedCompensation,
@@ -57,13 +54,10 @@ from .methods import (
     tune_ensemble_nsr,
     tune_nsr,
 )
-from .progress import StageProgress
-from .psf_plots import plot_psf_comparison
-from .results import MetricsTable, headline_metrics
+from .results import MetricsTable
 from .sweep import PERCEPTUAL_COLUMNS, example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
 from .timing import time_methods
 
-FIGURES_DIR = "figures"
 METRICS_NAME = "metrics.csv"
 TILTED_METRICS_NAME = "tilted_metrics.csv"
 #: Config sections a baseline run must share with the evaluated run (same projector, same light).
@@ -74,7 +68,8 @@ EVALUATION_OVERRIDE_PREFIXES = ("evaluation.", "imaging.", "data.max_test_images
 
 @dataclass
 class Evaluation:
-    """Everything an evaluation measured and wrote."""
+    """Everything an evaluation measured and wrote (``figures`` is filled by
+    :func:`edofproj.reporting.writeup.write_figures`)."""
 
     out_dir: Path
     run: TrainedRun
@@ -421,9 +416,6 @@ def evaluate_run(
         image_set="validation" if validation else ("folder" if images_dir is not None else "test"),
     )
     write_tables(evaluation)
-    progress.start("figures", 1)
-    write_figures(evaluation)
-    progress.finish()
     evaluation.seconds = time.perf_counter() - clock
     return evaluation
 
@@ -437,67 +429,3 @@ def write_tables(ev: Evaluation) -> None:
     ev.table.write_csv(ev.files["metrics"])
     ev.files["tilted_metrics"] = ev.out_dir / TILTED_METRICS_NAME
     ev.tilted.write_csv(ev.files["tilted_metrics"])
-
-
-def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
-    return np.linspace(cfg.psf.depth_min_m, cfg.psf.depth_max_m, count)
-
-
-def write_figures(ev: Evaluation) -> None:
-    """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
-    figures = ev.out_dir / FIGURES_DIR
-    figures.mkdir(parents=True, exist_ok=True)
-    for metric in headline_metrics(ev.table.metrics):
-        path = figures / f"eval_{metric}_vs_depth.png"
-        plot_metric_vs_depth(ev.table, metric, path, ev.range_mm)
-        ev.figures[f"{metric}_vs_depth"] = path
-
-    methods = [m.name for m in ev.methods]
-    name, image = ev.images[0]
-    target = image.permute(1, 2, 0).numpy()
-    ev.figures["comparison"] = figures / "eval_comparison.png"
-    plot_comparison(
-        target,
-        ev.comparison,
-        ev.cfg.evaluation.comparison_depths_mm,
-        methods,
-        ev.figures["comparison"],
-        image_name=name,
-    )
-    if ev.tilted.rows:
-        row = ev.tilted.rows[0]
-        ev.figures["tilted"] = figures / "eval_tilted.png"
-        plot_tilted(
-            target,
-            ev.tilted_examples,
-            methods,
-            ev.figures["tilted"],
-            row["near_mm"],
-            row["far_mm"],
-            ev.cfg.evaluation.tilt_deg,
-        )
-
-    depths_m = psf_figure_depths_m(ev.cfg)
-    panels = []
-    lens = ev.designs.get("lens")
-    if lens is None:
-        lens = OpticalDesign("lens", "lens", build_doe(ev.cfg, "lens"), ev.cfg)
-    run_design = ev.designs.get("run") or OpticalDesign("run", "doe", ev.run.doe, ev.cfg)
-    panels.append(("lens", lens.doe, lens.bank(depths_m)))
-    panels.append(("learned DOE", run_design.doe, run_design.bank(depths_m)))
-    for key, design in ev.designs.items():
-        if key not in ("lens", "run"):
-            panels.append((design.label, design.doe, design.bank(depths_m)))
-    ev.figures["psf"] = figures / "eval_psf_lens_vs_doe.png"
-    plot_psf_comparison(panels, ev.figures["psf"])
-
-    ev.figures["doe_profile"] = figures / "eval_doe_profile.png"
-    plot_doe_profile(ev.run.doe, ev.figures["doe_profile"], samples=ev.cfg.psf.pupil_samples)
-
-    curves = [("doe+net", read_log(ev.run.run_dir / "train_log.csv"))]
-    curves += [(method, read_log(run.run_dir / "train_log.csv")) for method, run in ev.baseline_runs.items()]
-    if any(rows for _, rows in curves):
-        ev.figures["training"] = figures / "eval_training_curves.png"
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            plot_training_curves(curves, ev.figures["training"])

@@ -16,9 +16,8 @@ among the methods). Scores are taken over the object's pixels only: PSNR of ``m 
 against ``m I`` over ``m``, and the mean of the local SSIM map (:func:`edofproj.metrics.ssim_map`)
 over the pixels of ``m`` where the SSIM window fits.
 
-Writes ``scene_metrics.csv`` (method, scene, image, psnr, ssim), ``figures/eval_scenes.png``
-(rows = scenes, columns = methods, the first image) and ``figures/eval_scene_ssim.png`` (the
-SSIM maps of the same tiles).
+Writes ``scene_metrics.csv`` (method, scene, image, psnr, ssim); the figures and
+``scene_summary.md`` are :func:`edofproj.reporting.scenes.write_scene_report`'s.
 """
 
 from __future__ import annotations
@@ -36,22 +35,18 @@ from ..builtin_runs import require_output_outside
 from ..config import apply_overrides
 from ..data import evaluation_images
 from ..errors import EdofprojError
-from ..fileio import write_text_atomic
 from ..metrics import ssim_map
 from ..optics.geometry import ProjectorGeometry
+from ..progress import StageProgress
 from ..runs import load_run
 from ..scenes import BUILTIN_SCENES, cast_scene, check_scene_depth_range, load_scene, render_scene
 from ..scenes.render import scene_layers_m
 from .designs import OpticalDesign
-from .figures import plot_scene_grid, plot_scene_ssim_maps
 from .methods import select_methods
 from .pipeline import MethodBuilder, evaluation_config, require_trained_run
-from .progress import StageProgress
-from .report import Table
 from .results import MetricsTable
 
 SCENE_METRICS_NAME = "scene_metrics.csv"
-SCENE_SUMMARY_NAME = "scene_summary.md"
 ALL_BUILTIN = "builtin"
 
 
@@ -178,46 +173,9 @@ def evaluate_scenes(
     return evaluation
 
 
-def scene_summary_table(evaluation: SceneEvaluation, metric: str = "ssim", digits: int = 3) -> Table:
-    """Rows ``[scene (depths), mean metric per method...]`` over the images."""
-    rows = []
-    for scene in evaluation.scenes:
-        lo, hi = evaluation.depth_ranges_mm[scene]
-        cells = [f"{scene} ({lo:.0f}-{hi:.0f} mm)"]
-        for method in evaluation.methods:
-            cells.append(f"{evaluation.table.mean(metric, method=method, scene=scene):.{digits}f}")
-        rows.append(cells)
-    return Table(["scene (depths seen)"] + evaluation.methods, rows)
-
-
-def markdown_table(table: Table) -> str:
-    lines = ["| " + " | ".join(table.header) + " |", "|" + "---|" * len(table.header)]
-    lines += ["| " + " | ".join(row) + " |" for row in table.rows]
-    return "\n".join(lines)
-
-
 def write_scene_files(evaluation: SceneEvaluation) -> None:
+    """``scene_metrics.csv`` in the output directory (its path in ``evaluation.files["metrics"]``)."""
     out = evaluation.out_dir
     out.mkdir(parents=True, exist_ok=True)
     evaluation.files["metrics"] = out / SCENE_METRICS_NAME
     evaluation.table.write_csv(evaluation.files["metrics"])
-    figures = out / "figures"
-    figures.mkdir(parents=True, exist_ok=True)
-    evaluation.files["figure"] = figures / "eval_scenes.png"
-    plot_scene_grid(
-        evaluation.targets, evaluation.examples, evaluation.scenes, evaluation.methods, evaluation.files["figure"]
-    )
-    evaluation.files["ssim_figure"] = figures / "eval_scene_ssim.png"
-    plot_scene_ssim_maps(evaluation.examples, evaluation.scenes, evaluation.methods, evaluation.files["ssim_figure"])
-    images = len({row["image"] for row in evaluation.table.rows})
-    text = (
-        f"# Scenes: {evaluation.run_dir}\n\n"
-        f"SSIM over the objects' pixels, mean of {images} image(s) at the panel size; "
-        f"`{SCENE_METRICS_NAME}` has every score (PSNR too).\n\n"
-        + markdown_table(scene_summary_table(evaluation, "ssim"))
-        + "\n\nPSNR (dB) over the objects' pixels:\n\n"
-        + markdown_table(scene_summary_table(evaluation, "psnr", digits=2))
-        + "\n"
-    )
-    evaluation.files["summary"] = out / SCENE_SUMMARY_NAME
-    write_text_atomic(evaluation.files["summary"], text)

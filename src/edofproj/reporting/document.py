@@ -5,7 +5,10 @@ preformatted text. :meth:`Report.to_markdown` links each figure by its path rela
 Markdown file; :meth:`Report.to_html` embeds each figure as a base64 ``data:`` URI, so the
 HTML file is readable on its own (mailed, archived, opened without the project).
 
-Inline text is plain: it is HTML-escaped, and only ``**bold**`` is translated.
+Inline text is Markdown (code spans, ``**bold**``, emphasis, links): the Markdown file carries it as
+written, the HTML renders it with a CommonMark parser (:func:`.markdown.inline_html`; raw HTML in
+a text is escaped, never markup), and the verdict words PASS, FAIL, holds and does not hold are
+coloured.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from pathlib import Path
 from typing import Sequence, Union
 
 from ..fileio import write_text_atomic
+from .markdown import inline_html
 
 
 @dataclass
@@ -32,7 +36,7 @@ class Heading:
 
 @dataclass
 class Paragraph:
-    """A paragraph of inline text (HTML-escaped; ``**bold**`` is translated)."""
+    """A paragraph of inline Markdown."""
 
     text: str
 
@@ -73,8 +77,6 @@ class Preformatted:
 
 Block = Union[Heading, Paragraph, Bullets, Table, Figure, Preformatted]
 
-_BOLD = re.compile(r"\*\*(.+?)\*\*")
-
 _CSS = """
 body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; max-width: 1100px;
        margin: 2em auto; padding: 0 1em; color: #222; line-height: 1.45; }
@@ -87,18 +89,23 @@ caption { caption-side: top; text-align: left; font-style: italic; padding-botto
 figure { margin: 1em 0 1.6em; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #444; margin-top: .3em; }
+code { background: #f2f2f2; padding: 0 .2em; border-radius: 3px; font-size: 0.92em; }
 pre { background: #f6f6f6; padding: .6em; overflow-x: auto; font-size: 0.85em; }
 .pass { color: #0a7d16; font-weight: bold; }
 .fail { color: #c01010; font-weight: bold; }
 """
 
 
-def _inline_html(text: str) -> str:
+def _verdict_html(text: str) -> str:
+    """Plain text HTML-escaped, with the verdict words coloured (classes ``pass`` and ``fail``)."""
     escaped = html.escape(text)
-    escaped = _BOLD.sub(r"<b>\1</b>", escaped)
     for word, style in (("PASS", "pass"), ("FAIL", "fail"), ("does not hold", "fail")):
         escaped = escaped.replace(word, f'<span class="{style}">{word}</span>')
     return re.sub(r"\bholds\b", '<span class="pass">holds</span>', escaped)
+
+
+def _inline_html(text: str) -> str:
+    return inline_html(text, _verdict_html)
 
 
 def _md_cell(text: str) -> str:

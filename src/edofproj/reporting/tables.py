@@ -5,9 +5,11 @@
 * :func:`depth_table` -- one metric, one row per method, one column per depth, plus the mean
   and worst over the range;
 * :func:`tilted_table` -- the tilted screen, mean over the images per method;
+* :func:`image_spread_table` -- how much the images disagree: mean ± standard deviation over the
+  images, the lowest image, the paired difference to a reference method;
 * :func:`run_spread_table` -- several evaluations of the same methods (e.g. training seeds):
-  mean ± standard deviation over the runs;
-* :func:`format_text_table` -- any :class:`~edofproj.evaluation.report.Table` as aligned text.
+  mean ± standard deviation over the runs (:func:`check_like_runs` first: ``edofproj summarize``);
+* :func:`format_text_table` -- any :class:`~edofproj.reporting.document.Table` as aligned text.
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import EdofprojError
-from .methods import METHOD_NAMES, method_spec
-from .report import Table
-from .results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
+from ..evaluation.methods import METHOD_NAMES, method_spec
+from ..evaluation.results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
+from .document import Table
 
 
 def _fmt(metric: str, value: float) -> str:

@@ -9,7 +9,7 @@
 * :func:`plot_captured_comparison` -- the same for real captures (rows = images);
 * :func:`plot_training_curves` -- the training loss of every run, one panel each (the others in grey).
 
-The PSF figure is :func:`edofproj.evaluation.psf_plots.plot_psf_comparison` and the DOE profile
+The PSF figure is :func:`edofproj.reporting.psf_plots.plot_psf_comparison` and the DOE profile
 :func:`edofproj.runs.figures.plot_doe_profile`.
 """
 
@@ -24,8 +24,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..evaluation.results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 from ..fileio import atomic_path  # noqa: E402
-from .results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 
 #: Metrics written on the tiles of the comparison figures, with their short labels (paper Fig. 6).
 TILE_METRICS = (("psnr", "P", "{:.2f}"), ("ssim", "S", "{:.3f}"), ("lpips", "L", "{:.3f}"))

@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .methods import OURS
-from .results import MetricsTable
+from ..evaluation.methods import OURS
+from ..evaluation.results import MetricsTable
 
 
 @dataclass

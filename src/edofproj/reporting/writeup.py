@@ -1,21 +1,34 @@
-"""What an evaluation's documents say: ``summary.md`` and the report (``report.md`` + ``report.html``).
+"""What an evaluation shows and says: its figures, ``summary.md`` and the report (``report.md`` +
+``report.html``).
 
-The content is assembled from an :class:`~edofproj.evaluation.pipeline.Evaluation` as
-:mod:`.report` blocks; callers (the demo) add their own sections before and after (the paper's
-claims, timing, wall time).
+:func:`write_documents` is the one way an evaluation's report is written (``evaluate``, the demo):
+it draws the figures (:func:`write_figures`) and writes the documents, assembled from an
+:class:`~edofproj.evaluation.pipeline.Evaluation` as :mod:`.document` blocks; callers (the demo)
+add their own sections before and after (the paper's claims, timing, wall time).
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
+from ..doe import build_doe
+from ..evaluation.designs import OpticalDesign
+from ..evaluation.methods import METHOD_NAMES
+from ..evaluation.results import METRIC_LABELS, headline_metrics
+from ..progress import StageProgress
+from ..runs import FIGURES_DIR
+from ..runs.figures import plot_doe_profile
+from ..runs.log import read_log
 from .claims import Claim
+from .document import Bullets, Figure, Heading, Paragraph, Report, Table
+from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
 from .image_checks import behind_linear_filter_blocks, channel_imbalance_blocks
-from .methods import METHOD_NAMES
-from .report import Bullets, Figure, Heading, Paragraph, Report, Table
-from .results import METRIC_LABELS, headline_metrics
-from .summary import depth_table, image_spread_table, range_table, tilted_table
+from .psf_plots import plot_psf_comparison
+from .tables import depth_table, image_spread_table, range_table, tilted_table
 
 SUMMARY_NAME = "summary.md"
 REPORT_MD_NAME = "report.md"
@@ -202,10 +215,85 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     return report
 
 
+def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
+    """The depths of the PSF figure: ``count`` from ``psf.depth_min_mm`` to ``psf.depth_max_mm``."""
+    return np.linspace(cfg.psf.depth_min_m, cfg.psf.depth_max_m, count)
+
+
+def write_figures(ev) -> None:
+    """The evaluation's figures in ``<out>/figures/eval_*.png`` (paths in ``ev.figures``)."""
+    figures = ev.out_dir / FIGURES_DIR
+    figures.mkdir(parents=True, exist_ok=True)
+    for metric in headline_metrics(ev.table.metrics):
+        path = figures / f"eval_{metric}_vs_depth.png"
+        plot_metric_vs_depth(ev.table, metric, path, ev.range_mm)
+        ev.figures[f"{metric}_vs_depth"] = path
+
+    methods = [m.name for m in ev.methods]
+    name, image = ev.images[0]
+    target = image.permute(1, 2, 0).numpy()
+    ev.figures["comparison"] = figures / "eval_comparison.png"
+    plot_comparison(
+        target,
+        ev.comparison,
+        ev.cfg.evaluation.comparison_depths_mm,
+        methods,
+        ev.figures["comparison"],
+        image_name=name,
+    )
+    if ev.tilted.rows:
+        row = ev.tilted.rows[0]
+        ev.figures["tilted"] = figures / "eval_tilted.png"
+        plot_tilted(
+            target,
+            ev.tilted_examples,
+            methods,
+            ev.figures["tilted"],
+            row["near_mm"],
+            row["far_mm"],
+            ev.cfg.evaluation.tilt_deg,
+        )
+
+    depths_m = psf_figure_depths_m(ev.cfg)
+    panels = []
+    lens = ev.designs.get("lens")
+    if lens is None:
+        lens = OpticalDesign("lens", "lens", build_doe(ev.cfg, "lens"), ev.cfg)
+    run_design = ev.designs.get("run") or OpticalDesign("run", "doe", ev.run.doe, ev.cfg)
+    panels.append(("lens", lens.doe, lens.bank(depths_m)))
+    panels.append(("learned DOE", run_design.doe, run_design.bank(depths_m)))
+    for key, design in ev.designs.items():
+        if key not in ("lens", "run"):
+            panels.append((design.label, design.doe, design.bank(depths_m)))
+    ev.figures["psf"] = figures / "eval_psf_lens_vs_doe.png"
+    plot_psf_comparison(panels, ev.figures["psf"])
+
+    ev.figures["doe_profile"] = figures / "eval_doe_profile.png"
+    plot_doe_profile(ev.run.doe, ev.figures["doe_profile"], samples=ev.cfg.psf.pupil_samples)
+
+    curves = [("doe+net", read_log(ev.run.run_dir / "train_log.csv"))]
+    curves += [(method, read_log(run.run_dir / "train_log.csv")) for method, run in ev.baseline_runs.items()]
+    if any(rows for _, rows in curves):
+        ev.figures["training"] = figures / "eval_training_curves.png"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            plot_training_curves(curves, ev.figures["training"])
+
+
 def write_documents(
-    ev, title: str = "edofproj evaluation", preface: Sequence = (), extra: Sequence = ()
+    ev,
+    title: str = "edofproj evaluation",
+    preface: Sequence = (),
+    extra: Sequence = (),
+    progress: StageProgress | None = None,
 ) -> dict[str, Path]:
-    """Write ``summary.md``, ``report.md`` and ``report.html`` into ``ev.out_dir``."""
+    """Draw the figures (:func:`write_figures`, a ``figures`` stage of ``progress`` when given) and
+    write ``summary.md``, ``report.md`` and ``report.html`` into ``ev.out_dir``."""
+    if progress is not None:
+        progress.start("figures", 1)
+    write_figures(ev)
+    if progress is not None:
+        progress.finish()
     out = Path(ev.out_dir)
     paths = {"summary": out / SUMMARY_NAME, "report_md": out / REPORT_MD_NAME, "report_html": out / REPORT_HTML_NAME}
     summary_report(ev).write(markdown_path=paths["summary"])
