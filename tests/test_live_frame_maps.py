@@ -108,3 +108,69 @@ def test_rectifier_is_the_direct_rectification():
     np.testing.assert_allclose(out, direct, atol=1e-5)
     with pytest.raises(EdofprojError, match="is 16x12 pixels, the calibrated camera 40x30"):
         rectifier(frame[:12, :16])
+
+
+def slanted_map(H=12, W=16, Hc=30, Wc=40):
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    return CameraMap(
+        map_x=1.9 * x + 0.3 * y + 2.2, map_y=1.7 * y + 0.1 * x + 1.6,
+        homography=np.eye(3), dots_proj=np.zeros((0, 2)), dots_cam=np.zeros((0, 2)), camera_hw=(Hc, Wc),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("uniform_black", [True, False])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_integer_frames_are_warped_as_counts(dtype, uniform_black):
+    """A camera's integer counts are rectified without converting the camera frame: the result is
+    the direct rectification of ``counts / max(dtype)`` within the stated tolerance (half a count
+    through ``M^-1``); a uniform black level is folded into the transform, a varying one subtracted."""
+    rng = np.random.default_rng(4)
+    camera_map = slanted_map()
+    mixing = np.array([[0.8, 0.1, 0.05], [0.1, 0.7, 0.1], [0.02, 0.15, 0.9]])
+    color = ColorCalibration(mixing, np.full(3, 0.02), grid_inputs(), grid_inputs() ** 2.2)
+    black = np.broadcast_to([0.02, 0.03, 0.01], (12, 16, 3)) if uniform_black else rng.uniform(0.01, 0.05, (12, 16, 3))
+    top = np.iinfo(dtype).max
+    counts = rng.integers(0, top + 1, size=(30, 40, 3)).astype(dtype)
+    direct = color.camera_to_output(camera_map.warp(counts.astype(np.float64) / top), black)
+    rectifier = Rectifier(camera_map, color, black)
+    assert rectifier.uniform_black == uniform_black
+    out = np.empty((12, 16, 3), np.float32)
+    assert rectifier(counts, out=out) is out
+    tolerance = rectifier.integer_warp_tolerance(dtype)
+    assert tolerance == pytest.approx(np.abs(np.linalg.inv(mixing)).sum(axis=1).max() * 0.5 / top)
+    assert np.abs(out - direct).max() <= tolerance + 1e-5
+    # the float frame of the same counts: float32 rounding only
+    np.testing.assert_allclose(rectifier((counts / top).astype(np.float32)), direct, atol=1e-5)
+    with pytest.raises(EdofprojError, match="contiguous"):
+        rectifier(counts, out=np.empty((12, 16, 3), np.float64))
+
+
+def test_channel_table_is_the_nearest_bin_for_any_leading_shape():
+    """u_c = T_c[round(clip(o_c, 0, 1) (N - 1))] as numpy computes it from the table, for a batch
+    (B, H, W, 3), a strided output buffer, and the same buffers reused for a second input."""
+    table = ChannelInverseTable(np.random.default_rng(5).uniform(size=(3, 1000)))
+    for seed in (6, 7):
+        light = torch.rand(2, 5, 7, 3, generator=torch.Generator().manual_seed(seed)) * 1.2 - 0.1
+        bins = np.clip(np.rint(np.clip(light.numpy(), 0, 1) * 999), 0, 999).astype(int)
+        expected = table.table[np.arange(3), bins]
+        np.testing.assert_array_equal(table.apply(light).numpy(), expected)
+        strided = torch.empty(3, 2, 5, 7).permute(1, 2, 3, 0)
+        assert table.apply(light, out=strided) is strided
+        np.testing.assert_array_equal(strided.numpy(), expected)
+    with pytest.raises(EdofprojError, match="2 <= N <= 65536"):
+        ChannelInverseTable(np.zeros((3, 2**16 + 1)))
+
+
+def test_trilinear_table_reuses_its_buffers_correctly():
+    """Two inputs of the same shape read through the same buffers give each its own exact affine
+    value; infinite light is refused."""
+    A = np.array([[0.9, 0.2, -0.1], [0.05, 0.7, 0.3], [-0.2, 0.1, 0.6]])
+    table = TrilinearInverseTable(ResponseLUT.from_function(lambda v: v @ A.T + 0.01, size=5).table)
+    out = torch.empty(6, 8, 3)
+    for seed in (8, 9):
+        light = torch.rand(6, 8, 3, generator=torch.Generator().manual_seed(seed))
+        assert table.apply(light, out=out) is out
+        np.testing.assert_allclose(out.numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
+    assert len(table._scratch) == 1
+    with pytest.raises(EdofprojError, match="NaN or infinite"):
+        table.apply(torch.full((2, 2, 3), float("inf")))

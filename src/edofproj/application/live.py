@@ -278,7 +278,7 @@ class CameraWorker:
                 return
             start_cpu = time.thread_time()
             try:
-                result: Any = grab_frame(self.camera, self.grab, request, warn=self._warn)
+                result: Any = grab_frame(self.camera, self.grab, request, warn=self._warn, native=True)
                 self._warn = False
             except BaseException as exc:  # handed to the device thread, which stops the loop
                 result = exc
@@ -439,6 +439,9 @@ class _Devices:
             if self.measure:
                 job.stages.start()
                 check = self._grab(f"check of '{job.name}'", slot.projector_input)
+                if check.dtype.kind in "ui":  # the camera's counts (grab_frame native)
+                    check = to_unit_float(check)
+                # the direct rectification, not the compute thread's rectifier (its buffers are in use)
                 record.compensated = self.calibration.to_output_space(check).astype(np.float32)
                 job.stages.stop("check")
             job.record = record

@@ -30,6 +30,8 @@ takes, and of a ``channels_last`` tensor: no transposition anywhere.
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import torch
@@ -71,14 +73,17 @@ class ChannelInverseTable:
 
     def __init__(self, table: np.ndarray) -> None:
         table = np.asarray(table, dtype=np.float32)
-        if table.ndim != 2 or table.shape[0] != 3 or table.shape[1] < 2:
-            raise EdofprojError(f"a per-channel response table must be (3, N), got {table.shape}")
+        if table.ndim != 2 or table.shape[0] != 3 or not 2 <= table.shape[1] <= 2**16:
+            raise EdofprojError(f"a per-channel response table must be (3, N) with 2 <= N <= 65536, got {table.shape}")
         self.table = table
         self.bins = table.shape[1]
-        self._flat = torch.from_numpy(np.ascontiguousarray(table.reshape(-1)))
-        # index = o (N - 1) + 0.5 + c N, truncated: the nearest bin of channel c's row
-        self._offsets = torch.tensor([0.5 + c * self.bins for c in range(3)], dtype=torch.float32)
-        self._scratch: dict[tuple[int, ...], tuple[torch.Tensor, torch.Tensor]] = {}
+        # rows padded to 2^16 with their last value: an index saturated at 65535 reads T_c[N - 1]
+        padded = np.concatenate([table, np.repeat(table[:, -1:], 2**16 - self.bins, axis=1)], axis=1)
+        self._flat = torch.from_numpy(np.ascontiguousarray(padded.reshape(-1)))
+        # flat index = round(o (N - 1)) + c 2^16: the nearest bin of channel c's row
+        self._scale = (float(self.bins - 1),) * 4
+        self._row_offsets = tuple(float(c * 2**16) for c in range(3)) + (0.0,)
+        self._scratch: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, torch.Tensor]] = {}
 
     @classmethod
     def from_color(cls, color: ColorCalibration, bins: int = CHANNEL_TABLE_BINS) -> "ChannelInverseTable":
@@ -98,55 +103,108 @@ class ChannelInverseTable:
 
     def apply(self, light: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
         """``u`` for ``light (..., 3)`` float32 (clamped to ``[0, 1]``), written into ``out`` (same
-        shape, float32; allocated when None). Reuses one scratch pair per shape."""
+        shape, float32; allocated when None).
+
+        Three passes over the pixels, in buffers kept per shape: the bin, ``round(o (N - 1))``
+        saturated to ``[0, 65535]`` (one :func:`cv2.multiply` into ``uint16``: the clamp, the scale
+        and the rounding at once; the rows are padded to ``2^16`` with their last value, so a bin
+        above ``N - 1`` reads ``T_c[N - 1]``); the row offset ``c 2^16`` (one :func:`cv2.add` into
+        ``int32``); the table read (one :func:`torch.index_select` of the flat table). NaN and
+        infinities are refused (one sum).
+        """
         shape = tuple(light.shape)
         if shape[-1] != 3:
             raise EdofprojError(f"a colour table takes (..., 3) images, got {shape}")
+        if not math.isfinite(float(light.sum())):
+            raise EdofprojError("the projector output light holds NaN or infinite values")
         if shape not in self._scratch:
-            self._scratch[shape] = (torch.empty(shape), torch.empty(shape, dtype=torch.int32))
-        scaled, index = self._scratch[shape]
-        torch.clamp(light, 0.0, 1.0, out=scaled)  # (a scalar clamp first: cheaper than per-channel bounds after)
-        torch.add(self._offsets, scaled, alpha=self.bins - 1, out=scaled)
-        index.copy_(scaled)
+            index_u16 = np.empty(shape, np.uint16)
+            index_i32 = np.empty(shape, np.int32)
+            self._scratch[shape] = (index_u16, index_i32, torch.from_numpy(index_i32))
+        index_u16, index_i32, index_t = self._scratch[shape]
+        pixels = _as_pixels(light.detach().float().contiguous().numpy())  # no copy for float32 contiguous input
+        cv2.multiply(pixels, self._scale, dst=_as_pixels(index_u16), dtype=cv2.CV_16U)
+        cv2.add(_as_pixels(index_u16), self._row_offsets, dst=_as_pixels(index_i32), dtype=cv2.CV_32S)
         if out is None:
             out = torch.empty(shape)
-        try:
-            torch.index_select(self._flat, 0, index.view(-1), out=out.view(-1))
-        except (IndexError, RuntimeError):
-            raise EdofprojError("the projector output light holds NaN or values outside [0, 1]") from None
+        target = out if out.is_contiguous() else torch.empty(shape)
+        torch.index_select(self._flat, 0, index_t.view(-1), out=target.view(-1))
+        if target is not out:
+            out.copy_(target)
         return out
 
 
+def _as_pixels(array: np.ndarray) -> np.ndarray:
+    """A contiguous ``(..., 3)`` array viewed as OpenCV's ``(n, 1)`` 3-channel image (no copy), so
+    that per-channel scalars apply to the channels whatever the leading shape."""
+    return array.reshape(-1, 1, 3)
+
+
 class TrilinearInverseTable:
-    """Trilinear reading of an ``(S, S, S, 3)`` table over ``[0, 1]^3`` (module docstring)."""
+    """Trilinear reading of an ``(S, S, S, 3)`` table over ``[0, 1]^3`` (module docstring).
+
+    With ``t = clip(o, 0, 1) (S - 1)``, ``l = min(floor(t), S - 2)`` and ``f = t - l`` per channel,
+    the eight corner rows ``T[l + (i, j, k)]`` are read (one :func:`torch.index_select` each) and
+    blended by seven in-place :func:`torch.lerp` -- along channel 2, then 1, then 0 -- which is
+    ``sum_corners prod_c (1 - |f_c - corner_c|) T[corner]``. Every buffer is kept per shape.
+    """
 
     def __init__(self, table: np.ndarray) -> None:
         table = np.asarray(table, dtype=np.float32)
-        if table.ndim != 4 or table.shape[-1] != 3 or len(set(table.shape[:3])) != 1:
-            raise EdofprojError(f"a response table must be (S, S, S, 3), got {table.shape}")
+        if table.ndim != 4 or table.shape[-1] != 3 or len(set(table.shape[:3])) != 1 or table.shape[0] < 2:
+            raise EdofprojError(f"a response table must be (S, S, S, 3) with S >= 2, got {table.shape}")
+        if table.shape[0] ** 3 > 2**24:  # the flat row index is computed in float32, exact below 2^24
+            raise EdofprojError(f"a response table of {table.shape[0]}^3 entries is too large (at most 256^3)")
         self.table = table
         self.size = table.shape[0]
         self._rows = torch.from_numpy(np.ascontiguousarray(table.reshape(-1, 3)))
         S = self.size
-        self._strides = torch.tensor([S * S, S, 1], dtype=torch.int64)
-        self._corners = [((i, j, k), i * S * S + j * S + k) for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+        self._strides = torch.tensor([S * S, S, 1], dtype=torch.float32)
+        self._scratch: dict[int, dict[str, torch.Tensor]] = {}
+
+    def _buffers(self, pixels: int) -> dict[str, torch.Tensor]:
+        if pixels not in self._scratch:
+            rows = {name: torch.empty(pixels, 3) for name in ("frac", "low", "c00", "c01", "c10", "c11", "gather")}
+            rows["base_f"] = torch.empty(pixels)
+            rows["base"] = torch.empty(pixels, dtype=torch.int64)
+            rows["index"] = torch.empty(pixels, dtype=torch.int64)
+            self._scratch[pixels] = rows
+        return self._scratch[pixels]
 
     def apply(self, light: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
-        """``u`` for ``light (..., 3)`` in ``[0, 1]`` into ``out`` (same shape; allocated when None)."""
+        """``u`` for ``light (..., 3)`` (clamped to ``[0, 1]``) into ``out`` (same shape; allocated when None)."""
         shape = tuple(light.shape)
-        flat = light.reshape(-1, 3).clamp(0.0, 1.0) * (self.size - 1)
-        low = flat.floor().clamp_(max=self.size - 2)
-        frac = flat - low
-        base = (low.long() * self._strides).sum(dim=1)
-        result = torch.zeros_like(flat)
-        for corner, offset in self._corners:
-            weight = torch.ones(len(flat))
-            for channel, side in enumerate(corner):
-                weight *= frac[:, channel] if side else 1.0 - frac[:, channel]
-            result.addcmul_(self._rows.index_select(0, base + offset), weight[:, None])
+        if shape[-1] != 3:
+            raise EdofprojError(f"a colour table takes (..., 3) images, got {shape}")
+        if not math.isfinite(float(light.sum())):
+            raise EdofprojError("the projector output light holds NaN or infinite values")
+        S = self.size
+        flat = light.detach().float().reshape(-1, 3)
+        b = self._buffers(len(flat))
+        frac, low = b["frac"], b["low"]
+        torch.clamp(flat, 0.0, 1.0, out=frac)
+        frac.mul_(S - 1)
+        torch.floor(frac, out=low)
+        low.clamp_(max=S - 2)
+        frac.sub_(low)
+        torch.mv(low, self._strides, out=b["base_f"])  # l_0 S^2 + l_1 S + l_2, exact in float32
+        b["base"].copy_(b["base_f"])
+        weight = [frac[:, c : c + 1] for c in range(3)]
+        for name, (i, j) in (("c00", (0, 0)), ("c01", (0, 1)), ("c10", (1, 0)), ("c11", (1, 1))):
+            offset = i * S * S + j * S
+            torch.add(b["base"], offset, out=b["index"])
+            torch.index_select(self._rows, 0, b["index"], out=b[name])
+            b["index"].add_(1)
+            torch.index_select(self._rows, 0, b["index"], out=b["gather"])
+            b[name].lerp_(b["gather"], weight[2])  # along channel 2 (k)
+        b["c00"].lerp_(b["c01"], weight[1])  # along channel 1 (j)
+        b["c10"].lerp_(b["c11"], weight[1])
         if out is None:
-            return result.reshape(shape)
-        out.copy_(result.reshape(shape))
+            out = torch.empty(shape)
+        target = out if out.is_contiguous() else torch.empty(shape)
+        torch.lerp(b["c00"], b["c10"], weight[0], out=target.view(-1, 3))  # along channel 0 (i)
+        if target is not out:
+            out.copy_(target)
         return out
 
 
@@ -160,9 +218,26 @@ def inverse_response_table(color: ColorCalibration, lut_size: int) -> InverseTab
     return TrilinearInverseTable(color.inverse_response_lut(lut_size).table)
 
 
+FRAME_FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float32): 1.0}
+"""Camera frame dtypes the rectifier warps as they come, and the value of full scale in each."""
+
+
 class Rectifier:
-    """A camera frame ``(Hc, Wc, 3)`` float32 -> projector output light ``(H, W, 3)`` float32
-    (module docstring), into a buffer the caller owns.
+    """A camera frame ``(Hc, Wc, 3)`` -> projector output light ``(H, W, 3)`` float32 (module
+    docstring), into a buffer the caller owns.
+
+    The frame is warped in the dtype the camera delivers (:data:`FRAME_FULL_SCALE`: ``uint8`` or
+    ``uint16`` counts, or float32 in ``[0, 1]``; another dtype is converted to float32 first):
+    the warp is the only pass over the camera's resolution, and an 8-bit frame moves a quarter of
+    the bytes of a float one. Only at the projector's resolution is it turned into float32 (one
+    cast), and one :func:`cv2.transform` applies ``M^-1 / full_scale`` -- with the black offset
+    as its fourth column when the black image is uniform (the same offset at every pixel), else
+    one subtraction of the offset image follows.
+
+    Precision: OpenCV's bilinear warp reads coordinates in 1/32 pixel whatever the dtype, and an
+    integer warp rounds its result to the nearest count, so an integer frame's rectification
+    differs from the float warp of the same counts by at most half a count per channel before
+    the unmixing: ``|error| <= ||M^-1||_inf 0.5 / full_scale`` (:meth:`integer_warp_tolerance`).
 
     (OpenCV warps 4-channel float images with vector code, about 3x faster than 3-channel ones,
     but giving the frame a fourth channel costs as much as it saves: measured, the same CPU time.)
@@ -175,8 +250,27 @@ class Rectifier:
         self.map_y = np.ascontiguousarray(camera_map.map_y, dtype=np.float32)
         unmix = np.linalg.inv(color.mixing_matrix)
         self.unmix = unmix.astype(np.float32)
-        self.offset = np.ascontiguousarray(np.asarray(black_image, dtype=np.float64) @ unmix.T, dtype=np.float32)
-        self._warped = np.empty(self.projector_hw + (3,), np.float32)
+        offset = np.asarray(black_image, dtype=np.float64) @ unmix.T
+        self.offset = np.ascontiguousarray(offset, dtype=np.float32)
+        flat_offset = self.offset.reshape(-1, 3)
+        self.uniform_black = bool(np.all(flat_offset == flat_offset[:1]))
+        # per dtype: M^-1 / full scale, and the uniform offset as the 4th column (or none)
+        self._matrices = {
+            dtype: np.ascontiguousarray(
+                np.concatenate([unmix / scale, -offset.reshape(-1, 3)[:1].T], axis=1)
+                if self.uniform_black
+                else unmix / scale,
+                dtype=np.float32,
+            )
+            for dtype, scale in FRAME_FULL_SCALE.items()
+        }
+        self._warped = {dtype: np.empty(self.projector_hw + (3,), dtype) for dtype in FRAME_FULL_SCALE}
+        self._float = self._warped[np.dtype(np.float32)]
+
+    def integer_warp_tolerance(self, dtype: np.dtype) -> float:
+        """Largest difference between the rectification of ``dtype`` counts and the float warp of
+        the same counts, output units (class docstring)."""
+        return float(np.abs(self.unmix).sum(axis=1).max()) * 0.5 / FRAME_FULL_SCALE[np.dtype(dtype)]
 
     def check_frame(self, frame: np.ndarray, what: str = "camera frame") -> None:
         """Raise one line unless ``frame`` is ``(Hc, Wc, 3)`` of the calibrated camera."""
@@ -188,16 +282,26 @@ class Rectifier:
     def __call__(self, frame: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``o = M^-1 frame(q(x)) - M^-1 c_black(q(x))`` into ``out`` ``(H, W, 3)`` float32."""
         self.check_frame(frame)
+        if frame.dtype not in FRAME_FULL_SCALE:
+            frame = frame.astype(np.float32)
         if out is None:
             out = np.empty(self.projector_hw + (3,), np.float32)
+        elif out.shape != self.projector_hw + (3,) or out.dtype != np.float32 or not out.flags.c_contiguous:
+            raise EdofprojError(
+                f"a rectified frame is written into a contiguous {self.projector_hw + (3,)} float32 array"
+            )
+        warped = self._warped[frame.dtype]
         cv2.remap(
-            np.asarray(frame, dtype=np.float32),
+            np.ascontiguousarray(frame),
             self.map_x,
             self.map_y,
             cv2.INTER_LINEAR,
-            dst=self._warped,
+            dst=warped,
             borderMode=cv2.BORDER_REPLICATE,
         )
-        cv2.transform(self._warped, self.unmix, dst=out)
-        cv2.subtract(out, self.offset, dst=out)
+        if warped is not self._float:
+            np.copyto(self._float, warped)  # the cast, at the projector's resolution
+        cv2.transform(self._float, self._matrices[frame.dtype], dst=out)
+        if not self.uniform_black:
+            cv2.subtract(out, self.offset, dst=out)
         return out

@@ -4,7 +4,9 @@
   quantized to the projector's 8 bits) and returns once it is on screen;
   :attr:`Display.shown` is the image on screen now (what a virtual camera sees).
 * :class:`Camera` grabs one **linear camera** frame ``c`` (``(Hc, Wc, 3)`` float32 in ``[0, 1]``,
-  RGB; a RAW or linear capture -- a camera's tone curve must be switched off or undone).
+  RGB; a RAW or linear capture -- a camera's tone curve must be switched off or undone);
+  :meth:`Camera.grab_native` gives the same frame in the dtype the sensor delivers (``uint8`` or
+  ``uint16`` counts, full scale = 1), which the live loop warps without converting it first.
 
 :func:`grab_frame` adds what every backend shares: a settle delay after the display changed,
 the mean of ``N`` frames (sensor noise drops as ``1/sqrt(N)``) and one warning giving the
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import EdofprojError
+from ...imaging.image_io import to_unit_float
 from ..capture_io import SATURATION_LEVEL, saturated_fraction
 
 SATURATION_WARN_FRACTION = 1e-3
@@ -93,6 +96,12 @@ class Camera(abc.ABC):
     def grab(self) -> np.ndarray:
         """One frame ``(Hc, Wc, 3)`` float32 in ``[0, 1]``, linear RGB."""
 
+    def grab_native(self) -> np.ndarray:
+        """One frame in the sensor's own dtype: ``uint8`` / ``uint16`` counts (``value / max(dtype)``
+        is :meth:`grab`'s) or float32 in ``[0, 1]``. Backends that decode integer frames override it;
+        by default :meth:`grab`."""
+        return self.grab()
+
     def close(self) -> None:
         """Release the camera."""
 
@@ -121,18 +130,30 @@ class GrabSettings:
             raise EdofprojError(f"--average {self.average} must be >= 1")
 
 
+NATIVE_FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
+"""Frame dtypes :func:`grab_frame` hands on as they come with ``native=True``."""
+
+
 def grab_frame(
-    camera: Camera, settings: GrabSettings = GrabSettings(), what: str = "capture", warn: bool = True
+    camera: Camera,
+    settings: GrabSettings = GrabSettings(),
+    what: str = "capture",
+    warn: bool = True,
+    native: bool = False,
 ) -> np.ndarray:
-    """The mean of ``settings.average`` frames after ``settings.settle_s``; warns (unless ``warn`` is
-    False) when more than :data:`SATURATION_WARN_FRACTION` of a frame's pixels are saturated.
+    """The mean of ``settings.average`` frames after ``settings.settle_s``, float32 in ``[0, 1]``;
+    warns (unless ``warn`` is False) when more than :data:`SATURATION_WARN_FRACTION` of a frame's
+    pixels are saturated. With ``native`` and one frame, the frame of :meth:`Camera.grab_native`
+    as it comes (``uint8``/``uint16`` counts or float32: :data:`NATIVE_FRAME_DTYPES`; the live loop).
 
     Every frame must have the first one's size (a camera that changes resolution is an error).
     """
     if settings.settle_s > 0:
         time.sleep(settings.settle_s)
     if settings.average == 1:  # the live loop's case: the frame itself, no copy
-        frame = np.asarray(camera.grab(), dtype=np.float32)
+        frame = np.asarray(camera.grab_native() if native else camera.grab())
+        if not (native and frame.dtype in NATIVE_FRAME_DTYPES):
+            frame = to_unit_float(frame) if frame.dtype.kind in "ui" else np.asarray(frame, dtype=np.float32)
         if frame.ndim != 3 or frame.shape[-1] != 3:
             raise EdofprojError(f"camera '{camera.spec}' returned a frame of shape {frame.shape}, not (H, W, 3)")
         if warn:
@@ -165,9 +186,11 @@ def _saturation_warning(what: str, fraction: float) -> None:
 
 
 def _warn_if_saturated(frame: np.ndarray, what: str) -> None:
-    """The saturation warning of :func:`grab_frame` for one frame; the fraction is counted only when
-    the frame's maximum reaches the top value (one reduction per frame, no allocation, otherwise)."""
-    if frame.size and frame.max() >= SATURATION_LEVEL:
-        fraction = saturated_fraction(frame)
+    """The saturation warning of :func:`grab_frame` for one frame (float, or integer counts whose top
+    is ``max(dtype)``); the fraction is counted only when the frame's maximum reaches the top value
+    (one reduction per frame, no allocation, otherwise)."""
+    top = np.iinfo(frame.dtype).max if frame.dtype.kind in "ui" else SATURATION_LEVEL
+    if frame.size and frame.max() >= top:
+        fraction = saturated_fraction(frame if frame.dtype.kind not in "ui" else to_unit_float(frame))
         if fraction > SATURATION_WARN_FRACTION:
             _saturation_warning(what, fraction)

@@ -68,12 +68,16 @@ class OpenCVCamera(Camera):
             raise EdofprojError(f"camera '{self.spec}' does not let OpenCV set its exposure")
 
     def grab(self) -> np.ndarray:
+        return to_unit_float(self.grab_native())
+
+    def grab_native(self) -> np.ndarray:
+        """The frame as OpenCV decodes it, ``uint8`` or ``uint16`` RGB."""
         ok, frame = self.capture.read()
         if not ok or frame is None:
             raise EdofprojError(f"camera '{self.spec}' returned no frame (disconnected, or the end of the sequence)")
         if frame.ndim == 2:
             frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-        return to_unit_float(cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB))
+        return cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB)
 
     def close(self) -> None:
         self.capture.release()
@@ -229,10 +233,14 @@ class VirtualCamera(Camera):
         self.seed = seed
 
     def grab(self) -> np.ndarray:
+        return self.grab_native().astype(np.float32) / np.float32(255.0)
+
+    def grab_native(self) -> np.ndarray:
+        """The virtual sensor's 8-bit counts (:meth:`VirtualProCams.capture_counts`), ``uint8``."""
         shown = self.display.shown
         if shown is None:
             shown = np.zeros(self.rig.projector_hw + (3,), dtype=np.float32)
-        return self.rig.capture(shown, self.rng)
+        return self.rig.capture_counts(shown, self.rng)
 
     def settings(self) -> dict:
         return {"spec": self.spec, "backend": "virtual", "seed": self.seed, "camera_hw": list(self.rig.camera_hw)}
