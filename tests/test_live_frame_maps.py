@@ -1,6 +1,8 @@
 """The per-frame tables of a calibration (procams/frame_maps.py) against closed forms and the
 direct computations they replace."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -8,6 +10,7 @@ import torch
 from edofproj.errors import EdofprojError
 from edofproj.procams.color import ColorCalibration, ResponseLUT
 from edofproj.procams.frame_maps import (
+    MAP_STEPS_PER_PIXEL,
     ChannelInverseTable,
     Rectifier,
     TrilinearInverseTable,
@@ -75,9 +78,12 @@ def test_trilinear_table_agrees_with_grid_sample():
     np.testing.assert_allclose(
         TrilinearInverseTable(affine.table).apply(torch.from_numpy(light)).numpy(), light @ A.T + 0.01, atol=1e-5
     )
-    curved = ResponseLUT(rng.uniform(size=(5, 5, 5, 3)))
-    reference = curved(torch.from_numpy(light).permute(2, 0, 1)[None])[0].permute(1, 2, 0)
-    torch.testing.assert_close(TrilinearInverseTable(curved.table).apply(torch.from_numpy(light)), reference)
+    for size in (5, 65):  # 65: the default table, where float32 positions reach S^2 = 4225
+        curved = ResponseLUT(rng.uniform(size=(size, size, size, 3)))
+        reference = curved(torch.from_numpy(light).permute(2, 0, 1)[None])[0].permute(1, 2, 0)
+        table = TrilinearInverseTable(curved.table)
+        assert table.tolerance < (1e-5 if size == 5 else 5e-4)
+        torch.testing.assert_close(table.apply(torch.from_numpy(light)), reference, atol=table.tolerance, rtol=0)
 
 
 def test_inverse_response_table_chooses_by_separability():
@@ -131,16 +137,21 @@ def test_integer_frames_are_warped_as_counts(dtype, uniform_black):
     black = np.broadcast_to([0.02, 0.03, 0.01], (12, 16, 3)) if uniform_black else rng.uniform(0.01, 0.05, (12, 16, 3))
     top = np.iinfo(dtype).max
     counts = rng.integers(0, top + 1, size=(30, 40, 3)).astype(dtype)
-    direct = color.camera_to_output(camera_map.warp(counts.astype(np.float64) / top), black)
     rectifier = Rectifier(camera_map, color, black)
+    steps = MAP_STEPS_PER_PIXEL  # integer frames are read at positions rounded to 1/32 pixel
+    rounded = dataclasses.replace(
+        camera_map, map_x=np.round(camera_map.map_x * steps) / steps, map_y=np.round(camera_map.map_y * steps) / steps
+    )
+    direct = color.camera_to_output(rounded.warp(counts.astype(np.float64) / top), black)
     assert rectifier.uniform_black == uniform_black
     out = np.empty((12, 16, 3), np.float32)
     assert rectifier(counts, out=out) is out
     tolerance = rectifier.integer_warp_tolerance(dtype)
     assert tolerance == pytest.approx(np.abs(np.linalg.inv(mixing)).sum(axis=1).max() * 0.5 / top)
     assert np.abs(out - direct).max() <= tolerance + 1e-5
-    # the float frame of the same counts: float32 rounding only
-    np.testing.assert_allclose(rectifier((counts / top).astype(np.float32)), direct, atol=1e-5)
+    # the float frame of the same counts, at the exact positions: float32 rounding only
+    exact = color.camera_to_output(camera_map.warp(counts.astype(np.float64) / top), black)
+    np.testing.assert_allclose(rectifier((counts / top).astype(np.float32)), exact, atol=1e-5)
     with pytest.raises(EdofprojError, match="contiguous"):
         rectifier(counts, out=np.empty((12, 16, 3), np.float64))
 
@@ -172,5 +183,7 @@ def test_trilinear_table_reuses_its_buffers_correctly():
         assert table.apply(light, out=out) is out
         np.testing.assert_allclose(out.numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
     assert len(table._scratch) == 1
+    colours = torch.rand(10, 3, generator=torch.Generator().manual_seed(10))  # a list of colours: (n, 3)
+    np.testing.assert_allclose(table.apply(colours).numpy(), colours.numpy() @ A.T + 0.01, atol=1e-5)
     with pytest.raises(EdofprojError, match="NaN or infinite"):
         table.apply(torch.full((2, 2, 3), float("inf")))

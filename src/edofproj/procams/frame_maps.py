@@ -22,7 +22,8 @@ starts, so that a frame costs the arithmetic of applying the tables and no alloc
     interpolation of :mod:`.color`, which cannot know that the channels are independent.
   - :class:`TrilinearInverseTable` otherwise: the ``S^3`` table of :class:`.color.ResponseLUT`
     read by trilinear interpolation, ``u = sum_corners w_corner T[corner]`` with
-    ``w = prod_c (1 - |t_c - corner_c|)``, as eight row gathers.
+    ``w = prod_c (1 - |t_c - corner_c|)``, as two bilinear :func:`cv2.remap` reads of the table's
+    slices and one linear blend.
 
 Images in the hot path are ``(H, W, 3)`` float32, the layout of a camera frame, of what a display
 takes, and of a ``channels_last`` tensor: no transposition anywhere.
@@ -141,35 +142,39 @@ def _as_pixels(array: np.ndarray) -> np.ndarray:
 
 
 class TrilinearInverseTable:
-    """Trilinear reading of an ``(S, S, S, 3)`` table over ``[0, 1]^3`` (module docstring).
+    """Trilinear reading of an ``(S, S, S, 3)`` table ``T[i, j, k]`` over ``[0, 1]^3`` (module docstring).
 
-    With ``t = clip(o, 0, 1) (S - 1)``, ``l = min(floor(t), S - 2)`` and ``f = t - l`` per channel,
-    the eight corner rows ``T[l + (i, j, k)]`` are read (one :func:`torch.index_select` each) and
-    blended by seven in-place :func:`torch.lerp` -- along channel 2, then 1, then 0 -- which is
-    ``sum_corners prod_c (1 - |f_c - corner_c|) T[corner]``. Every buffer is kept per shape.
+    With ``t = clip(o, 0, 1) (S - 1)`` and ``l_0 = min(floor(t_0), S - 2)``, ``f_0 = t_0 - l_0``,
+    trilinear interpolation is the linear blend along channel 0 of two bilinear reads in the
+    ``(j, k)`` slices ``l_0`` and ``l_0 + 1``. The slices are laid side by side as one
+    ``(S, S * S)`` three-channel image ``T2[j, i S + k] = T[i, j, k]``, so each bilinear read is
+    one :func:`cv2.remap` at ``(x, y) = (l_0 S + t_2, t_1)`` (then ``x + S``), and the blend is one
+    :func:`torch.lerp`: two passes over the table's rows instead of eight gathers. Every buffer
+    is kept per shape.
+
+    Precision: the position ``x`` is a float32 below ``S^2``, rounded by at most ``S^2 2^-24``
+    table cells (2.5e-4 cells for ``S = 65``); the result is within :attr:`tolerance` (that times
+    the table's largest step between neighbouring entries, plus float32 rounding) of exact
+    trilinear interpolation.
     """
 
     def __init__(self, table: np.ndarray) -> None:
         table = np.asarray(table, dtype=np.float32)
         if table.ndim != 4 or table.shape[-1] != 3 or len(set(table.shape[:3])) != 1 or table.shape[0] < 2:
             raise EdofprojError(f"a response table must be (S, S, S, 3) with S >= 2, got {table.shape}")
-        if table.shape[0] ** 3 > 2**24:  # the flat row index is computed in float32, exact below 2^24
-            raise EdofprojError(f"a response table of {table.shape[0]}^3 entries is too large (at most 256^3)")
         self.table = table
-        self.size = table.shape[0]
-        self._rows = torch.from_numpy(np.ascontiguousarray(table.reshape(-1, 3)))
-        S = self.size
-        self._strides = torch.tensor([S * S, S, 1], dtype=torch.float32)
-        self._scratch: dict[int, dict[str, torch.Tensor]] = {}
+        self.size = S = table.shape[0]
+        self._slices = np.ascontiguousarray(table.transpose(1, 0, 2, 3).reshape(S, S * S, 3))
+        largest_step = max(float(np.abs(np.diff(table, axis=axis)).max()) for axis in range(3))
+        self.tolerance = S * S * 2.0**-24 * largest_step + 1e-6
+        self._scratch: dict[tuple[int, int], dict[str, np.ndarray]] = {}
 
-    def _buffers(self, pixels: int) -> dict[str, torch.Tensor]:
-        if pixels not in self._scratch:
-            rows = {name: torch.empty(pixels, 3) for name in ("frac", "low", "c00", "c01", "c10", "c11", "gather")}
-            rows["base_f"] = torch.empty(pixels)
-            rows["base"] = torch.empty(pixels, dtype=torch.int64)
-            rows["index"] = torch.empty(pixels, dtype=torch.int64)
-            self._scratch[pixels] = rows
-        return self._scratch[pixels]
+    def _buffers(self, height_width: tuple[int, int]) -> dict[str, np.ndarray]:
+        if height_width not in self._scratch:
+            planes = {name: np.empty(height_width, np.float32) for name in ("t0", "t1", "t2", "low", "x")}
+            images = {name: np.empty(height_width + (3,), np.float32) for name in ("t", "near", "far", "weight")}
+            self._scratch[height_width] = planes | images
+        return self._scratch[height_width]
 
     def apply(self, light: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
         """``u`` for ``light (..., 3)`` (clamped to ``[0, 1]``) into ``out`` (same shape; allocated when None)."""
@@ -179,30 +184,26 @@ class TrilinearInverseTable:
         if not math.isfinite(float(light.sum())):
             raise EdofprojError("the projector output light holds NaN or infinite values")
         S = self.size
-        flat = light.detach().float().reshape(-1, 3)
-        b = self._buffers(len(flat))
-        frac, low = b["frac"], b["low"]
-        torch.clamp(flat, 0.0, 1.0, out=frac)
-        frac.mul_(S - 1)
-        torch.floor(frac, out=low)
-        low.clamp_(max=S - 2)
-        frac.sub_(low)
-        torch.mv(low, self._strides, out=b["base_f"])  # l_0 S^2 + l_1 S + l_2, exact in float32
-        b["base"].copy_(b["base_f"])
-        weight = [frac[:, c : c + 1] for c in range(3)]
-        for name, (i, j) in (("c00", (0, 0)), ("c01", (0, 1)), ("c10", (1, 0)), ("c11", (1, 1))):
-            offset = i * S * S + j * S
-            torch.add(b["base"], offset, out=b["index"])
-            torch.index_select(self._rows, 0, b["index"], out=b[name])
-            b["index"].add_(1)
-            torch.index_select(self._rows, 0, b["index"], out=b["gather"])
-            b[name].lerp_(b["gather"], weight[2])  # along channel 2 (k)
-        b["c00"].lerp_(b["c01"], weight[1])  # along channel 1 (j)
-        b["c10"].lerp_(b["c11"], weight[1])
+        height_width = (math.prod(shape[:-2]), shape[-2]) if len(shape) >= 3 else (math.prod(shape[:-1]), 1)
+        b = self._buffers(height_width)
+        pixels = light.detach().float().contiguous().numpy().reshape(height_width + (3,))
+        np.clip(pixels, 0.0, 1.0, out=b["t"])
+        np.multiply(b["t"], S - 1, out=b["t"])
+        cv2.split(b["t"], [b["t0"], b["t1"], b["t2"]])
+        np.floor(b["t0"], out=b["low"])
+        np.minimum(b["low"], S - 2, out=b["low"])
+        np.subtract(b["t0"], b["low"], out=b["t0"])  # f_0
+        np.multiply(b["low"], S, out=b["x"])
+        np.add(b["x"], b["t2"], out=b["x"])  # l_0 S + t_2
+        cv2.remap(self._slices, b["x"], b["t1"], cv2.INTER_LINEAR, dst=b["near"], borderMode=cv2.BORDER_REPLICATE)
+        np.add(b["x"], S, out=b["x"])
+        cv2.remap(self._slices, b["x"], b["t1"], cv2.INTER_LINEAR, dst=b["far"], borderMode=cv2.BORDER_REPLICATE)
+        cv2.merge([b["t0"], b["t0"], b["t0"]], b["weight"])
         if out is None:
             out = torch.empty(shape)
         target = out if out.is_contiguous() else torch.empty(shape)
-        torch.lerp(b["c00"], b["c10"], weight[0], out=target.view(-1, 3))  # along channel 0 (i)
+        near, far, weight = (torch.from_numpy(b[name]) for name in ("near", "far", "weight"))
+        torch.lerp(near, far, weight, out=target.view(height_width + (3,)))
         if target is not out:
             out.copy_(target)
         return out
@@ -218,6 +219,8 @@ def inverse_response_table(color: ColorCalibration, lut_size: int) -> InverseTab
     return TrilinearInverseTable(color.inverse_response_lut(lut_size).table)
 
 
+MAP_STEPS_PER_PIXEL = 32
+"""Sub-pixel steps of OpenCV's fixed-point maps (``INTER_TAB_SIZE``): positions of integer frames."""
 FRAME_FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float32): 1.0}
 """Camera frame dtypes the rectifier warps as they come, and the value of full scale in each."""
 
@@ -230,14 +233,17 @@ class Rectifier:
     ``uint16`` counts, or float32 in ``[0, 1]``; another dtype is converted to float32 first):
     the warp is the only pass over the camera's resolution, and an 8-bit frame moves a quarter of
     the bytes of a float one. Only at the projector's resolution is it turned into float32 (one
-    cast), and one :func:`cv2.transform` applies ``M^-1 / full_scale`` -- with the black offset
-    as its fourth column when the black image is uniform (the same offset at every pixel), else
-    one subtraction of the offset image follows.
+    cast into ``out``), and one in-place :func:`cv2.transform` applies ``M^-1 / full_scale`` --
+    with the black offset as its fourth column when the black image is uniform (the same offset at
+    every pixel), else one subtraction of the offset image follows.
 
-    Precision: OpenCV's bilinear warp reads coordinates in 1/32 pixel whatever the dtype, and an
-    integer warp rounds its result to the nearest count, so an integer frame's rectification
-    differs from the float warp of the same counts by at most half a count per channel before
-    the unmixing: ``|error| <= ||M^-1||_inf 0.5 / full_scale`` (:meth:`integer_warp_tolerance`).
+    Precision: integer frames are warped with OpenCV's fixed-point maps (:func:`cv2.convertMaps`,
+    made once; float maps would be converted at every call, 2 ms at 600x800): the camera position
+    ``q(x)`` is rounded to 1/32 pixel (:data:`MAP_STEPS_PER_PIXEL`; a camera map is measured to
+    about 0.1 camera pixel, so this adds nothing one could see) and the warp rounds its result to
+    the nearest count. An integer frame's rectification is therefore the direct one at the rounded
+    positions to within half a count per channel through the unmixing, ``||M^-1||_inf 0.5 /
+    full_scale`` (:meth:`integer_warp_tolerance`). Float frames are warped with the float maps.
 
     (OpenCV warps 4-channel float images with vector code, about 3x faster than 3-channel ones,
     but giving the frame a fourth channel costs as much as it saves: measured, the same CPU time.)
@@ -264,8 +270,8 @@ class Rectifier:
             )
             for dtype, scale in FRAME_FULL_SCALE.items()
         }
+        self.fixed_map, self.fixed_fraction = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
         self._warped = {dtype: np.empty(self.projector_hw + (3,), dtype) for dtype in FRAME_FULL_SCALE}
-        self._float = self._warped[np.dtype(np.float32)]
 
     def integer_warp_tolerance(self, dtype: np.dtype) -> float:
         """Largest difference between the rectification of ``dtype`` counts and the float warp of
@@ -290,18 +296,14 @@ class Rectifier:
             raise EdofprojError(
                 f"a rectified frame is written into a contiguous {self.projector_hw + (3,)} float32 array"
             )
-        warped = self._warped[frame.dtype]
-        cv2.remap(
-            np.ascontiguousarray(frame),
-            self.map_x,
-            self.map_y,
-            cv2.INTER_LINEAR,
-            dst=warped,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
-        if warped is not self._float:
-            np.copyto(self._float, warped)  # the cast, at the projector's resolution
-        cv2.transform(self._float, self._matrices[frame.dtype], dst=out)
+        if frame.dtype == np.float32:
+            maps, warped = (self.map_x, self.map_y), out
+        else:
+            maps, warped = (self.fixed_map, self.fixed_fraction), self._warped[frame.dtype]
+        cv2.remap(np.ascontiguousarray(frame), *maps, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)
+        if warped is not out:
+            np.copyto(out, warped)  # the cast, at the projector's resolution
+        cv2.transform(out, self._matrices[frame.dtype], dst=out)
         if not self.uniform_black:
             cv2.subtract(out, self.offset, dst=out)
         return out
