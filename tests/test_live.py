@@ -127,6 +127,37 @@ def test_video_frames_are_read_in_order(tmp_path):
     np.testing.assert_allclose(levels, [40, 200, 120], atol=3)
 
 
+def test_a_video_that_stops_decoding_halfway_ends_the_loop_in_one_line(tmp_path, rig_and_calibration):
+    """The frames before the damage are shown; then the loop ends with the decoder's one-line error
+    and no thread left running (live writes nothing: there is no partial output to remove)."""
+    import cv2
+
+    rig, calibration = rig_and_calibration
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        writer.write(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4000] = rng.integers(0, 256, 4000, dtype=np.uint8).tobytes()
+    (tmp_path / "broken.avi").write_bytes(bytes(data))
+    shown = []
+    display = MemoryDisplay()
+    with pytest.raises(EdofprojError, match=r"cannot be decoded after frame \d+ of 20"):
+        run_live(
+            identity_net,
+            calibration,
+            display,
+            VirtualCamera(rig, display),
+            frame_source(HW, video=str(tmp_path / "broken.avi")),
+            on_frame=shown.append,
+        )
+    assert 0 < len(shown) < 20
+    assert not live_threads()
+
+
 # --------------------------------------------------------------------------- the pipelined devices
 
 

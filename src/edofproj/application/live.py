@@ -101,7 +101,8 @@ def frame_source(
 ) -> Iterator[tuple[str, np.ndarray]]:
     """Target frames ``(name, (H, W, 3) in [0, 1])`` at the projector's size: one image repeated,
     a folder's images in turn (repeated), each of the projector's size (else refused), or a
-    video's frames until its end (resized to the projector)."""
+    video's frames until its end (resized to the projector; a video that stops decoding before
+    the frame count its container gives raises "cannot be decoded after frame N of M")."""
     if sum(x is not None for x in (image, images, video)) != 1:
         raise EdofprojError("give one of --image, --images, --video")
     if video is not None:
@@ -110,16 +111,19 @@ def frame_source(
         capture = cv2.VideoCapture(video)
         if not capture.isOpened():
             raise EdofprojError(f"OpenCV cannot open the video '{video}'")
-        number = 0
+        count, number = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0
         try:
             while True:
                 ok, frame = capture.read()
                 if not ok:
-                    return
+                    break
                 yield f"{Path(video).name}#{number}", fit_to_projector(to_unit_float(frame[..., ::-1]), size_hw)
                 number += 1
         finally:
             capture.release()
+        if number < count:
+            raise EdofprojError(f"video '{video}' cannot be decoded after frame {number} of {count}")
+        return
     if image is not None:
         paths = [Path(image)]
     else:
