@@ -116,7 +116,7 @@ class ChannelInverseTable:
         shape = tuple(light.shape)
         if shape[-1] != 3:
             raise EdofprojError(f"a colour table takes (..., 3) images, got {shape}")
-        if not math.isfinite(float(light.sum())):
+        if not math.isfinite(float(light.detach().sum())):
             raise EdofprojError("the projector output light holds NaN or infinite values")
         if shape not in self._scratch:
             index_u16 = np.empty(shape, np.uint16)
@@ -181,7 +181,7 @@ class TrilinearInverseTable:
         shape = tuple(light.shape)
         if shape[-1] != 3:
             raise EdofprojError(f"a colour table takes (..., 3) images, got {shape}")
-        if not math.isfinite(float(light.sum())):
+        if not math.isfinite(float(light.detach().sum())):
             raise EdofprojError("the projector output light holds NaN or infinite values")
         S = self.size
         height_width = (math.prod(shape[:-2]), shape[-2]) if len(shape) >= 3 else (math.prod(shape[:-1]), 1)
