@@ -6,10 +6,11 @@ display receives is projector *input*. Per frame:
 
 1. ``show_target``: send ``f^-1(I)`` (the inverse of the measured response, cached per target)
    and wait until shown;
-2. ``capture``: grab the camera frame ``c`` (settle delay, averaging: :func:`grab_frame`);
+2. ``capture``: grab the camera frame ``c`` (settle delay, averaging: :func:`grab_frame`), in the
+   dtype the sensor delivers (``uint8``/``uint16`` counts: ``native``);
 3. ``rectify``: ``I* = M^-1 c(q(x)) - M^-1 c_black(q(x))`` in projector pixels
-   (:class:`~edofproj.procams.frame_maps.Rectifier`: precomputed ``cv2.remap`` maps, black level
-   and colour unmixing folded into one offset image and one 3x3 transform);
+   (:class:`~edofproj.procams.frame_maps.Rectifier`: precomputed ``cv2.remap`` maps, the frame
+   warped in its own dtype, black level and colour unmixing folded into one transform);
 4. ``compensate``: ``x = net(I, I*)``, the network alone, in the memory format ``edofproj bench``
    times it in (:func:`network_memory_format`);
 5. ``to_input``: ``u = f^-1(clamp(x, 0, 1))`` (:attr:`ProCamsCalibration.inverse_table`);

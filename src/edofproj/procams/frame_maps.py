@@ -4,11 +4,14 @@ Everything in a live frame that does not change between frames is tabulated when
 starts, so that a frame costs the arithmetic of applying the tables and no allocation:
 
 * :class:`Rectifier`: ``o(x) = M^-1 c(q(x)) - M^-1 c_black(q(x))`` (:mod:`.calibration`). The
-  camera map ``q`` is kept as the two ``float32`` maps :func:`cv2.remap` reads (no conversion per
-  frame); the black capture is folded into one offset image ``M^-1 c_black(q(x))``; the colour
-  unmixing is one :func:`cv2.transform` (a 3x3 matrix per pixel) of the warped frame. Bilinear
-  warping and the per-pixel matrix commute, so this is :meth:`ProCamsCalibration.to_output_space`
-  up to float32 rounding.
+  camera map ``q`` is kept as the maps :func:`cv2.remap` reads (float32, and OpenCV's fixed-point
+  pair for integer frames; no conversion per frame); the frame is warped in the dtype the camera
+  delivers (8- or 16-bit counts, or float32) and cast to float32 at the projector's size; the
+  colour unmixing (with the scale of the counts) is one :func:`cv2.transform` (a 3x3 matrix per
+  pixel), the black capture its fourth column when uniform, else one offset image
+  ``M^-1 c_black(q(x))``. Bilinear warping and the per-pixel matrix commute, so this is
+  :meth:`ProCamsCalibration.to_output_space` up to float32 rounding for float frames (integer
+  frames: within half a count, :class:`Rectifier`).
 * the inverse response ``u = f^-1(o)``:
 
   - :class:`ChannelInverseTable` where the measured response is **separable** (``o_c`` depends
@@ -25,8 +28,9 @@ starts, so that a frame costs the arithmetic of applying the tables and no alloc
     ``w = prod_c (1 - |t_c - corner_c|)``, as two bilinear :func:`cv2.remap` reads of the table's
     slices and one linear blend.
 
-Images in the hot path are ``(H, W, 3)`` float32, the layout of a camera frame, of what a display
-takes, and of a ``channels_last`` tensor: no transposition anywhere.
+Images in the hot path are ``(H, W, 3)`` -- the camera frame in its own dtype, everything after it
+float32 -- the layout of a camera frame, of what a display takes, and of a ``channels_last``
+tensor: no transposition anywhere.
 """
 
 from __future__ import annotations
