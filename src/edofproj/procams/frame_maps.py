@@ -128,8 +128,9 @@ class ChannelInverseTable:
             self._scratch[shape] = (index_u16, index_i32, torch.from_numpy(index_i32))
         index_u16, index_i32, index_t = self._scratch[shape]
         pixels = _as_pixels(light.detach().float().contiguous().numpy())  # no copy for float32 contiguous input
-        cv2.multiply(pixels, self._scale, dst=_as_pixels(index_u16), dtype=cv2.CV_16U)
-        cv2.add(_as_pixels(index_u16), self._row_offsets, dst=_as_pixels(index_i32), dtype=cv2.CV_32S)
+        # a tuple is an OpenCV Scalar (one value per channel), valid but missing from its stubs
+        cv2.multiply(pixels, self._scale, dst=_as_pixels(index_u16), dtype=cv2.CV_16U)  # type: ignore[call-overload]
+        cv2.add(_as_pixels(index_u16), self._row_offsets, dst=_as_pixels(index_i32), dtype=cv2.CV_32S)  # type: ignore[call-overload]
         if out is None:
             out = torch.empty(shape)
         target = out if out.is_contiguous() else torch.empty(shape)
@@ -274,7 +275,8 @@ class Rectifier:
             )
             for dtype, scale in FRAME_FULL_SCALE.items()
         }
-        self.fixed_map, self.fixed_fraction = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
+        fixed_map, fixed_fraction = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
+        self.fixed_map, self.fixed_fraction = np.asarray(fixed_map), np.asarray(fixed_fraction)
         self._warped = {dtype: np.empty(self.projector_hw + (3,), dtype) for dtype in FRAME_FULL_SCALE}
 
     def integer_warp_tolerance(self, dtype: np.dtype) -> float:
@@ -300,11 +302,15 @@ class Rectifier:
             raise EdofprojError(
                 f"a rectified frame is written into a contiguous {self.projector_hw + (3,)} float32 array"
             )
+        map_1: np.ndarray
+        map_2: np.ndarray
         if frame.dtype == np.float32:
-            maps, warped = (self.map_x, self.map_y), out
-        else:
-            maps, warped = (self.fixed_map, self.fixed_fraction), self._warped[frame.dtype]
-        cv2.remap(np.ascontiguousarray(frame), *maps, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)
+            map_1, map_2, warped = self.map_x, self.map_y, out
+        else:  # (H, W, 2) int16 positions and (H, W) uint16 sub-pixel table indices
+            map_1, map_2, warped = self.fixed_map, self.fixed_fraction, self._warped[frame.dtype]
+        cv2.remap(
+            np.ascontiguousarray(frame), map_1, map_2, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE
+        )
         if warped is not out:
             np.copyto(out, warped)  # the cast, at the projector's resolution
         cv2.transform(out, self._matrices[frame.dtype], dst=out)
