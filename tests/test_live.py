@@ -63,6 +63,35 @@ def test_target_light_comes_back_as_light(rig_and_calibration):
         assert np.abs(display.shown - target ** (1 / 2.2)).mean() < 0.03
 
 
+def test_a_network_that_takes_contiguous_images_sees_the_rectified_capture(rig_and_calibration):
+    """A network with ``channels_last_inputs = False`` gets contiguous (1, 3, H, W) captures whose
+    planes are the rectified capture's channels (split from the slot's HWC buffer)."""
+    rig, calibration = rig_and_calibration
+
+    class PlanarNet:
+        channels_last_inputs = False
+
+        def __init__(self):
+            self.seen = []
+
+        def __call__(self, target, captured):
+            assert captured.is_contiguous() and captured.shape == (1, 3) + HW
+            self.seen.append(captured[0].permute(1, 2, 0).numpy().copy())
+            return target.contiguous()  # a contiguous (1, 3, H, W) output, as such networks give
+
+    net, records, display = PlanarNet(), [], MemoryDisplay()
+    target = smooth_target(3)
+    run_live(net, calibration, display, VirtualCamera(rig, display), [("t", target)] * 3, keep_images=True,
+             on_frame=records.append)  # fmt: skip
+    assert len(records) == len(net.seen) == 3
+    for record, seen in zip(records, net.seen):
+        np.testing.assert_array_equal(seen, record.uncompensated)
+        assert np.abs(record.uncompensated - target).mean() < 0.02  # light comes back as light
+        np.testing.assert_array_equal(
+            record.compensated_input, calibration.inverse_table.apply(torch.from_numpy(target))
+        )
+
+
 def test_ctrl_c_stops_the_loop_after_the_frames_done(rig_and_calibration):
     rig, calibration = rig_and_calibration
     display = MemoryDisplay()

@@ -168,6 +168,9 @@ def test_channel_table_is_the_nearest_bin_for_any_leading_shape():
         strided = torch.empty(3, 2, 5, 7).permute(1, 2, 3, 0)
         assert table.apply(light, out=strided) is strided
         np.testing.assert_array_equal(strided.numpy(), expected)
+        planar = light.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)  # a (B, 3, H, W) output seen as HWC
+        np.testing.assert_array_equal(table.apply(planar).numpy(), expected)
+        np.testing.assert_array_equal(table.apply(light.double()).numpy(), expected)
     with pytest.raises(EdofprojError, match="2 <= N <= 65536"):
         ChannelInverseTable(np.zeros((3, 2**16 + 1)))
 
@@ -182,6 +185,8 @@ def test_trilinear_table_reuses_its_buffers_correctly():
         light = torch.rand(6, 8, 3, generator=torch.Generator().manual_seed(seed))
         assert table.apply(light, out=out) is out
         np.testing.assert_allclose(out.numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
+        planar = light.permute(2, 0, 1).contiguous().permute(1, 2, 0)
+        np.testing.assert_allclose(table.apply(planar).numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
     assert len(table._scratch) == 1
     colours = torch.rand(10, 3, generator=torch.Generator().manual_seed(10))  # a list of colours: (n, 3)
     np.testing.assert_allclose(table.apply(colours).numpy(), colours.numpy() @ A.T + 0.01, atol=1e-5)

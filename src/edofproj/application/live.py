@@ -335,6 +335,7 @@ class _Slot:
     rectified: np.ndarray
     captured: torch.Tensor
     copy_captured: bool
+    captured_planes: list[np.ndarray]
     projector_input: np.ndarray
     projector_input_t: torch.Tensor
 
@@ -345,7 +346,8 @@ def _slot(height_width: tuple[int, int], memory_format: torch.memory_format) -> 
     contiguous = memory_format != torch.channels_last
     captured = torch.empty((1, 3) + height_width) if contiguous else hwc_view
     projector_input = np.empty(height_width + (3,), np.float32)
-    return _Slot(rectified, captured, contiguous, projector_input, torch.from_numpy(projector_input))
+    planes = [captured[0, channel].numpy() for channel in range(3)] if contiguous else []
+    return _Slot(rectified, captured, contiguous, planes, projector_input, torch.from_numpy(projector_input))
 
 
 class _Devices:
@@ -573,8 +575,8 @@ def run_live(
             slot = devices.slots[job.slot]
             job.stages.start()
             rectify(job.frame, out=slot.rectified)
-            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images
-                slot.captured.copy_(torch.from_numpy(slot.rectified).permute(2, 0, 1)[None])
+            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images: one split
+                cv2.split(slot.rectified, slot.captured_planes)
             job.frame = np.empty(0)  # used up
             job.stages.stop("rectify")
             job.stages.start()

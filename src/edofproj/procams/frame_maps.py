@@ -89,6 +89,7 @@ class ChannelInverseTable:
         self._scale = (float(self.bins - 1),) * 4
         self._row_offsets = tuple(float(c * 2**16) for c in range(3)) + (0.0,)
         self._scratch: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, torch.Tensor]] = {}
+        self._interleaved: dict[tuple[int, ...], np.ndarray] = {}
 
     @classmethod
     def from_color(cls, color: ColorCalibration, bins: int = CHANNEL_TABLE_BINS) -> "ChannelInverseTable":
@@ -126,8 +127,9 @@ class ChannelInverseTable:
             index_u16 = np.empty(shape, np.uint16)
             index_i32 = np.empty(shape, np.int32)
             self._scratch[shape] = (index_u16, index_i32, torch.from_numpy(index_i32))
+            self._interleaved[shape] = np.empty(shape, np.float32)
         index_u16, index_i32, index_t = self._scratch[shape]
-        pixels = _as_pixels(light.detach().float().contiguous().numpy())  # no copy for float32 contiguous input
+        pixels = _as_pixels(interleaved_pixels(light, self._interleaved[shape]))
         # a tuple is an OpenCV Scalar (one value per channel), valid but missing from its stubs
         cv2.multiply(pixels, self._scale, dst=_as_pixels(index_u16), dtype=cv2.CV_16U)  # type: ignore[call-overload]
         cv2.add(_as_pixels(index_u16), self._row_offsets, dst=_as_pixels(index_i32), dtype=cv2.CV_32S)  # type: ignore[call-overload]
@@ -138,6 +140,25 @@ class ChannelInverseTable:
         if target is not out:
             out.copy_(target)
         return out
+
+
+def interleaved_pixels(light: torch.Tensor, scratch: np.ndarray) -> np.ndarray:
+    """``light (..., 3)`` as a contiguous float32 NumPy array: itself when it is one (no copy);
+    the planes of a channel-first tensor seen as ``(..., H, W, 3)`` (a network's contiguous
+    ``(B, 3, H, W)`` output, permuted) interleaved into ``scratch`` by :func:`cv2.merge` (about 4x
+    faster than a strided copy); anything else copied into ``scratch``."""
+    light = light.detach()
+    if light.dtype == torch.float32 and light.is_contiguous():
+        return light.numpy()
+    planar = light.movedim(-1, -3)
+    if light.dtype == torch.float32 and light.dim() >= 3 and planar.is_contiguous():
+        H, W = light.shape[-3:-1]
+        images = scratch.reshape(-1, H, W, 3)
+        for image, planes in zip(images, planar.reshape(-1, 3, H, W).numpy()):
+            cv2.merge(list(planes), image)
+        return scratch
+    torch.from_numpy(scratch).copy_(light)
+    return scratch
 
 
 def _as_pixels(array: np.ndarray) -> np.ndarray:
@@ -177,7 +198,8 @@ class TrilinearInverseTable:
     def _buffers(self, height_width: tuple[int, int]) -> dict[str, np.ndarray]:
         if height_width not in self._scratch:
             planes = {name: np.empty(height_width, np.float32) for name in ("t0", "t1", "t2", "low", "x")}
-            images = {name: np.empty(height_width + (3,), np.float32) for name in ("t", "near", "far", "weight")}
+            names = ("t", "near", "far", "weight", "interleaved")
+            images = {name: np.empty(height_width + (3,), np.float32) for name in names}
             self._scratch[height_width] = planes | images
         return self._scratch[height_width]
 
@@ -191,7 +213,7 @@ class TrilinearInverseTable:
         S = self.size
         height_width = (math.prod(shape[:-2]), shape[-2]) if len(shape) >= 3 else (math.prod(shape[:-1]), 1)
         b = self._buffers(height_width)
-        pixels = light.detach().float().contiguous().numpy().reshape(height_width + (3,))
+        pixels = interleaved_pixels(light, b["interleaved"].reshape(shape)).reshape(height_width + (3,))
         np.clip(pixels, 0.0, 1.0, out=b["t"])
         np.multiply(b["t"], S - 1, out=b["t"])
         cv2.split(b["t"], [b["t0"], b["t1"], b["t2"]])
