@@ -318,3 +318,34 @@ def test_throughput_and_latency_are_reported_per_frame(rig_and_calibration):
     assert all(latency >= journey for latency, journey in zip(summary.latency_s, journeys))
     assert set(summary.stage_ms()) == set(STAGES)
     assert summary.fps > 0 and display.frames_shown == 8
+
+
+def test_the_live_command_refuses_a_camera_of_another_size_in_one_line(tmp_path, capsys):
+    """On the command line: a camera whose frames are not the calibrated camera's size ends
+    ``edofproj live`` with one line and exit status 2, and no thread of the loop is left."""
+    from edofproj.cli import main
+    from edofproj.imaging.image_io import write_image
+    from edofproj.procams.capture_io import write_rgb_png
+    from edofproj.procams.patterns import MANIFEST_NAME, PatternSpec, build_pattern_set, manifest_json_text
+    from edofproj.procams.virtual import VirtualProCams, simulate_captures
+
+    rig = straight_rig(HW, delta_psf())
+    exact_calibration(rig).save(tmp_path / "calib.npz")  # a 32x24 camera
+    manifest, images = build_pattern_set(
+        PatternSpec(width=HW[1], height=HW[0], dot_grid=(2, 3), color_levels=2, bernoulli_count=1)
+    )
+    for name, image in images.items():
+        write_rgb_png(tmp_path / "pat" / name, image)
+    (tmp_path / "pat" / MANIFEST_NAME).write_text(manifest_json_text(manifest))
+    other = VirtualProCams(
+        projector_hw=HW, camera_hw=(30, 40), psf=delta_psf()[None], homography=np.diag([1.2, 1.2, 1])
+    )
+    simulate_captures(other, tmp_path / "pat", tmp_path / "sim")  # the same projector seen by a 40x30 camera
+    write_image(tmp_path / "target.png", torch.from_numpy(smooth_target().transpose(2, 0, 1).copy()))
+    capsys.readouterr()
+    args = ["live", "builtin:cpu-doe-net", "--calib", str(tmp_path / "calib.npz"), "--camera",
+            f"virtual:{tmp_path / 'sim'}", "--display", "memory", "--image", str(tmp_path / "target.png")]  # fmt: skip
+    assert main(args + ["--frames", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is 40x30 pixels, the calibrated camera 32x24" in err[0] and "Traceback" not in err[0]
+    assert not live_threads()
