@@ -101,6 +101,9 @@ def test_cmd_camera_runs_a_script_writing_out(tmp_path):
     with open_camera(f"cmd:{sys.executable} {script} {source} {{out}}") as camera:
         np.testing.assert_allclose(camera.grab(), image, atol=1e-6)
         np.testing.assert_allclose(camera.grab(), image, atol=1e-6)
+        native = camera.grab_native()  # the file's 8-bit counts
+        assert native.dtype == np.uint8
+        np.testing.assert_array_equal(native, np.round(image * 255).astype(np.uint8))
     failing = tmp_path / "fail.py"
     failing.write_text("import sys\nprint('no camera on the bus', file=sys.stderr)\nsys.exit(3)\n")
     with pytest.raises(EdofprojError, match="exited with 3: no camera on the bus"):
