@@ -2,6 +2,7 @@
 direct computations they replace."""
 
 import dataclasses
+import threading
 
 import numpy as np
 import pytest
@@ -187,8 +188,28 @@ def test_trilinear_table_reuses_its_buffers_correctly():
         np.testing.assert_allclose(out.numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
         planar = light.permute(2, 0, 1).contiguous().permute(1, 2, 0)
         np.testing.assert_allclose(table.apply(planar).numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
-    assert len(table._scratch) == 1
+    assert table._scratch.count() == 1
     colours = torch.rand(10, 3, generator=torch.Generator().manual_seed(10))  # a list of colours: (n, 3)
     np.testing.assert_allclose(table.apply(colours).numpy(), colours.numpy() @ A.T + 0.01, atol=1e-5)
     with pytest.raises(EdofprojError, match="NaN or infinite"):
         table.apply(torch.full((2, 2, 3), float("inf")))
+
+
+def test_tables_keep_their_buffers_per_thread():
+    """The live loop's device thread (a new target) and compute thread (each frame) apply the same
+    table at once: each thread gets its own buffers, and both results are right."""
+    table = ChannelInverseTable(np.random.default_rng(13).uniform(size=(3, 1000)))
+    lights = [torch.rand(6, 8, 3, generator=torch.Generator().manual_seed(seed)) for seed in (11, 12)]
+    expected = [table.table[np.arange(3), np.rint(light.numpy() * 999).astype(int)] for light in lights]
+    seen = {}
+
+    def other_thread():
+        seen["result"] = table.apply(lights[1]).numpy()
+        seen["buffers"] = table._scratch.get((6, 8, 3))
+
+    thread = threading.Thread(target=other_thread)
+    thread.start()
+    thread.join()
+    np.testing.assert_array_equal(table.apply(lights[0]).numpy(), expected[0])
+    np.testing.assert_array_equal(seen["result"], expected[1])
+    assert table._scratch.get((6, 8, 3))[0] is not seen["buffers"][0]

@@ -36,6 +36,8 @@ tensor: no transposition anywhere.
 from __future__ import annotations
 
 import math
+import threading
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -53,6 +55,29 @@ SEPARABLE_TOLERANCE = 0.01
 (output units, full primary = 1): about one 8-bit input step of a gamma-2.2 projector at full output."""
 FORWARD_SAMPLES = 4097
 """Samples of the interpolated forward response per channel from which the inverse is tabulated."""
+
+
+class ThreadBuffers:
+    """Scratch buffers made on first use, kept per calling thread and key (a shape, a dtype).
+
+    The live loop applies the same table in two threads at once -- its device thread for a new
+    target, its compute thread for every frame -- so buffers shared between threads would be
+    overwritten mid-call; per thread, each keeps its own and nothing is allocated after the first
+    call."""
+
+    def __init__(self, make: Callable[[Any], Any]) -> None:
+        self._make = make
+        self._local = threading.local()
+
+    def get(self, key: Any) -> Any:
+        store = self._local.__dict__.setdefault("buffers", {})
+        if key not in store:
+            store[key] = self._make(key)
+        return store[key]
+
+    def count(self) -> int:
+        """Keys with buffers in the calling thread."""
+        return len(self._local.__dict__.get("buffers", {}))
 
 
 def separable_response(color: ColorCalibration) -> tuple[bool, float]:
@@ -88,8 +113,13 @@ class ChannelInverseTable:
         # flat index = round(o (N - 1)) + c 2^16: the nearest bin of channel c's row
         self._scale = (float(self.bins - 1),) * 4
         self._row_offsets = tuple(float(c * 2**16) for c in range(3)) + (0.0,)
-        self._scratch: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, torch.Tensor]] = {}
-        self._interleaved: dict[tuple[int, ...], np.ndarray] = {}
+        self._scratch = ThreadBuffers(self._make_buffers)
+
+    @staticmethod
+    def _make_buffers(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, torch.Tensor, np.ndarray]:
+        """The bins (uint16), the flat indices (int32, and as a tensor) and an interleaving buffer."""
+        index_i32 = np.empty(shape, np.int32)
+        return np.empty(shape, np.uint16), index_i32, torch.from_numpy(index_i32), np.empty(shape, np.float32)
 
     @classmethod
     def from_color(cls, color: ColorCalibration, bins: int = CHANNEL_TABLE_BINS) -> "ChannelInverseTable":
@@ -123,13 +153,8 @@ class ChannelInverseTable:
             raise EdofprojError(f"a colour table takes (..., 3) images, got {shape}")
         if not math.isfinite(float(light.detach().sum())):
             raise EdofprojError("the projector output light holds NaN or infinite values")
-        if shape not in self._scratch:
-            index_u16 = np.empty(shape, np.uint16)
-            index_i32 = np.empty(shape, np.int32)
-            self._scratch[shape] = (index_u16, index_i32, torch.from_numpy(index_i32))
-            self._interleaved[shape] = np.empty(shape, np.float32)
-        index_u16, index_i32, index_t = self._scratch[shape]
-        pixels = _as_pixels(interleaved_pixels(light, self._interleaved[shape]))
+        index_u16, index_i32, index_t, interleaved = self._scratch.get(shape)
+        pixels = _as_pixels(interleaved_pixels(light, interleaved))
         # a tuple is an OpenCV Scalar (one value per channel), valid but missing from its stubs
         cv2.multiply(pixels, self._scale, dst=_as_pixels(index_u16), dtype=cv2.CV_16U)  # type: ignore[call-overload]
         cv2.add(_as_pixels(index_u16), self._row_offsets, dst=_as_pixels(index_i32), dtype=cv2.CV_32S)  # type: ignore[call-overload]
@@ -175,8 +200,8 @@ class TrilinearInverseTable:
     ``(j, k)`` slices ``l_0`` and ``l_0 + 1``. The slices are laid side by side as one
     ``(S, S * S)`` three-channel image ``T2[j, i S + k] = T[i, j, k]``, so each bilinear read is
     one :func:`cv2.remap` at ``(x, y) = (l_0 S + t_2, t_1)`` (then ``x + S``), and the blend is one
-    :func:`torch.lerp`: two passes over the table's rows instead of eight gathers. Every buffer
-    is kept per shape.
+    :func:`torch.lerp`: two remaps instead of eight row gathers. Every buffer is kept per shape
+    (and thread: :class:`ThreadBuffers`).
 
     Precision: the position ``x`` is a float32 below ``S^2``, rounded by at most ``S^2 2^-24``
     table cells (2.5e-4 cells for ``S = 65``); the result is within :attr:`tolerance` (that times
@@ -193,15 +218,13 @@ class TrilinearInverseTable:
         self._slices = np.ascontiguousarray(table.transpose(1, 0, 2, 3).reshape(S, S * S, 3))
         largest_step = max(float(np.abs(np.diff(table, axis=axis)).max()) for axis in range(3))
         self.tolerance = S * S * 2.0**-24 * largest_step + 1e-6
-        self._scratch: dict[tuple[int, int], dict[str, np.ndarray]] = {}
+        self._scratch = ThreadBuffers(self._make_buffers)
 
-    def _buffers(self, height_width: tuple[int, int]) -> dict[str, np.ndarray]:
-        if height_width not in self._scratch:
-            planes = {name: np.empty(height_width, np.float32) for name in ("t0", "t1", "t2", "low", "x")}
-            names = ("t", "near", "far", "weight", "interleaved")
-            images = {name: np.empty(height_width + (3,), np.float32) for name in names}
-            self._scratch[height_width] = planes | images
-        return self._scratch[height_width]
+    @staticmethod
+    def _make_buffers(height_width: tuple[int, int]) -> dict[str, np.ndarray]:
+        planes = {name: np.empty(height_width, np.float32) for name in ("t0", "t1", "t2", "low", "x")}
+        names = ("t", "near", "far", "weight", "interleaved")
+        return planes | {name: np.empty(height_width + (3,), np.float32) for name in names}
 
     def apply(self, light: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
         """``u`` for ``light (..., 3)`` (clamped to ``[0, 1]``) into ``out`` (same shape; allocated when None)."""
@@ -212,7 +235,7 @@ class TrilinearInverseTable:
             raise EdofprojError("the projector output light holds NaN or infinite values")
         S = self.size
         height_width = (math.prod(shape[:-2]), shape[-2]) if len(shape) >= 3 else (math.prod(shape[:-1]), 1)
-        b = self._buffers(height_width)
+        b = self._scratch.get(height_width)
         pixels = interleaved_pixels(light, b["interleaved"].reshape(shape)).reshape(height_width + (3,))
         np.clip(pixels, 0.0, 1.0, out=b["t"])
         np.multiply(b["t"], S - 1, out=b["t"])
@@ -299,11 +322,12 @@ class Rectifier:
         }
         fixed_map, fixed_fraction = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
         self.fixed_map, self.fixed_fraction = np.asarray(fixed_map), np.asarray(fixed_fraction)
-        self._warped = {dtype: np.empty(self.projector_hw + (3,), dtype) for dtype in FRAME_FULL_SCALE}
+        self._warped = ThreadBuffers(lambda dtype: np.empty(self.projector_hw + (3,), dtype))
 
     def integer_warp_tolerance(self, dtype: np.dtype) -> float:
-        """Largest difference between the rectification of ``dtype`` counts and the float warp of
-        the same counts, output units (class docstring)."""
+        """Largest difference between the rectification of ``dtype`` counts and the direct
+        rectification of the same counts at the positions rounded to 1/32 pixel, output units
+        (class docstring)."""
         return float(np.abs(self.unmix).sum(axis=1).max()) * 0.5 / FRAME_FULL_SCALE[np.dtype(dtype)]
 
     def check_frame(self, frame: np.ndarray, what: str = "camera frame") -> None:
@@ -329,7 +353,7 @@ class Rectifier:
         if frame.dtype == np.float32:
             map_1, map_2, warped = self.map_x, self.map_y, out
         else:  # (H, W, 2) int16 positions and (H, W) uint16 sub-pixel table indices
-            map_1, map_2, warped = self.fixed_map, self.fixed_fraction, self._warped[frame.dtype]
+            map_1, map_2, warped = self.fixed_map, self.fixed_fraction, self._warped.get(frame.dtype)
         cv2.remap(
             np.ascontiguousarray(frame), map_1, map_2, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE
         )
