@@ -212,6 +212,10 @@ def test_native_frames_are_the_sensor_counts():
     saturated[0, :2] = 65535  # 2 of 16 pixels
     with pytest.warns(UserWarning, match="12.5 % of the pixels are saturated"):
         assert grab_frame(Counts(saturated), native=True) is saturated
+    near_top = saturated.copy()
+    near_top[0, :2] = 65500  # within half an 8-bit step of the top: saturated, as for float frames
+    with pytest.warns(UserWarning, match="12.5 % of the pixels are saturated"):
+        grab_frame(Counts(near_top), native=True)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert grab_frame(Counts(saturated // 2), native=True).dtype == np.uint16

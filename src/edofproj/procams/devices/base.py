@@ -16,6 +16,7 @@ fraction of saturated pixels. Devices are context managers: ``with open_camera(.
 from __future__ import annotations
 
 import abc
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -194,8 +195,9 @@ def _warn_if_saturated(frame: np.ndarray, what: str) -> None:
     """The saturation warning of :func:`grab_frame` for one frame (float, or integer counts whose top
     is ``max(dtype)``); the fraction is counted only when the frame's maximum reaches the top value
     (one reduction per frame, no allocation, otherwise)."""
-    top = np.iinfo(frame.dtype).max if frame.dtype.kind in "ui" else SATURATION_LEVEL
+    integer = frame.dtype.kind in "ui"  # counts at or above SATURATION_LEVEL of full scale
+    top = math.ceil(SATURATION_LEVEL * np.iinfo(frame.dtype).max) if integer else SATURATION_LEVEL
     if frame.size and frame.max() >= top:
-        fraction = saturated_fraction(frame if frame.dtype.kind not in "ui" else to_unit_float(frame))
+        fraction = saturated_fraction(to_unit_float(frame) if integer else frame)
         if fraction > SATURATION_WARN_FRACTION:
             _saturation_warning(what, fraction)
