@@ -32,6 +32,7 @@ stage's work stays in the thread that times it.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import cv2
@@ -48,6 +49,7 @@ from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.procams.devices.base import Camera
 from edofproj.procams.devices.cameras import VirtualCamera
 from edofproj.procams.devices.displays import MemoryDisplay
+from edofproj.procams.frame_maps import TrilinearInverseTable
 from edofproj.procams.virtual import VirtualProCams
 from edofproj.runs import load_run
 
@@ -57,7 +59,8 @@ time runs in their threads and is listed separately)."""
 
 
 class InstantCamera(Camera):
-    """Returns the same ready frame at once: a camera that costs nothing."""
+    """Returns the same ready frame at once: a camera that costs nothing (``grab_native``: the
+    sensor's counts as the loop takes them; ``grab``: the same frame in float32)."""
 
     spec = "instant"
 
@@ -65,11 +68,20 @@ class InstantCamera(Camera):
         self.frame = frame
 
     def grab(self) -> np.ndarray:
+        return self.frame.astype(np.float32) / np.float32(np.iinfo(self.frame.dtype).max)
+
+    def grab_native(self) -> np.ndarray:
         return self.frame
 
 
+def load_line() -> str:
+    """The machine's load average (1, 5, 15 min) and its cores: the context of every wall time."""
+    one, five, fifteen = os.getloadavg()
+    return f"load average {one:.2f}, {five:.2f}, {fifteen:.2f} on {os.cpu_count()} cores"
+
+
 def print_summary(title: str, summary: LiveSummary) -> None:
-    print(f"\n{title}: {summary.frames} frames")
+    print(f"\n{title}: {summary.frames} frames ({load_line()})")
     print(f"  {'stage':<17} {'median ms':>10} {'p99 ms':>8} {'CPU ms':>8}")
     stats, cpu = summary.stage_ms(), summary.stage_cpu_ms()
     for stage in STAGES + ("check",):
@@ -96,24 +108,30 @@ def cpu_ms(function, repeats: int) -> tuple[float, float]:
     return 1e3 * float(np.median(walls)), 1e3 * (time.thread_time() - cpu_start) / repeats
 
 
-def print_stages_alone(calibration, frame: np.ndarray, target: np.ndarray, net, repeats: int) -> None:
+def print_stages_alone(calibration, frame_counts: np.ndarray, target: np.ndarray, repeats: int) -> None:
     """Each per-frame stage alone, one after the other in this thread: as computed per call before
-    the loop had tables (``to_output_space``: warp with float64 maps converted per call, float64
-    unmixing; the 65^3 ``ResponseLUT`` read by ``grid_sample`` for the target and the output) and
-    with the tables (:mod:`edofproj.procams.frame_maps`)."""
+    the loop had tables (``to_output_space``: warp of the float frame with float64 maps converted per
+    call, float64 unmixing; the 65^3 ``ResponseLUT`` read by ``grid_sample`` for the target and the
+    output) and with the tables (:mod:`edofproj.procams.frame_maps`), the camera frame as float32 in
+    ``[0, 1]`` and as the sensor's 8-bit counts; the 3-D table a non-separable response would use."""
     H, W = calibration.projector_hw
+    frame = frame_counts.astype(np.float32) / np.float32(255.0)
     light_chw = torch.from_numpy(target.transpose(2, 0, 1).copy())[None]
+    light_hwc = torch.from_numpy(target)  # the layout of the network's channels_last output
     lut = calibration.color.inverse_response_lut(calibration.response_lut_size)
+    trilinear = TrilinearInverseTable(lut.table)
     out = np.empty((H, W, 3), np.float32)
     out_t = torch.from_numpy(out)
     cases = [
         ("rectify", "before", lambda: calibration.to_output_space(frame)),
-        ("rectify", "after", lambda: calibration.rectifier(frame, out=out)),
+        ("rectify, float32 frame", "after", lambda: calibration.rectifier(frame, out=out)),
+        ("rectify, uint8 frame", "after", lambda: calibration.rectifier(frame_counts, out=out)),
         ("to_input", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
-        ("to_input", "after", lambda: calibration.inverse_table.apply(light_chw.permute(0, 2, 3, 1)[0], out=out_t)),
+        ("to_input, per-channel", "after", lambda: calibration.inverse_table.apply(light_hwc, out=out_t)),
+        ("to_input, 3-D trilinear", "after", lambda: trilinear.apply(light_hwc, out=out_t)),
         ("show_target f^-1(I)", "before", lambda: lut(light_chw)[0].numpy().transpose(1, 2, 0).copy()),
     ]
-    print(f"\neach stage alone ({repeats} calls each; after: the tables the loop builds once)")
+    print(f"\neach stage alone ({repeats} calls each; after: the tables the loop builds once; {load_line()})")
     print(f"  {'stage':<26} {'':<7} {'median ms':>10} {'CPU ms':>8}")
     for stage, when, function in cases:
         wall, cpu = cpu_ms(function, repeats)
@@ -158,8 +176,8 @@ def main() -> int:
     # 0. each stage alone: the per-call computations the loop used before against its tables
     display = MemoryDisplay()
     display.show(calibration.inverse_table.apply(torch.from_numpy(target)).numpy())
-    frame = VirtualCamera(rig, display).grab()
-    print_stages_alone(calibration, frame, target, net, args.frames)
+    frame = VirtualCamera(rig, display).grab_native()  # the sensor's 8-bit counts
+    print_stages_alone(calibration, frame, target, args.frames)
 
     # 1. instant camera: one virtual capture of the target, returned at once
     camera = InstantCamera(frame)

@@ -63,6 +63,35 @@ def test_target_light_comes_back_as_light(rig_and_calibration):
         assert np.abs(display.shown - target ** (1 / 2.2)).mean() < 0.03
 
 
+def test_a_network_that_takes_contiguous_images_sees_the_rectified_capture(rig_and_calibration):
+    """A network with ``channels_last_inputs = False`` gets contiguous (1, 3, H, W) captures whose
+    planes are the rectified capture's channels (split from the slot's HWC buffer)."""
+    rig, calibration = rig_and_calibration
+
+    class PlanarNet:
+        channels_last_inputs = False
+
+        def __init__(self):
+            self.seen = []
+
+        def __call__(self, target, captured):
+            assert captured.is_contiguous() and captured.shape == (1, 3) + HW
+            self.seen.append(captured[0].permute(1, 2, 0).numpy().copy())
+            return target.contiguous()  # a contiguous (1, 3, H, W) output, as such networks give
+
+    net, records, display = PlanarNet(), [], MemoryDisplay()
+    target = smooth_target(3)
+    run_live(net, calibration, display, VirtualCamera(rig, display), [("t", target)] * 3, keep_images=True,
+             on_frame=records.append)  # fmt: skip
+    assert len(records) == len(net.seen) == 3
+    for record, seen in zip(records, net.seen):
+        np.testing.assert_array_equal(seen, record.uncompensated)
+        assert np.abs(record.uncompensated - target).mean() < 0.02  # light comes back as light
+        np.testing.assert_array_equal(
+            record.compensated_input, calibration.inverse_table.apply(torch.from_numpy(target))
+        )
+
+
 def test_ctrl_c_stops_the_loop_after_the_frames_done(rig_and_calibration):
     rig, calibration = rig_and_calibration
     display = MemoryDisplay()
@@ -125,6 +154,37 @@ def test_video_frames_are_read_in_order(tmp_path):
     writer.release()
     levels = [float(frame.mean()) * 255 for _, frame in frame_source(HW, video=str(path))]
     np.testing.assert_allclose(levels, [40, 200, 120], atol=3)
+
+
+def test_a_video_that_stops_decoding_halfway_ends_the_loop_in_one_line(tmp_path, rig_and_calibration):
+    """The frames before the damage are shown; then the loop ends with the decoder's one-line error
+    and no thread left running (live writes nothing: there is no partial output to remove)."""
+    import cv2
+
+    rig, calibration = rig_and_calibration
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        writer.write(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4000] = rng.integers(0, 256, 4000, dtype=np.uint8).tobytes()
+    (tmp_path / "broken.avi").write_bytes(bytes(data))
+    shown = []
+    display = MemoryDisplay()
+    with pytest.raises(EdofprojError, match=r"cannot be decoded after frame \d+ of 20"):
+        run_live(
+            identity_net,
+            calibration,
+            display,
+            VirtualCamera(rig, display),
+            frame_source(HW, video=str(tmp_path / "broken.avi")),
+            on_frame=shown.append,
+        )
+    assert 0 < len(shown) < 20
+    assert not live_threads()
 
 
 # --------------------------------------------------------------------------- the pipelined devices
@@ -258,3 +318,34 @@ def test_throughput_and_latency_are_reported_per_frame(rig_and_calibration):
     assert all(latency >= journey for latency, journey in zip(summary.latency_s, journeys))
     assert set(summary.stage_ms()) == set(STAGES)
     assert summary.fps > 0 and display.frames_shown == 8
+
+
+def test_the_live_command_refuses_a_camera_of_another_size_in_one_line(tmp_path, capsys):
+    """On the command line: a camera whose frames are not the calibrated camera's size ends
+    ``edofproj live`` with one line and exit status 2, and no thread of the loop is left."""
+    from edofproj.cli import main
+    from edofproj.imaging.image_io import write_image
+    from edofproj.procams.capture_io import write_rgb_png
+    from edofproj.procams.patterns import MANIFEST_NAME, PatternSpec, build_pattern_set, manifest_json_text
+    from edofproj.procams.virtual import VirtualProCams, simulate_captures
+
+    rig = straight_rig(HW, delta_psf())
+    exact_calibration(rig).save(tmp_path / "calib.npz")  # a 32x24 camera
+    manifest, images = build_pattern_set(
+        PatternSpec(width=HW[1], height=HW[0], dot_grid=(2, 3), color_levels=2, bernoulli_count=1)
+    )
+    for name, image in images.items():
+        write_rgb_png(tmp_path / "pat" / name, image)
+    (tmp_path / "pat" / MANIFEST_NAME).write_text(manifest_json_text(manifest))
+    other = VirtualProCams(
+        projector_hw=HW, camera_hw=(30, 40), psf=delta_psf()[None], homography=np.diag([1.2, 1.2, 1])
+    )
+    simulate_captures(other, tmp_path / "pat", tmp_path / "sim")  # the same projector seen by a 40x30 camera
+    write_image(tmp_path / "target.png", torch.from_numpy(smooth_target().transpose(2, 0, 1).copy()))
+    capsys.readouterr()
+    args = ["live", "builtin:cpu-doe-net", "--calib", str(tmp_path / "calib.npz"), "--camera",
+            f"virtual:{tmp_path / 'sim'}", "--display", "memory", "--image", str(tmp_path / "target.png")]  # fmt: skip
+    assert main(args + ["--frames", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is 40x30 pixels, the calibrated camera 32x24" in err[0] and "Traceback" not in err[0]
+    assert not live_threads()

@@ -1,6 +1,9 @@
 """The per-frame tables of a calibration (procams/frame_maps.py) against closed forms and the
 direct computations they replace."""
 
+import dataclasses
+import threading
+
 import numpy as np
 import pytest
 import torch
@@ -8,6 +11,7 @@ import torch
 from edofproj.errors import EdofprojError
 from edofproj.procams.color import ColorCalibration, ResponseLUT
 from edofproj.procams.frame_maps import (
+    MAP_STEPS_PER_PIXEL,
     ChannelInverseTable,
     Rectifier,
     TrilinearInverseTable,
@@ -75,9 +79,12 @@ def test_trilinear_table_agrees_with_grid_sample():
     np.testing.assert_allclose(
         TrilinearInverseTable(affine.table).apply(torch.from_numpy(light)).numpy(), light @ A.T + 0.01, atol=1e-5
     )
-    curved = ResponseLUT(rng.uniform(size=(5, 5, 5, 3)))
-    reference = curved(torch.from_numpy(light).permute(2, 0, 1)[None])[0].permute(1, 2, 0)
-    torch.testing.assert_close(TrilinearInverseTable(curved.table).apply(torch.from_numpy(light)), reference)
+    for size in (5, 65):  # 65: the default table, where float32 positions reach S^2 = 4225
+        curved = ResponseLUT(rng.uniform(size=(size, size, size, 3)))
+        reference = curved(torch.from_numpy(light).permute(2, 0, 1)[None])[0].permute(1, 2, 0)
+        table = TrilinearInverseTable(curved.table)
+        assert table.tolerance < (1e-5 if size == 5 else 5e-4)
+        torch.testing.assert_close(table.apply(torch.from_numpy(light)), reference, atol=table.tolerance, rtol=0)
 
 
 def test_inverse_response_table_chooses_by_separability():
@@ -108,3 +115,101 @@ def test_rectifier_is_the_direct_rectification():
     np.testing.assert_allclose(out, direct, atol=1e-5)
     with pytest.raises(EdofprojError, match="is 16x12 pixels, the calibrated camera 40x30"):
         rectifier(frame[:12, :16])
+
+
+def slanted_map(H=12, W=16, Hc=30, Wc=40):
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    return CameraMap(
+        map_x=1.9 * x + 0.3 * y + 2.2, map_y=1.7 * y + 0.1 * x + 1.6,
+        homography=np.eye(3), dots_proj=np.zeros((0, 2)), dots_cam=np.zeros((0, 2)), camera_hw=(Hc, Wc),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("uniform_black", [True, False])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_integer_frames_are_warped_as_counts(dtype, uniform_black):
+    """A camera's integer counts are rectified without converting the camera frame: the result is
+    the direct rectification of ``counts / max(dtype)`` within the stated tolerance (half a count
+    through ``M^-1``); a uniform black level is folded into the transform, a varying one subtracted."""
+    rng = np.random.default_rng(4)
+    camera_map = slanted_map()
+    mixing = np.array([[0.8, 0.1, 0.05], [0.1, 0.7, 0.1], [0.02, 0.15, 0.9]])
+    color = ColorCalibration(mixing, np.full(3, 0.02), grid_inputs(), grid_inputs() ** 2.2)
+    black = np.broadcast_to([0.02, 0.03, 0.01], (12, 16, 3)) if uniform_black else rng.uniform(0.01, 0.05, (12, 16, 3))
+    top = np.iinfo(dtype).max
+    counts = rng.integers(0, top + 1, size=(30, 40, 3)).astype(dtype)
+    rectifier = Rectifier(camera_map, color, black)
+    steps = MAP_STEPS_PER_PIXEL  # integer frames are read at positions rounded to 1/32 pixel
+    rounded = dataclasses.replace(
+        camera_map, map_x=np.round(camera_map.map_x * steps) / steps, map_y=np.round(camera_map.map_y * steps) / steps
+    )
+    direct = color.camera_to_output(rounded.warp(counts.astype(np.float64) / top), black)
+    assert rectifier.uniform_black == uniform_black
+    out = np.empty((12, 16, 3), np.float32)
+    assert rectifier(counts, out=out) is out
+    tolerance = rectifier.integer_warp_tolerance(dtype)
+    assert tolerance == pytest.approx(np.abs(np.linalg.inv(mixing)).sum(axis=1).max() * 0.5 / top)
+    assert np.abs(out - direct).max() <= tolerance + 1e-5
+    # the float frame of the same counts, at the exact positions: float32 rounding only
+    exact = color.camera_to_output(camera_map.warp(counts.astype(np.float64) / top), black)
+    np.testing.assert_allclose(rectifier((counts / top).astype(np.float32)), exact, atol=1e-5)
+    with pytest.raises(EdofprojError, match="contiguous"):
+        rectifier(counts, out=np.empty((12, 16, 3), np.float64))
+
+
+def test_channel_table_is_the_nearest_bin_for_any_leading_shape():
+    """u_c = T_c[round(clip(o_c, 0, 1) (N - 1))] as numpy computes it from the table, for a batch
+    (B, H, W, 3), a strided output buffer, and the same buffers reused for a second input."""
+    table = ChannelInverseTable(np.random.default_rng(5).uniform(size=(3, 1000)))
+    for seed in (6, 7):
+        light = torch.rand(2, 5, 7, 3, generator=torch.Generator().manual_seed(seed)) * 1.2 - 0.1
+        bins = np.clip(np.rint(np.clip(light.numpy(), 0, 1) * 999), 0, 999).astype(int)
+        expected = table.table[np.arange(3), bins]
+        np.testing.assert_array_equal(table.apply(light).numpy(), expected)
+        strided = torch.empty(3, 2, 5, 7).permute(1, 2, 3, 0)
+        assert table.apply(light, out=strided) is strided
+        np.testing.assert_array_equal(strided.numpy(), expected)
+        planar = light.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)  # a (B, 3, H, W) output seen as HWC
+        np.testing.assert_array_equal(table.apply(planar).numpy(), expected)
+        np.testing.assert_array_equal(table.apply(light.double()).numpy(), expected)
+    with pytest.raises(EdofprojError, match="2 <= N <= 65536"):
+        ChannelInverseTable(np.zeros((3, 2**16 + 1)))
+
+
+def test_trilinear_table_reuses_its_buffers_correctly():
+    """Two inputs of the same shape read through the same buffers give each its own exact affine
+    value; infinite light is refused."""
+    A = np.array([[0.9, 0.2, -0.1], [0.05, 0.7, 0.3], [-0.2, 0.1, 0.6]])
+    table = TrilinearInverseTable(ResponseLUT.from_function(lambda v: v @ A.T + 0.01, size=5).table)
+    out = torch.empty(6, 8, 3)
+    for seed in (8, 9):
+        light = torch.rand(6, 8, 3, generator=torch.Generator().manual_seed(seed))
+        assert table.apply(light, out=out) is out
+        np.testing.assert_allclose(out.numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
+        planar = light.permute(2, 0, 1).contiguous().permute(1, 2, 0)
+        np.testing.assert_allclose(table.apply(planar).numpy(), light.numpy() @ A.T + 0.01, atol=1e-5)
+    assert table._scratch.count() == 1
+    colours = torch.rand(10, 3, generator=torch.Generator().manual_seed(10))  # a list of colours: (n, 3)
+    np.testing.assert_allclose(table.apply(colours).numpy(), colours.numpy() @ A.T + 0.01, atol=1e-5)
+    with pytest.raises(EdofprojError, match="NaN or infinite"):
+        table.apply(torch.full((2, 2, 3), float("inf")))
+
+
+def test_tables_keep_their_buffers_per_thread():
+    """The live loop's device thread (a new target) and compute thread (each frame) apply the same
+    table at once: each thread gets its own buffers, and both results are right."""
+    table = ChannelInverseTable(np.random.default_rng(13).uniform(size=(3, 1000)))
+    lights = [torch.rand(6, 8, 3, generator=torch.Generator().manual_seed(seed)) for seed in (11, 12)]
+    expected = [table.table[np.arange(3), np.rint(light.numpy() * 999).astype(int)] for light in lights]
+    seen = {}
+
+    def other_thread():
+        seen["result"] = table.apply(lights[1]).numpy()
+        seen["buffers"] = table._scratch.get((6, 8, 3))
+
+    thread = threading.Thread(target=other_thread)
+    thread.start()
+    thread.join()
+    np.testing.assert_array_equal(table.apply(lights[0]).numpy(), expected[0])
+    np.testing.assert_array_equal(seen["result"], expected[1])
+    assert table._scratch.get((6, 8, 3))[0] is not seen["buffers"][0]

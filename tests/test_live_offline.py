@@ -191,3 +191,22 @@ def test_a_flat_depth_map_compensates_like_the_flat_screen(run_dir, tmp_path):
     np.save(tmp_path / "small.npy", np.full((4, 4), 350.0))
     assert main(base + ["--depth-map", str(tmp_path / "small.npy"), "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()
+
+
+def test_a_calibration_for_another_projector_is_one_line_and_no_output(run_dir, tmp_path, capsys):
+    """Frames of another size than the calibrated projector: refused in one line, before any
+    output exists (a video's frames would be resized to the projector instead, as in live)."""
+    from edofproj.procams.virtual import VirtualProCams
+
+    psf = np.zeros((1, 3, 3, 3))
+    psf[:, :, 1, 1] = 1.0
+    rig = VirtualProCams(projector_hw=(24, 32), camera_hw=(24, 32), psf=psf, homography=np.eye(3), supersampling=1)
+    rig.ideal_calibration().save(tmp_path / "calib.npz")
+    (tmp_path / "in").mkdir()
+    write_image(tmp_path / "in" / "a.png", torch.rand(3, *HW))
+    for out in ("o", "o.avi"):
+        args = ["compensate", str(run_dir), "--images", str(tmp_path / "in"), "--depth-mm", "350"]
+        assert main(args + ["--calib", str(tmp_path / "calib.npz"), "--out", str(tmp_path / out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "a.png' is 56x40, not 32x24 like the calibrated projector" in err[0]
+        assert not (tmp_path / out).exists() and leftovers(tmp_path, ".o") == []

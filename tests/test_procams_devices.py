@@ -101,6 +101,9 @@ def test_cmd_camera_runs_a_script_writing_out(tmp_path):
     with open_camera(f"cmd:{sys.executable} {script} {source} {{out}}") as camera:
         np.testing.assert_allclose(camera.grab(), image, atol=1e-6)
         np.testing.assert_allclose(camera.grab(), image, atol=1e-6)
+        native = camera.grab_native()  # the file's 8-bit counts
+        assert native.dtype == np.uint8
+        np.testing.assert_array_equal(native, np.round(image * 255).astype(np.uint8))
     failing = tmp_path / "fail.py"
     failing.write_text("import sys\nprint('no camera on the bus', file=sys.stderr)\nsys.exit(3)\n")
     with pytest.raises(EdofprojError, match="exited with 3: no camera on the bus"):
@@ -133,8 +136,11 @@ def test_opencv_camera_reads_an_image_sequence_in_order(tmp_path):
     for number, image in enumerate(images):
         write_png(tmp_path / f"img_{number:03d}.png", image)
     with open_camera(f"opencv:{tmp_path}/img_%03d.png") as camera:
-        for image in images:
+        for image in images[:2]:
             np.testing.assert_allclose(camera.grab(), image, atol=1e-6)
+        native = camera.grab_native()  # the decoded 8-bit RGB counts
+        assert native.dtype == np.uint8
+        np.testing.assert_array_equal(native, np.round(images[2] * 255).astype(np.uint8))
         with pytest.raises(EdofprojError, match="returned no frame"):
             camera.grab()
 
@@ -175,6 +181,44 @@ def test_virtual_camera_sees_what_the_display_shows():
     display.show(image)
     expected = rig.projector_output(image) @ rig.mixing_matrix.T + np.asarray(rig.ambient)  # closed form, delta PSF
     np.testing.assert_allclose(camera.grab(), np.round(expected * 255) / 255, atol=1e-6)
+
+
+def test_native_frames_are_the_sensor_counts():
+    """The virtual sensor's uint8 counts are grab()'s frame times 255 (same noise draws), handed on
+    as they come by grab_frame(native=True) and converted otherwise; a frame at the top count warns."""
+    rig = straight_rig((8, 10), delta_psf(), noise_sigma=0.01)
+    image = random_image((8, 10, 3), 5)
+    frames = {}
+    for native in (False, True):
+        display = MemoryDisplay()
+        display.show(image)
+        frames[native] = grab_frame(VirtualCamera(rig, display, seed=3), native=native)
+    assert frames[True].dtype == np.uint8 and frames[False].dtype == np.float32
+    np.testing.assert_array_equal(frames[True].astype(np.float32) / np.float32(255), frames[False])
+
+    class Counts(Camera):
+        spec = "counts"
+
+        def __init__(self, frame):
+            self.frame = frame
+
+        def grab(self):
+            return to_unit_float(self.frame)
+
+        def grab_native(self):
+            return self.frame
+
+    saturated = np.zeros((4, 4, 3), np.uint16)
+    saturated[0, :2] = 65535  # 2 of 16 pixels
+    with pytest.warns(UserWarning, match="12.5 % of the pixels are saturated"):
+        assert grab_frame(Counts(saturated), native=True) is saturated
+    near_top = saturated.copy()
+    near_top[0, :2] = 65500  # within half an 8-bit step of the top: saturated, as for float frames
+    with pytest.warns(UserWarning, match="12.5 % of the pixels are saturated"):
+        grab_frame(Counts(near_top), native=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert grab_frame(Counts(saturated // 2), native=True).dtype == np.uint16
 
 
 def test_virtual_camera_from_a_simulated_folder_is_the_same_rig(tmp_path):

@@ -6,10 +6,11 @@ display receives is projector *input*. Per frame:
 
 1. ``show_target``: send ``f^-1(I)`` (the inverse of the measured response, cached per target)
    and wait until shown;
-2. ``capture``: grab the camera frame ``c`` (settle delay, averaging: :func:`grab_frame`);
+2. ``capture``: grab the camera frame ``c`` (settle delay, averaging: :func:`grab_frame`), in the
+   dtype the sensor delivers (``uint8``/``uint16`` counts: ``native``);
 3. ``rectify``: ``I* = M^-1 c(q(x)) - M^-1 c_black(q(x))`` in projector pixels
-   (:class:`~edofproj.procams.frame_maps.Rectifier`: precomputed ``cv2.remap`` maps, black level
-   and colour unmixing folded into one offset image and one 3x3 transform);
+   (:class:`~edofproj.procams.frame_maps.Rectifier`: precomputed ``cv2.remap`` maps, the frame
+   warped in its own dtype, black level and colour unmixing folded into one transform);
 4. ``compensate``: ``x = net(I, I*)``, the network alone, in the memory format ``edofproj bench``
    times it in (:func:`network_memory_format`);
 5. ``to_input``: ``u = f^-1(clamp(x, 0, 1))`` (:attr:`ProCamsCalibration.inverse_table`);
@@ -101,7 +102,8 @@ def frame_source(
 ) -> Iterator[tuple[str, np.ndarray]]:
     """Target frames ``(name, (H, W, 3) in [0, 1])`` at the projector's size: one image repeated,
     a folder's images in turn (repeated), each of the projector's size (else refused), or a
-    video's frames until its end (resized to the projector)."""
+    video's frames until its end (resized to the projector; a video that stops decoding before
+    the frame count its container gives raises "cannot be decoded after frame N of M")."""
     if sum(x is not None for x in (image, images, video)) != 1:
         raise EdofprojError("give one of --image, --images, --video")
     if video is not None:
@@ -110,16 +112,19 @@ def frame_source(
         capture = cv2.VideoCapture(video)
         if not capture.isOpened():
             raise EdofprojError(f"OpenCV cannot open the video '{video}'")
-        number = 0
+        count, number = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0
         try:
             while True:
                 ok, frame = capture.read()
                 if not ok:
-                    return
+                    break
                 yield f"{Path(video).name}#{number}", fit_to_projector(to_unit_float(frame[..., ::-1]), size_hw)
                 number += 1
         finally:
             capture.release()
+        if number < count:
+            raise EdofprojError(f"video '{video}' cannot be decoded after frame {number} of {count}")
+        return
     if image is not None:
         paths = [Path(image)]
     else:
@@ -278,7 +283,7 @@ class CameraWorker:
                 return
             start_cpu = time.thread_time()
             try:
-                result: Any = grab_frame(self.camera, self.grab, request, warn=self._warn)
+                result: Any = grab_frame(self.camera, self.grab, request, warn=self._warn, native=True)
                 self._warn = False
             except BaseException as exc:  # handed to the device thread, which stops the loop
                 result = exc
@@ -330,6 +335,7 @@ class _Slot:
     rectified: np.ndarray
     captured: torch.Tensor
     copy_captured: bool
+    captured_planes: list[np.ndarray]
     projector_input: np.ndarray
     projector_input_t: torch.Tensor
 
@@ -340,7 +346,8 @@ def _slot(height_width: tuple[int, int], memory_format: torch.memory_format) -> 
     contiguous = memory_format != torch.channels_last
     captured = torch.empty((1, 3) + height_width) if contiguous else hwc_view
     projector_input = np.empty(height_width + (3,), np.float32)
-    return _Slot(rectified, captured, contiguous, projector_input, torch.from_numpy(projector_input))
+    planes = [captured[0, channel].numpy() for channel in range(3)] if contiguous else []
+    return _Slot(rectified, captured, contiguous, planes, projector_input, torch.from_numpy(projector_input))
 
 
 class _Devices:
@@ -439,6 +446,9 @@ class _Devices:
             if self.measure:
                 job.stages.start()
                 check = self._grab(f"check of '{job.name}'", slot.projector_input)
+                if check.dtype.kind in "ui":  # the camera's counts (grab_frame native)
+                    check = to_unit_float(check)
+                # the direct rectification, not the compute thread's rectifier (its buffers are in use)
                 record.compensated = self.calibration.to_output_space(check).astype(np.float32)
                 job.stages.stop("check")
             job.record = record
@@ -565,8 +575,8 @@ def run_live(
             slot = devices.slots[job.slot]
             job.stages.start()
             rectify(job.frame, out=slot.rectified)
-            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images
-                slot.captured.copy_(torch.from_numpy(slot.rectified).permute(2, 0, 1)[None])
+            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images: one split
+                cv2.split(slot.rectified, slot.captured_planes)
             job.frame = np.empty(0)  # used up
             job.stages.stop("rectify")
             job.stages.start()

@@ -31,10 +31,15 @@ SATURATION_LEVEL = 1.0 - 0.5 / 255.0
 def read_rgb(path: str | Path, what: str = "image") -> np.ndarray:
     """An 8- or 16-bit image file as ``(H, W, 3)`` float32 RGB in ``[0, 1]``
     (:func:`edofproj.imaging.image_io.read_image_array`, kept in OpenCV's ``H, W, C`` layout)."""
+    return to_unit_float(read_rgb_counts(path, what))
+
+
+def read_rgb_counts(path: str | Path, what: str = "image") -> np.ndarray:
+    """The same file's integer counts, ``(H, W, 3)`` ``uint8`` or ``uint16`` RGB."""
     path = Path(path)
     if not path.is_file():
         raise EdofprojError(f"{what} '{path}' does not exist")
-    return to_unit_float(read_image_array(path))
+    return read_image_array(path)
 
 
 def write_rgb_png(path: str | Path, image: np.ndarray) -> None:
@@ -123,4 +128,12 @@ def _remove_stale_temp_folders(target: Path) -> None:
         )
 
 
-__all__ = ["read_rgb", "write_rgb_png", "read_captures", "saturated_fraction", "atomic_folder", "SATURATION_LEVEL"]
+__all__ = [
+    "read_rgb",
+    "read_rgb_counts",
+    "write_rgb_png",
+    "read_captures",
+    "saturated_fraction",
+    "atomic_folder",
+    "SATURATION_LEVEL",
+]

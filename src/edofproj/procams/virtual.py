@@ -290,7 +290,13 @@ class VirtualProCams:
 
     # ------------------------------------------------------------------ capture
     def capture(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The camera's 8-bit capture of projector input ``image`` as ``(Hc, Wc, 3)`` float32 in ``[0, 1]``."""
+        """The camera's 8-bit capture of projector input ``image`` as ``(Hc, Wc, 3)`` float32 in
+        ``[0, 1]``: :meth:`capture_counts` ``/ 255``."""
+        return self.capture_counts(image, rng).astype(np.float32) / np.float32(255.0)
+
+    def capture_counts(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The sensor's 8-bit counts of projector input ``image``, ``(Hc, Wc, 3)`` uint8 (module
+        docstring, steps 2-5): ``round(255 clip(c + noise, 0, 1))``."""
         screen = self.screen_image(image)
         camera_light = (screen @ self.mixing_matrix.T).astype(np.float32)  # (H + 2m, W + 2m, 3)
         # map2=None (map1 holds both coordinates) is valid OpenCV but missing from its stubs
@@ -306,7 +312,9 @@ class VirtualProCams:
         pixels = cv2.resize(samples, (Wc, Hc), interpolation=cv2.INTER_AREA)  # area mean of the sub-samples
         pixels += np.asarray(self.ambient, dtype=np.float32)
         pixels += np.float32(self.noise_sigma) * rng.standard_normal(pixels.shape, dtype=np.float32)
-        return np.round(np.clip(pixels, 0.0, 1.0) * 255.0) / np.float32(255.0)
+        np.clip(pixels, 0.0, 1.0, out=pixels)
+        pixels *= np.float32(255.0)
+        return np.rint(pixels, out=pixels).astype(np.uint8)
 
     # ------------------------------------------------------------------ ground truth
     def ideal_calibration(self, levels: int = 6, response_lut_size: int | None = None):

@@ -35,7 +35,7 @@ import numpy as np
 
 from ...errors import EdofprojError
 from ...imaging.image_io import IMAGE_EXTENSIONS, to_unit_float
-from ..capture_io import read_rgb
+from ..capture_io import read_rgb_counts
 from ..virtual import VirtualProCams
 from .base import Camera, Display
 
@@ -68,12 +68,16 @@ class OpenCVCamera(Camera):
             raise EdofprojError(f"camera '{self.spec}' does not let OpenCV set its exposure")
 
     def grab(self) -> np.ndarray:
+        return to_unit_float(self.grab_native())
+
+    def grab_native(self) -> np.ndarray:
+        """The frame as OpenCV decodes it, ``uint8`` or ``uint16`` RGB."""
         ok, frame = self.capture.read()
         if not ok or frame is None:
             raise EdofprojError(f"camera '{self.spec}' returned no frame (disconnected, or the end of the sequence)")
         if frame.ndim == 2:
             frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-        return to_unit_float(cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB))
+        return cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB)
 
     def close(self) -> None:
         self.capture.release()
@@ -151,6 +155,10 @@ class CommandCamera(Camera):
         self._folder = tempfile.TemporaryDirectory(prefix=f"{CAMERA_FOLDER_PREFIX}{os.getpid()}-")
 
     def grab(self) -> np.ndarray:
+        return to_unit_float(self.grab_native())
+
+    def grab_native(self) -> np.ndarray:
+        """The written file's 8- or 16-bit RGB counts."""
         folder = Path(self._folder.name)
         for old in folder.iterdir():
             old.unlink()
@@ -180,7 +188,7 @@ class CommandCamera(Camera):
         written = _image_files(folder)
         if not written:
             raise EdofprojError(f"camera command wrote no image file to {{out}} ({' '.join(command)})")
-        return read_rgb(max(written, key=written.__getitem__), what="camera frame")
+        return read_rgb_counts(max(written, key=written.__getitem__), what="camera frame")
 
     def close(self) -> None:
         self._folder.cleanup()
@@ -201,6 +209,10 @@ class FolderCamera(Camera):
         self._seen = set(_image_files(self.folder))
 
     def grab(self) -> np.ndarray:
+        return to_unit_float(self.grab_native())
+
+    def grab_native(self) -> np.ndarray:
+        """The next new file's 8- or 16-bit RGB counts."""
         deadline = time.monotonic() + self.timeout_s
         while time.monotonic() < deadline:
             new = sorted(set(_image_files(self.folder)) - self._seen, key=lambda p: p.stat().st_mtime)
@@ -211,7 +223,7 @@ class FolderCamera(Camera):
                     size = path.stat().st_size
                     time.sleep(self.poll_s)
                 self._seen.add(path)
-                return read_rgb(path, what="camera frame")
+                return read_rgb_counts(path, what="camera frame")
             time.sleep(self.poll_s)
         raise EdofprojError(f"no new image appeared in camera folder '{self.folder}' within {self.timeout_s:g} s")
 
@@ -229,10 +241,14 @@ class VirtualCamera(Camera):
         self.seed = seed
 
     def grab(self) -> np.ndarray:
+        return self.grab_native().astype(np.float32) / np.float32(255.0)
+
+    def grab_native(self) -> np.ndarray:
+        """The virtual sensor's 8-bit counts (:meth:`VirtualProCams.capture_counts`), ``uint8``."""
         shown = self.display.shown
         if shown is None:
             shown = np.zeros(self.rig.projector_hw + (3,), dtype=np.float32)
-        return self.rig.capture(shown, self.rng)
+        return self.rig.capture_counts(shown, self.rng)
 
     def settings(self) -> dict:
         return {"spec": self.spec, "backend": "virtual", "seed": self.seed, "camera_hw": list(self.rig.camera_hw)}
