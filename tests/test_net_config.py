@@ -6,7 +6,6 @@ the configuration that rebuilds the network its checkpoint holds."""
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import pytest
@@ -22,8 +21,8 @@ from edofproj.net_config import (
     MultirateConfig,
     OnlineProDebConfig,
     UNetConfig,
+    declared_options,
     option_names,
-    option_spec,
 )
 from edofproj.runs import load_run
 from edofproj.runs.directory import saved_config
@@ -42,8 +41,7 @@ def test_the_registry_and_the_configuration_classes_name_the_same_architectures(
 @pytest.mark.parametrize("cls", list(NET_CONFIGS.values()), ids=list(NET_CONFIGS))
 def test_every_option_declares_its_meaning_and_its_default_is_allowed(cls):
     cls().validate()
-    for field in dataclasses.fields(cls):
-        spec = option_spec(field)
+    for field, spec in declared_options(cls):
         assert spec.meaning and spec.rule(), field.name
         assert spec.unit == "px" or not field.name.endswith("_px"), field.name  # a unit in the name is declared
 
@@ -62,8 +60,8 @@ def _just_outside(spec, default):
 
 @pytest.mark.parametrize("cls", list(NET_CONFIGS.values()), ids=list(NET_CONFIGS))
 def test_a_value_outside_the_declared_range_is_one_config_error_naming_the_key(cls):
-    for field in dataclasses.fields(cls):
-        bad = _just_outside(option_spec(field), getattr(cls(), field.name))
+    for field, spec in declared_options(cls):
+        bad = _just_outside(spec, getattr(cls(), field.name))
         with pytest.raises(ConfigError, match=rf"^net\.{field.name}="):
             cls(**{field.name: bad}).validate()
     if cls is UNetConfig:  # a value the declared range allows besides it: 0 = no pre-filter

@@ -9,8 +9,8 @@ import torch
 
 from edofproj.compensation.unet import UNET_WIDTH_PRESETS, CompensationUNet, width_preset
 from edofproj.config import ConfigError
-from edofproj.net_config import UNetConfig
 from edofproj.errors import EdofprojError
+from edofproj.net_config import UNetConfig
 
 SMALL = [4, 8, 8, 16, 16, 16, 16]  # 7 scales, few channels: fast tests
 

@@ -27,7 +27,7 @@ import mkdocs_gen_files
 import edofproj
 from edofproj.cli import build_parser
 from edofproj.config import Config, ConfigError
-from edofproj.net_config import DEFAULT_ARCHITECTURE, NET_CONFIGS, NetConfig, option_spec
+from edofproj.net_config import DEFAULT_ARCHITECTURE, NET_CONFIGS, NetConfig, declared_options
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -226,8 +226,7 @@ def net_reference() -> list[str]:
             "| key | type | unit | default | allowed values | meaning |",
             "| --- | --- | --- | --- | --- | --- |",
         ]
-        for field in dataclasses.fields(cls):
-            spec = option_spec(field)
+        for field, spec in declared_options(cls):
             annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", field.type)
             lines.append(
                 f"| `net.{field.name}` | {_cell(annotation)} | {spec.unit} | `{_cell(repr(_default(field)))}` "

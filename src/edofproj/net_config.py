@@ -77,7 +77,8 @@ class Range:
 
 @dataclass(frozen=True)
 class OptionSpec:
-    """What :func:`option` declares about an option (kept in the field's metadata)."""
+    """What :func:`option` declares about an option (kept in the field's metadata), and whether
+    it takes integers (from its type: :func:`declared_options`)."""
 
     meaning: str
     unit: str = ""
@@ -109,19 +110,23 @@ def option(
     range: Range | None = None,  # noqa: A002 - the word the declarations read best with
     choices: tuple[str, ...] = (),
     min_items: int = 0,
-    integer: bool = False,
 ) -> Any:
     """A dataclass field for an option, declared with its meaning, unit and allowed values
     (:class:`OptionSpec`); a list default is copied for each instance."""
-    spec = OptionSpec(meaning, unit, range, tuple(choices), min_items, integer)
+    spec = OptionSpec(meaning, unit, range, tuple(choices), min_items)
     if isinstance(default, list):
         return dataclasses.field(default_factory=lambda: list(default), metadata={"option": spec})
     return dataclasses.field(default=default, metadata={"option": spec})
 
 
-def option_spec(f: dataclasses.Field) -> OptionSpec:
-    """The :class:`OptionSpec` of a field of a :class:`NetConfig` class."""
-    return f.metadata["option"]
+def declared_options(cls: type) -> list[tuple[dataclasses.Field, OptionSpec]]:
+    """Each option of a :class:`NetConfig` class with its declaration (:func:`option`); whether it
+    takes integers follows from its type (``int``, ``list[int]``)."""
+    hints = typing.get_type_hints(cls)
+    return [
+        (f, dataclasses.replace(f.metadata["option"], integer=hints[f.name] in (int, list[int])))
+        for f in dataclasses.fields(cls)
+    ]
 
 
 def unknown_choice(label: str, value: Any, choices: typing.Iterable[str]) -> str:
@@ -177,13 +182,12 @@ class NetConfig:
         "half-width r of that filter: (2r + 1)^2 taps (as doe+ensemble with r = psf.window)",
         unit="px",
         range=Range(1),
-        integer=True,
     )
 
     def validate(self) -> None:
         """Every option against its declaration, then the rules between options (:meth:`check_together`)."""
-        for f in dataclasses.fields(self):
-            _check(option_spec(f), getattr(self, f.name), f"net.{f.name}")
+        for f, spec in declared_options(type(self)):
+            _check(spec, getattr(self, f.name), f"net.{f.name}")
         self.check_together()
 
     def check_together(self) -> None:
@@ -196,7 +200,20 @@ _WIDTHS_MEANING = "channels per scale of the U-Net, finest first (named presets:
 
 
 @dataclass
-class UNetConfig(NetConfig):
+class UNetBodyConfig(NetConfig):
+    """The options of the U-Net that a network is built around (no architecture of its own)."""
+
+    widths: list[int] = option(DEFAULT_WIDTHS, _WIDTHS_MEANING, range=Range(1), min_items=2)
+    downsampling: str = option("conv", "conv (stride-2 convolution) or maxpool", choices=("conv", "maxpool"))
+    upsampling: str = option(
+        "transpose",
+        "transpose (transposed convolution) or bilinear (+ 3x3 convolution)",
+        choices=("transpose", "bilinear"),
+    )
+
+
+@dataclass
+class UNetConfig(UNetBodyConfig):
     """``unet``: the paper's compensation U-Net (Fig. 5, :class:`~edofproj.compensation.unet.CompensationUNet`).
 
     Images are padded to a multiple of ``2**(len(widths)-1)`` (times ``space_to_depth``) and cropped
@@ -210,13 +227,6 @@ class UNetConfig(NetConfig):
 
     architecture: ClassVar[str] = "unet"
 
-    widths: list[int] = option(DEFAULT_WIDTHS, _WIDTHS_MEANING, range=Range(1), min_items=2, integer=True)
-    downsampling: str = option("conv", "conv (stride-2 convolution) or maxpool", choices=("conv", "maxpool"))
-    upsampling: str = option(
-        "transpose",
-        "transpose (transposed convolution) or bilinear (+ 3x3 convolution)",
-        choices=("transpose", "bilinear"),
-    )
     padding_mode: str = option(
         "replicate", "how images are padded to the U-Net's multiple", choices=("replicate", "reflect")
     )
@@ -225,13 +235,11 @@ class UNetConfig(NetConfig):
         "run the U-Net on s x s pixel blocks at 1/s resolution (1: the paper's full-resolution network)",
         unit="px",
         range=Range(1),
-        integer=True,
     )
     prefilter_bins: int = option(
         0,
         "radial nodes of a learned Fourier pre-filter of the target in front of the U-Net (0: none)",
         range=Range(2, off=0),
-        integer=True,
     )
     linear_base: str = option(
         "none",
@@ -258,7 +266,7 @@ class UNetConfig(NetConfig):
 
 
 @dataclass
-class MultirateConfig(NetConfig):
+class MultirateConfig(UNetBodyConfig):
     """``multirate``: the real-time network (:class:`~edofproj.compensation.multirate.MultirateCompensationNet`).
 
     Everything but the full-resolution input and output runs on ``block_px x block_px`` pixel blocks:
@@ -271,17 +279,8 @@ class MultirateConfig(NetConfig):
 
     architecture: ClassVar[str] = "multirate"
 
-    widths: list[int] = option(DEFAULT_WIDTHS, _WIDTHS_MEANING, range=Range(1), min_items=2, integer=True)
-    downsampling: str = option("conv", "conv (stride-2 convolution) or maxpool", choices=("conv", "maxpool"))
-    upsampling: str = option(
-        "transpose",
-        "transpose (transposed convolution) or bilinear (+ 3x3 convolution)",
-        choices=("transpose", "bilinear"),
-    )
-    block_px: int = option(
-        4, "block size s: the network runs at 1/s resolution", unit="px", range=Range(2), integer=True
-    )
-    filter_bins: int = option(48, "radial nodes of the Fourier filter of the block means", range=Range(2), integer=True)
+    block_px: int = option(4, "block size s: the network runs at 1/s resolution", unit="px", range=Range(2))
+    filter_bins: int = option(48, "radial nodes of the Fourier filter of the block means", range=Range(2))
     init_nsr: float = option(
         0.01,
         "NSR of the depth-ensemble Wiener filter its local filter starts as, for a fixed DOE (0: starts at zero)",

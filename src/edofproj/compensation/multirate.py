@@ -229,7 +229,8 @@ class MultirateCompensationNet(nn.Module):
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
-        """Build from a :class:`edofproj.net_config.MultirateConfig`."""
+        """Build from a :class:`edofproj.net_config.MultirateConfig` (``block_px`` is the block size,
+        ``filter_bins`` the filter's nodes)."""
         return cls(
             widths=net_cfg.widths,
             block=net_cfg.block_px,
