@@ -39,8 +39,8 @@ from .net_config import (
     convert_flat_net,
     net_to_dict,
     override_net,
-    unknown_choice,
 )
+from .net_config import unknown_choice as _unknown_choice
 
 #: Metres per millimetre. Configs and options speak millimetres; the code computes in metres, and
 #: the conversion happens here, in the ``*_m`` properties of the sections, and nowhere else.
@@ -146,7 +146,7 @@ class SpectrumConfig:
         if not (0.0 <= self.trim_power < 0.01):
             raise ConfigError(f"spectrum.trim_power={self.trim_power} must be a fraction in [0, 0.01)")
         if self.quadrature not in SPECTRAL_QUADRATURES:
-            raise ConfigError(unknown_choice("spectrum.quadrature", self.quadrature, SPECTRAL_QUADRATURES))
+            raise ConfigError(_unknown_choice("spectrum.quadrature", self.quadrature, SPECTRAL_QUADRATURES))
         n = self.nodes_per_primary
         if isinstance(n, bool) or not isinstance(n, int) or not (1 <= n <= 16):
             raise ConfigError(f"spectrum.nodes_per_primary={n!r} must be an integer in 1-16")
@@ -205,7 +205,7 @@ class DOEConfig:
 
     def validate(self) -> None:
         if self.kind not in DOE_KINDS:
-            raise ConfigError(unknown_choice("doe.kind", self.kind, DOE_KINDS))
+            raise ConfigError(_unknown_choice("doe.kind", self.kind, DOE_KINDS))
         if self.kind == "file" and not self.path:
             raise ConfigError("doe.kind=file needs doe.path (a saved DOE .npz or a run directory)")
         if self.levels < 2:
@@ -259,7 +259,7 @@ class PSFConfig:
 
     def validate(self) -> None:
         if self.engine not in ("radial", "2d"):
-            raise ConfigError(unknown_choice("psf.engine", self.engine, ("radial", "2d")))
+            raise ConfigError(_unknown_choice("psf.engine", self.engine, ("radial", "2d")))
         if self.window < 3 or self.window % 2 == 0:
             raise ConfigError(f"psf.window={self.window} must be odd and >= 3")
         if self.pupil_samples < 16:
@@ -281,7 +281,7 @@ class PSFConfig:
         if self.depth_max_mm < self.depth_min_mm:
             raise ConfigError("psf.depth_max_mm must be >= psf.depth_min_mm")
         if self.precision not in ("float32", "float64"):
-            raise ConfigError(unknown_choice("psf.precision", self.precision, ("float32", "float64")))
+            raise ConfigError(_unknown_choice("psf.precision", self.precision, ("float32", "float64")))
 
 
 @dataclass
@@ -307,7 +307,7 @@ class LossConfig:
     def validate(self) -> None:
         choices = ("dists", "ms-ssim", "ssim", "none")
         if self.perceptual not in choices:
-            raise ConfigError(unknown_choice("loss.perceptual", self.perceptual, choices))
+            raise ConfigError(_unknown_choice("loss.perceptual", self.perceptual, choices))
         if self.alpha < 0 or self.beta < 0:
             raise ConfigError("loss.alpha and loss.beta must be >= 0")
 
@@ -346,7 +346,7 @@ class DataConfig:
             raise ConfigError(f"data.colour_augment={self.colour_augment} must be in [0, 1]")
         choices = ("builtin", "dead-leaves", "folder", "procedural")
         if self.source not in choices:
-            raise ConfigError(unknown_choice("data.source", self.source, choices))
+            raise ConfigError(_unknown_choice("data.source", self.source, choices))
         if self.source == "folder" and not self.folder:
             raise ConfigError("data.source=folder needs data.folder")
         if self.test_folder and self.source != "folder":
@@ -472,17 +472,17 @@ class TrainConfig:
         if self.noise_sigma < 0:
             raise ConfigError("train.noise_sigma must be >= 0")
         if self.depth_sampling not in ("uniform", "stratified"):
-            raise ConfigError(unknown_choice("train.depth_sampling", self.depth_sampling, ("uniform", "stratified")))
+            raise ConfigError(_unknown_choice("train.depth_sampling", self.depth_sampling, ("uniform", "stratified")))
         if self.depth_spacing not in DEPTH_SPACINGS:
-            raise ConfigError(unknown_choice("train.depth_spacing", self.depth_spacing, DEPTH_SPACINGS))
+            raise ConfigError(_unknown_choice("train.depth_spacing", self.depth_spacing, DEPTH_SPACINGS))
         if self.psf_table_depths < 2:
             raise ConfigError("train.psf_table_depths must be >= 2")
         if self.threads < 0:
             raise ConfigError("train.threads must be >= 0 (0: torch's default)")
         if self.device not in ("auto", "cpu", "cuda"):
-            raise ConfigError(unknown_choice("train.device", self.device, ("auto", "cpu", "cuda")))
+            raise ConfigError(_unknown_choice("train.device", self.device, ("auto", "cpu", "cuda")))
         if self.mixed_precision not in MIXED_PRECISION:
-            raise ConfigError(unknown_choice("train.mixed_precision", self.mixed_precision, MIXED_PRECISION))
+            raise ConfigError(_unknown_choice("train.mixed_precision", self.mixed_precision, MIXED_PRECISION))
 
 
 @dataclass
@@ -539,7 +539,7 @@ class EvaluationConfig:
     def validate(self) -> None:
         if self.wiener_tuning_metric not in ("ssim", "psnr"):
             raise ConfigError(
-                unknown_choice("evaluation.wiener_tuning_metric", self.wiener_tuning_metric, ("ssim", "psnr"))
+                _unknown_choice("evaluation.wiener_tuning_metric", self.wiener_tuning_metric, ("ssim", "psnr"))
             )
         if self.score_range_mm and (
             len(self.score_range_mm) != 2
@@ -570,7 +570,7 @@ class EvaluationConfig:
                 f"evaluation.image_size={self.image_size} must be [height, width] with integers >= 16, or [] (native)"
             )
         if self.image_scaling not in ("crop", "cover"):
-            raise ConfigError(unknown_choice("evaluation.image_scaling", self.image_scaling, ("crop", "cover")))
+            raise ConfigError(_unknown_choice("evaluation.image_scaling", self.image_scaling, ("crop", "cover")))
         if self.cls_iterations < 1:
             raise ConfigError("evaluation.cls_iterations must be >= 1")
         if self.wiener_tuning_images < 1 or self.wiener_tuning_depths < 1:
