@@ -107,7 +107,7 @@ def option(
     meaning: str,
     *,
     unit: str = "",
-    range: Range | None = None,  # noqa: A002 - the word the declarations read best with
+    range: Range | None = None,
     choices: tuple[str, ...] = (),
     min_items: int = 0,
 ) -> Any:
