@@ -9,6 +9,7 @@ from urllib.parse import unquote, urlsplit
 import pytest
 
 from edofproj.cli import build_parser
+from edofproj.net_config import NET_CONFIGS, option_names
 
 pytestmark = pytest.mark.slow  # builds the whole site (about 30 s)
 
@@ -47,6 +48,12 @@ def test_cli_reference_lists_every_command(site):
 def test_config_reference_states_the_validators_rules(site):
     text = (site / "reference/config/index.html").read_text(encoding="utf-8")
     assert "psf.window=-1 must be odd and &gt;= 3" in text
+    # the net section: one table per architecture, from the options each declares (edofproj.net_config)
+    for name, cls in NET_CONFIGS.items():
+        assert f"net.architecture: {name}" in text, name
+        for key in option_names(cls):
+            assert f"<code>net.{key}</code>" in text, key
+    assert "an integer &gt;= 2, or 0 (off)" in text  # net.prefilter_bins' declared values
 
 
 class _Links(HTMLParser):

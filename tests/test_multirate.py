@@ -17,8 +17,9 @@ from edofproj.compensation.multirate import (
     unshuffle_weight,
 )
 from edofproj.compensation.registry import build_network
-from edofproj.config import Config, ConfigError, NetConfig
+from edofproj.config import Config, ConfigError
 from edofproj.errors import EdofprojError
+from edofproj.net_config import MultirateConfig
 
 SMALL = [4, 6, 8]
 
@@ -225,18 +226,18 @@ def test_unet_follows_the_configured_upsampling_and_skips_blocks_at_the_finest_s
 
 def test_config_builds_the_network_and_refuses_bad_values():
     cfg = Config()
-    cfg.net = NetConfig(architecture="multirate", widths=[8, 12, 16], space_to_depth=4, prefilter_bins=24)
+    cfg.net = MultirateConfig(widths=[8, 12, 16], block_px=4, filter_bins=24)
     cfg.net.validate()
     net = build_network(cfg.net)
     assert isinstance(net, MultirateCompensationNet)
     assert net.block == 4 and net.widths == [8, 12, 16] and net.prefilter.gain.shape == (3, 24)
-    with pytest.raises(ConfigError, match="space_to_depth >= 2"):
-        NetConfig(architecture="multirate", space_to_depth=1, prefilter_bins=24).validate()
-    with pytest.raises(ConfigError, match="prefilter_bins >= 2"):
-        NetConfig(architecture="multirate", space_to_depth=4, prefilter_bins=0).validate()
+    with pytest.raises(ConfigError, match="block_px=1 must be an integer >= 2"):
+        MultirateConfig(block_px=1, filter_bins=24).validate()
+    with pytest.raises(ConfigError, match="filter_bins=0 must be an integer >= 2"):
+        MultirateConfig(block_px=4, filter_bins=0).validate()
     for bad in (-0.1, float("nan")):
         with pytest.raises(ConfigError, match="init_nsr"):
-            NetConfig(architecture="multirate", space_to_depth=4, prefilter_bins=24, init_nsr=bad).validate()
+            MultirateConfig(block_px=4, filter_bins=24, init_nsr=bad).validate()
     with pytest.raises(EdofprojError, match="block=1"):
         MultirateCompensationNet(SMALL, block=1)
     with pytest.raises(EdofprojError, match="same shape"):
@@ -258,7 +259,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
         psf[i] = torch.exp(-r2 / (2 * sigma**2)) / torch.exp(-r2 / (2 * sigma**2)).sum()
     table = DepthPSFTable(psf, 1 / np.linspace(1 / 0.8, 1 / 0.3, 3))
     cfg = Config()
-    cfg.net = NetConfig(architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.01)
+    cfg.net = MultirateConfig(widths=SMALL, block_px=4, filter_bins=8, init_nsr=0.01)
     net = build_network(cfg.net).eval()
     start_from_wiener(cfg, net, table)
     kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psf.numpy(), 0.01, radius=4))
@@ -272,9 +273,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
 
     for untouched_cfg, source in ((cfg, torch.nn.Identity()), (Config(), table)):
         if source is table:
-            untouched_cfg.net = NetConfig(
-                architecture="multirate", widths=SMALL, space_to_depth=4, prefilter_bins=8, init_nsr=0.0
-            )
+            untouched_cfg.net = MultirateConfig(widths=SMALL, block_px=4, filter_bins=8, init_nsr=0.0)
         fresh = build_network(untouched_cfg.net)
         start_from_wiener(untouched_cfg, fresh, source)
         assert all(local.weight.abs().max() == 0 for local in fresh.local_filter)

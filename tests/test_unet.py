@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from edofproj.compensation.unet import UNET_WIDTH_PRESETS, CompensationUNet, width_preset
-from edofproj.config import ConfigError, NetConfig
+from edofproj.config import ConfigError
 from edofproj.errors import EdofprojError
+from edofproj.net_config import UNetConfig
 
 SMALL = [4, 8, 8, 16, 16, 16, 16]  # 7 scales, few channels: fast tests
 
@@ -160,14 +161,14 @@ def test_torchscript_trace_generalizes_to_other_sizes():
 
 
 def test_presets_and_config():
-    assert UNET_WIDTH_PRESETS["default"] == NetConfig().widths
+    assert UNET_WIDTH_PRESETS["default"] == UNetConfig().widths
     assert all(len(w) == 7 for w in UNET_WIDTH_PRESETS.values())
     count = lambda name: expected_parameter_count(UNET_WIDTH_PRESETS[name])  # noqa: E731
     assert count("fast") < count("default") < count("paper")
     assert width_preset("fast") == UNET_WIDTH_PRESETS["fast"]
     with pytest.raises(EdofprojError, match="allowed: paper, default, fast"):
         width_preset("huge")
-    cfg = NetConfig(widths=[4, 8, 16], downsampling="maxpool", upsampling="bilinear", padding_mode="reflect")
+    cfg = UNetConfig(widths=[4, 8, 16], downsampling="maxpool", upsampling="bilinear", padding_mode="reflect")
     net = CompensationUNet.from_config(cfg)
     assert net.widths == [4, 8, 16] and net.padding_mode == "reflect"
     assert isinstance(net.down[0], torch.nn.MaxPool2d)
@@ -175,9 +176,9 @@ def test_presets_and_config():
 
 def test_bad_arguments_raise_one_line_errors():
     with pytest.raises(ConfigError, match="did you mean 'maxpool'"):
-        NetConfig(downsampling="maxpol").validate()
+        UNetConfig(downsampling="maxpol").validate()
     with pytest.raises(ConfigError, match="positive integer"):
-        NetConfig(widths=[16]).validate()
+        UNetConfig(widths=[16]).validate()
     with pytest.raises(EdofprojError, match="upsampling='nearest' is not one of transpose, bilinear"):
         CompensationUNet(SMALL, upsampling="nearest")
     with pytest.raises(EdofprojError, match="same shape"):

@@ -4,7 +4,9 @@
   choices, default), read from the real argument parsers;
 * ``reference/config.md``: every configuration key with its type, unit, default and the rule its
   validation enforces (the rule is the message the validator gives for an invalid value, so the page
-  cannot drift from the code);
+  cannot drift from the code); the ``net`` section one table per network architecture, read from the
+  options each architecture declares (:mod:`edofproj.net_config`: meaning, unit, allowed values --
+  the declarations the validator checks);
 * ``reference/api/<package>.md``: the API reference from the docstrings (mkdocstrings);
 * no other page: the rest of the site, results and performance included, is written in ``docs/``.
 """
@@ -24,6 +26,7 @@ import mkdocs_gen_files
 import edofproj
 from edofproj.cli import build_parser
 from edofproj.config import Config, ConfigError
+from edofproj.net_config import DEFAULT_ARCHITECTURE, NET_CONFIGS, NetConfig, declared_options
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -185,6 +188,53 @@ def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
+def _plain_docstring(text: str) -> str:
+    """A docstring as one Markdown paragraph, its Sphinx roles as code (``:class:`~a.B``` as ``B``)."""
+    text = re.sub(r":\w+:`~[^`]*?(\w+)`", r"``\1``", text)
+    text = re.sub(r":\w+:`([^`]+)`", r"``\1``", text)
+    return re.sub(r"``([^`]+)``", r"`\1`", " ".join(text.split()))  # a paragraph, not a table cell: no | escaped
+
+
+def net_reference() -> list[str]:
+    """The ``net`` section: ``net.architecture``, then one table per architecture of the options its
+    configuration class declares (:func:`edofproj.net_config.option`)."""
+    names = ", ".join(f"`{name}`" for name in NET_CONFIGS)
+    lines = [
+        "## `net`",
+        "",
+        f"The compensation network. `net.architecture` names it (one of {names}; default "
+        f"`{DEFAULT_ARCHITECTURE}`), and the rest of the section holds that network's options and no others:",
+        "each architecture declares its own, below (`edofproj.net_config`). `--set net.architecture=NAME`",
+        "switches the network, keeping the options the two share; `--set net.KEY=VALUE` for a key the",
+        "chosen network does not have is an error. A `net` section of the single flat format of older",
+        "files (a saved run's `config.yaml`) is converted when it is read, with a one-line note.",
+        "",
+        _plain_docstring(NetConfig.__doc__ or "").replace(
+            "The options every architecture has.",
+            "Every architecture has `leaky_slope`, `linear_nsr` and `linear_radius`.",
+        ),
+        "",
+    ]
+    for name, cls in NET_CONFIGS.items():
+        doc = _plain_docstring(cls.__doc__ or "")
+        lines += [
+            f"### `net.architecture: {name}`",
+            "",
+            doc,
+            "",
+            "| key | type | unit | default | allowed values | meaning |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for field, spec in declared_options(cls):
+            annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", field.type)
+            lines.append(
+                f"| `net.{field.name}` | {_cell(annotation)} | {spec.unit} | `{_cell(repr(_default(field)))}` "
+                f"| {_cell(spec.rule())} | {_markdown_cell(spec.meaning)} |"
+            )
+        lines.append("")
+    return lines
+
+
 def config_reference() -> str:
     lines = [
         "# Configuration reference",
@@ -199,6 +249,9 @@ def config_reference() -> str:
     root = Config()
     for section in dataclasses.fields(root):
         value = getattr(root, section.name)
+        if section.name == "net":
+            lines += net_reference()
+            continue
         if not dataclasses.is_dataclass(value):
             lines += [f"## `{section.name}`", "", f"Default `{value!r}`.", ""]
             continue

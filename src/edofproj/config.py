@@ -6,6 +6,11 @@ A config file mirrors :class:`Config`: one mapping per section (``optics``, ``sp
 "did you mean" suggestion; values are type-checked and range-checked by each section's
 ``validate``. Command-line ``--set section.key=value`` overrides are applied on top.
 
+The ``net`` section is the configuration of one network architecture, the one ``net.architecture``
+names: its class and options are declared in :mod:`edofproj.net_config`. A ``net`` section of the
+single flat format of older files (a saved run's ``config.yaml``) is converted when it is read,
+with a one-line :class:`~edofproj.errors.ConfigConversionWarning`.
+
 Units: user-facing lengths are in mm or nm and say so in their names; the code converts
 to SI (metres) at the boundary (see :mod:`edofproj.optics.geometry`).
 """
@@ -18,14 +23,24 @@ import math
 import re
 import types
 import typing
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigConversionWarning, ConfigError
 from .limits import check_memory
+from .net_config import (
+    NetConfig,
+    UNetConfig,
+    check_net_keys,
+    convert_flat_net,
+    net_to_dict,
+    override_net,
+)
+from .net_config import unknown_choice as _unknown_choice
 
 #: Metres per millimetre. Configs and options speak millimetres; the code computes in metres, and
 #: the conversion happens here, in the ``*_m`` properties of the sections, and nowhere else.
@@ -278,97 +293,6 @@ class ImagingConfig:
     def validate(self) -> None:
         if self.depth_layers < 1:
             raise ConfigError("imaging.depth_layers must be >= 1")
-
-
-@dataclass
-class NetConfig:
-    """Compensation U-Net (paper Fig. 5). ``widths``: channels per scale (7 scales).
-
-    ``downsampling``: ``conv`` (stride-2 convolution) or ``maxpool``; ``upsampling``:
-    ``transpose`` (transposed convolution) or ``bilinear`` (+ 3×3 convolution);
-    ``padding_mode``: ``replicate`` or ``reflect`` (images are padded to a multiple of
-    ``2**(len(widths)-1)`` and cropped back). Named width presets:
-    ``edofproj.compensation.unet.UNET_WIDTH_PRESETS``. ``architecture``: ``unet`` (ours) or
-    ``onlineprodeb`` (the baseline re-implementation, its default preset; ``widths`` unused).
-    ``space_to_depth``: run the U-Net on ``s x s`` pixel blocks at ``1/s`` resolution (the
-    real-time variant; 1 = the paper's full-resolution network). ``prefilter_bins``: > 0 adds a
-    learned rotationally symmetric Fourier filter of the target in front of the U-Net
-    (:mod:`edofproj.compensation.radial_filter`, that many radial nodes); 0 = the paper's U-Net.
-    ``architecture: multirate`` is the real-time network of
-    :mod:`edofproj.compensation.multirate`: ``space_to_depth`` (>= 2) is its block size,
-    and ``prefilter_bins`` (>= 2) the nodes of its low-resolution Fourier filter.
-    ``init_nsr``: when a multirate network is trained for a fixed DOE, its local linear filter
-    starts as the depth-ensemble Wiener filter of the DOE's training PSFs with this
-    noise-to-signal ratio (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`);
-    0 starts it at zero (the identity).
-    ``linear_base``: ``none``, or ``ensemble``: the U-Net (``architecture: unet``, no pre-filter;
-    the other architectures ignore it) adds a bounded correction to the depth-ensemble linear filter of the current DOE,
-    ``x = E(I) + c`` with ``|c| <= correction_bound`` everywhere and ``c`` free of local means
-    beyond a Gaussian of ``correction_highpass_px`` (0: not high-passed); ``E`` (``(2 linear_radius + 1)^2`` taps,
-    as ``doe+ensemble`` with ``linear_radius = psf.window``) uses the NSR
-    ``linear_nsr`` and is recomputed from the DOE's PSFs every ``train.linear_every`` steps
-    (:mod:`edofproj.compensation.linear_base`, the rule that makes it safe).
-    """
-
-    widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
-    leaky_slope: float = 0.2
-    architecture: str = "unet"
-    downsampling: str = "conv"
-    upsampling: str = "transpose"
-    padding_mode: str = "replicate"
-    space_to_depth: int = 1
-    prefilter_bins: int = 0
-    init_nsr: float = 0.01
-    linear_base: str = "none"
-    linear_nsr: float = 0.01
-    linear_radius: int = 33
-    correction_bound: float = 0.2
-    correction_highpass_px: float = 8.0
-
-    def validate(self) -> None:
-        if self.linear_base not in ("none", "ensemble"):
-            raise ConfigError(_unknown_choice("net.linear_base", self.linear_base, ("none", "ensemble")))
-        if self.linear_base != "none" and self.architecture == "unet" and self.prefilter_bins:
-            raise ConfigError(
-                "net.linear_base=ensemble goes with net.prefilter_bins=0 (the linear filter replaces the learned pre-filter)"
-            )
-        if self.linear_radius < 1:
-            raise ConfigError(f"net.linear_radius={self.linear_radius} must be >= 1")
-        if not (math.isfinite(self.linear_nsr) and self.linear_nsr > 0):
-            raise ConfigError(f"net.linear_nsr={self.linear_nsr} must be a finite number > 0")
-        if not (math.isfinite(self.correction_bound) and self.correction_bound > 0):
-            raise ConfigError(f"net.correction_bound={self.correction_bound} must be a finite number > 0")
-        if not (math.isfinite(self.correction_highpass_px) and self.correction_highpass_px >= 0):
-            raise ConfigError(
-                f"net.correction_highpass_px={self.correction_highpass_px} must be a finite number >= 0 (0: off)"
-            )
-        if not (math.isfinite(self.init_nsr) and self.init_nsr >= 0):
-            raise ConfigError(f"net.init_nsr={self.init_nsr} must be a finite number >= 0 (0: no Wiener start)")
-        if self.space_to_depth < 1:
-            raise ConfigError(f"net.space_to_depth={self.space_to_depth} must be >= 1")
-        if self.prefilter_bins != 0 and self.prefilter_bins < 2:
-            raise ConfigError(f"net.prefilter_bins={self.prefilter_bins} must be 0 (none) or >= 2")
-        if (
-            len(self.widths) < 2
-            or any(isinstance(w, bool) or not isinstance(w, (int, float)) for w in self.widths)
-            or any(int(w) != w or w < 1 for w in self.widths)
-        ):
-            raise ConfigError(f"net.widths={self.widths} needs at least two positive integer channel counts")
-        if not (0.0 <= self.leaky_slope < 1.0):
-            raise ConfigError(f"net.leaky_slope={self.leaky_slope} must be in [0, 1)")
-        for key, choices in (
-            ("architecture", ("unet", "onlineprodeb", "multirate")),
-            ("downsampling", ("conv", "maxpool")),
-            ("upsampling", ("transpose", "bilinear")),
-            ("padding_mode", ("replicate", "reflect")),
-        ):
-            if getattr(self, key) not in choices:
-                raise ConfigError(_unknown_choice(f"net.{key}", getattr(self, key), choices))
-        if self.architecture == "multirate" and (self.space_to_depth < 2 or self.prefilter_bins < 2):
-            raise ConfigError(
-                f"net.architecture=multirate needs net.space_to_depth >= 2 (its block size, got "
-                f"{self.space_to_depth}) and net.prefilter_bins >= 2 (its filter nodes, got {self.prefilter_bins})"
-            )
 
 
 @dataclass
@@ -700,7 +624,7 @@ class Config:
     doe: DOEConfig = field(default_factory=DOEConfig)
     psf: PSFConfig = field(default_factory=PSFConfig)
     imaging: ImagingConfig = field(default_factory=ImagingConfig)
-    net: NetConfig = field(default_factory=NetConfig)
+    net: NetConfig = field(default_factory=UNetConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -752,13 +676,6 @@ def _positive(obj: Any, attr: str, label: str) -> None:
         raise ConfigError(f"{label}={value} must be a positive number")
 
 
-def _unknown_choice(label: str, value: Any, choices: typing.Iterable[str]) -> str:
-    choices = list(choices)
-    hint = difflib.get_close_matches(str(value), choices, n=1)
-    did_you_mean = f" (did you mean '{hint[0]}'?)" if hint else ""
-    return f"{label}={value!r} is not one of {', '.join(choices)}{did_you_mean}"
-
-
 _FLOAT_LITERAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
@@ -771,6 +688,8 @@ def _coerce(value: Any, annotation: Any, label: str) -> Any:
             return None
         inner = [a for a in args if a is not type(None)]
         return _coerce(value, inner[0], label)
+    if annotation is NetConfig:  # one class per architecture: the one net.architecture names
+        return net_from_dict(value, label)
     if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
         if not isinstance(value, dict):
             raise ConfigError(f"{label} must be a mapping of keys, got {value!r}")
@@ -824,9 +743,27 @@ def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
     return cls(**kwargs)
 
 
+def net_from_dict(data: Any, label: str = "net") -> NetConfig:
+    """The ``net`` section: the configuration class of the architecture that ``data['architecture']``
+    names (:data:`edofproj.net_config.NET_CONFIGS`), built from the rest of the mapping; a key that
+    architecture does not have raises (:func:`edofproj.net_config.check_net_keys`)."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{label} must be a mapping of keys, got {data!r}")
+    cls, options = check_net_keys(data)
+    return from_dict(cls, options, prefix=label + ".")
+
+
 def to_dict(cfg: Any) -> dict:
-    """A plain mapping of a config (for YAML)."""
-    return dataclasses.asdict(cfg)
+    """A plain mapping of a config or of one section (for YAML); the ``net`` section starts with its
+    ``architecture``."""
+    if isinstance(cfg, NetConfig):
+        return net_to_dict(cfg)
+    data = dataclasses.asdict(cfg)
+    if isinstance(cfg, Config):
+        data["net"] = net_to_dict(cfg.net)
+    return data
 
 
 def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
@@ -839,6 +776,9 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
         if not raw.strip():
             raise ConfigError(f"override '{item}' has no value: give one, e.g. {dotted.strip()}=VALUE (null for none)")
         keys = dotted.strip().split(".")
+        if len(keys) == 2 and keys[0] == "net":  # the keys of the chosen architecture (net_config.override_net)
+            data["net"] = override_net(data["net"], keys[1], _parse_override_value(raw))
+            continue
         node = data
         for depth, key in enumerate(keys[:-1]):
             if not isinstance(node, dict) or key not in node:
@@ -852,11 +792,16 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
             hint = difflib.get_close_matches(keys[-1], known, n=1)
             did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
             raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
-        try:
-            node[keys[-1]] = safe_load_yaml(raw)
-        except yaml.YAMLError:
-            node[keys[-1]] = raw
+        node[keys[-1]] = _parse_override_value(raw)
     return from_dict(Config, data).validate()
+
+
+def _parse_override_value(raw: str) -> Any:
+    """The value of a ``--set`` override: YAML, or the text itself where it is not YAML."""
+    try:
+        return safe_load_yaml(raw)
+    except yaml.YAMLError:
+        return raw
 
 
 class DuplicateKeyError(yaml.YAMLError):
@@ -919,6 +864,10 @@ def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -
             raise ConfigError(f"cannot read config '{file}': {exc}") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
+        if isinstance(data, dict) and "net" in data:
+            data["net"], note = convert_flat_net(data["net"])
+            if note:  # once per file and process (Python's default warning filter)
+                warnings.warn(f"{file}: {note}", ConfigConversionWarning, stacklevel=2)
         cfg = from_dict(Config, data)
     return apply_overrides(cfg, overrides)
 

@@ -26,6 +26,10 @@ class SpectralSamplingWarning(UserWarning):
     """The wavelength sampling undersamples a primary's spectrum: the RGB PSFs are not converged."""
 
 
+class ConfigConversionWarning(UserWarning):
+    """A configuration in an older format was read by converting it; the message says what changed."""
+
+
 class RecoveryWarning(UserWarning):
     """edofproj recovered from an earlier fault (a stale lock taken over, temporary files of an
     interrupted write removed, a corrupt checkpoint skipped); the message says what it did."""

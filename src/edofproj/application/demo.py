@@ -355,12 +355,12 @@ class PretrainedOurs:
 def copy_pretrained(source: str | Path, run_dir: Path, overrides: Sequence[str]) -> PretrainedOurs:
     """Copy the trained run ``source`` (a directory or ``builtin:NAME``) to ``run_dir``, applying the
     evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``) to its
-    configuration; the rest of the configuration is what the run was trained with."""
+    configuration; the rest of the configuration is what the run was trained with (written in the
+    current format: a configuration of an older one is converted once, here)."""
     source_dir = require_trained_run(source)
     shutil.copytree(source_dir, run_dir, ignore=shutil.ignore_patterns(".*"))
     evaluation_keys = [o for o in overrides if o.split("=", 1)[0].strip().startswith(EVALUATION_OVERRIDE_PREFIXES)]
-    if evaluation_keys:
-        write_run_config(run_dir, apply_overrides(saved_config(run_dir), evaluation_keys))
+    write_run_config(run_dir, apply_overrides(saved_config(source_dir), evaluation_keys))
     return PretrainedOurs(str(source), int(load_run(run_dir).step))
 
 

@@ -22,7 +22,7 @@ DEFAULT_STALL_TIMEOUT_S = 2.0  # application.live.DEFAULT_STALL_TIMEOUT_S, not i
 
 
 def register(subparsers) -> None:
-    from .procams import add_device_options
+    from .procams.devices import add_device_options
 
     p = subparsers.add_parser(
         "live", help="live compensation: show, capture, rectify, compensate, show", description=__doc__.split("\n")[0]
@@ -58,7 +58,7 @@ def run(args) -> int:
     from ..evaluation.pipeline import require_trained_run
     from ..procams.calibration import ProCamsCalibration
     from ..runs import load_run
-    from .procams import open_devices
+    from .procams.devices import open_devices
 
     if args.frames is not None and args.frames < 1:
         raise EdofprojError(f"--frames {args.frames} must be >= 1")

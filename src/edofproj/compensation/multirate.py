@@ -167,10 +167,10 @@ class MultirateCompensationNet(nn.Module):
     ) -> None:
         super().__init__()
         if int(block) != block or block < 2:
-            raise EdofprojError(f"multirate network block={block} must be an integer >= 2 (net.space_to_depth)")
+            raise EdofprojError(f"multirate network block={block} must be an integer >= 2 (net.block_px)")
         if int(filter_bins) != filter_bins or filter_bins < 2:
             raise EdofprojError(
-                f"multirate network filter_bins={filter_bins} must be an integer >= 2 (net.prefilter_bins)"
+                f"multirate network filter_bins={filter_bins} must be an integer >= 2 (net.filter_bins)"
             )
         widths = [int(w) for w in widths]
         if len(widths) < 2 or min(widths) < 1:
@@ -229,12 +229,12 @@ class MultirateCompensationNet(nn.Module):
 
     @classmethod
     def from_config(cls, net_cfg) -> "MultirateCompensationNet":
-        """Build from a :class:`edofproj.config.NetConfig` (``space_to_depth`` is the block size,
-        ``prefilter_bins`` the filter's nodes)."""
+        """Build from a :class:`edofproj.net_config.MultirateConfig` (``block_px`` is the block size,
+        ``filter_bins`` the filter's nodes)."""
         return cls(
             widths=net_cfg.widths,
-            block=net_cfg.space_to_depth,
-            filter_bins=net_cfg.prefilter_bins,
+            block=net_cfg.block_px,
+            filter_bins=net_cfg.filter_bins,
             leaky_slope=net_cfg.leaky_slope,
             downsampling=net_cfg.downsampling,
             upsampling=net_cfg.upsampling,

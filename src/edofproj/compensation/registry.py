@@ -1,14 +1,21 @@
 """The compensation networks by architecture name: one table that builds, describes and lists them.
 
 Every network maps ``net(target, captured) -> projector input`` (unclamped, same size as the
-target). ``net.architecture`` in a config names one of :data:`NETWORKS`:
+target). ``net.architecture`` in a config names one of :data:`NETWORKS`; the rest of the ``net``
+section is that network's configuration, a class of :mod:`edofproj.net_config` that declares its
+options (their meaning, unit and range) and is validated when the config is read:
 
-* ``unet`` -- :class:`~edofproj.compensation.unet.CompensationUNet` (the paper's U-Net; with
-  ``net.prefilter_bins > 0`` a learned radial Fourier pre-filter in front of it);
+* ``unet`` -- :class:`~edofproj.compensation.unet.CompensationUNet` (the paper's U-Net; with a
+  learned radial Fourier pre-filter or the safe linear base in front of it), configured by
+  :class:`~edofproj.net_config.UNetConfig`;
 * ``multirate`` -- :class:`~edofproj.compensation.multirate.MultirateCompensationNet` (the
-  real-time network; ``net.space_to_depth`` is its block size, ``net.prefilter_bins`` its filter nodes);
+  real-time network), configured by :class:`~edofproj.net_config.MultirateConfig`;
 * ``onlineprodeb`` -- :class:`~edofproj.compensation.onlineprodeb.OnlineProDebNet` (the baseline
-  re-implementation, its default preset; ``net.widths`` unused).
+  re-implementation, its default preset), configured by :class:`~edofproj.net_config.OnlineProDebConfig`.
+
+The names are the configuration classes' own (``UNetConfig.architecture``): the configuration layer
+reads a ``net`` section without importing any network, and this table pairs each of its classes
+(:data:`edofproj.net_config.NET_CONFIGS`) with the network it builds.
 
 :func:`build_network` builds a config's network, :func:`describe_network` names it in one line
 (reports, ``bench``), :func:`network_from_widths` builds an untrained one from a width spec
@@ -17,13 +24,13 @@ target). ``net.architecture`` in a config names one of :data:`NETWORKS`:
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 from torch import nn
 
-from ..config import NetConfig
 from ..errors import EdofprojError
 from ..limits import check_memory
+from ..net_config import NET_CONFIGS, MultirateConfig, NetConfig, OnlineProDebConfig, UNetConfig
 from .multirate import MultirateCompensationNet
 from .onlineprodeb import OnlineProDebNet
 from .unet import CompensationUNet, width_preset
@@ -47,36 +54,43 @@ def _describe_unet(net_cfg) -> str:
         text += f" on {net_cfg.space_to_depth}x{net_cfg.space_to_depth} pixel blocks"
     if net_cfg.prefilter_bins:
         text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
-    if getattr(net_cfg, "linear_base", "none") == "ensemble":
+    if net_cfg.linear_base == "ensemble":
         text += f" as a correction of at most {net_cfg.correction_bound:g} on the DOE's depth-ensemble linear filter"
     return text
 
 
 def _describe_multirate(net_cfg) -> str:
     widths = [int(w) for w in net_cfg.widths]
-    s = net_cfg.space_to_depth
+    s = net_cfg.block_px
     return (
         f"multi-rate network: U-Net {min(widths)}-{max(widths)} ({len(widths)} scales) at 1/{s} resolution"
-        f" + radial Fourier filter at 1/{s} ({net_cfg.prefilter_bins} nodes)"
+        f" + radial Fourier filter at 1/{s} ({net_cfg.filter_bins} nodes)"
     )
 
 
 class Architecture(NamedTuple):
-    """A network class, how a config builds it, and how it is named in one line."""
+    """A network's configuration class, the network class, how a config builds it, and how it is
+    named in one line."""
 
+    config: type[NetConfig]
     network: type
-    build: Callable[[NetConfig], nn.Module]
-    describe: Callable[[NetConfig], str]
+    build: Callable[[Any], nn.Module]
+    describe: Callable[[Any], str]
 
 
-NETWORKS: dict[str, Architecture] = {
-    "unet": Architecture(CompensationUNet, CompensationUNet.from_config, _describe_unet),
-    "multirate": Architecture(MultirateCompensationNet, MultirateCompensationNet.from_config, _describe_multirate),
-    "onlineprodeb": Architecture(
+_ARCHITECTURES = (
+    Architecture(UNetConfig, CompensationUNet, CompensationUNet.from_config, _describe_unet),
+    Architecture(MultirateConfig, MultirateCompensationNet, MultirateCompensationNet.from_config, _describe_multirate),
+    Architecture(
+        OnlineProDebConfig,
         OnlineProDebNet,
         lambda net_cfg: OnlineProDebNet.from_preset("default", leaky_slope=net_cfg.leaky_slope),
         lambda net_cfg: "onlineprodeb",
     ),
+)
+#: Each architecture of :data:`edofproj.net_config.NET_CONFIGS` (in its order) with its network.
+NETWORKS: dict[str, Architecture] = {
+    name: next(a for a in _ARCHITECTURES if a.config is config) for name, config in NET_CONFIGS.items()
 }
 
 
@@ -87,12 +101,12 @@ def _architecture(name: str) -> Architecture:
 
 
 def build_network(net_cfg) -> nn.Module:
-    """The compensation network of a :class:`~edofproj.config.NetConfig`."""
+    """The compensation network of a ``net`` section (a :class:`~edofproj.net_config.NetConfig`)."""
     return _architecture(net_cfg.architecture).build(net_cfg)
 
 
 def describe_network(net_cfg) -> str:
-    """One line naming a :class:`~edofproj.config.NetConfig`'s network, e.g. ``U-Net 16-128 (4 scales)
+    """One line naming the network of a ``net`` section, e.g. ``U-Net 16-128 (4 scales)
     + radial pre-filter (48 nodes)``."""
     return _architecture(net_cfg.architecture).describe(net_cfg)
 

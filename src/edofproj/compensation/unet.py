@@ -57,7 +57,7 @@ from .radial_filter import RadialFourierFilter
 
 #: Named channel widths (one entry per scale, 7 scales as in the paper).
 #: ``paper``: widths in the range shown in the paper's Fig. 5; ``default``: the
-#: ``NetConfig`` default (a quarter of the paper's parameters); ``fast``: few channels,
+#: ``UNetConfig`` default (a quarter of the paper's parameters); ``fast``: few channels,
 #: meant for real-time compensation on a CPU (see ``benchmarks/bench_unet.py``).
 UNET_WIDTH_PRESETS: dict[str, list[int]] = {
     "paper": [32, 64, 128, 256, 256, 256, 256],
@@ -231,7 +231,7 @@ class CompensationUNet(nn.Module):
 
     @classmethod
     def from_config(cls, net_cfg) -> "CompensationUNet":
-        """Build from a :class:`edofproj.config.NetConfig`."""
+        """Build from a :class:`edofproj.net_config.UNetConfig`."""
         return cls(
             widths=net_cfg.widths,
             leaky_slope=net_cfg.leaky_slope,
@@ -240,9 +240,9 @@ class CompensationUNet(nn.Module):
             padding_mode=net_cfg.padding_mode,
             space_to_depth=net_cfg.space_to_depth,
             prefilter_bins=net_cfg.prefilter_bins,
-            linear_radius=net_cfg.linear_radius if getattr(net_cfg, "linear_base", "none") == "ensemble" else 0,
-            correction_bound=getattr(net_cfg, "correction_bound", 0.2),
-            correction_highpass_px=getattr(net_cfg, "correction_highpass_px", 8.0),
+            linear_radius=net_cfg.linear_radius if net_cfg.linear_base == "ensemble" else 0,
+            correction_bound=net_cfg.correction_bound,
+            correction_highpass_px=net_cfg.correction_highpass_px,
         )
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:

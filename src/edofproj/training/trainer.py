@@ -50,6 +50,7 @@ from ..errors import BlurExceedsWindowWarning, EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files
 from ..imaging.depth_layers import layer_depths_m
 from ..locking import directory_lock
+from ..net_config import MultirateConfig
 from ..optics.psf_bank import design_engine, simulator_from_config
 from ..optics.radial_engine import warn_if_blur_exceeds_window
 from ..runs import (
@@ -124,14 +125,20 @@ def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.M
 def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> None:
     """A network with a linear path (``initialize_linear_path``, the multirate network) trained for
     a *fixed* DOE starts that path as the depth-ensemble Wiener filter of the DOE's PSF table
-    (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans. A resumed run
+    (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans (``s = net.block_px``). A resumed run
     then loads its checkpoint over this start."""
     initialize_linear_path = getattr(net, "initialize_linear_path", None)
-    if cfg.net.init_nsr <= 0 or not isinstance(psf_source, DepthPSFTable) or initialize_linear_path is None:
+    options = cfg.net
+    if (
+        not isinstance(options, MultirateConfig)
+        or options.init_nsr <= 0
+        or not isinstance(psf_source, DepthPSFTable)
+        or initialize_linear_path is None
+    ):
         return
 
     kernels = depth_ensemble_wiener_kernel(
-        psf_source.psf.detach().cpu().numpy(), cfg.net.init_nsr, radius=cfg.net.space_to_depth
+        psf_source.psf.detach().cpu().numpy(), options.init_nsr, radius=options.block_px
     )
     initialize_linear_path(kernels)
 
