@@ -119,7 +119,7 @@ class Surface:
     def from_arrays(cls, reflectance, ambient=0.0, height_width: tuple[int, int] | None = None) -> "Surface":
         """A checked surface (:func:`check_reflectance`, :func:`check_ambient`)."""
         rho = check_reflectance(reflectance, height_width)
-        return cls(rho, check_ambient(ambient, tuple(rho.shape[-2:])))
+        return cls(rho, check_ambient(ambient, (int(rho.shape[-2]), int(rho.shape[-1]))))
 
     @classmethod
     def uniform(cls, rho, height_width: tuple[int, int], ambient=0.0) -> "Surface":
