@@ -308,6 +308,8 @@ class NetConfig:
     as ``doe+ensemble`` with ``linear_radius = psf.window``) uses the NSR
     ``linear_nsr`` and is recomputed from the DOE's PSFs every ``train.linear_every`` steps
     (:mod:`edofproj.compensation.linear_base`, the rule that makes it safe).
+    ``surface_input``: the network also takes the surface (reflectance and ambient) and training
+    draws textured surfaces (:mod:`edofproj.compensation.surface_net`); false: a white screen.
     """
 
     widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 128, 128, 128])
@@ -324,6 +326,7 @@ class NetConfig:
     linear_radius: int = 33
     correction_bound: float = 0.2
     correction_highpass_px: float = 8.0
+    surface_input: bool = False
 
     def validate(self) -> None:
         if self.linear_base not in ("none", "ensemble"):

@@ -4,6 +4,7 @@ For a target image ``I`` and a screen depth ``z`` per sample:
 
     P     = PSF_DOE(z)                                  RGB PSF of the (quantized) DOE at depth z
     I*    = camera( project(I, P) )                     uncompensated projection, as observed
+                                                        (on a textured surface s ⊙ project(·) + a)
     Î     = net(I, I*)                                  compensated projector input (unclamped)
     Î*    = project(Î, P)                               what the screen shows
 
@@ -87,14 +88,25 @@ class EndToEndProjector(nn.Module):
         self.mixed_precision = mixed_precision
         self.layers_m = layers_m  # depth layers for depth-varying screens (train.screens: varying)
 
-    def _compensate(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+    def _compensate(self, target: torch.Tensor, captured: torch.Tensor, *surface: torch.Tensor) -> torch.Tensor:
         with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
-            compensated = self.net(target, captured)
+            compensated = self.net(target, captured, *surface)
         return compensated.float()
 
-    def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> LoopImages:
+    def forward(
+        self,
+        target: torch.Tensor,
+        depths_m,
+        noise: torch.Tensor | None = None,
+        reflectance: torch.Tensor | None = None,
+        ambient: torch.Tensor | None = None,
+    ) -> LoopImages:
         """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,) flat screens or (B, H, W) depth maps
         (rendered by depth layers at ``layers_m``), ``noise`` standard normal like ``target``.
+        ``reflectance`` (B, 3, H, W) and ``ambient`` (B, 3, H|1, W|1): a textured surface
+        (:mod:`edofproj.imaging.surfaces`: the screen shows ``s ⊙ A(x) + a``; the network, one
+        that takes the surface, gets both); ``target`` is then the goal appearance
+        (:func:`edofproj.compensation.achievable.achievable_goal`).
 
         Returns the loop's images ``(captured I*, compensated Î, projected Î*)``.
         """
@@ -110,4 +122,15 @@ class EndToEndProjector(nn.Module):
         def observe(image: torch.Tensor) -> torch.Tensor:
             return camera_capture(image, noise, self.noise_sigma, self.quantize_capture)
 
-        return closed_loop(target, forward, self._compensate, observe)
+        if reflectance is None:
+            return closed_loop(target, forward, self._compensate, observe)
+        if ambient is None:
+            raise ValueError("a textured surface needs its ambient light too (zeros for none)")
+        rho, amb = reflectance.to(target.device), ambient.to(target.device)
+        screen = forward
+        return closed_loop(
+            target,
+            lambda image: rho * screen(image) + amb,
+            lambda goal, captured: self._compensate(goal, captured, rho, amb),
+            observe,
+        )
