@@ -5,9 +5,13 @@ is given the surface -- its reflectance ``s`` and ambient ``a``, measured
 (:mod:`edofproj.procams.surface`) or drawn in training -- as an extra input:
 
     D  = clip( (G - a) / s~, 0, 1 )        the light the surface must receive to show the goal G
-    D* = clip( (I* - a) / s~, 0, 1 )       the light it received without compensation (captured)
+    D* = clip( (I* - a) / s~, 0, 1 )       the light it received when D was projected
     x0 = f(D, D*)                          deblurred light
     x  = x0 + h([D, D*, s, x0])            projector input (unclamped)
+
+where the capture ``I* = s ⊙ A(D) + a`` is of the photometric correction ``D`` projected (the
+uncompensated image of a surface-aware system is its photometric correction, not the raw goal:
+the camera sees ``D`` blurred, ``D* = A(D)``, the pair the inner network was built for);
 
 with ``s~ = max(s, 0.02)`` (:mod:`.photometric`) and ``h`` a small full-resolution convolutional
 network (3x3, 3x3, 1x1; ``HIDDEN`` channels) whose last layer starts at zero. The order follows the
@@ -18,7 +22,7 @@ spots, bright targets) and where the blurred projection of a texture-corrected i
 undershoots at the texture's edges.
 
 Untrained (``h = 0``) the network is the cascade *photometric, then defocus* (the ``both``
-baseline); with no surface given (``s = 1, a = 0``) it is the inner network plus ``h``, so it
+baseline, :mod:`edofproj.evaluation.surfaces`); with no surface given (``s = 1, a = 0``) it is the inner network plus ``h``, so it
 runs wherever a plain network runs (``net(target, captured)``). The goal ``G`` is the target
 scaled into the surface's range (:mod:`.achievable`).
 """

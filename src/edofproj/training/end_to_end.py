@@ -32,6 +32,7 @@ import torch
 from torch import nn
 
 from ..compensation.closed_loop import ForwardModel, LoopImages, closed_loop, flat_screen
+from ..compensation.photometric import photometric_compensation
 from ..imaging.depth_layers import render_depth_map
 from .camera import camera_capture
 
@@ -105,8 +106,9 @@ class EndToEndProjector(nn.Module):
         (rendered by depth layers at ``layers_m``), ``noise`` standard normal like ``target``.
         ``reflectance`` (B, 3, H, W) and ``ambient`` (B, 3, H|1, W|1): a textured surface
         (:mod:`edofproj.imaging.surfaces`: the screen shows ``s ⊙ A(x) + a``; the network, one
-        that takes the surface, gets both); ``target`` is then the goal appearance
-        (:func:`edofproj.compensation.achievable.achievable_goal`).
+        that takes the surface, gets both, and its capture ``I*`` is of the photometric correction
+        ``clip((G - a) / s, 0, 1)`` projected, :mod:`edofproj.compensation.surface_net`); ``target``
+        is then the goal appearance (:func:`edofproj.compensation.achievable.achievable_goal`).
 
         Returns the loop's images ``(captured I*, compensated Î, projected Î*)``.
         """
@@ -128,9 +130,12 @@ class EndToEndProjector(nn.Module):
             raise ValueError("a textured surface needs its ambient light too (zeros for none)")
         rho, amb = reflectance.to(target.device), ambient.to(target.device)
         screen = forward
+
+        def textured(image: torch.Tensor) -> torch.Tensor:
+            return rho * screen(image) + amb
+
+        # the capture a surface-aware network takes: its photometric first stage projected (surface_net.py)
+        captured = observe(textured(photometric_compensation(target, rho, amb)))
         return closed_loop(
-            target,
-            lambda image: rho * screen(image) + amb,
-            lambda goal, captured: self._compensate(goal, captured, rho, amb),
-            observe,
+            target, textured, lambda goal, seen: self._compensate(goal, seen, rho, amb), observe, captured=captured
         )
