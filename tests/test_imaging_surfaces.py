@@ -135,3 +135,40 @@ def test_bad_reflectance_and_ambient_are_one_line_errors(tmp_path):
     np.testing.assert_allclose(
         read_reflectance(tmp_path / "good.png", (H, W))[0].permute(1, 2, 0).numpy(), values, atol=1 / 65535
     )
+
+
+def test_render_on_a_texture_file_and_its_bad_input(tmp_path, capsys):
+    """``edofproj render --surface``: an impulse PSF shows s ⊙ I + s E exactly; a texture of the wrong
+    size or with values outside [0, 1] is one line and no output."""
+    from edofproj.cli import main
+    from edofproj.imaging.image_io import read_image
+    from edofproj.optics.psf_bank import PSFBank
+
+    psf = np.zeros((1, 3, 5, 5))
+    psf[:, :, 2, 2] = 1.0
+    bank = tmp_path / "delta.npz"
+    PSFBank(
+        psf=torch.as_tensor(psf, dtype=torch.float32), depths_m=np.array([0.5]), pixel_pitch_m=np.array([4e-4])
+    ).save(bank)
+    image = torch.rand(3, H, W, generator=torch.Generator().manual_seed(9)) * 0.8
+    write_image(tmp_path / "in.png", image, bits=16)
+    texture = random_texture(10)[0].float()
+    np.save(tmp_path / "tex.npy", texture.permute(1, 2, 0).numpy())
+    out = tmp_path / "out.png"
+    args = ["render", "--image", tmp_path / "in.png", "--out", out, "--psf", bank, "--bits", 16]
+    assert main([str(a) for a in args + ["--surface", tmp_path / "tex.npy", "--ambient", 0.1]]) == 0
+    expected = texture * read_image(tmp_path / "in.png") + 0.1 * texture
+    np.testing.assert_allclose(read_image(out).numpy(), expected.clamp(0, 1).numpy(), atol=2e-5)
+    capsys.readouterr()
+    np.save(tmp_path / "bright.npy", np.full((H, W, 3), 1.2, np.float32))
+    np.save(tmp_path / "small.npy", np.full((4, 4, 3), 0.5, np.float32))
+    for extra, message in (
+        (["--surface", tmp_path / "bright.npy"], r"has values 1.2..1.2; a reflectance lies in [0, 1]"),
+        (["--surface", tmp_path / "small.npy"], "is 4x4 px but the projector image is 32x24"),
+        (["--ambient", 0.2], "--ambient goes with --surface"),
+    ):
+        out.unlink(missing_ok=True)
+        assert main([str(a) for a in args + extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+        assert not out.exists()
