@@ -116,15 +116,20 @@ def test_evaluate_surfaces_of_a_surface_run_and_white_matches_the_flat_evaluatio
     run = tmp_path / "run"
     train(load_config(None, TINY_EVALUATION + ["net.surface_input=true"]), run, progress=False)
     out = tmp_path / "eval"
+    dark = tmp_path / "dark.npy"
+    np.save(dark, np.full((48, 64, 3), 0.02, np.float32))
     code = main(
-        ["evaluate", str(run), "--surface", "white", "--surface", "checker", "--methods", "doe,doe+net"]
-        + ["--depths-mm", "300,500", "--ambient", "0.0", "--out", str(out), "--quiet"]
+        ["evaluate", str(run), "--surface", "white", "--surface", "checker", "--surface", str(dark)]
+        + ["--methods", "doe,doe+net", "--depths-mm", "300,500", "--ambient", "0.0", "--out", str(out), "--quiet"]
     )
     assert code == 0
+    err = capsys.readouterr().err
+    assert f"note: surface '{dark}': the surface is too dark for image" in err
+    assert "checker': the surface is too dark" not in err
     with open(out / "surface_metrics.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert {r["method"] for r in rows} == {"doe", "doe+photometric", "doe+net", "doe+net+photometric", SURFACE_NET}
-    assert {r["surface"] for r in rows} == {"white", "checker"}
+    assert {r["surface"] for r in rows} == {"white", "checker", str(dark)}
     assert (out / "surface_summary.md").is_file() and (out / "figures" / "eval_surfaces.png").is_file()
     flat = evaluate_run(run, out_dir=tmp_path / "flat", depths_mm=[300, 500], methods=["doe", "doe+net"])
     for method in ("doe", "doe+net"):

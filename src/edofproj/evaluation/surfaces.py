@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from ..builtin_runs import require_output_outside
-from ..compensation.achievable import achievable_goal, clipped_fraction, warn_if_out_of_reach
+from ..compensation.achievable import SurfaceRangeWarning, achievable_goal, clipped_fraction, warn_if_out_of_reach
 from ..compensation.photometric import light_for_goal, photometric_compensation
 from ..compensation.surface_net import SurfaceAwareNet
 from ..data import evaluation_images
@@ -218,9 +218,11 @@ def evaluate_surfaces(
             for image_index, (image_name, image) in enumerate(images):
                 target = image[None].to(device)
                 goal = achievable_goal(target, rho, amb)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")  # one note per surface below, not a warning per image
-                    clipped = warn_if_out_of_reach(goal, rho, amb)
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always", SurfaceRangeWarning)  # one note per surface, not one per image
+                    clipped = warn_if_out_of_reach(goal, rho, amb, what=f"image '{image_name}'")
+                if caught and surface_name not in evaluation.clipped:
+                    evaluation.notes.append(f"surface '{surface_name}': {caught[0].message}")
                 evaluation.clipped[surface_name] = max(evaluation.clipped.get(surface_name, 0.0), clipped)
                 if image_index == 0:
                     evaluation.examples[(surface_name, "goal")] = _hwc(goal.image)
@@ -231,11 +233,6 @@ def evaluate_surfaces(
                     )
                     progress.advance(1, detail=f"{surface_name} {depth_mm:g} mm")
     progress.finish()
-    for surface_name, fraction in evaluation.clipped.items():
-        if fraction > 0.05:
-            evaluation.notes.append(
-                f"surface '{surface_name}' cannot show {100 * fraction:.1f} % of the pixels of some goal (too dark)"
-            )
     write_surface_files(evaluation)
     evaluation.seconds = time.perf_counter() - clock
     return evaluation
