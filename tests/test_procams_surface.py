@@ -102,6 +102,10 @@ def test_flat_textured_surface_is_measured(white_calibration, patterns):
     rho, ambient = rig.true_surface()
     predicted = rho * 0.6**2.2 + ambient
     assert np.median(np.abs(seen - predicted)[keep]) <= 0.01
+    # the measured surface as the forward model's Surface gives the same prediction
+    light = torch.full((1, 3, *PROJECTOR_HW), 0.6**2.2)
+    modelled = measured.as_surface().appearance(light)[0].permute(1, 2, 0).numpy()
+    assert np.median(np.abs(seen - modelled)[keep]) <= 0.01
 
 
 def test_depth_map_surface_is_measured_away_from_depth_edges(white_calibration, patterns):
