@@ -47,7 +47,10 @@ def test_every_option_declares_its_meaning_and_its_default_is_allowed(cls):
 
 
 def _just_outside(spec, default):
-    """A value its declaration refuses, next to the allowed range (or not a choice, or too short a list)."""
+    """A value its declaration refuses, next to the allowed range (or not a choice, or too short a list,
+    or not true/false)."""
+    if spec.boolean:
+        return "yes"
     if spec.choices:
         return "?not-a-choice?"
     if spec.min_items:
@@ -78,6 +81,7 @@ def test_set_switches_the_architecture_keeping_the_shared_options():
         "leaky_slope": 0.1,
         "linear_nsr": 0.01,
         "linear_radius": 15,
+        "surface_input": False,
     }
     multirate = load_config("cpu", ["net.architecture=multirate", "net.block_px=2"]).net
     assert isinstance(multirate, MultirateConfig)

@@ -86,9 +86,12 @@ class OptionSpec:
     choices: tuple[str, ...] = ()
     min_items: int = 0
     integer: bool = False
+    boolean: bool = False
 
     def rule(self) -> str:
         """The allowed values in words, e.g. ``>= 2, or 0 (off)``, ``one of conv, maxpool``."""
+        if self.boolean:
+            return "true or false"
         if self.choices:
             return "one of " + ", ".join(self.choices)
         if self.integer and self.range == Range(1):
@@ -121,10 +124,15 @@ def option(
 
 def declared_options(cls: type) -> list[tuple[dataclasses.Field, OptionSpec]]:
     """Each option of a :class:`NetConfig` class with its declaration (:func:`option`); whether it
-    takes integers follows from its type (``int``, ``list[int]``)."""
+    takes integers or true/false follows from its type (``int``, ``list[int]``, ``bool``)."""
     hints = typing.get_type_hints(cls)
     return [
-        (f, dataclasses.replace(f.metadata["option"], integer=hints[f.name] in (int, list[int])))
+        (
+            f,
+            dataclasses.replace(
+                f.metadata["option"], integer=hints[f.name] in (int, list[int]), boolean=hints[f.name] is bool
+            ),
+        )
         for f in dataclasses.fields(cls)
     ]
 
@@ -139,6 +147,10 @@ def unknown_choice(label: str, value: Any, choices: typing.Iterable[str]) -> str
 
 def _check(spec: OptionSpec, value: Any, label: str) -> None:
     """Raise a one-line :class:`ConfigError` unless ``value`` is one the declaration allows."""
+    if spec.boolean:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{label}={value!r} must be {spec.rule()}")
+        return
     if spec.choices:
         if value not in spec.choices:
             raise ConfigError(unknown_choice(label, value, spec.choices))
@@ -182,6 +194,11 @@ class NetConfig:
         "half-width r of that filter: (2r + 1)^2 taps (as doe+ensemble with r = psf.window)",
         unit="px",
         range=Range(1),
+    )
+    surface_input: bool = option(
+        False,
+        "the network also takes the surface (reflectance and ambient) and training draws textured surfaces "
+        "(compensation.surface_net); false: a white screen",
     )
 
     def validate(self) -> None:

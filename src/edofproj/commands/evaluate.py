@@ -14,6 +14,12 @@ With ``--scene`` (a built-in scene, ``builtin`` for all of them, a YAML scene fi
 file; repeatable) the methods are scored on 3-D scenes instead, over the objects' pixels:
 ``scene_metrics.csv``, ``scene_summary.md``, ``figures/eval_scenes.png`` and
 ``figures/eval_scene_ssim.png`` (:mod:`edofproj.evaluation.scenes`).
+
+With ``--surface`` (a built-in texture -- white, leaves, field, checker, brick, gravel; ``builtin``
+for all of them -- or a reflectance file the size of the evaluation images; repeatable) the
+methods are scored over depth on coloured, textured surfaces, with photometric variants and the
+surface-aware network: ``surface_metrics.csv``, ``surface_summary.md`` and
+``figures/eval_surfaces.png`` (:mod:`edofproj.evaluation.surfaces`, :mod:`edofproj.reporting.surfaces`).
 """
 
 from __future__ import annotations
@@ -78,6 +84,22 @@ def register(subparsers) -> None:
         help="score on a 3-D scene instead of flat screens: a built-in scene ('builtin': all), a YAML scene "
         "file or a mesh file (repeatable)",
     )
+    p.add_argument(
+        "--surface",
+        dest="surfaces",
+        action="append",
+        default=None,
+        metavar="TEXTURE",
+        help="score on a coloured, textured flat surface: a built-in texture ('builtin': all) or a reflectance "
+        "image/.npy the size of the evaluation images (repeatable)",
+    )
+    p.add_argument(
+        "--ambient",
+        type=float,
+        default=0.0,
+        help="with --surface: ambient illuminance reflected by the surface, as a fraction of the projector's white "
+        "(default 0)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
@@ -121,7 +143,71 @@ def run_scenes(args) -> int:
     return 0
 
 
+def run_surfaces(args) -> int:
+    from ..builtin_runs import require_output_outside
+    from ..data.textures import builtin_texture_names
+    from ..errors import EdofprojError
+    from ..evaluation.methods import method_spec
+    from ..evaluation.pipeline import require_trained_run
+    from ..progress import StageProgress
+    from ..evaluation.surfaces import evaluate_surfaces
+    from ..locking import directory_lock
+    from ..reporting.surfaces import format_table, surface_summary_table, write_surface_report
+    from ..training.distributed import choose_device
+
+    if args.scenes:
+        raise EdofprojError("give --surface or --scene, not both (the surfaces are flat screens)")
+    if args.validation:
+        raise EdofprojError(
+            "--validation goes with flat white screens; with --surface use --images DIR or the test images"
+        )
+    methods = parse_name_list(args.methods) if args.methods is not None else None
+    for name in methods or ():
+        method_spec(name)
+    surfaces: list[str] = []
+    for text in args.surfaces:
+        for item in builtin_texture_names() if text == "builtin" else [text]:
+            if item not in surfaces:
+                surfaces.append(item)
+    depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
+    device = choose_device(args.device, option="--device")
+    require_trained_run(args.run)
+    if not args.out:
+        require_output_outside(args.run, "--out")
+    with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
+        evaluation = evaluate_surfaces(
+            args.run,
+            surfaces,
+            out_dir=args.out,
+            images_dir=args.images,
+            methods=methods,
+            depths_mm=depths,
+            ambient=args.ambient,
+            baselines_dir=args.baselines,
+            overrides=args.overrides,
+            progress=StageProgress("evaluate", enabled=not args.quiet),
+            device=device,
+        )
+        write_surface_report(evaluation)
+    for surface in evaluation.surfaces:
+        print(f"surface {surface}:")
+        print(format_table(surface_summary_table(evaluation, surface)))
+    for note in evaluation.notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(
+        f"wrote {evaluation.files['summary']}, {evaluation.files['metrics']} and {evaluation.files['figure']} "
+        f"({evaluation.seconds:.0f} s)"
+    )
+    return 0
+
+
 def run(args) -> int:
+    if args.surfaces:
+        return run_surfaces(args)
+    if args.ambient != 0.0:
+        from ..errors import EdofprojError
+
+        raise EdofprojError("--ambient goes with --surface (the ambient light on a textured surface)")
     if args.scenes:
         return run_scenes(args)
     from ..builtin_runs import require_output_outside

@@ -5,7 +5,10 @@ a design (``--doe``). The screen is a plane at one depth, a tilted plane (``--ti
 ``--near-mm`` [``--far-mm``]) or any per-pixel depth map (``--depth-map``, a ``.npy`` array
 ``(H, W)`` in millimetres, NaN where the light meets nothing and is lost, as ``edofproj scene
 render --depth-out`` writes); non-planar screens are rendered by depth layers
-(:mod:`edofproj.imaging.depth_layers`). The output has the input's size.
+(:mod:`edofproj.imaging.depth_layers`). With ``--surface`` the screen is coloured and textured
+(a built-in texture or a reflectance image/``.npy`` in projector space, the image's size) and
+``--ambient`` adds reflected ambient light: the output is ``s ⊙ render + s E``
+(:mod:`edofproj.imaging.surfaces`). The output has the input's size.
 """
 
 from __future__ import annotations
@@ -53,6 +56,19 @@ def register(subparsers) -> None:
         default=None,
         help="with --tilt-deg: depth seen by the far image edge, mm (default: from the tilt and throw ratio)",
     )
+    p.add_argument(
+        "--surface",
+        default=None,
+        metavar="TEXTURE",
+        help="a coloured, textured screen: a built-in texture (white, leaves, field, checker, brick, gravel) or a "
+        "reflectance image/.npy in projector space, the image's size, values in [0, 1]",
+    )
+    p.add_argument(
+        "--ambient",
+        type=float,
+        default=0.0,
+        help="with --surface: ambient illuminance reflected by the surface, a fraction of the projector's white",
+    )
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="bits per channel of the output")
     add_config_options(p)
     p.set_defaults(func=run)
@@ -84,6 +100,10 @@ def check_arguments(args) -> None:
             )
         if not non_planar and args.depth_mm is None:
             raise EdofprojError("--doe needs the screen depth: --depth-mm Z (or --depth-map / --tilt-deg)")
+    if args.surface is None and args.ambient != 0.0:
+        raise EdofprojError("--ambient goes with --surface (ambient light reflected by a textured screen)")
+    if not (np.isfinite(args.ambient) and args.ambient >= 0):
+        raise EdofprojError(f"--ambient {args.ambient:g} must be a finite illuminance >= 0")
     for name in ("depth_mm", "near_mm", "far_mm"):
         value = getattr(args, name)
         if value is not None and not (np.isfinite(value) and value > 0):
@@ -153,6 +173,13 @@ def run(args) -> int:
         )
     image = read_image(args.image)[None]
     height, width = image.shape[-2:]
+    surface = None
+    if args.surface is not None:
+        from ..data.textures import surface_reflectance
+        from ..imaging.surfaces import Surface
+
+        reflectance = surface_reflectance(args.surface, (height, width))
+        surface = Surface.from_arrays(reflectance, reflectance * args.ambient)
 
     depth_map_m = None
     screen = ""
@@ -204,6 +231,9 @@ def run(args) -> int:
                 screen = f"flat screen at {args.depth_mm:g} mm"
                 source = doe.describe()
 
+    if surface is not None:
+        result = surface.appearance(result)
+        screen += f", surface {args.surface}" + (f" under ambient {args.ambient:g}" if args.ambient else "")
     write_image(args.out, result[0], bits=args.bits)
     print(f"wrote {args.out} ({height}x{width} px, height x width, {args.bits}-bit): {screen}; {source}")
     return 0

@@ -33,6 +33,7 @@ from ..limits import check_memory
 from ..net_config import NET_CONFIGS, MultirateConfig, NetConfig, OnlineProDebConfig, UNetConfig
 from .multirate import MultirateCompensationNet
 from .onlineprodeb import OnlineProDebNet
+from .surface_net import SurfaceAwareNet
 from .unet import CompensationUNet, width_preset
 
 #: Least bytes per pixel of one frame through a compensation network (inference): peak RSS at
@@ -101,14 +102,19 @@ def _architecture(name: str) -> Architecture:
 
 
 def build_network(net_cfg) -> nn.Module:
-    """The compensation network of a ``net`` section (a :class:`~edofproj.net_config.NetConfig`)."""
-    return _architecture(net_cfg.architecture).build(net_cfg)
+    """The compensation network of a :class:`~edofproj.config.NetConfig` (with ``net.surface_input``:
+    wrapped in :class:`~edofproj.compensation.surface_net.SurfaceAwareNet`)."""
+    net = _architecture(net_cfg.architecture).build(net_cfg)
+    if getattr(net_cfg, "surface_input", False):
+        net = SurfaceAwareNet(net, leaky_slope=net_cfg.leaky_slope)
+    return net
 
 
 def describe_network(net_cfg) -> str:
     """One line naming the network of a ``net`` section, e.g. ``U-Net 16-128 (4 scales)
     + radial pre-filter (48 nodes)``."""
-    return _architecture(net_cfg.architecture).describe(net_cfg)
+    text = _architecture(net_cfg.architecture).describe(net_cfg)
+    return text + (" with the surface as input" if getattr(net_cfg, "surface_input", False) else "")
 
 
 def network_from_widths(

@@ -4,6 +4,7 @@
 * :mod:`.projection` -- ``project(image, psf, haze=True)``: one screen depth (paper Eq. 9);
 * :mod:`.depth_layers` -- ``render_depth_map``: a screen whose depth varies per pixel;
 * :mod:`.screens` -- screen shapes as depth maps (the tilted plane);
+* :mod:`.surfaces` -- coloured, textured surfaces: ``c = s ⊙ A(L) + a`` (reflectance, ambient);
 * :mod:`.image_io` -- ``read_image`` / ``write_image``.
 """
 

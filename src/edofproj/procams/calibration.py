@@ -10,11 +10,13 @@ light per projector pixel, ``o(x) = M^-1 (c(q(x)) - c_black(q(x)))``, which is w
 ``camera_hw``, ``map_x``, ``map_y`` (camera coordinates of every projector pixel), ``homography``,
 ``dots_proj``, ``dots_cam``, ``mixing_matrix``, ``black_level`` (3,), ``black_image`` (the black
 capture in projector pixels, ``(H, W, 3)``), ``color_inputs``, ``color_outputs`` (``(N, 3)``,
-the colour-sample table) and ``neighbours``.
+the colour-sample table) and ``neighbours``; with the surface captures (:mod:`.surface`) also
+``surface_reflectance`` and ``surface_ambient`` (``(H, W, 3)``, projector output units).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +58,8 @@ class ProCamsCalibration:
     color: ColorCalibration
     black_image: np.ndarray
     response_lut_size: int = field(default=RESPONSE_LUT_SIZE, compare=False)
+    surface_reflectance: np.ndarray | None = field(default=None, compare=False)
+    surface_ambient: np.ndarray | None = field(default=None, compare=False)
     _inverse_table: InverseTable | None = field(default=None, init=False, repr=False, compare=False)
     _rectifier: Rectifier | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -74,6 +78,30 @@ class ProCamsCalibration:
             raise EdofprojError(
                 f"{what} is {height_width[1]}x{height_width[0]} but the calibration was made for a {W}x{H} projector"
             )
+
+    @property
+    def has_surface(self) -> bool:
+        """Whether the surface was measured (:mod:`.surface`): reflectance and ambient per pixel."""
+        return self.surface_reflectance is not None and self.surface_ambient is not None
+
+    def with_surface(self, reflectance: np.ndarray, ambient: np.ndarray) -> "ProCamsCalibration":
+        """This calibration with a measured surface (``(H, W, 3)`` each, :mod:`.surface`), checked."""
+        arrays = {"surface_reflectance": np.asarray(reflectance), "surface_ambient": np.asarray(ambient)}
+        _check_surface_arrays(arrays, self.projector_hw, _surface_error)
+        return dataclasses.replace(
+            self,
+            surface_reflectance=arrays["surface_reflectance"].astype(np.float32),
+            surface_ambient=arrays["surface_ambient"].astype(np.float32),
+        )
+
+    def require_surface(self, what: str = "this command") -> tuple[np.ndarray, np.ndarray]:
+        """The measured ``(reflectance, ambient)``, or one line saying that the calibration lacks them."""
+        if self.surface_reflectance is None or self.surface_ambient is None:
+            raise EdofprojError(
+                f"{what} needs the surface, but the calibration was made without the surface captures "
+                "(the black and white fields captured with the object in place, edofproj.procams.surface)"
+            )
+        return self.surface_reflectance, self.surface_ambient
 
     @property
     def rectifier(self) -> Rectifier:
@@ -114,6 +142,11 @@ class ProCamsCalibration:
             color_inputs=color.sample_inputs,
             color_outputs=color.sample_outputs,
             neighbours=np.array(color.neighbours),
+            **(
+                {"surface_reflectance": self.surface_reflectance, "surface_ambient": self.surface_ambient}
+                if self.has_surface
+                else {}
+            ),
         )
 
     @classmethod
@@ -136,7 +169,14 @@ class ProCamsCalibration:
             sample_outputs=data["color_outputs"].astype(np.float64),
             neighbours=int(data["neighbours"]),
         )
-        return cls(camera_map=camera_map, color=color, black_image=data["black_image"].astype(np.float64))
+        surface = all(key in data for key in SURFACE_KEYS)
+        return cls(
+            camera_map=camera_map,
+            color=color,
+            black_image=data["black_image"].astype(np.float64),
+            surface_reflectance=data["surface_reflectance"].astype(np.float32) if surface else None,
+            surface_ambient=data["surface_ambient"].astype(np.float32) if surface else None,
+        )
 
 
 #: Largest projector or camera side a calibration file may give (pixels): beyond any display or sensor.
@@ -159,6 +199,32 @@ CALIBRATION_KEYS = (
     "color_outputs",
     "neighbours",
 )
+#: Optional keys: the measured surface (both or neither).
+SURFACE_KEYS = ("surface_reflectance", "surface_ambient")
+
+
+def _surface_error(message: str) -> None:
+    raise EdofprojError(f"the surface measurement {message}")
+
+
+def _check_surface_arrays(data: Mapping[str, np.ndarray], projector_hw: tuple[int, int], fail) -> None:
+    """Both surface arrays or neither; ``(H, W, 3)``, finite, reflectance in ``[0, 1]``, ambient ``>= 0``."""
+    present = [key for key in SURFACE_KEYS if key in data]
+    if not present:
+        return
+    if len(present) != len(SURFACE_KEYS):
+        fail(f"has '{present[0]}' without {', '.join(k for k in SURFACE_KEYS if k not in present)}")
+    H, W = projector_hw
+    for key in SURFACE_KEYS:
+        values = data[key]
+        if values.dtype.kind not in "fiu" or values.shape != (H, W, 3):
+            fail(f"has '{key}' of shape {values.shape} ({values.dtype}), not ({H}, {W}, 3) numbers")
+        if not np.all(np.isfinite(values)):
+            fail(f"has NaN or infinite values in '{key}'")
+    if data["surface_reflectance"].min() < 0 or data["surface_reflectance"].max() > 1:
+        fail("has a reflectance outside [0, 1]")
+    if data["surface_ambient"].min() < 0:
+        fail("has a negative ambient light")
 
 
 def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> None:
@@ -229,6 +295,7 @@ def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> 
     neighbours = data["neighbours"]
     if neighbours.shape != () or neighbours != np.round(neighbours) or not 4 <= neighbours <= len(inputs):
         fail(f"gives neighbours={neighbours.tolist()}: a whole number in 4..{len(inputs)} (the colour samples)")
+    _check_surface_arrays(data, (H, W), fail)
 
 
 def _size_pair(values: np.ndarray) -> tuple[int, int]:

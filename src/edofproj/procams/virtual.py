@@ -9,13 +9,17 @@ Image formation for a projector input image ``u`` (``H x W x 3``, values in ``[0
    :func:`~edofproj.imaging.render_depth_map` for a screen with a depth map) inside the image,
    on a canvas with a black margin of ``K//2 + 1`` px that also keeps the direct light spilling
    past the image border (the haze stays spread over the image);
-3. camera colour: ``c = M s + a`` (``M``: 3x3 colour-mixing matrix, ``a``: ambient light);
-4. camera geometry: camera pixel ``q = (u, v)`` sees projector coordinate ``x = H^-1(w)``, with
+3. the surface (optional, :mod:`edofproj.imaging.surfaces`): a reflectance ``rho(x)`` per
+   projector pixel and primary, in ``[0, 1]`` (None: a white screen, ``rho = 1``), and an ambient
+   illuminance ``E`` (projector-output units, reflected like the projection):
+   ``s <- rho ⊙ (s + E)``; the canvas's margin takes the reflectance of the nearest image pixel;
+4. camera colour: ``c = M s + a`` (``M``: 3x3 colour-mixing matrix, ``a``: ambient light);
+5. camera geometry: camera pixel ``q = (u, v)`` sees projector coordinate ``x = H^-1(w)``, with
    the pinhole position ``w = c0 + (q - c0)(1 + k1 |q - c0|^2 / f^2)`` (radial lens
    distortion, ``c0`` the image centre, ``f`` half the larger camera side) and ``H`` a
    homography (projector -> pinhole camera coordinates). Each camera pixel integrates the
    piecewise-constant projector pixels over its footprint (``s x s`` supersampling);
-5. sensor: additive Gaussian noise ``N(0, sigma^2)``, clipped to ``[0, 1]``, quantized to 8 bits.
+6. sensor: additive Gaussian noise ``N(0, sigma^2)``, clipped to ``[0, 1]``, quantized to 8 bits.
 
 The camera is linear (a RAW capture); a real camera's tone curve must be undone first.
 
@@ -23,6 +27,13 @@ What calibration can recover is relative to the black field and normalized by th
 primaries (paper Sec. 5.2: "let the outputs of the three single-color images be (1,0,0),
 (0,1,0), (0,0,1)"): the normalized response ``(o(u) - o(0)) / (o(1) - o(0)) = u^gamma`` and the
 effective mixing matrix ``M (1 - b)`` (:attr:`VirtualProCams.effective_mixing_matrix`).
+On a textured surface, seen through that calibration (``M_eff^-1 c``, with the colour calibration
+made on a white screen) a pixel away from image borders and depth edges shows, in closed form,
+
+    M_eff^-1 c = rho ⊙ (PSF ⊛ u^gamma) + a,    a = rho ⊙ (b + E) / (1 - b) + M_eff^-1 a_cam
+
+(:meth:`VirtualProCams.true_surface`): the model of :mod:`edofproj.imaging.surfaces` with
+``s = rho``, which :mod:`edofproj.procams.surface` measures.
 Coordinates are ``(x, y)`` = (column, row), pixel centres at integers (OpenCV).
 """
 
@@ -41,6 +52,7 @@ import torch
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
 from ..imaging import haze_term, layer_weights, project, render_depth_map
+from ..imaging.surfaces import check_reflectance
 from ..optics.psf_bank import PSFBank
 from .calibration import ProCamsCalibration
 from .capture_io import atomic_folder, write_rgb_png
@@ -88,6 +100,8 @@ class VirtualProCams:
     pixel_pitch_m: float | None = None
     depth_map_m: np.ndarray | None = None
     layer_depths_m: np.ndarray | None = None
+    reflectance: np.ndarray | None = None
+    surface_ambient: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         self.psf = np.asarray(self.psf, dtype=np.float64)
@@ -105,6 +119,16 @@ class VirtualProCams:
         self.ambient = _rgb_triple(self.ambient)
         if not (0.0 <= self.projector_black < 1.0):
             raise EdofprojError(f"projector_black={self.projector_black} must be in [0, 1)")
+        self.surface_ambient = _rgb_triple(self.surface_ambient)
+        if min(self.surface_ambient) < 0:
+            raise EdofprojError(f"surface_ambient={self.surface_ambient} must be >= 0")
+        if self.reflectance is not None:
+            rho = check_reflectance(
+                self.reflectance,
+                (int(self.projector_hw[0]), int(self.projector_hw[1])),
+                "the virtual surface's reflectance",
+            )
+            self.reflectance = rho[0].permute(1, 2, 0).numpy().astype(np.float64)
 
     # ------------------------------------------------------------------ a plausible rig
     @classmethod
@@ -152,6 +176,7 @@ class VirtualProCams:
             info = json.loads((folder / GROUND_TRUTH_JSON).read_text(encoding="utf-8"))
             with np.load(folder / GROUND_TRUTH_NPZ, allow_pickle=False) as data:
                 psf = data["psf"].astype(np.float64)
+                reflectance = data["reflectance"].astype(np.float64) if "reflectance" in data else None
             depth_mm = info.get("depth_mm")
             return cls(
                 projector_hw=(int(info["projector_hw"][0]), int(info["projector_hw"][1])),
@@ -167,6 +192,8 @@ class VirtualProCams:
                 supersampling=int(info["supersampling"]),
                 depth_m=None if depth_mm is None else float(depth_mm) * 1e-3,
                 pixel_pitch_m=info.get("pixel_pitch_m"),
+                reflectance=reflectance,
+                surface_ambient=_rgb_triple(info.get("surface_ambient", 0.0)),
             )
         except FileNotFoundError as exc:
             raise EdofprojError(
@@ -230,7 +257,21 @@ class VirtualProCams:
                     haze = haze + haze_term(output * weights[layer], psf[layer : layer + 1])
         screen = direct[0].numpy()
         screen[:, m : m + H, m : m + W] += haze[0].numpy()
-        return screen.transpose(1, 2, 0)
+        screen = screen.transpose(1, 2, 0)
+        if self.reflectance is not None or max(self.surface_ambient) > 0:
+            rho = np.ones((H, W, 3)) if self.reflectance is None else self.reflectance
+            screen = np.pad(rho, ((m, m), (m, m), (0, 0)), mode="edge") * (screen + np.asarray(self.surface_ambient))
+        return screen
+
+    def true_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """The surface as a white-screen calibration sees it (module docstring), ``(H, W, 3)`` each:
+        reflectance ``rho`` and ambient ``a = rho (b + E) / (1 - b) + M_eff^-1 a_cam``, in closed form."""
+        H, W = self.projector_hw
+        rho = np.ones((H, W, 3)) if self.reflectance is None else self.reflectance
+        b = self.projector_black
+        camera_ambient = np.linalg.solve(self.effective_mixing_matrix, np.asarray(self.ambient))
+        ambient = rho * (b + np.asarray(self.surface_ambient)) / (1.0 - b) + camera_ambient
+        return rho.copy(), ambient
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -358,6 +399,8 @@ class VirtualProCams:
             "mixing_matrix": self.mixing_matrix.tolist(),
             "effective_mixing_matrix": self.effective_mixing_matrix.tolist(),
             "ambient": list(self.ambient),
+            "surface_ambient": list(self.surface_ambient),
+            "textured_surface": self.reflectance is not None,
             "black_capture_level": self.black_capture_level.tolist(),
             "homography": self.homography.tolist(),
             "radial_k1": self.radial_k1,
@@ -367,6 +410,14 @@ class VirtualProCams:
             "psf_window": int(self.psf.shape[-1]),
             "energy_in_window": self.psf.sum(axis=(-1, -2)).tolist(),
         }
+
+
+def _surface_truth(rig: VirtualProCams) -> dict[str, np.ndarray]:
+    """``reflectance`` and ``true_surface_ambient`` (:meth:`VirtualProCams.true_surface`) of a textured rig."""
+    if rig.reflectance is None:
+        return {}
+    rho, ambient = rig.true_surface()
+    return {"reflectance": rho.astype(np.float32), "true_surface_ambient": ambient.astype(np.float32)}
 
 
 def simulate_captures(
@@ -404,6 +455,7 @@ def simulate_captures(
             mixing_matrix=rig.mixing_matrix,
             effective_mixing_matrix=rig.effective_mixing_matrix,
             gamma=np.asarray(rig.gamma),
+            **_surface_truth(rig),
         )
         if rig.depth_m is not None and rig.depth_map_m is None:
             PSFBank(

@@ -3,7 +3,8 @@
 With the hit mask ``m`` and the axial depth ``z`` of each projector pixel
 (:func:`~edofproj.scenes.raycast.cast_scene`),
 
-    render(I) = m * L(m I, z)            (* falloff g, optional)
+    render(I) = m * L(m I, z)            (* falloff g, optional; on a textured surface
+                                          m * (s ⊙ L(m I, z) + a), :mod:`edofproj.imaging.surfaces`)
 
 where ``L`` is :func:`~edofproj.imaging.depth_layers.render_depth_map`: each *source* pixel is
 blurred by the PSF of the surface it lands on (its own depth), so at a depth edge the blur of
@@ -28,6 +29,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..imaging.depth_layers import PSFForDepths, layer_depths_m, render_depth_map
+from ..imaging.surfaces import Surface
 from .raycast import SceneCast
 
 RANGE_TOLERANCE = 1e-6
@@ -84,12 +86,15 @@ def render_scene(
     psf_for_depths: Union[PSFForDepths, torch.Tensor],
     layers: Union[int, Sequence[float], np.ndarray] = 8,
     falloff_reference_m: float | None = None,
+    surface: Surface | None = None,
 ) -> torch.Tensor:
     """What the scene shows when the projector emits ``image (B, C, H, W)`` (module docstring).
 
     ``layers``: a number of depth layers (spaced in 1/z over the seen depths) or the layer
     depths (then ``psf_for_depths`` may be their PSFs ``(n, C, K, K)``). ``falloff_reference_m``:
-    None (no falloff) or ``z_ref`` of ``g``. Returns ``(B, C, H, W)``, zero where nothing is hit.
+    None (no falloff) or ``z_ref`` of ``g``. ``surface``: the objects' reflectance and ambient per
+    projector pixel (:mod:`edofproj.imaging.surfaces`: ``m (s ⊙ render + a)``); None: white, no
+    ambient. Returns ``(B, C, H, W)``, zero where nothing is hit.
     """
     if image.ndim != 4 or tuple(image.shape[-2:]) != tuple(cast.hit.shape):
         raise EdofprojError(
@@ -100,4 +105,6 @@ def render_scene(
     if falloff_reference_m is not None:
         gain = torch.as_tensor(relative_irradiance(cast, falloff_reference_m), dtype=image.dtype, device=image.device)
         out = out * gain
+    if surface is not None:
+        out = surface.appearance(out) * torch.as_tensor(cast.hit, dtype=out.dtype, device=out.device)
     return out

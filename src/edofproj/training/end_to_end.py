@@ -4,6 +4,7 @@ For a target image ``I`` and a screen depth ``z`` per sample:
 
     P     = PSF_DOE(z)                                  RGB PSF of the (quantized) DOE at depth z
     I*    = camera( project(I, P) )                     uncompensated projection, as observed
+                                                        (on a textured surface s ⊙ project(·) + a)
     Î     = net(I, I*)                                  compensated projector input (unclamped)
     Î*    = project(Î, P)                               what the screen shows
 
@@ -31,6 +32,7 @@ import torch
 from torch import nn
 
 from ..compensation.closed_loop import ForwardModel, LoopImages, closed_loop, flat_screen
+from ..compensation.photometric import photometric_compensation
 from ..imaging.depth_layers import render_depth_map
 from .camera import camera_capture
 
@@ -87,14 +89,26 @@ class EndToEndProjector(nn.Module):
         self.mixed_precision = mixed_precision
         self.layers_m = layers_m  # depth layers for depth-varying screens (train.screens: varying)
 
-    def _compensate(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+    def _compensate(self, target: torch.Tensor, captured: torch.Tensor, *surface: torch.Tensor) -> torch.Tensor:
         with torch.autocast(target.device.type, dtype=torch.bfloat16, enabled=self.mixed_precision == "bf16"):
-            compensated = self.net(target, captured)
+            compensated = self.net(target, captured, *surface)
         return compensated.float()
 
-    def forward(self, target: torch.Tensor, depths_m, noise: torch.Tensor | None = None) -> LoopImages:
+    def forward(
+        self,
+        target: torch.Tensor,
+        depths_m,
+        noise: torch.Tensor | None = None,
+        reflectance: torch.Tensor | None = None,
+        ambient: torch.Tensor | None = None,
+    ) -> LoopImages:
         """``target`` (B, 3, H, W) in [0, 1], ``depths_m`` (B,) flat screens or (B, H, W) depth maps
         (rendered by depth layers at ``layers_m``), ``noise`` standard normal like ``target``.
+        ``reflectance`` (B, 3, H, W) and ``ambient`` (B, 3, H|1, W|1): a textured surface
+        (:mod:`edofproj.imaging.surfaces`: the screen shows ``s ⊙ A(x) + a``; the network, one
+        that takes the surface, gets both, and its capture ``I*`` is of the photometric correction
+        ``clip((G - a) / s, 0, 1)`` projected, :mod:`edofproj.compensation.surface_net`); ``target``
+        is then the goal appearance (:func:`edofproj.compensation.achievable.achievable_goal`).
 
         Returns the loop's images ``(captured I*, compensated Î, projected Î*)``.
         """
@@ -110,4 +124,18 @@ class EndToEndProjector(nn.Module):
         def observe(image: torch.Tensor) -> torch.Tensor:
             return camera_capture(image, noise, self.noise_sigma, self.quantize_capture)
 
-        return closed_loop(target, forward, self._compensate, observe)
+        if reflectance is None:
+            return closed_loop(target, forward, self._compensate, observe)
+        if ambient is None:
+            raise ValueError("a textured surface needs its ambient light too (zeros for none)")
+        rho, amb = reflectance.to(target.device), ambient.to(target.device)
+        screen = forward
+
+        def textured(image: torch.Tensor) -> torch.Tensor:
+            return rho * screen(image) + amb
+
+        # the capture a surface-aware network takes: its photometric first stage projected (surface_net.py)
+        captured = observe(textured(photometric_compensation(target, rho, amb)))
+        return closed_loop(
+            target, textured, lambda goal, seen: self._compensate(goal, seen, rho, amb), observe, captured=captured
+        )

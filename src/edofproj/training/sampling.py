@@ -3,7 +3,8 @@
 Every random quantity of sample ``i`` (0 <= i < batch_size) at step ``t`` comes from its own
 generator, seeded from ``(seed, t, i, stream)``:
 
-    stream 0: the training image crop,    stream 1: the screen depth z,    stream 2: camera noise.
+    stream 0: the training image crop,    stream 1: the screen depth z,    stream 2: camera noise,
+    stream 3: the surface (``net.surface_input``: texture and ambient).
 
 Nothing depends on how the batch is split across processes or on what ran before, so
 
@@ -36,6 +37,7 @@ from ..scenes.random_screens import random_depth_map
 IMAGE_STREAM = 0
 DEPTH_STREAM = 1
 NOISE_STREAM = 2
+SURFACE_STREAM = 3
 
 DEPTH_SAMPLING = ("uniform", "stratified")
 
@@ -130,3 +132,10 @@ def sample_depth_maps(
         for i in shard.indices
     ]
     return np.stack(maps)
+
+
+def sample_surfaces(surfaces, seed: int, step: int, shard: BatchShard, crop: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Training surfaces ``(reflectance, ambient)``, each ``(shard.size, 3, crop, crop)``: one
+    ``surfaces.draw(crop, g_i)`` per index (:class:`~edofproj.data.textures.TrainingSurfaces`)."""
+    draws = [surfaces.draw(crop, sample_generator(seed, step, i, SURFACE_STREAM)) for i in shard.indices]
+    return torch.stack([rho for rho, _ in draws]), torch.stack([ambient for _, ambient in draws])

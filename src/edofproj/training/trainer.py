@@ -8,7 +8,10 @@ One step, for a global batch of ``B`` training crops ``I_i``:
    in a precomputed table for a fixed DOE (:mod:`.psf_table`);
 3. render ``I*_i = project(I_i, P_i)`` (each sample its own PSF), observe it with the camera
    model, compensate ``Î_i = net(I_i, I*_i)`` and project again, ``Î*_i = project(clamp(Î_i), P_i)``
-   (:mod:`.end_to_end`);
+   (:mod:`.end_to_end`); with ``net.surface_input`` each crop also gets a random textured surface
+   (:class:`~edofproj.data.textures.TrainingSurfaces`), the screen shows ``s ⊙ project(·) + a``, the
+   network takes ``(s, a)`` and the crop is replaced by its goal in the surface's range
+   (:func:`~edofproj.compensation.achievable.achievable_goal`), which the loss then compares with;
 4. minimize ``L = (1/B) sum_i [alpha MSE(Î*_i, I_i) + beta D(Î*_i, I_i)]`` (Eq. 12) with Adam:
    the DOE at ``lr_optics``, the network at ``lr_net``, both decayed as
 
@@ -41,10 +44,12 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
+from ..compensation.achievable import achievable_goal
 from ..compensation.registry import build_network
 from ..compensation.wiener import depth_ensemble_wiener_kernel
 from ..config import Config, to_dict
 from ..data import build_training_source
+from ..data.textures import TrainingSurfaces
 from ..doe import build_run_doe, save_doe
 from ..errors import BlurExceedsWindowWarning, EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files
@@ -82,7 +87,7 @@ from .distributed import (
 from .end_to_end import EndToEndProjector, SimulatedPSF, resolve_mixed_precision
 from .losses import build_loss
 from .psf_table import DepthPSFTable
-from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise
+from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise, sample_surfaces
 from .validation import StepChecks
 
 #: Depths shown in ``figures/psf_depths.png``.
@@ -235,6 +240,7 @@ class _Session:
         if hasattr(self.loss_fn, "to"):
             self.loss_fn = self.loss_fn.to(device)
         self.source = build_training_source(cfg.data, cfg.train.seed)
+        self.surfaces = TrainingSurfaces() if cfg.net.surface_input else None
         self.shard = BatchShard.for_rank(cfg.train.batch_size, group.rank, group.world_size)
 
         self.step = 0
@@ -326,6 +332,11 @@ class _Session:
                 cfg.train.depth_spacing,
             )
         images = sample_images(self.source, cfg.train.seed, step, self.shard, cfg.data.crop).to(device)
+        surface: tuple[torch.Tensor, ...] = ()
+        if self.surfaces is not None:  # net.surface_input: a textured surface per sample, the goal in its range
+            reflectance, ambient = sample_surfaces(self.surfaces, cfg.train.seed, step, self.shard, cfg.data.crop)
+            surface = (reflectance.to(device), ambient.to(device))
+            images = achievable_goal(images, *surface).image
         noise = None
         if cfg.train.noise_sigma > 0:
             noise = sample_noise(cfg.train.seed, step, self.shard, tuple(images.shape[1:])).to(device)
@@ -333,7 +344,7 @@ class _Session:
         self.model.train()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BlurExceedsWindowWarning)  # warned once at the start
-            out = self.wrapped(images, depths, noise)
+            out = self.wrapped(images, depths, noise, *surface)
         loss, mse, perceptual = loss_terms(self.loss_fn, cfg, out.projected, images)
         logged = average_across_processes(torch.stack([loss.detach(), mse, perceptual]).float().cpu(), self.group)
         if not math.isfinite(float(logged[0])):

@@ -1,0 +1,105 @@
+"""What a textured surface can show: the target scaled into the achievable range.
+
+On a surface of reflectance ``s`` under ambient ``a`` (:mod:`edofproj.imaging.surfaces`) a
+perfectly sharp projector can show, per pixel and colour, anything in ``[a, a + s]`` and nothing
+else: no compensation makes a dark spot brighter than ``a + s`` or a lit one darker than ``a``.
+A target ``t`` in ``[0, 1]`` is therefore mapped to the *goal* appearance
+
+    g = f + k t,
+
+one affine map per image, the same gain ``k`` for the three colours (so the target's colours are
+not tinted):
+
+    f_c = Q_{1-q}( a_c )                       the floor: the ambient at most pixels, per colour;
+    k   = clip( Q_q( min_c (a_c + s_c - f_c) ), 0, 1 )
+                                              the gain: the headroom above the floor at most pixels,
+
+``Q_p`` the ``p``-quantile over the image's pixels and ``q`` = :data:`OUTLIER_FRACTION` (2 %):
+a few pixels darker or brighter than the rest (a crack, a specular spot, noise) do not lower the
+contrast of the whole image; at most about ``2 q`` of the pixels cannot be reached (``g`` outside
+``[a, a + s]`` there), whatever the target. A white screen without ambient (``s = 1, a = 0``)
+gives ``f = 0, k = 1``: the goal is the target itself, as everywhere else in edofproj. Every
+method on a textured surface is scored against ``g`` (it is what the best possible projection
+shows), and the networks that know the surface are trained toward it.
+
+When the surface is so dark that the gain is below :data:`DARK_GAIN` or more than
+:data:`WARN_CLIPPED_FRACTION` of the pixels cannot be reached, :func:`warn_if_out_of_reach` warns
+(:class:`SurfaceRangeWarning`) with the fraction of pixels clipped.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import NamedTuple
+
+import torch
+
+from ..errors import EdofprojError
+
+#: Fraction of pixels (``q``) that may fall outside the achievable range, at each end.
+OUTLIER_FRACTION = 0.02
+#: A gain ``k`` below this: the surface is too dark for any target (warned).
+DARK_GAIN = 0.05
+#: More than this fraction of pixels out of reach for a given target: warned.
+WARN_CLIPPED_FRACTION = 0.05
+#: Slack when testing ``a <= g <= a + s`` (rounding).
+RANGE_TOLERANCE = 1e-4
+
+
+class SurfaceRangeWarning(UserWarning):
+    """The surface cannot show the target: too dark, or too many pixels out of its range."""
+
+
+class Goal(NamedTuple):
+    """The goal appearance ``g = f + k t`` ``(B, 3, H, W)``, its floor ``f (B, 3, 1, 1)`` and gain ``k (B, 1, 1, 1)``."""
+
+    image: torch.Tensor
+    floor: torch.Tensor
+    gain: torch.Tensor
+
+
+def _quantile(values: torch.Tensor, q: float) -> torch.Tensor:
+    """``q``-quantile over the last two axes, keeping them as 1."""
+    flat = values.flatten(-2).float()
+    return torch.quantile(flat, q, dim=-1, keepdim=True).unsqueeze(-1).to(values.dtype)
+
+
+def achievable_goal(
+    target: torch.Tensor, reflectance: torch.Tensor, ambient: torch.Tensor, outlier_fraction: float = OUTLIER_FRACTION
+) -> Goal:
+    """The goal ``g = f + k t`` (module docstring) for ``target (B, 3, H, W)`` in ``[0, 1]`` on a surface
+    ``reflectance (B|1, 3, H, W)``, ``ambient (B|1, 3, H|1, W|1)``. Not differentiable (a target)."""
+    if not 0.0 <= outlier_fraction < 0.5:
+        raise EdofprojError(f"the outlier fraction {outlier_fraction:g} must lie in [0, 0.5)")
+    with torch.no_grad():
+        rho = reflectance.to(target).expand_as(target)
+        amb = ambient.to(target).expand_as(target)
+        floor = _quantile(amb, 1.0 - outlier_fraction)  # (B, 3, 1, 1)
+        headroom = (amb + rho - floor).amin(dim=1, keepdim=True)  # (B, 1, H, W)
+        gain = _quantile(headroom, outlier_fraction).clamp(0.0, 1.0)  # (B, 1, 1, 1)
+        return Goal(floor + gain * target.clamp(0.0, 1.0), floor, gain)
+
+
+def clipped_fraction(goal: torch.Tensor, reflectance: torch.Tensor, ambient: torch.Tensor) -> torch.Tensor:
+    """Per image ``(B,)``: the fraction of pixels where some colour of ``goal`` is outside ``[a, a + s]``."""
+    rho = reflectance.to(goal).expand_as(goal)
+    amb = ambient.to(goal).expand_as(goal)
+    out = (goal < amb - RANGE_TOLERANCE) | (goal > amb + rho + RANGE_TOLERANCE)
+    return out.any(dim=1).flatten(1).float().mean(dim=1)
+
+
+def warn_if_out_of_reach(
+    goal: Goal, reflectance: torch.Tensor, ambient: torch.Tensor, what: str = "the target"
+) -> float:
+    """Warn (:class:`SurfaceRangeWarning`) when the surface is too dark for ``what``; returns the
+    largest fraction of pixels clipped over the batch."""
+    fraction = float(clipped_fraction(goal.image, reflectance, ambient).max())
+    gain = float(goal.gain.min())
+    if gain < DARK_GAIN or fraction > WARN_CLIPPED_FRACTION:
+        warnings.warn(
+            f"the surface is too dark for {what}: {100 * fraction:.1f} % of the pixels cannot be reached "
+            f"(contrast scaled to {gain:.3f} of a white screen's)",
+            SurfaceRangeWarning,
+            stacklevel=2,
+        )
+    return fraction
