@@ -17,7 +17,17 @@ SOURCE = Path(__file__).resolve().parents[1] / "src" / "edofproj"
 
 #: Layers, lowest first: each entry is a layer's top-level modules and packages of ``edofproj``.
 LAYERS = [
-    {"errors", "fileio", "config", "net_config", "presets", "locking", "limits", "progress", "builtin_runs"},  # foundation
+    {
+        "errors",
+        "fileio",
+        "config",
+        "net_config",
+        "presets",
+        "locking",
+        "limits",
+        "progress",
+        "builtin_runs",
+    },  # foundation
     {"optics"},
     {"doe"},
     {"imaging"},
