@@ -11,15 +11,17 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import tempfile
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
-from .errors import EdofprojError
+from .errors import EdofprojError, RecoveryWarning
 
 TEMP_MARKER = ".tmp-"
 #: Temporary files of :func:`atomic_path`: ``.<target>.tmp-<8 random chars><suffix>`` (and the
@@ -133,3 +135,17 @@ def remove_stale_temp_files(directory: str | os.PathLike, recursive: bool = Fals
                 path.unlink()
                 removed.append(path)
     return removed
+
+
+def remove_stale_folders(folders: Iterable[Path], what: str, stacklevel: int = 2) -> list[Path]:
+    """Delete the staging folders that an interrupted writer left (the real folders among ``folders``,
+    never a link) and warn once with a :class:`~edofproj.errors.RecoveryWarning`
+    ``removed N <what>``; returns them. Call it only while holding the output's lock
+    (:mod:`edofproj.locking`): no live writer owns them then. ``stacklevel`` as for
+    :func:`warnings.warn`, counted from the caller."""
+    stale = [p for p in folders if p.is_dir() and not p.is_symlink()]
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    if stale:
+        warnings.warn(f"removed {len(stale)} {what}", RecoveryWarning, stacklevel=stacklevel + 1)
+    return stale

@@ -36,6 +36,17 @@ def run_directory(text: str) -> str:
 RUN_HELP_SUFFIX = " or a built-in run (builtin:cpu-doe-net)"
 
 
+def add_design_source_argument(parser: argparse.ArgumentParser) -> None:
+    """The positional ``RUN|DESIGN_FILE`` (into ``args.source``): a run directory holding ``doe.npz``,
+    a built-in run, or a DOE ``.npz`` file."""
+    parser.add_argument(
+        "source",
+        metavar="RUN|DESIGN_FILE",
+        type=run_directory,
+        help="run directory with doe.npz" + RUN_HELP_SUFFIX + ", or a DOE .npz file",
+    )
+
+
 def config_from_args(args: argparse.Namespace, extra_overrides=()) -> Config:
     return load_config(args.config, list(extra_overrides) + list(getattr(args, "overrides", []) or []))
 

@@ -104,8 +104,41 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run_scenes(args) -> int:
+def _checked_methods(args) -> list[str] | None:
+    """``--methods`` as a list of names (None: the default methods); an unknown name fails before any work."""
     from ..evaluation.methods import method_spec
+
+    methods = parse_name_list(args.methods) if args.methods is not None else None
+    for name in methods or ():
+        method_spec(name)
+    return methods
+
+
+def _output_lock(args):
+    """The lock of the output directory (``--out``, or the run itself), after checking that the run is
+    trained and that the output may be written there: one writer per output directory, so a run being
+    trained, or evaluated by another process, is refused."""
+    from ..builtin_runs import require_output_outside
+    from ..evaluation.pipeline import require_trained_run
+    from ..locking import directory_lock
+
+    require_trained_run(args.run)
+    if not args.out:
+        require_output_outside(args.run, "--out")
+    return directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN")
+
+
+def _print_notes_and_files(evaluation, seconds: float) -> None:
+    """The evaluation's notes (on stderr), then the summary, table and figure it wrote."""
+    for note in evaluation.notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(
+        f"wrote {evaluation.files['summary']}, {evaluation.files['metrics']} and {evaluation.files['figure']} "
+        f"({seconds:.0f} s)"
+    )
+
+
+def run_scenes(args) -> int:
     from ..evaluation.scenes import evaluate_scenes
     from ..progress import StageProgress
     from ..reporting.scenes import scene_summary_table, write_scene_report
@@ -116,9 +149,7 @@ def run_scenes(args) -> int:
         from ..errors import EdofprojError
 
         raise EdofprojError("--depths-mm is for flat screens; with --scene the depths come from the scenes")
-    methods = parse_name_list(args.methods) if args.methods is not None else None
-    for name in methods or ():
-        method_spec(name)
+    methods = _checked_methods(args)
     clock = time.perf_counter()
     evaluation = evaluate_scenes(
         args.run,
@@ -134,24 +165,15 @@ def run_scenes(args) -> int:
     write_scene_report(evaluation)
     print("SSIM over the objects' pixels:")
     print(format_text_table(scene_summary_table(evaluation, "ssim")))
-    for note in evaluation.notes:
-        print(f"note: {note}", file=sys.stderr)
-    print(
-        f"wrote {evaluation.files['summary']}, {evaluation.files['metrics']} and {evaluation.files['figure']} "
-        f"({time.perf_counter() - clock:.0f} s)"
-    )
+    _print_notes_and_files(evaluation, time.perf_counter() - clock)
     return 0
 
 
 def run_surfaces(args) -> int:
-    from ..builtin_runs import require_output_outside
     from ..data.textures import builtin_texture_names
     from ..errors import EdofprojError
-    from ..evaluation.methods import method_spec
-    from ..evaluation.pipeline import require_trained_run
-    from ..progress import StageProgress
     from ..evaluation.surfaces import evaluate_surfaces
-    from ..locking import directory_lock
+    from ..progress import StageProgress
     from ..reporting.surfaces import format_table, surface_summary_table, write_surface_report
     from ..training.distributed import choose_device
 
@@ -161,9 +183,7 @@ def run_surfaces(args) -> int:
         raise EdofprojError(
             "--validation goes with flat white screens; with --surface use --images DIR or the test images"
         )
-    methods = parse_name_list(args.methods) if args.methods is not None else None
-    for name in methods or ():
-        method_spec(name)
+    methods = _checked_methods(args)
     surfaces: list[str] = []
     for text in args.surfaces:
         for item in builtin_texture_names() if text == "builtin" else [text]:
@@ -171,10 +191,7 @@ def run_surfaces(args) -> int:
                 surfaces.append(item)
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
-    require_trained_run(args.run)
-    if not args.out:
-        require_output_outside(args.run, "--out")
-    with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
+    with _output_lock(args):
         evaluation = evaluate_surfaces(
             args.run,
             surfaces,
@@ -192,12 +209,7 @@ def run_surfaces(args) -> int:
     for surface in evaluation.surfaces:
         print(f"surface {surface}:")
         print(format_table(surface_summary_table(evaluation, surface)))
-    for note in evaluation.notes:
-        print(f"note: {note}", file=sys.stderr)
-    print(
-        f"wrote {evaluation.files['summary']}, {evaluation.files['metrics']} and {evaluation.files['figure']} "
-        f"({evaluation.seconds:.0f} s)"
-    )
+    _print_notes_and_files(evaluation, evaluation.seconds)
     return 0
 
 
@@ -210,24 +222,14 @@ def run(args) -> int:
         raise EdofprojError("--ambient goes with --surface (the ambient light on a textured surface)")
     if args.scenes:
         return run_scenes(args)
-    from ..builtin_runs import require_output_outside
-    from ..evaluation.methods import method_spec
-    from ..evaluation.pipeline import require_trained_run
-    from ..locking import directory_lock
     from ..progress import StageProgress
     from ..training.distributed import choose_device
 
-    methods = parse_name_list(args.methods) if args.methods is not None else None
-    for name in methods or ():
-        method_spec(name)
+    methods = _checked_methods(args)
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
     progress = StageProgress("evaluate", enabled=not args.quiet)
-    require_trained_run(args.run)
-    if not args.out:
-        require_output_outside(args.run, "--out")
-    # one writer per output directory: a run being trained, or evaluated by another process, is refused
-    with directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN"):
+    with _output_lock(args):
         return _evaluate_locked(args, methods, depths, device, progress)
 
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, add_config_options, run_directory
+from ._common import add_config_options, add_design_source_argument
 
 
 def register(subparsers) -> None:
@@ -17,12 +17,7 @@ def register(subparsers) -> None:
         "lithography masks: profile.csv, a 16-bit height_map.png, masks.gds (mask j on layer j+1, "
         "aperture on layer 100), mask previews and fab_report.md/.json. Written all-or-nothing.",
     )
-    parser.add_argument(
-        "source",
-        metavar="RUN|DESIGN_FILE",
-        type=run_directory,
-        help="run directory with doe.npz" + RUN_HELP_SUFFIX + ", or a DOE .npz file",
-    )
+    add_design_source_argument(parser)
     parser.add_argument(
         "--out", required=True, metavar="DIR", help="output directory (new, empty, or a previous export)"
     )

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from ._common import RUN_HELP_SUFFIX, add_config_options, parse_number_list, run_directory
+from ._common import add_config_options, add_design_source_argument, parse_number_list
 
 
 def register(subparsers) -> None:
@@ -19,12 +19,7 @@ def register(subparsers) -> None:
         "tolerance.md, tolerance.json and tolerance.png into the run directory (or beside the design "
         "file, or --out). Defaults come from the fabrication config section.",
     )
-    parser.add_argument(
-        "source",
-        metavar="RUN|DESIGN_FILE",
-        type=run_directory,
-        help="run directory with doe.npz" + RUN_HELP_SUFFIX + ", or a DOE .npz file",
-    )
+    add_design_source_argument(parser)
     parser.add_argument("--trials", type=int, default=None, help="Monte Carlo trials (default 20)")
     parser.add_argument(
         "--etch-error-pct",

@@ -9,6 +9,7 @@ pixels of the built-in training photographs (:func:`natural_color_palette`). Abo
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from functools import lru_cache
 
 import numpy as np
@@ -179,8 +180,10 @@ def dead_leaves_image(
     return torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)))
 
 
-class DeadLeavesSource:
-    """Fresh dead-leaves images of natural colours (:func:`dead_leaves_image`) for every sample."""
+class SyntheticImageSource(ABC):
+    """A source of fresh synthetic images with disks of radii in ``[min_radius_px, max_radius_px]``
+    and colours from ``palette``: each sample of a batch is one draw of :meth:`one` from the
+    generator (the source's own, seeded by ``seed``, unless one is given)."""
 
     def __init__(self, crop: int, min_radius_px: float, max_radius_px: float, palette: np.ndarray, seed: int = 0):
         self.crop = _check_crop(crop)
@@ -189,14 +192,21 @@ class DeadLeavesSource:
         self.palette = palette
         self.generator = torch.Generator().manual_seed(int(seed))
 
+    @abstractmethod
+    def one(self, crop: int, generator: torch.Generator) -> torch.Tensor:
+        """One ``(3, crop, crop)`` image."""
+
     def sample(
         self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
     ) -> torch.Tensor:
+        """``(batch_size, 3, crop, crop)`` images (``crop``: the source's by default)."""
         crop = _check_crop(crop or self.crop)
         generator = generator or self.generator
-        return torch.stack(
-            [
-                dead_leaves_image(crop, crop, self.min_radius_px, self.max_radius_px, self.palette, generator)
-                for _ in range(int(batch_size))
-            ]
-        )
+        return torch.stack([self.one(crop, generator) for _ in range(int(batch_size))])
+
+
+class DeadLeavesSource(SyntheticImageSource):
+    """Fresh dead-leaves images of natural colours (:func:`dead_leaves_image`) for every sample."""
+
+    def one(self, crop: int, generator: torch.Generator) -> torch.Tensor:
+        return dead_leaves_image(crop, crop, self.min_radius_px, self.max_radius_px, self.palette, generator)

@@ -23,8 +23,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .dead_leaves import dead_leaves_labels
-from .photos import _check_crop
+from .dead_leaves import SyntheticImageSource, dead_leaves_labels
 
 
 def power_law_field(
@@ -97,16 +96,9 @@ def textured_dead_leaves_image(
     return image.clamp(0.0, 1.0).contiguous()
 
 
-class ProceduralSource:
+class ProceduralSource(SyntheticImageSource):
     """Procedural images (module docstring): each sample is textured dead leaves or a smooth
     field with probability 1/2."""
-
-    def __init__(self, crop: int, min_radius_px: float, max_radius_px: float, palette: np.ndarray, seed: int = 0):
-        self.crop = _check_crop(crop)
-        self.min_radius_px = float(min_radius_px)
-        self.max_radius_px = float(max_radius_px)
-        self.palette = palette
-        self.generator = torch.Generator().manual_seed(int(seed))
 
     def one(self, crop: int, generator: torch.Generator) -> torch.Tensor:
         if float(torch.rand((), generator=generator)) < 0.5:
@@ -114,10 +106,3 @@ class ProceduralSource:
                 crop, crop, self.min_radius_px, self.max_radius_px, self.palette, generator
             )
         return smooth_field_image(crop, crop, self.palette, generator)
-
-    def sample(
-        self, batch_size: int, crop: int | None = None, generator: torch.Generator | None = None
-    ) -> torch.Tensor:
-        crop = _check_crop(crop or self.crop)
-        generator = generator or self.generator
-        return torch.stack([self.one(crop, generator) for _ in range(int(batch_size))])

@@ -16,27 +16,22 @@ import contextlib
 import os
 import shutil
 import tempfile
-import warnings
 from pathlib import Path
 from typing import Iterator
 
-from ..errors import EdofprojError, RecoveryWarning
+from ..errors import EdofprojError
+from ..fileio import remove_stale_folders
 
 STAGING_PREFIX = ".evaluate-staging-"
 
 
 def remove_stale_staging(out_dir: Path) -> list[Path]:
     """Delete the staging folders of interrupted evaluations in ``out_dir`` (call under its lock)."""
-    stale = [p for p in out_dir.glob(STAGING_PREFIX + "*") if p.is_dir() and not p.is_symlink()]
-    for folder in stale:
-        shutil.rmtree(folder, ignore_errors=True)
-    if stale:
-        warnings.warn(
-            f"removed {len(stale)} unfinished evaluation(s) of an interrupted evaluate from '{out_dir}'",
-            RecoveryWarning,
-            stacklevel=3,
-        )
-    return stale
+    return remove_stale_folders(
+        out_dir.glob(STAGING_PREFIX + "*"),
+        f"unfinished evaluation(s) of an interrupted evaluate from '{out_dir}'",
+        stacklevel=3,
+    )
 
 
 @contextlib.contextmanager

@@ -293,6 +293,41 @@ class MethodBuilder:
 # --------------------------------------------------------------------------- evaluation
 
 
+@dataclass(frozen=True)
+class OpenedRun:
+    """A trained run opened for evaluation: its directory, where the files go, the run and its
+    evaluation config (the run's config with the ``--set`` evaluation overrides)."""
+
+    run_path: Path
+    out_dir: Path
+    run: TrainedRun
+    cfg: Config
+
+    def method_builder(
+        self, baselines_dir: str | Path | None, explicit: bool, device: str | torch.device = "cpu"
+    ) -> MethodBuilder:
+        """A :class:`MethodBuilder` for this run; the baseline runs are looked for in ``baselines_dir``
+        (default: the run's parent directory)."""
+        return MethodBuilder(
+            self.run,
+            self.cfg,
+            Path(baselines_dir) if baselines_dir is not None else self.run_path.parent,
+            explicit=explicit,
+            device=device,
+        )
+
+
+def open_run(run_dir: str | Path, out_dir: str | Path | None, overrides: Sequence[str] = ()) -> OpenedRun:
+    """Check and load the trained run in ``run_dir`` for an evaluation writing to ``out_dir``
+    (default: the run itself, allowed only outside the built-in runs); one-line errors."""
+    run_path = require_trained_run(run_dir)
+    if out_dir is None:
+        require_output_outside(run_path, "an output directory (--out)")
+    out = Path(out_dir) if out_dir is not None else run_path
+    run = load_run(run_path)
+    return OpenedRun(run_path, out, run, evaluation_config(run.cfg, overrides))
+
+
 def evaluate_run(
     run_dir: str | Path,
     out_dir: str | Path | None = None,
@@ -315,18 +350,13 @@ def evaluate_run(
     (:mod:`edofproj.data.validation`) instead of the test images."""
     clock = time.perf_counter()
     specs = select_methods(methods)  # unknown names fail before any work
-    run_path = require_trained_run(run_dir)
     if depths_mm is not None:
         depths_mm = [float(z) for z in depths_mm]
         if not depths_mm or any(not (math.isfinite(z) and z > 0) for z in depths_mm):
             raise EdofprojError(f"--depths-mm needs positive depths, got {depths_mm}")
-    if out_dir is None:
-        require_output_outside(run_path, "an output directory (--out)")
-    out = Path(out_dir) if out_dir is not None else run_path
+    opened = open_run(run_dir, out_dir, overrides)
+    run, cfg, out = opened.run, opened.cfg, opened.out_dir
     progress = progress or StageProgress("evaluate", enabled=False)
-
-    run = load_run(run_path)
-    cfg = evaluation_config(run.cfg, overrides)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
     if depths_mm is not None:  # the sizes of the sweep asked for, before anything is simulated
         dataclasses.replace(cfg, evaluation=dataclasses.replace(cfg.evaluation, depths_mm=depths)).check_memory()
@@ -356,13 +386,7 @@ def evaluate_run(
         image_notes.append(f"{len(images)} image(s) scored; {skipped_text}")
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
-    builder = MethodBuilder(
-        run,
-        cfg,
-        Path(baselines_dir) if baselines_dir is not None else run_path.parent,
-        explicit=bool(methods),
-        device=device,
-    )
+    builder = opened.method_builder(baselines_dir, explicit=bool(methods), device=device)
     prepared = builder.build_all(specs, progress)
     builder.notes.extend(image_notes)
     for note in builder.notes:

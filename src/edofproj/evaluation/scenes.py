@@ -31,19 +31,17 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..builtin_runs import require_output_outside
 from ..config import apply_overrides
 from ..data import evaluation_images
 from ..errors import EdofprojError
 from ..metrics import ssim_map
 from ..optics.geometry import ProjectorGeometry
 from ..progress import StageProgress
-from ..runs import load_run
 from ..scenes import BUILTIN_SCENES, cast_scene, check_scene_depth_range, load_scene, render_scene
 from ..scenes.render import scene_layers_m
 from .designs import OpticalDesign
 from .methods import select_methods
-from .pipeline import MethodBuilder, evaluation_config, require_trained_run
+from .pipeline import open_run
 from .results import MetricsTable
 
 SCENE_METRICS_NAME = "scene_metrics.csv"
@@ -104,13 +102,9 @@ def evaluate_scenes(
     """Score the run's methods on the scenes (module docstring); files go to ``out_dir`` (default: the run)."""
     clock = time.perf_counter()
     specs = select_methods(methods)
-    run_path = require_trained_run(run_dir)
-    if out_dir is None:
-        require_output_outside(run_path, "an output directory (--out)")
-    out = Path(out_dir) if out_dir is not None else run_path
+    opened = open_run(run_dir, out_dir, overrides)
+    cfg = opened.cfg
     progress = progress or StageProgress("evaluate", enabled=False)
-    run = load_run(run_path)
-    cfg = evaluation_config(run.cfg, overrides)
     geometry = ProjectorGeometry.from_config(cfg.optics)
     height, width = geometry.height_px, geometry.width_px
     near_m, far_m = cfg.psf.depth_min_m, cfg.psf.depth_max_m
@@ -127,14 +121,12 @@ def evaluate_scenes(
     sized = apply_overrides(cfg, [f"evaluation.image_size=[{height},{width}]"])
     images = evaluation_images(sized, images_dir, enlarge=True)  # a picture fills the projector frame
 
-    builder = MethodBuilder(
-        run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent, bool(methods), device
-    )
+    builder = opened.method_builder(baselines_dir, bool(methods), device)
     progress.start("preparing methods", len(specs))
     prepared = builder.build_all(specs, progress)
 
     table = MetricsTable(("method", "scene", "image"), ("psnr", "ssim"))
-    evaluation = SceneEvaluation(out, run_path, list(casts), [m.name for m in prepared], table, {})
+    evaluation = SceneEvaluation(opened.out_dir, opened.run_path, list(casts), [m.name for m in prepared], table, {})
     evaluation.notes = list(builder.notes)
     progress.start(
         "scenes", len(casts) * len(images) * len(prepared), detail=f"{len(casts)} scenes at {height}x{width}"

@@ -41,7 +41,6 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ..builtin_runs import require_output_outside
 from ..compensation.achievable import SurfaceRangeWarning, achievable_goal, clipped_fraction, warn_if_out_of_reach
 from ..compensation.photometric import light_for_goal, photometric_compensation
 from ..compensation.surface_net import SurfaceAwareNet
@@ -51,9 +50,8 @@ from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
 from ..metrics import psnr, ssim
 from ..progress import StageProgress
-from ..runs import load_run
 from .methods import PreparedMethod, score_range_mm, select_methods
-from .pipeline import MethodBuilder, evaluation_config, require_trained_run
+from .pipeline import open_run
 from .results import MetricsTable
 
 SURFACE_METRICS_NAME = "surface_metrics.csv"
@@ -159,13 +157,9 @@ def evaluate_surfaces(
         raise EdofprojError(f"--ambient {ambient:g} must be a finite illuminance >= 0")
     if not surfaces:
         raise EdofprojError("--surface needs at least one texture")
-    run_path = require_trained_run(run_dir)
-    if out_dir is None:
-        require_output_outside(run_path, "an output directory (--out)")
-    out = Path(out_dir) if out_dir is not None else run_path
+    opened = open_run(run_dir, out_dir, overrides)
+    cfg = opened.cfg
     progress = progress or StageProgress("evaluate", enabled=False)
-    run = load_run(run_path)
-    cfg = evaluation_config(run.cfg, overrides)
     images = evaluation_images(cfg, images_dir)
     height, width = (int(v) for v in images[0][1].shape[-2:])
     textures = {str(name): surface_reflectance(name, (height, width)).to(device) for name in dict.fromkeys(surfaces)}
@@ -176,16 +170,14 @@ def evaluate_surfaces(
 
     explicit = methods is not None
     specs = select_methods(list(methods) if methods is not None else list(DEFAULT_BASE_METHODS))
-    builder = MethodBuilder(
-        run, cfg, Path(baselines_dir) if baselines_dir is not None else run_path.parent, explicit, device
-    )
+    builder = opened.method_builder(baselines_dir, explicit, device)
     progress.start("preparing methods", len(specs))
     prepared = builder.build_all(specs, progress)
-    chosen = surface_methods(prepared, run.net)
+    chosen = surface_methods(prepared, opened.run.net)
 
     table = MetricsTable(("method", "surface", "depth_mm", "image"), ("psnr", "ssim", "clipped"))
     evaluation = SurfaceEvaluation(
-        out, run_path, list(textures), [m.name for m in chosen], table, range_mm, float(ambient)
+        opened.out_dir, opened.run_path, list(textures), [m.name for m in chosen], table, range_mm, float(ambient)
     )
     evaluation.notes = list(builder.notes)
     in_range = depths[(depths >= range_mm[0] - 1e-9) & (depths <= range_mm[1] + 1e-9)]

@@ -97,6 +97,15 @@ def _by_design(methods) -> "OrderedDict[str, list]":
     return groups
 
 
+def _closed_loop_displays(group, target: torch.Tensor, forward, captured: torch.Tensor, psf: torch.Tensor):
+    """Yield ``(method, display)`` for the methods of one optical design on one screen: each compensates
+    ``target`` from the same uncompensated capture ``captured = forward(target)``, told the PSF ``psf``,
+    and its input is shown through ``forward`` (:func:`edofproj.compensation.closed_loop.closed_loop`)."""
+    for method in group:
+        loop = closed_loop(target, forward, _with_psf(method.compensate, psf), captured=captured)
+        yield method, loop.projected
+
+
 def image_batches(images: Sequence[tuple[str, torch.Tensor]], max_batch: int = MAX_BATCH):
     """``[(names, (B, 3, H, W))]``: consecutive images of the same size stacked (at most ``max_batch``)."""
     batches: list[tuple[list[str], list[torch.Tensor]]] = []
@@ -114,10 +123,7 @@ def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
     for group in _by_design(methods).values():
         psf = group[0].design.psf([depth_mm * M_PER_MM])
         forward = flat_screen(psf)
-        captured = forward(target)
-        for method in group:
-            loop = closed_loop(target, forward, _with_psf(method.compensate, psf), captured=captured)
-            yield method, loop.projected
+        yield from _closed_loop_displays(group, target, forward, forward(target), psf)
 
 
 def flat_screen_sweep(
@@ -185,9 +191,7 @@ class TiltedScreen:
             forward = partial(self.render, design=design)
             captured = forward(target)
             centre_psf = design.psf([self.centre_m])
-            for method in group:
-                loop = closed_loop(target, forward, _with_psf(method.compensate, centre_psf), captured=captured)
-                yield method, loop.projected
+            yield from _closed_loop_displays(group, target, forward, captured, centre_psf)
 
 
 def tilted_screen_sweep(

@@ -13,11 +13,11 @@ import os
 import re
 import shutil
 import tempfile
-import warnings
 from pathlib import Path
 from typing import Iterator
 
-from ..errors import EdofprojError, RecoveryWarning
+from ..errors import EdofprojError
+from ..fileio import remove_stale_folders
 from ..locking import directory_lock
 
 
@@ -53,16 +53,11 @@ def remove_stale_staging(target: Path) -> list[Path]:
     """Delete the ``.<name>.XXXXXXXX.staging`` and ``.old`` folders that a killed export left beside
     ``target`` (call while holding ``target``'s lock: no live export owns them)."""
     pattern = re.compile(rf"^\.{re.escape(target.name)}\.[A-Za-z0-9_]{{8}}\.(?:staging|old)$")
-    stale = [p for p in target.parent.iterdir() if p.is_dir() and not p.is_symlink() and pattern.match(p.name)]
-    for folder in stale:
-        shutil.rmtree(folder, ignore_errors=True)
-    if stale:
-        warnings.warn(
-            f"removed {len(stale)} unfinished folder(s) of an interrupted export beside '{target}'",
-            RecoveryWarning,
-            stacklevel=4,
-        )
-    return stale
+    return remove_stale_folders(
+        (p for p in target.parent.iterdir() if pattern.match(p.name)),
+        f"unfinished folder(s) of an interrupted export beside '{target}'",
+        stacklevel=4,
+    )
 
 
 @contextlib.contextmanager

@@ -63,6 +63,21 @@ def octant_pixels(window: int) -> tuple[np.ndarray, np.ndarray]:
     return offsets, index
 
 
+def _pixels_crossing(offsets: np.ndarray, a_edge: np.ndarray, b_edge: np.ndarray):
+    """Yield ``(p, (x0, x1, y0, y1), sel)`` for each pixel ``p`` of ``offsets`` (``(ia, ib)`` with
+    ``ia >= ib >= 0``, :func:`octant_pixels`): its square ``[ia - 1/2, ia + 1/2] x [ib - 1/2, ib + 1/2]``
+    and the indices ``sel`` of the radial intervals ``[a_edge, b_edge]`` that cross its radial span
+    ``(near, far)`` (``near``: the square's closest point to the centre, 0 for the centre pixel;
+    ``far``: its farthest corner). Pixels that no interval crosses are skipped."""
+    for p, (ia, ib) in enumerate(offsets):
+        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
+        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
+        far = np.hypot(x1, y1)
+        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
+        if sel.size:
+            yield p, (x0, x1, y0, y1), sel
+
+
 def hat_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
     """Weights ``W`` (n_unique_pixels, n_rho) with ``E_p = sum_k W[p, k] I(rho_k)`` for an
     intensity ``I`` that is piecewise linear between the samples ``rho_px`` (increasing, from 0).
@@ -76,13 +91,7 @@ def hat_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.n
     rho = np.asarray(rho_px, dtype=float)
     a_edge, b_edge = rho[:-1], rho[1:]
     weights = np.zeros((len(offsets), len(rho)))
-    for p, (ia, ib) in enumerate(offsets):
-        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
-        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
-        far = np.hypot(x1, y1)
-        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
-        if sel.size == 0:
-            continue
+    for p, (x0, x1, y0, y1), sel in _pixels_crossing(offsets, a_edge, b_edge):
         a, b = a_edge[sel], b_edge[sel]
         area_a = disk_rectangle_area(a, x0, x1, y0, y1)
         area_b = disk_rectangle_area(b, x0, x1, y0, y1)
@@ -132,13 +141,7 @@ def cubic_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np
             deriv[:, j, :] += term
     deriv *= gweights[:, None, :]
     weights = np.zeros((len(offsets), n))
-    for p, (ia, ib) in enumerate(offsets):
-        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
-        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
-        far = np.hypot(x1, y1)
-        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
-        if sel.size == 0:
-            continue
+    for p, (x0, x1, y0, y1), sel in _pixels_crossing(offsets, a_edge, b_edge):
         lo, hi = sel[0], sel[-1] + 1  # the intervals crossing the span are contiguous
         edge_area = disk_rectangle_area(rho[lo : hi + 1], x0, x1, y0, y1)  # A_p at the samples lo..hi
         area_g = disk_rectangle_area(nodes[lo:hi], x0, x1, y0, y1)  # (n_sel, 3)

@@ -45,6 +45,19 @@ def _save(fig, path: str | Path, dpi: int = 110) -> None:
     plt.close(fig)
 
 
+def label_tile(
+    ax, row: int, column: int, title: str, row_label: str, title_size: float = 9, row_label_size: float = 9
+) -> None:
+    """A tile of a grid of pictures: its column's title above the first row, its row's label left of
+    the first column, no ticks."""
+    if row == 0:
+        ax.set_title(title, fontsize=title_size)
+    if column == 0:
+        ax.set_ylabel(row_label, fontsize=row_label_size)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
 def _method_style(index: int, name: str) -> dict:
     """Ours thick and black, the rest from a colour cycle; lens-based dashed, DOE-based solid."""
     if name == "doe+net":
@@ -276,12 +289,7 @@ def plot_scene_ssim_maps(examples: dict, scenes: Sequence[str], methods: Sequenc
                 _, local, scores = examples[(scene, method)]
                 ax.imshow(local, cmap="gray", vmin=0, vmax=1)
                 ax.set_xlabel(f"SSIM {scores['ssim']:.3f}", fontsize=8)
-            if r == 0:
-                ax.set_title(method, fontsize=9)
-            if c == 0:
-                ax.set_ylabel(scene, fontsize=9)
-            ax.set_xticks([])
-            ax.set_yticks([])
+            label_tile(ax, r, c, method, scene)
     fig.suptitle("Local SSIM on the objects (white = 1)", fontsize=10)
     fig.tight_layout()
     _save(fig, path, dpi=110)

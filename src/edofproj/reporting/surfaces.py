@@ -80,6 +80,8 @@ def plot_surface_figure(evaluation: SurfaceEvaluation, path: str | Path) -> None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .figures import label_tile
+
     columns = 2 + len(evaluation.methods) + 1
     fig, axes = plt.subplots(
         len(evaluation.surfaces), columns, figsize=(1.9 * columns, 2.0 * len(evaluation.surfaces) + 0.6), squeeze=False
@@ -99,12 +101,7 @@ def plot_surface_figure(evaluation: SurfaceEvaluation, path: str | Path) -> None
                 ax.imshow(np.clip(tile, 0, 1))
             if value is not None:
                 ax.set_xlabel(f"SSIM {value:.3f}", fontsize=7)
-            if r == 0:
-                ax.set_title(title, fontsize=7)
-            if c == 0:
-                ax.set_ylabel(surface, fontsize=8)
-            ax.set_xticks([])
-            ax.set_yticks([])
+            label_tile(ax, r, c, title, surface, title_size=7, row_label_size=8)
         ax = axes[r, -1]
         for index, method in enumerate(evaluation.methods):
             means = sub.per_depth_means(method, "ssim")

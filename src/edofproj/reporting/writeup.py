@@ -153,6 +153,12 @@ def summary_report(ev) -> Report:
     return report
 
 
+def _add_figure(report: Report, figures: dict, key: str, caption: str) -> None:
+    """Add the figure ``figures[key]`` with its caption, if it was drawn."""
+    if key in figures:
+        report.add(Figure(figures[key], caption))
+
+
 def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), extra: Sequence = ()) -> Report:
     """The report: ``preface`` blocks, results, figures, methods and notes, then ``extra`` blocks."""
     report = Report(title)
@@ -165,48 +171,41 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     figures = ev.figures
     report.add(Heading("Quality against depth"))
     for metric in headline_metrics(ev.table.metrics):
-        if f"{metric}_vs_depth" in figures:
-            report.add(
-                Figure(
-                    figures[f"{metric}_vs_depth"],
-                    f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
-                    f"test images (scored depth range shaded).",
-                )
-            )
+        _add_figure(
+            report,
+            figures,
+            f"{metric}_vs_depth",
+            f"{METRIC_LABELS.get(metric, metric)} against screen depth, mean over the "
+            f"test images (scored depth range shaded).",
+        )
     report.extend(results_tables(ev)[2:])
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
-    if "comparison" in figures:
-        report.add(
-            Figure(
-                figures["comparison"],
-                "Simulated projections of the first test image on flat screens; "
-                "PSNR (P), SSIM (S) of each tile, best of each row in red.",
-            )
-        )
+    _add_figure(
+        report,
+        figures,
+        "comparison",
+        "Simulated projections of the first test image on flat screens; "
+        "PSNR (P), SSIM (S) of each tile, best of each row in red.",
+    )
     report.add(Heading("Tilted screen (paper Sec. 5.3)"))
     report.add(tilted_table(ev.tilted))
-    if "tilted" in figures:
-        report.add(
-            Figure(
-                figures["tilted"],
-                f"A plane screen tilted by {ev.cfg.evaluation.tilt_deg:g} deg, depth "
-                f"from v to v + {ev.cfg.evaluation.tilt_span_mm:g} mm (left to right), "
-                f"rendered by {ev.cfg.imaging.depth_layers} depth layers.",
-            )
-        )
+    _add_figure(
+        report,
+        figures,
+        "tilted",
+        f"A plane screen tilted by {ev.cfg.evaluation.tilt_deg:g} deg, depth "
+        f"from v to v + {ev.cfg.evaluation.tilt_span_mm:g} mm (left to right), "
+        f"rendered by {ev.cfg.imaging.depth_layers} depth layers.",
+    )
     report.add(Heading("Optics"))
-    if "psf" in figures:
-        report.add(
-            Figure(
-                figures["psf"],
-                "RGB PSFs across the training depth range: bare lens vs the learned DOE "
-                "(and baseline optics); E = energy inside the PSF window.",
-            )
-        )
-    if "doe_profile" in figures:
-        report.add(
-            Figure(figures["doe_profile"], "Height profile of the learned DOE as fabricated (wrapped, quantized).")
-        )
+    _add_figure(
+        report,
+        figures,
+        "psf",
+        "RGB PSFs across the training depth range: bare lens vs the learned DOE "
+        "(and baseline optics); E = energy inside the PSF window.",
+    )
+    _add_figure(report, figures, "doe_profile", "Height profile of the learned DOE as fabricated (wrapped, quantized).")
     if "training" in figures:
         report.add(Heading("Training"))
         report.add(Figure(figures["training"], "Training loss of each run."))

@@ -59,15 +59,19 @@ def pose_matrix(rotation_deg=(0.0, 0.0, 0.0), position_m=(0.0, 0.0, 0.0), scale:
     return matrix
 
 
+def _refuse_unknown_keys(mapping: dict, known, what: str) -> None:
+    """A one-line error naming the keys of ``mapping`` outside ``known`` (and the known ones), if any."""
+    unknown = set(mapping) - set(known)
+    if unknown:
+        raise EdofprojError(
+            f"{what} has unknown key(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(known))})"
+        )
+
+
 def _posed_mesh(entry, index: int, base: Path, where: str) -> SceneMesh:
     if not isinstance(entry, dict):
         raise EdofprojError(f"{where}: meshes[{index}] must be a mapping with at least 'file'")
-    unknown = set(entry) - MESH_KEYS
-    if unknown:
-        raise EdofprojError(
-            f"{where}: meshes[{index}] has unknown key(s) {', '.join(sorted(unknown))} "
-            f"(known: {', '.join(sorted(MESH_KEYS))})"
-        )
+    _refuse_unknown_keys(entry, MESH_KEYS, f"{where}: meshes[{index}]")
     if "file" not in entry:
         raise EdofprojError(f"{where}: meshes[{index}] needs 'file'")
     scale = entry.get("scale", 1.0)
@@ -106,11 +110,7 @@ def read_scene_file(path: str | Path) -> Scene:
         raise EdofprojError(f"cannot read scene file '{path}': {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict):
         raise EdofprojError(f"scene file '{path}' must be a mapping with 'meshes' (and optionally 'background_m')")
-    unknown = set(data) - SCENE_KEYS
-    if unknown:
-        raise EdofprojError(
-            f"scene file '{path}' has unknown key(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(SCENE_KEYS))})"
-        )
+    _refuse_unknown_keys(data, SCENE_KEYS, f"scene file '{path}'")
     entries = data.get("meshes") or []
     if not isinstance(entries, list):
         raise EdofprojError(f"scene file '{path}': 'meshes' must be a list")
