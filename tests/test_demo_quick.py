@@ -56,11 +56,15 @@ def test_quick_demo_writes_a_complete_report(tmp_path, capsys):
         "Training",
         "Timing",
         "Projection onto a 3-D scene",
+        "Projection onto a textured surface",
         "demo wall time",
     ):
         assert section in html, section
-    assert html.count("data:image/png;base64,") >= 9  # metric plots, comparison, tilted, PSF, DOE, training, scene x2
-    assert (out / "scene_metrics.csv").is_file()
+    # metric plots, comparison, tilted, PSF, DOE, training, scene x2, surface
+    assert html.count("data:image/png;base64,") >= 10
+    assert (out / "scene_metrics.csv").is_file() and (out / "surface_metrics.csv").is_file()
+    surface_methods = {row["method"] for row in csv.DictReader(open(out / "surface_metrics.csv"))}
+    assert {"doe+net", "doe+net+photometric", "lens+photometric"} <= surface_methods
     markdown = (out / "report.md").read_text()
     assert "(figures/eval_psf_lens_vs_doe.png)" in markdown and (out / "figures" / "eval_psf_lens_vs_doe.png").is_file()
     # three steps leave the quantized DOE flat: the report says why doe projects like lens

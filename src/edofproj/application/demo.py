@@ -14,7 +14,8 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 3. **timing** -- milliseconds per compensated frame (:mod:`edofproj.evaluation.timing`), and one scene,
    :data:`DEMO_SCENE` (a sphere in front of a wall: a depth edge), scored on the first held-out
    image at the panel size (:mod:`edofproj.evaluation.scenes`; the quick demo scores only
-   ``lens``, ``doe`` and ``doe+net`` there);
+   ``lens``, ``doe`` and ``doe+net`` there), and one textured surface, :data:`DEMO_SURFACE`, with the
+   photometric variants of the blind methods (:mod:`edofproj.evaluation.surfaces`);
 4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
    ``metrics.csv``, with the paper's claims (:mod:`edofproj.reporting.claims`) measured on the held-out images.
 
@@ -47,11 +48,13 @@ from ..evaluation.pipeline import (
     require_trained_run,
 )
 from ..evaluation.scenes import evaluate_scenes
+from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
 from ..progress import StageProgress, format_duration
 from ..reporting.claims import Claim, ssim_claims, wall_time_claim
 from ..reporting.document import Figure, Heading, Paragraph, Table
 from ..reporting.scenes import scene_summary_table, write_scene_report
+from ..reporting.surfaces import surface_summary_table, write_surface_report
 from ..reporting.tables import format_text_table, range_table
 from ..reporting.writeup import claims_section, write_documents
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
@@ -60,6 +63,10 @@ from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
 OURS_RUN_DIR = "doe_net"
+#: The textured surface the demo's report adds (:mod:`edofproj.data.textures`; not a training texture) and its
+#: ambient light (a fraction of the projector's white).
+DEMO_SURFACE = "brick"
+DEMO_AMBIENT = 0.05
 #: The scene the demo's report adds (:mod:`edofproj.scenes.builtin`).
 DEMO_SCENE = "sphere_wall"
 QUICK_SCENE_METHODS = ("lens", "doe", OURS)
@@ -458,6 +465,7 @@ def run_demo(
         timings = timing_rows(evaluation, settings)
         progress.finish()
     scene_blocks = scene_section(out, [m.name for m in evaluation.methods], quick, progress)
+    surface_blocks = surface_section(out, progress)
 
     progress.start("stage 4/4 report", 1)
     claims = ssim_claims(evaluation.table, evaluation.range_mm)
@@ -489,7 +497,7 @@ def run_demo(
         evaluation,
         title="edofproj demo report",
         preface=preface,
-        extra=timing_section(timings, torch.get_num_threads(), _frame_hw(evaluation)) + scene_blocks,
+        extra=timing_section(timings, torch.get_num_threads(), _frame_hw(evaluation)) + scene_blocks + surface_blocks,
     )
     progress.finish()
     return DemoResult(out, evaluation, claims, jobs, time.perf_counter() - clock, paths["report_html"])
@@ -525,6 +533,44 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
         table,
         Figure(scenes.files["figure"], "Rows: scenes; columns: the target on the object and each method."),
         Figure(scenes.files["ssim_figure"], "Local SSIM on the object (white = 1)."),
+    ]
+
+
+def surface_section(out: Path, progress: StageProgress) -> list:
+    """Score the demo's blind methods, their photometric variants and cascades on :data:`DEMO_SURFACE`
+    (first held-out image, ambient :data:`DEMO_AMBIENT`) and return the report's blocks."""
+    progress.note(f"textured surface {DEMO_SURFACE}")
+    try:
+        surfaces = evaluate_surfaces(
+            out / OURS_RUN_DIR,
+            [DEMO_SURFACE],
+            out_dir=out,
+            ambient=DEMO_AMBIENT,
+            baselines_dir=out,
+            overrides=["data.max_test_images=1"],
+        )
+    except EdofprojError as exc:
+        return [
+            Heading("Projection onto a textured surface"),
+            Paragraph(f"Surface `{DEMO_SURFACE}` not scored: {exc}."),
+        ]
+    write_surface_report(surfaces)
+    summary = surface_summary_table(surfaces, DEMO_SURFACE)
+    return [
+        Heading("Projection onto a textured surface"),
+        Paragraph(
+            f"The built-in texture `{DEMO_SURFACE}` (a reflectance never used in training) as a flat screen at each "
+            f"depth, ambient light {DEMO_AMBIENT:g} of the projector's white, the first held-out image; every method "
+            "is scored against the goal, the target scaled into what the surface can show. `+photometric` divides "
+            "by the reflectance first (for a network: then the network deblurs). The demo trains no surface-aware "
+            "network (`--set net.surface_input=true` trains one; `edofproj evaluate RUN --surface builtin` scores "
+            f"every built-in texture) ({surfaces.seconds:.0f} s here)."
+        ),
+        Table(summary.header, summary.rows, caption="SSIM and PSNR against the goal"),
+        Figure(
+            surfaces.files["figure"],
+            "The reflectance, the goal and each method's projection at the nearest scored depth, then SSIM over depth.",
+        ),
     ]
 
 
