@@ -201,3 +201,45 @@ def test_surface_options_refuse_bad_input_in_one_line(lab, tmp_path, capsys):
     calibrate = ["procams", "calibrate", "--patterns", lab / "pat", "--captures", lab / "white"]
     run_error(capsys, *calibrate, "--surface-captures", tmp_path / "nowhere", "--out", tmp_path / "c.npz")
     assert not (tmp_path / "c.npz").exists()
+
+
+def test_live_says_that_it_does_not_use_the_surface(lab, capsys):
+    """``live`` compensates as on a white screen; with a calibration that holds a surface it says so."""
+    capsys.readouterr()
+    run_cli(
+        "live",
+        lab / "run_surface",
+        "--calib",
+        lab / "calib.npz",
+        "--camera",
+        f"virtual:{lab / 'object'}",
+        "--display",
+        "memory",
+        "--image",
+        lab / "target.png",
+        "--frames",
+        1,
+    )
+    captured = capsys.readouterr()
+    assert "the surface measured in" in captured.err and "is not used" in captured.err
+    assert "1 frames" in captured.out
+
+
+def test_the_offline_show_says_that_it_does_not_use_the_surface(lab, tmp_path, capsys):
+    (tmp_path / "show").mkdir()
+    write_image(tmp_path / "show" / "a.png", read_image(lab / "target.png"))
+    capsys.readouterr()
+    run_cli(
+        "compensate",
+        lab / "run_plain",
+        "--images",
+        tmp_path / "show",
+        "--depth-mm",
+        400,
+        "--calib",
+        lab / "calib.npz",
+        "--out",
+        tmp_path / "out",
+    )
+    assert "simulates a white screen; the surface measured in" in capsys.readouterr().err
+    assert read_image_array(tmp_path / "out" / "a.png").shape == (H, W, 3)

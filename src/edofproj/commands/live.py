@@ -11,6 +11,11 @@ and 99th percentile. A camera that returns no frame for ``--stall-timeout-s`` is
 line while the last compensated frame stays on screen. ``--frames N`` stops after N frames,
 Ctrl-C stops cleanly. ``--camera virtual:CAPTURES --display memory`` runs it headless through
 the virtual ProCams of a 'procams simulate' folder.
+
+``live`` compensates as on a white screen: a surface measured in the calibration (``procams
+calibrate --surface-captures``) is not used yet (a note says so), and a run trained with
+``net.surface_input`` runs with ``s = 1, a = 0``; ``compensate --capture RAW --calib`` uses the
+surface, one frame at a time (docs/procams.md).
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import sys
+
     import numpy as np
 
     from ..application.live import frame_source, run_live
@@ -64,6 +71,12 @@ def run(args) -> int:
         raise EdofprojError(f"--frames {args.frames} must be >= 1")
     trained = load_run(require_trained_run(args.run))
     calibration = ProCamsCalibration.load(args.calib)
+    if calibration.has_surface:
+        print(
+            f"note: live compensates as on a white screen; the surface measured in {args.calib} is not used "
+            "(compensate --capture RAW --calib uses it)",
+            file=sys.stderr,
+        )
     targets = frame_source(calibration.projector_hw, image=args.image, images=args.images, video=args.video)
     display, camera, grab = open_devices(args)
 
