@@ -23,7 +23,7 @@ Tensors ``(B, 3, H, W)`` at the calibrated projector's size; captures ``(Hc, Wc,
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 import torch
@@ -87,3 +87,40 @@ def compensate_on_surface(
             light = photometric_compensation(goal.image, rho, ambient)
             x = net(light, light_for_goal(captured, rho, ambient).clamp(0.0, 1.0))
     return calibration.to_projector_input(x.clamp(0.0, 1.0))
+
+
+class SurfaceLoop:
+    """What ``live`` (:mod:`.live`) needs to compensate on the calibration's surface, frame after frame.
+
+    Per target: the goal ``g``, the photometric correction ``D`` (what is shown first, as
+    ``f^-1(D)``) and the network's first input (``g`` for a surface-aware network, ``D`` in cascade);
+    per frame: the rectified capture ``M^-1 (c - c_black)`` plus :attr:`offset` ``= M^-1 c_black(q(x))``
+    is the absolute light ``I*`` the surface's ambient is measured in (module docstring).
+    """
+
+    def __init__(self, calibration: ProCamsCalibration, net: torch.nn.Module, what: str = "live") -> None:
+        self.aware = isinstance(net, SurfaceAwareNet)
+        self.surface = measured_surface(calibration, what)
+        black = calibration.color.camera_to_output(calibration.black_image, np.zeros(3)).astype(np.float32)
+        self.offset_hwc = black
+        self.offset = torch.from_numpy(np.ascontiguousarray(black.transpose(2, 0, 1)))[None]
+
+    def prepare(self, target: torch.Tensor, what: str = "the target") -> tuple[torch.Tensor, torch.Tensor]:
+        """``(network input, light to show)`` for ``target (1, 3, H, W)``: ``(g or D, D)``."""
+        goal = surface_goal(target, self.surface, what).image
+        light = photometric_compensation(goal, *self.surface)
+        return (goal if self.aware else light), light
+
+    def goal(self, target: torch.Tensor) -> torch.Tensor:
+        """The goal ``g`` of ``target (1, 3, H, W)``, the reference a capture on the surface is scored against."""
+        return achievable_goal(target, *self.surface).image
+
+    def compensate(
+        self, net: Callable[..., torch.Tensor], light: torch.Tensor, rectified: torch.Tensor
+    ) -> torch.Tensor:
+        """``x`` (module docstring) from the network input of :meth:`prepare` and the rectified capture."""
+        captured = rectified + self.offset
+        rho, ambient = self.surface
+        if self.aware:
+            return net(light, captured, rho, ambient)
+        return net(light, light_for_goal(captured, rho, ambient).clamp(0.0, 1.0))
