@@ -293,21 +293,28 @@ def test_live_on_the_surface(lab, capsys):
     assert "surface-aware network (net.surface_input) needs the surface" in message
 
 
-def test_the_offline_show_says_that_it_does_not_use_the_surface(lab, tmp_path, capsys):
+def test_the_offline_show_on_the_surface(lab, tmp_path, capsys):
+    """``compensate --images --calib``: a surface-aware run (or --surface-from-calib) simulates the object
+    under the photometric correction; a plain run without the flag ignores the surface, with a note."""
     (tmp_path / "show").mkdir()
     write_image(tmp_path / "show" / "a.png", read_image(lab / "target.png"))
-    capsys.readouterr()
-    run_cli(
-        "compensate",
-        lab / "run_plain",
-        "--images",
-        tmp_path / "show",
-        "--depth-mm",
-        400,
-        "--calib",
-        lab / "calib.npz",
-        "--out",
-        tmp_path / "out",
+    base = ["--images", tmp_path / "show", "--depth-mm", 400, "--calib", lab / "calib.npz"]
+    outputs = {}
+    for name, run, extra in (
+        ("aware", "run_surface", []),
+        ("cascade", "run_plain", ["--surface-from-calib"]),
+        ("white", "run_plain", []),
+    ):
+        capsys.readouterr()
+        run_cli("compensate", lab / run, *base, *extra, "--out", tmp_path / name)
+        captured = capsys.readouterr()
+        assert ("on the surface measured in" in captured.out) == (name != "white")
+        assert ("is not used" in captured.err) == (name == "white")
+        outputs[name] = read_image(tmp_path / name / "a.png")
+        assert outputs[name].shape == (3, H, W)
+    # on the checker the surface paths send a textured correction, the white path does not
+    assert float((outputs["cascade"] - outputs["white"]).abs().mean()) > 0.05
+    message = run_error(
+        capsys, "compensate", lab / "run_surface", *base[:-1], lab / "plain.npz", "--out", tmp_path / "bad"
     )
-    assert "simulates a white screen; the surface measured in" in capsys.readouterr().err
-    assert read_image_array(tmp_path / "out" / "a.png").shape == (H, W, 3)
+    assert "needs the surface" in message and not (tmp_path / "bad").exists()

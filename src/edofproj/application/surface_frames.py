@@ -105,9 +105,14 @@ class SurfaceLoop:
         self.offset_hwc = black
         self.offset = torch.from_numpy(np.ascontiguousarray(black.transpose(2, 0, 1)))[None]
 
-    def prepare(self, target: torch.Tensor, what: str = "the target") -> tuple[torch.Tensor, torch.Tensor]:
-        """``(network input, light to show)`` for ``target (1, 3, H, W)``: ``(g or D, D)``."""
-        goal = surface_goal(target, self.surface, what).image
+    def prepare(
+        self, target: torch.Tensor, what: str = "the target", warn: bool = True
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(network input, light to show)`` for ``target (B, 3, H, W)``: ``(g or D, D)``."""
+        if warn:
+            goal = surface_goal(target, self.surface, what).image
+        else:
+            goal = achievable_goal(target, *self.surface).image
         light = photometric_compensation(goal, *self.surface)
         return (goal if self.aware else light), light
 
@@ -119,7 +124,12 @@ class SurfaceLoop:
         self, net: Callable[..., torch.Tensor], light: torch.Tensor, rectified: torch.Tensor
     ) -> torch.Tensor:
         """``x`` (module docstring) from the network input of :meth:`prepare` and the rectified capture."""
-        captured = rectified + self.offset
+        return self.compensate_absolute(net, light, rectified + self.offset)
+
+    def compensate_absolute(
+        self, net: Callable[..., torch.Tensor], light: torch.Tensor, captured: torch.Tensor
+    ) -> torch.Tensor:
+        """``x`` from the network input of :meth:`prepare` and the capture as absolute light ``I*``."""
         rho, ambient = self.surface
         if self.aware:
             return net(light, captured, rho, ambient)

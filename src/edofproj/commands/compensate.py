@@ -126,8 +126,11 @@ def run(args) -> int:
             "give one of --capture, --depth-mm or --depth-map (or --calib with --surface-from-calib and no capture: "
             "the photometric correction to project first)"
         )
-    if args.surface_from_calib and (args.calib is None or args.capture is None):
-        raise EdofprojError("--surface-from-calib goes with --calib and --image (with or without --capture)")
+    if args.surface_from_calib and (args.calib is None or (args.capture is None and args.image is not None)):
+        raise EdofprojError(
+            "--surface-from-calib goes with --calib: with --image and --capture, or none for the photometric "
+            "correction; or with --images/--video"
+        )
     if args.images is not None or args.video is not None:
         return run_batch(args)
     if args.batch != 8 or args.fps is not None or args.overwrite:
@@ -222,6 +225,31 @@ def _compensate_on_surface(args, net, target, calibration, capture) -> int:
     return 0
 
 
+def _on_surface(args, net, forward, calibration):
+    """The offline show on the calibration's surface: ``(network, simulated capture)`` on the targets.
+
+    The simulated capture is what the object shows of the photometric correction ``D`` of each
+    frame's goal, ``s ⊙ A(D) + a`` (absolute light); the network is given it as ``compensate``
+    gives a real capture (:class:`edofproj.application.surface_frames.SurfaceLoop`)."""
+    from ..application.live import network_memory_format
+    from ..application.surface_frames import SurfaceLoop
+
+    what = "--surface-from-calib" if args.surface_from_calib else "the run's surface-aware network (net.surface_input)"
+    loop = SurfaceLoop(calibration, net, what)
+    network_memory_format(net)  # its weights in the memory format the frames come in
+    rho, ambient = loop.surface
+
+    def simulated(images):
+        _, light = loop.prepare(images, what="a frame")
+        return rho.to(light) * forward(light) + ambient.to(light)
+
+    def compensate(images, captured):
+        first, _ = loop.prepare(images, warn=False)
+        return loop.compensate_absolute(net, first, captured)
+
+    return compensate, simulated
+
+
 def run_photometric(args) -> int:
     """``--image T --calib C --surface-from-calib`` without a capture: the photometric correction's projector input."""
     from ..application.surface_frames import measured_surface, photometric_input
@@ -265,6 +293,7 @@ def run_batch(args) -> int:
 
     from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
     from ..compensation.closed_loop import flat_screen
+    from ..compensation.surface_net import SurfaceAwareNet
     from ..evaluation.designs import OpticalDesign
     from ..evaluation.pipeline import require_trained_run
     from ..imaging.projection import projection_bytes
@@ -290,18 +319,18 @@ def run_batch(args) -> int:
         raise EdofprojError(
             f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"
         )
+    trained = load_run(require_trained_run(args.run))
     calibration = None
     if args.calib is not None:
         from ..procams.calibration import ProCamsCalibration
 
         calibration = ProCamsCalibration.load(args.calib)
-        if calibration.has_surface:
+        if calibration.has_surface and not (args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet)):
             print(
-                f"note: the offline path simulates a white screen; the surface measured in {args.calib} is not used",
+                f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
                 file=sys.stderr,
             )
     source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
-    trained = load_run(require_trained_run(args.run))
     H, W = source.size_hw
     design = OpticalDesign("run", "doe", trained.doe, trained.cfg)
     if args.depth_map is not None:
@@ -330,11 +359,15 @@ def run_batch(args) -> int:
         else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
     )
     to_input = calibration.inverse_table.apply if calibration is not None else None
+    net = trained.net
+    if calibration is not None and (args.surface_from_calib or isinstance(net, SurfaceAwareNet)):
+        net, forward = _on_surface(args, net, forward, calibration)
+        screen = f"{screen} on the surface measured in {args.calib}"
     count = source.count or "unknown number of"
     print(f"compensating the {source.description}: {count} frames of {W}x{H}, for a {screen}")
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
         summary = compensate_frames(
-            trained.net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
+            net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
         )
     output = "projector input (measured response inverted)" if calibration is not None else "light"
     print(
