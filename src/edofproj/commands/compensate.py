@@ -40,7 +40,9 @@ layers), in batches of ``--batch`` frames, on the network path of ``edofproj liv
 extension of ``--out``: .avi, .mp4), with ``--calib`` the projector input at the projector's size.
 A progress bar runs while it works; frames per second are printed at the end. A video that
 cannot be decoded to its end or an output that cannot be written completely ends in one line,
-and no partial output is left.
+and no partial output is left. On the calibration's surface (a run with ``net.surface_input``, or
+``--surface-from-calib``) the screen simulated is the object under each frame's photometric
+correction, ``s ⊙ A(D) + a``.
 """
 
 from __future__ import annotations
