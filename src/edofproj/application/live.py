@@ -38,6 +38,12 @@ SSIM against ``I``. Ctrl-C (``KeyboardInterrupt`` in the calling thread, or
 raised by a device) ends the loop; a device error (a camera frame of the wrong size, a camera
 that raises) ends it and is raised in the calling thread. Either way every thread the loop
 started has ended when :func:`run_live` returns.
+
+On a coloured, textured object whose surface the calibration holds, ``surface``
+(:class:`~.surface_frames.SurfaceLoop`) changes steps 1, 4 and the scores: the target shown first
+is the photometric correction ``f^-1(D)`` of the goal ``g`` (the target scaled into what the
+surface can show), the network is given the absolute capture and the surface (or runs after the
+photometric correction), and the captures are scored against ``g`` as absolute light.
 """
 
 from __future__ import annotations
@@ -60,6 +66,7 @@ from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
 from ..metrics import ssim
 from ..procams.calibration import ProCamsCalibration
 from ..procams.devices import Camera, Display, GrabSettings, grab_frame
+from .surface_frames import SurfaceLoop
 
 STAGES = ("show_target", "capture", "rectify", "compensate", "to_input", "show_compensated")
 DEFAULT_STALL_TIMEOUT_S = 2.0
@@ -366,7 +373,9 @@ class _Devices:
         stall_timeout_s: float,
         memory_format: torch.memory_format,
         report: Callable[[str], None],
+        surface: SurfaceLoop | None = None,
     ) -> None:
+        self.surface = surface
         self.calibration, self.display, self.camera = calibration, display, camera
         self.targets, self.frames, self.measure, self.keep_images = targets, frames, measure, keep_images
         self.stall_timeout_s, self.memory_format, self.report = stall_timeout_s, memory_format, report
@@ -394,7 +403,11 @@ class _Devices:
             return self._cache[key][1], self._cache[key][2]
         self.calibration.check_projector_hw(target.shape[:2], what=f"target '{name}'")
         hwc = np.ascontiguousarray(target, dtype=np.float32)
-        light = torch.from_numpy(hwc).permute(2, 0, 1)[None].contiguous(memory_format=self.memory_format)
+        light = torch.from_numpy(hwc).permute(2, 0, 1)[None]
+        if self.surface is not None:  # the network's input and the photometric correction, shown first
+            light, first = self.surface.prepare(light, what=f"target '{name}'")
+            hwc = np.ascontiguousarray(first[0].permute(1, 2, 0).numpy(), dtype=np.float32)
+        light = light.contiguous(memory_format=self.memory_format)
         shown = self.calibration.inverse_table.apply(torch.from_numpy(hwc)).numpy()
         self._cache[key] = (target, light, shown)
         while len(self._cache) > TARGET_CACHE_SIZE:
@@ -509,12 +522,14 @@ def run_live(
     stall_timeout_s: float = DEFAULT_STALL_TIMEOUT_S,
     report: Callable[[str], None] | None = None,
     keep_images: bool = False,
+    surface: SurfaceLoop | None = None,
 ) -> LiveSummary:
     """Run the loop (module docstring) over ``targets`` until ``frames`` frames, their end or Ctrl-C.
 
     ``on_frame`` receives each frame once it is on screen (with its rectified capture and
     projector input when ``keep_images`` or ``measure``); ``report`` the one-line device messages
-    (a stalled camera; default: a ``RuntimeWarning``).
+    (a stalled camera; default: a ``RuntimeWarning``); ``surface``: compensate on the calibration's
+    surface (module docstring).
     """
     if not (np.isfinite(stall_timeout_s) and stall_timeout_s > 0):
         raise EdofprojError(f"--stall-timeout-s {stall_timeout_s} must be > 0")
@@ -528,7 +543,17 @@ def run_live(
     summary = LiveSummary()
     worker = CameraWorker(camera, grab)
     devices = _Devices(
-        calibration, display, worker, targets, frames, measure, keep_images, stall_timeout_s, memory_format, report
+        calibration,
+        display,
+        worker,
+        targets,
+        frames,
+        measure,
+        keep_images,
+        stall_timeout_s,
+        memory_format,
+        report,
+        surface,
     )
     clock = time.perf_counter
     started = clock()
@@ -545,8 +570,12 @@ def run_live(
         record = job.record
         if record is not None and record.compensated is not None and record.uncompensated is not None:
             reference = _to_tensor(job.target)
-            record.ssim_uncompensated = score_against(record.uncompensated, reference)
-            record.ssim_compensated = score_against(record.compensated, reference)
+            uncompensated, compensated = record.uncompensated, record.compensated
+            if surface is not None:  # absolute light against the goal
+                reference = surface.goal(reference)
+                uncompensated, compensated = uncompensated + surface.offset_hwc, compensated + surface.offset_hwc
+            record.ssim_uncompensated = score_against(uncompensated, reference)
+            record.ssim_compensated = score_against(compensated, reference)
             summary.ssim_uncompensated.append(record.ssim_uncompensated)
             summary.ssim_compensated.append(record.ssim_compensated)
         if on_frame is not None and record is not None:
@@ -581,7 +610,10 @@ def run_live(
             job.stages.stop("rectify")
             job.stages.start()
             with torch.inference_mode():
-                compensated = net(job.light, slot.captured)
+                if surface is None:
+                    compensated = net(job.light, slot.captured)
+                else:
+                    compensated = surface.compensate(net, job.light, slot.captured)
             job.stages.stop("compensate")
             job.stages.start()
             with torch.inference_mode():  # clamps to [0, 1]

@@ -19,6 +19,20 @@ rectified into projector output light per projector pixel, and the output is the
 *input* ``u = f^-1(x)`` that emits the light ``x`` (the inverse of the measured response).
 The target is then projector output light (full primary = 1); see docs/procams.md.
 
+On a coloured, textured object whose surface the calibration holds (``procams calibrate
+--surface-captures``), the target is first scaled into what the surface can show (the goal ``g``)
+and the uncompensated image is the photometric correction ``D = clip((g - a) / s, 0, 1)``:
+
+    edofproj compensate RUN --image TARGET --calib calib.npz --surface-from-calib --out U0.png
+    (project U0.png, capture it: RAW)
+    edofproj compensate RUN --image TARGET --capture RAW --calib calib.npz --out PROJ.png
+
+The first writes ``u0 = f^-1(D)`` (the photometric-only compensation; the network is not run).
+The second, for a run trained with ``net.surface_input``, gives the network the measured surface
+(:mod:`edofproj.application.surface_frames`); for another network it needs
+``--surface-from-calib`` and runs it in cascade after the photometric correction. A calibration
+without the surface is refused in one line.
+
 With ``--images DIR`` or ``--video FILE`` a whole show is compensated offline for a flat screen at
 ``--depth-mm`` or a screen of per-pixel depth ``--depth-map`` (``edofproj render``'s depth
 layers), in batches of ``--batch`` frames, on the network path of ``edofproj live``
@@ -26,7 +40,9 @@ layers), in batches of ``--batch`` frames, on the network path of ``edofproj liv
 extension of ``--out``: .avi, .mp4), with ``--calib`` the projector input at the projector's size.
 A progress bar runs while it works; frames per second are printed at the end. A video that
 cannot be decoded to its end or an output that cannot be written completely ends in one line,
-and no partial output is left.
+and no partial output is left. On the calibration's surface (a run with ``net.surface_input``, or
+``--surface-from-calib``) the screen simulated is the object under each frame's photometric
+correction, ``s ⊙ A(D) + a``.
 """
 
 from __future__ import annotations
@@ -49,7 +65,7 @@ def register(subparsers) -> None:
     targets.add_argument("--image", default=None, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
     targets.add_argument("--images", default=None, metavar="DIR", help="a folder of target images (with --depth-mm)")
     targets.add_argument("--video", default=None, metavar="FILE", help="a target video (with --depth-mm)")
-    source = p.add_mutually_exclusive_group(required=True)
+    source = p.add_mutually_exclusive_group()
     source.add_argument(
         "--capture",
         default=None,
@@ -77,6 +93,13 @@ def register(subparsers) -> None:
         "with --images/--video: frames at the projector's size, output the projector input",
     )
     p.add_argument(
+        "--surface-from-calib",
+        action="store_true",
+        help="with --calib: compensate for the surface measured in the calibration (its colour and texture): without "
+        "--capture write the photometric correction to project and capture; with --capture run the network after it "
+        "(implied for a run trained with net.surface_input)",
+    )
+    p.add_argument(
         "--out",
         required=True,
         metavar="PROJ",
@@ -98,6 +121,18 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    if args.capture is None and args.depth_mm is None and args.depth_map is None:
+        if args.surface_from_calib and args.image is not None:
+            return run_photometric(args)
+        raise EdofprojError(
+            "give one of --capture, --depth-mm or --depth-map (or --calib with --surface-from-calib and no capture: "
+            "the photometric correction to project first)"
+        )
+    if args.surface_from_calib and (args.calib is None or (args.capture is None and args.image is not None)):
+        raise EdofprojError(
+            "--surface-from-calib goes with --calib: with --image and --capture, or none for the photometric "
+            "correction; or with --images/--video"
+        )
     if args.images is not None or args.video is not None:
         return run_batch(args)
     if args.batch != 8 or args.fps is not None or args.overwrite:
@@ -125,11 +160,16 @@ def run(args) -> int:
     psf = None
     calibration = None
     if args.calib is not None:
+        from ..compensation.surface_net import SurfaceAwareNet
         from ..procams.calibration import ProCamsCalibration
         from ..procams.capture_io import read_rgb
 
         calibration = ProCamsCalibration.load(args.calib)
         calibration.check_projector_hw((target.shape[-2], target.shape[-1]), what=f"--image '{args.image}'")
+        if args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet):
+            return _compensate_on_surface(
+                args, trained.net, target, calibration, read_rgb(args.capture, what="capture")
+            )
         light = calibration.to_output_space(read_rgb(args.capture, what="capture"))
         captured = torch.from_numpy(light.astype("float32").transpose(2, 0, 1).copy())[None]
     elif args.capture is not None:
@@ -168,6 +208,74 @@ def run(args) -> int:
     return 0
 
 
+def _compensate_on_surface(args, net, target, calibration, capture) -> int:
+    """``--capture RAW --calib`` on the calibration's surface (:mod:`edofproj.application.surface_frames`)."""
+    from ..application.surface_frames import compensate_on_surface, measured_surface
+    from ..compensation.surface_net import SurfaceAwareNet
+    from ..imaging.image_io import write_image
+
+    aware = isinstance(net, SurfaceAwareNet)
+    what = "the run's surface-aware network (net.surface_input)" if aware else "--surface-from-calib"
+    surface = measured_surface(calibration, what)
+    u = compensate_on_surface(net, target, capture, calibration, surface, what=f"--image '{args.image}'")
+    write_image(args.out, u[0], bits=args.bits)
+    how = "the network given the surface" if aware else "photometric correction, then the network"
+    print(
+        f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px): projector input on the calibration's surface "
+        f"({how}; measured response inverted)"
+    )
+    return 0
+
+
+def _on_surface(args, net, forward, calibration):
+    """The offline show on the calibration's surface: ``(network, simulated capture)`` on the targets.
+
+    The simulated capture is what the object shows of the photometric correction ``D`` of each
+    frame's goal, ``s ⊙ A(D) + a`` (absolute light); the network is given it as ``compensate``
+    gives a real capture (:class:`edofproj.application.surface_frames.SurfaceLoop`)."""
+    from ..application.live import network_memory_format
+    from ..application.surface_frames import SurfaceLoop
+
+    what = "--surface-from-calib" if args.surface_from_calib else "the run's surface-aware network (net.surface_input)"
+    loop = SurfaceLoop(calibration, net, what)
+    network_memory_format(net)  # its weights in the memory format the frames come in
+    rho, ambient = loop.surface
+
+    def simulated(images):
+        _, light = loop.prepare(images, what="a frame")
+        return rho.to(light) * forward(light) + ambient.to(light)
+
+    def compensate(images, captured):
+        first, _ = loop.prepare(images, warn=False)
+        return loop.compensate_absolute(net, first, captured)
+
+    return compensate, simulated
+
+
+def run_photometric(args) -> int:
+    """``--image T --calib C --surface-from-calib`` without a capture: the photometric correction's projector input."""
+    from ..application.surface_frames import measured_surface, photometric_input
+    from ..imaging.image_io import check_output_path, read_image, write_image
+    from ..procams.calibration import ProCamsCalibration
+
+    if args.calib is None:
+        raise EdofprojError("--surface-from-calib needs --calib (the calibration that holds the surface)")
+    if args.preview is not None or args.batch != 8 or args.fps is not None or args.overwrite:
+        raise EdofprojError("--preview, --batch, --fps and --overwrite do not go with the photometric correction")
+    check_output_path(args.out, args.bits)
+    calibration = ProCamsCalibration.load(args.calib)
+    surface = measured_surface(calibration, "--surface-from-calib")
+    target = read_image(args.image).unsqueeze(0)
+    calibration.check_projector_hw((target.shape[-2], target.shape[-1]), what=f"--image '{args.image}'")
+    u0 = photometric_input(target, calibration, surface, what=f"--image '{args.image}'")
+    write_image(args.out, u0[0], bits=args.bits)
+    print(
+        f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px): projector input of the photometric correction "
+        "(project and capture it for --capture)"
+    )
+    return 0
+
+
 def _quality(shown, target) -> str:
     """``SSIM s, PSNR p dB`` of a simulated projection against the target (PSNR alone below SSIM's window)."""
     from ..metrics import gaussian_window, psnr, ssim
@@ -187,6 +295,7 @@ def run_batch(args) -> int:
 
     from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
     from ..compensation.closed_loop import flat_screen
+    from ..compensation.surface_net import SurfaceAwareNet
     from ..evaluation.designs import OpticalDesign
     from ..evaluation.pipeline import require_trained_run
     from ..imaging.projection import projection_bytes
@@ -212,13 +321,18 @@ def run_batch(args) -> int:
         raise EdofprojError(
             f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"
         )
+    trained = load_run(require_trained_run(args.run))
     calibration = None
     if args.calib is not None:
         from ..procams.calibration import ProCamsCalibration
 
         calibration = ProCamsCalibration.load(args.calib)
+        if calibration.has_surface and not (args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet)):
+            print(
+                f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
+                file=sys.stderr,
+            )
     source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
-    trained = load_run(require_trained_run(args.run))
     H, W = source.size_hw
     design = OpticalDesign("run", "doe", trained.doe, trained.cfg)
     if args.depth_map is not None:
@@ -247,11 +361,15 @@ def run_batch(args) -> int:
         else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
     )
     to_input = calibration.inverse_table.apply if calibration is not None else None
+    net = trained.net
+    if calibration is not None and (args.surface_from_calib or isinstance(net, SurfaceAwareNet)):
+        net, forward = _on_surface(args, net, forward, calibration)
+        screen = f"{screen} on the surface measured in {args.calib}"
     count = source.count or "unknown number of"
     print(f"compensating the {source.description}: {count} frames of {W}x{H}, for a {screen}")
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
         summary = compensate_frames(
-            trained.net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
+            net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
         )
     output = "projector input (measured response inverted)" if calibration is not None else "light"
     print(

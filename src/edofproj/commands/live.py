@@ -11,6 +11,14 @@ and 99th percentile. A camera that returns no frame for ``--stall-timeout-s`` is
 line while the last compensated frame stays on screen. ``--frames N`` stops after N frames,
 Ctrl-C stops cleanly. ``--camera virtual:CAPTURES --display memory`` runs it headless through
 the virtual ProCams of a 'procams simulate' folder.
+
+On a coloured, textured object whose surface the calibration holds (``procams calibrate
+--surface-captures``), a run trained with ``net.surface_input`` compensates for it (a calibration
+without the surface is then refused in one line), and any other network does with
+``--surface-from-calib`` (after the photometric correction): the target shown first is then the
+photometric correction of the goal, the target scaled into what the surface can show
+(:class:`edofproj.application.surface_frames.SurfaceLoop`; docs/procams.md). Without either, a
+surface in the calibration is not used (a note says so).
 """
 
 from __future__ import annotations
@@ -46,15 +54,26 @@ def register(subparsers) -> None:
     p.add_argument(
         "--measure",
         action="store_true",
-        help="also capture each compensated projection and print SSIM of both captures against the target",
+        help="also capture each compensated projection and print SSIM of both captures against the target "
+        "(on a surface: against the goal)",
+    )
+    p.add_argument(
+        "--surface-from-calib",
+        action="store_true",
+        help="compensate for the surface measured in the calibration, after its photometric correction "
+        "(implied for a run trained with net.surface_input)",
     )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import sys
+
     import numpy as np
 
     from ..application.live import frame_source, run_live
+    from ..application.surface_frames import SurfaceLoop
+    from ..compensation.surface_net import SurfaceAwareNet
     from ..evaluation.pipeline import require_trained_run
     from ..procams.calibration import ProCamsCalibration
     from ..runs import load_run
@@ -64,6 +83,17 @@ def run(args) -> int:
         raise EdofprojError(f"--frames {args.frames} must be >= 1")
     trained = load_run(require_trained_run(args.run))
     calibration = ProCamsCalibration.load(args.calib)
+    surface = None
+    if args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet):
+        what = (
+            "--surface-from-calib" if args.surface_from_calib else "the run's surface-aware network (net.surface_input)"
+        )
+        surface = SurfaceLoop(calibration, trained.net, what)
+    elif calibration.has_surface:
+        print(
+            f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
+            file=sys.stderr,
+        )
     targets = frame_source(calibration.projector_hw, image=args.image, images=args.images, video=args.video)
     display, camera, grab = open_devices(args)
 
@@ -88,6 +118,7 @@ def run(args) -> int:
             on_frame=report,
             stall_timeout_s=args.stall_timeout_s,
             report=lambda line: print(f"live: {line}", flush=True),
+            surface=surface,
         )
     if summary.interrupted:
         print("interrupted")
@@ -105,7 +136,8 @@ def run(args) -> int:
     )
     if summary.ssim_compensated:
         print(
-            f"mean SSIM against the targets: uncompensated {np.mean(summary.ssim_uncompensated):.4f}, "
+            f"mean SSIM against the {'goals' if surface is not None else 'targets'}: "
+            f"uncompensated {np.mean(summary.ssim_uncompensated):.4f}, "
             f"compensated {np.mean(summary.ssim_compensated):.4f}"
         )
     return 0

@@ -71,6 +71,12 @@ class ProCamsCalibration:
         """A camera capture as projector output light per projector pixel, ``(H, W, 3)`` float64."""
         return self.color.camera_to_output(self.camera_map.warp(capture), self.black_image)
 
+    def to_absolute_output(self, capture: np.ndarray) -> np.ndarray:
+        """A camera capture as *absolute* projector output light, ``M^-1 c(q(x))`` (not less the
+        calibration's black image): the space of the measured surface's ambient (:mod:`.surface`),
+        ``(H, W, 3)`` float64. It is :meth:`to_output_space` plus ``M^-1 c_black(q(x))``."""
+        return self.color.camera_to_output(self.camera_map.warp(capture), np.zeros(3))
+
     def check_projector_hw(self, height_width: tuple[int, ...], what: str = "the image") -> None:
         """Raise one line unless ``height_width`` is the calibrated projector's size."""
         H, W = self.projector_hw
@@ -99,7 +105,7 @@ class ProCamsCalibration:
         if self.surface_reflectance is None or self.surface_ambient is None:
             raise EdofprojError(
                 f"{what} needs the surface, but the calibration was made without the surface captures "
-                "(the black and white fields captured with the object in place, edofproj.procams.surface)"
+                "(the black and white fields captured with the object in place: procams calibrate --surface-captures)"
             )
         return self.surface_reflectance, self.surface_ambient
 

@@ -1,8 +1,8 @@
 """``edofproj procams``: projector-camera tools -- patterns, a virtual ProCams, calibration, PSF measurement.
 
     edofproj procams patterns --width W --height H --out PATTERNS
-    edofproj procams simulate --patterns PATTERNS --out CAPTURES --depth-mm Z [--doe D | --psf FILE]
-    edofproj procams calibrate --patterns PATTERNS --captures CAPTURES --out calib.npz
+    edofproj procams simulate --patterns PATTERNS --out CAPTURES --depth-mm Z [--doe D | --psf FILE] [--surface T]
+    edofproj procams calibrate --patterns PATTERNS --captures CAPTURES --out calib.npz [--surface-captures DIR]
     edofproj procams estimate-psf --patterns PATTERNS --captures CAPTURES --calib calib.npz --out psf.npz
     edofproj procams capture --patterns PATTERNS --out CAPTURES --camera SPEC --display SPEC [--depth-mm Z]
     edofproj procams rectify CAPTURE --calib calib.npz --out OUT

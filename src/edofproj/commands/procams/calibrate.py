@@ -1,9 +1,17 @@
 """``edofproj procams calibrate``: geometric and colour calibration from captured patterns.
 
     edofproj procams calibrate --patterns PATTERNS --captures CAPTURES --out calib.npz
+                               [--surface-captures OBJECT_CAPTURES]
 
 The dot grid gives the map from camera to projector pixels (a homography and the lens distortion
 beyond it), the colour samples the projector's colour response as the camera sees it.
+
+With ``--surface-captures`` (a capture folder of the same patterns taken with the coloured,
+textured object in place; only its ``black.png`` and ``white.png`` are read) the surface's
+reflectance and ambient per projector pixel are measured too (:mod:`edofproj.procams.surface`)
+and kept in the calibration file (keys ``surface_reflectance``, ``surface_ambient``), for
+``compensate --calib``. ``--captures`` must then be of a white screen (or white board) where the
+object stands: its colour calibration defines white.
 """
 
 from __future__ import annotations
@@ -26,6 +34,13 @@ def register(subparsers) -> None:
         metavar="K",
         help="nearest colour samples in the local linear response interpolation (6)",
     )
+    p.add_argument(
+        "--surface-captures",
+        default=None,
+        metavar="DIR",
+        help="capture folder of the same patterns with the textured object in place: measure its reflectance and "
+        "ambient (its black and white fields) into the calibration",
+    )
     p.set_defaults(func=run)
 
 
@@ -35,6 +50,11 @@ def run(args) -> int:
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
     manifest, calibration = calibrate_folders(args.patterns, args.captures, neighbours=args.neighbours)
+    if args.surface_captures is not None:
+        from ...procams.surface import measure_surface_folders
+
+        measured = measure_surface_folders(calibration, args.patterns, args.surface_captures)
+        calibration = calibration.with_surface(measured.reflectance, measured.ambient)
     calibration.save(args.out)
     cm = calibration.camera_map
     print(
@@ -49,4 +69,13 @@ def run(args) -> int:
         f"{len(calibration.color.sample_inputs)} colour samples, black level "
         f"{np.round(calibration.color.black_level, 4).tolist()}"
     )
+    if calibration.has_surface:
+        rho, ambient = calibration.require_surface()
+        rho_median = ", ".join(f"{v:.3f}" for v in np.median(rho, axis=(0, 1)))
+        ambient_median = ", ".join(f"{v:.4f}" for v in np.median(ambient, axis=(0, 1)))
+        print(
+            f"surface from {args.surface_captures}: reflectance median RGB ({rho_median}), 2-98 % "
+            f"{np.percentile(rho, 2):.3f}-{np.percentile(rho, 98):.3f}; ambient median RGB ({ambient_median}) "
+            "(projector output units)"
+        )
     return 0

@@ -4,9 +4,17 @@
 
 The virtual ProCams plays projector and camera: the patterns blurred by the PSF of ``--doe`` (or
 of ``--psf``) at the screen distance, seen by a camera of a random pose with gamma and noise.
+
+With ``--surface TEXTURE`` (a built-in texture of ``edofproj evaluate --surface`` or a reflectance
+file at the projector's size) the screen is that coloured, textured object, lit by
+``--surface-ambient``: simulated with the same ``--seed`` (the same camera pose) as the white
+screen's captures, its folder holds the black and white fields that ``procams calibrate
+--surface-captures`` measures the surface from (``ground_truth.npz`` holds the closed-form truth).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -36,6 +44,19 @@ def register(subparsers) -> None:
         help="camera pixels per projector pixel (3); the camera is 4/3 of that times the projector",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the camera pose and the noise (0)")
+    p.add_argument(
+        "--surface",
+        default=None,
+        metavar="TEXTURE",
+        help="the screen is a textured object: a built-in texture (leaves, field, checker, brick, gravel, white) "
+        "or a reflectance image/.npy in [0, 1] at the projector's size (default: a white screen)",
+    )
+    p.add_argument(
+        "--surface-ambient",
+        type=float,
+        default=0.0,
+        help="with --surface: ambient illuminance on the object, a fraction of the projector's white (0)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.set_defaults(func=run)
 
@@ -85,7 +106,17 @@ def run(args) -> int:
         raise EdofprojError("--gamma takes one or three values in 0.1-10")
     if args.noise_sigma < 0 or not (1.0 <= args.camera_scale <= 10.0):
         raise EdofprojError("--noise-sigma must be >= 0 and --camera-scale in 1-10")
+    if not (math.isfinite(args.surface_ambient) and 0.0 <= args.surface_ambient <= 1.0):
+        raise EdofprojError(f"--surface-ambient {args.surface_ambient:g} must lie in [0, 1]")
+    if args.surface is None and args.surface_ambient != 0.0:
+        raise EdofprojError("--surface-ambient goes with --surface")
     manifest = PatternManifest.load(args.patterns)
+    reflectance = None
+    if args.surface is not None:
+        from ...data.textures import surface_reflectance
+
+        hw = (manifest.height, manifest.width)
+        reflectance = surface_reflectance(args.surface, hw)[0].permute(1, 2, 0).double().numpy()
     depth_m = args.depth_mm * 1e-3
     psf = _simulated_psf(args, cfg, depth_m)
     gamma = tuple(args.gamma) * (3 // len(args.gamma))
@@ -99,6 +130,8 @@ def run(args) -> int:
         noise_sigma=args.noise_sigma,
         depth_m=depth_m,
         pixel_pitch_m=float(ProjectorGeometry.from_config(cfg.optics).pixel_pitch_m(depth_m)),
+        reflectance=reflectance,
+        surface_ambient=args.surface_ambient,
     )
     print(
         f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[1]}x{rig.camera_hw[0]} camera "
@@ -106,5 +139,10 @@ def run(args) -> int:
         f"in-window energy {np.round(psf.sum(axis=(-1, -2)), 4).tolist()}"
     )
     simulate_captures(rig, args.patterns, args.out, seed=args.seed, overwrite=args.overwrite, log=print)
+    if reflectance is not None:
+        print(
+            f"the screen is the textured surface '{args.surface}' (reflectance "
+            f"{reflectance.min():.3f}-{reflectance.max():.3f}), ambient {args.surface_ambient:g}"
+        )
     print(f"wrote {args.out} (captures, ground_truth.json/.npz, true_psf.npz, captures.json)")
     return 0
