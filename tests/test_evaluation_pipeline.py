@@ -252,3 +252,20 @@ def test_score_range_defaults_to_the_training_range_and_is_validated():
         load_config(None, ["evaluation.score_range_mm=[800,300]"])
     with pytest.raises(ConfigError, match="wiener_tuning_metric"):
         load_config(None, ["evaluation.wiener_tuning_metric=mse"])
+
+
+def test_a_baseline_that_differs_only_in_a_statement_fits_one_that_differs_in_physics_does_not(tmp_path):
+    """The stated accuracy of the spectral sampling (a statement) does not make another projector;
+    its sampling does (the shipped baselines were trained before the cpu preset restated it)."""
+    import dataclasses
+
+    from edofproj.evaluation.methods import method_spec
+    from edofproj.evaluation.pipeline import baseline_mismatch
+
+    cfg = load_config("cpu")
+    spec = method_spec("cubic+net")
+    baseline = load_config("cpu", ["doe.kind=cubic"])
+    restated = dataclasses.replace(baseline, spectrum=dataclasses.replace(baseline.spectrum, stated_l1_error=0.5))
+    assert baseline_mismatch(spec, tmp_path, cfg, restated) is None
+    resampled = dataclasses.replace(baseline, spectrum=dataclasses.replace(baseline.spectrum, nodes_per_primary=3))
+    assert "spectrum section differs" in baseline_mismatch(spec, tmp_path, cfg, resampled)

@@ -106,6 +106,17 @@ class OpticsConfig:
 SPECTRAL_QUADRATURES = ("uniform", "gauss")
 
 
+#: Keys that state something about a configuration without changing what it simulates or trains (the
+#: measured accuracy of the spectral sampling only silences a warning): two runs that differ only here
+#: have the same projector and the same recipe.
+STATEMENT_KEYS = ("spectrum.stated_l1_error",)
+
+
+def without_statements(section: str, values: dict) -> dict:
+    """``values`` (a section as :func:`to_dict` gives it) without the :data:`STATEMENT_KEYS` of ``section``."""
+    return {k: v for k, v in values.items() if f"{section}.{k}" not in STATEMENT_KEYS}
+
+
 @dataclass
 class SpectrumConfig:
     """Wavelength sampling and the RGB primaries' spectral power distributions.

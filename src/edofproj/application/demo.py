@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from ..builtin_runs import BUILTIN_RUNS, PREFIX
-from ..config import apply_overrides, load_config, to_dict
+from ..config import STATEMENT_KEYS, apply_overrides, load_config, to_dict
 from ..errors import EdofprojError
 from ..evaluation import timing
 from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
@@ -241,11 +241,10 @@ def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" 
 
 #: Config keys that do not change what a run learns (bookkeeping, threads, evaluation settings): a
 #: shipped baseline may differ from the demo's recipe in these only.
-#: Keys that do not change what a run learns: naming, evaluation, bookkeeping, and the stated accuracy of the
-#: spectral sampling (a statement about the sampling, which only silences a warning).
+#: Keys that do not change what a run learns: naming, evaluation, bookkeeping, and statements about the
+#: configuration (:data:`edofproj.config.STATEMENT_KEYS`).
 RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "train.checkpoint_every",
-                  "train.keep_checkpoints", "train.threads", "train.device",
-                  "spectrum.stated_l1_error")  # fmt: skip
+                  "train.keep_checkpoints", "train.threads", "train.device", *STATEMENT_KEYS)  # fmt: skip
 
 
 def recipe_difference(shipped, expected) -> str | None:

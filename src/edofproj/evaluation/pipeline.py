@@ -29,7 +29,7 @@ import torch
 
 from ..builtin_runs import require_output_outside, resolve_run_dir
 from ..compensation.registry import describe_network
-from ..config import Config, apply_overrides, to_dict
+from ..config import Config, apply_overrides, to_dict, without_statements
 from ..data import evaluation_images
 from ..data.validation import validation_images
 from ..doe import build_doe
@@ -137,7 +137,9 @@ def baseline_mismatch(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | 
         if key in flat and flat[key] != value:
             return f"its config has {key}={flat[key]}, expected {value}"
     for section in SHARED_SECTIONS:
-        if to_dict(getattr(baseline_cfg, section)) != to_dict(getattr(cfg, section)):
+        if without_statements(section, to_dict(getattr(baseline_cfg, section))) != without_statements(
+            section, to_dict(getattr(cfg, section))
+        ):
             return f"its {section} section differs from the evaluated run's (a different projector)"
     return None
 
