@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -164,10 +165,28 @@ def test_a_run_killed_before_its_first_checkpoint_resumes_from_step_0(reference,
 def test_a_garbage_checkpoint_is_refused_without_unsafe_advice(reference, tmp_path):
     run = tmp_path / "garbage"
     shutil.copytree(reference, run)
-    for path in (run / "checkpoints").glob("*.pt"):
-        path.write_bytes(os.urandom(2000))
+    generator = np.random.default_rng(7)
+    for index, path in enumerate(sorted((run / "checkpoints").glob("*.pt"))):
+        # fixed garbage; the first file starts like a pickle of protocol 229 (torch warns before it fails)
+        head = b"\x80\xe5" if index == 0 else b""
+        path.write_bytes(head + generator.integers(0, 256, 2000, dtype=np.uint8).tobytes())
     result = _run(_command(run, "--resume"))
     assert result.returncode == 2
     message = result.stderr.strip()
     assert message.count("\n") == 0 and "truncated, damaged or not an edofproj checkpoint" in message
     assert "weights_only" not in message
+
+
+def test_a_file_that_looks_like_another_pickle_protocol_is_one_error_and_no_warning(tmp_path):
+    """torch warns ("Detected pickle protocol ...") before failing on such a file; the user gets one line only."""
+    import warnings
+
+    from edofproj.errors import EdofprojError
+    from edofproj.runs.checkpoint import load_checkpoint
+
+    path = tmp_path / "step_000010.pt"
+    path.write_bytes(b"\x80\xe5" + bytes(range(256)) * 4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(EdofprojError, match="truncated, damaged or not an edofproj checkpoint"):
+            load_checkpoint(path)

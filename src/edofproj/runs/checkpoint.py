@@ -132,7 +132,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise EdofprojError(f"no checkpoint at '{path}'")
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():
+            # a damaged file can look like a pickle of another protocol: torch warns before it fails, and the
+            # failure below is the one line the user needs
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a bad file for the user
         # never repeat the library's advice (it suggests weights_only=False, which runs code from the file)
         size = path.stat().st_size
