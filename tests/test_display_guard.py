@@ -12,16 +12,7 @@ from edofproj.compensation.unet import CompensationUNet
 from edofproj.evaluation.guard import DisplayGuard, GuardedNetworkCompensation, guard_depths_m, predicted_ssim
 from edofproj.imaging.projection import project
 from edofproj.metrics import ssim
-
-
-def gaussian_psfs(sigmas_px, window: int = 15, energy: float = 0.95) -> torch.Tensor:
-    y, x = np.mgrid[-(window // 2) : window // 2 + 1, -(window // 2) : window // 2 + 1]
-    stack = []
-    for sigma in sigmas_px:
-        g = np.exp(-(x**2 + y**2) / (2 * sigma**2))
-        stack.append(np.repeat((energy * g / g.sum())[None], 3, axis=0))
-    return torch.tensor(np.stack(stack), dtype=torch.float32)
-
+from synthetic_psfs import gaussian_psfs
 
 PSFS = gaussian_psfs([0.8, 2.0, 3.5])
 

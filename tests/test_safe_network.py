@@ -25,19 +25,10 @@ from edofproj.compensation.unet import CompensationUNet
 from edofproj.config import ConfigError, load_config
 from edofproj.evaluation.methods import EnsembleWienerCompensation
 from edofproj.imaging.projection import project
+from synthetic_psfs import gaussian_psfs
 
 RADIUS = 12
 NSR = 0.01
-
-
-def gaussian_psfs(sigmas_px, window: int = 15, energy: float = 0.95) -> torch.Tensor:
-    """Normalized Gaussian PSFs ``(N, 3, K, K)`` carrying ``energy`` (the rest is haze)."""
-    y, x = np.mgrid[-(window // 2) : window // 2 + 1, -(window // 2) : window // 2 + 1]
-    stack = []
-    for sigma in sigmas_px:
-        g = np.exp(-(x**2 + y**2) / (2 * sigma**2))
-        stack.append(np.repeat((energy * g / g.sum())[None], 3, axis=0))
-    return torch.tensor(np.stack(stack), dtype=torch.float32)
 
 
 def safe_unet(bound: float = 0.2, highpass_px: float = 4.0) -> CompensationUNet:

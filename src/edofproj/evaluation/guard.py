@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..compensation.linear_base import LinearBase
+from ..compensation.linear_base import LinearBase, ensemble_depths_m
 from ..imaging.projection import project
 from ..metrics import ssim
 
@@ -35,8 +35,8 @@ GUARD_DEPTHS = 3
 
 
 def guard_depths_m(near_m: float, far_m: float, count: int = GUARD_DEPTHS) -> np.ndarray:
-    """``count`` depths from ``near_m`` to ``far_m`` uniform in ``1/z``."""
-    return 1.0 / np.linspace(1.0 / near_m, 1.0 / far_m, int(count))
+    """``count`` depths from ``near_m`` to ``far_m`` uniform in ``1/z`` (as the depth-ensemble filter's)."""
+    return ensemble_depths_m(near_m, far_m, count)
 
 
 def predicted_ssim(projector_input: torch.Tensor, target: torch.Tensor, psfs: torch.Tensor) -> torch.Tensor:
