@@ -16,7 +16,7 @@ They come from sources the training and test splits never use (:data:`VALIDATION
   8 % of its level (a yellow-green scene, one primary nearly empty), dead leaves of saturated
   colours, the camera photograph darkened to a quarter, textured dead leaves in high key, a fine
   sinusoidal grating (periods of 3, 5 and 8 px, one per primary) and flat graphics (sharp-edged
-  discs and bars in the primaries and secondaries). :data:`COLOUR_CLASSES` are the ones training
+  discs and bars in red, green, blue, yellow, cyan and magenta). :data:`COLOUR_CLASSES` are the ones training
   validates on (``train.validate_every``).
 
 Grey images are repeated to RGB, alpha is dropped. Each image is brought to the evaluation size by
@@ -99,7 +99,7 @@ def _grating(size: int = PROCEDURAL_SIZE) -> np.ndarray:
 
 
 def _flat_graphics(size: int = PROCEDURAL_SIZE) -> np.ndarray:
-    """Sharp-edged discs and bars in the primaries and secondaries, on a black left and a white right half."""
+    """Sharp-edged discs and bars in red, green, blue, yellow, cyan and magenta; black left half, white right."""
     generator = torch.Generator().manual_seed(VALIDATION_SEED + 3)
     image = torch.zeros(3, size, size)
     image[:, :, size // 2 :] = 1.0
