@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from edofproj.compensation.unet import CompensationUNet
-from edofproj.evaluation.guard import DisplayGuard, GuardedNetworkCompensation, guard_depths_m, predicted_ssim
 from edofproj.imaging.projection import project
+from edofproj.methods.guard import DisplayGuard, GuardedNetworkCompensation, guard_depths_m, predicted_ssim
 from edofproj.metrics import ssim
 from synthetic_psfs import gaussian_psfs
 

@@ -9,15 +9,11 @@ import torch
 from scipy import ndimage
 
 from edofproj.compensation.wiener import wiener_deconvolve
-from edofproj.evaluation.methods import (
-    ConstrainedCompensation,
-    EnsembleWienerCompensation,
-    PreparedMethod,
-    method_spec,
-    no_compensation,
-)
 from edofproj.evaluation.timing import time_methods
 from edofproj.imaging.projection import project
+from edofproj.methods.builder import PreparedMethod
+from edofproj.methods.catalogue import method_spec
+from edofproj.methods.compensators import ConstrainedCompensation, EnsembleWienerCompensation, no_compensation
 
 
 def gaussian_psf(sigma: float, size: int = 9, energy: float = 0.97) -> np.ndarray:

@@ -241,7 +241,7 @@ def test_compensate_with_a_capture_file(runs, tmp_path):
 
 def test_score_range_defaults_to_the_training_range_and_is_validated():
     from edofproj.config import ConfigError
-    from edofproj.evaluation.methods import score_range_mm
+    from edofproj.methods.compensators import score_range_mm
 
     assert score_range_mm(load_config(None, ["psf.depth_min_mm=275"])) == (275.0, 800.0)
     assert score_range_mm(load_config(None, ["psf.depth_min_mm=275", "evaluation.score_range_mm=[300,800]"])) == (
@@ -259,8 +259,8 @@ def test_a_baseline_that_differs_only_in_a_statement_fits_one_that_differs_in_ph
     its sampling does (the shipped baselines were trained before the cpu preset restated it)."""
     import dataclasses
 
-    from edofproj.evaluation.methods import method_spec
-    from edofproj.evaluation.pipeline import baseline_mismatch
+    from edofproj.methods.builder import baseline_mismatch
+    from edofproj.methods.catalogue import method_spec
 
     cfg = load_config("cpu")
     spec = method_spec("cubic+net")

@@ -9,8 +9,8 @@ import pytest
 
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
-from edofproj.evaluation.methods import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
 from edofproj.evaluation.results import MetricsTable
+from edofproj.methods.catalogue import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
 from edofproj.progress import StageProgress, format_duration
 from edofproj.reporting.claims import ssim_claims, wall_time_claim
 from edofproj.reporting.document import Figure, Heading, Paragraph, Report, Table

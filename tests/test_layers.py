@@ -40,6 +40,7 @@ LAYERS = [
     {"procams"},
     {"runs"},
     {"training"},
+    {"methods"},
     {"evaluation"},
     {"reporting"},
     {"application"},

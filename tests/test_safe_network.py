@@ -23,8 +23,8 @@ from edofproj.compensation.linear_base import LinearBase, bounded_correction, en
 from edofproj.compensation.registry import build_network
 from edofproj.compensation.unet import CompensationUNet
 from edofproj.config import ConfigError, load_config
-from edofproj.evaluation.methods import EnsembleWienerCompensation
 from edofproj.imaging.projection import project
+from edofproj.methods.compensators import EnsembleWienerCompensation
 from synthetic_psfs import gaussian_psfs
 
 RADIUS = 12

@@ -195,9 +195,9 @@ def test_procams_measure_psf(tmp_path):
 
 
 def check_compensation(out: Path, summary: dict) -> None:
-    from edofproj.evaluation.designs import OpticalDesign
     from edofproj.imaging import project
     from edofproj.imaging.image_io import read_image
+    from edofproj.methods.designs import OpticalDesign
     from edofproj.runs import load_run
 
     rows = summary["rows"]

@@ -23,10 +23,10 @@ import torch
 from edofproj.compensation.closed_loop import closed_loop, flat_screen
 from edofproj.config import load_config
 from edofproj.data import evaluation_images
-from edofproj.evaluation.designs import OpticalDesign
 from edofproj.fileio import atomic_path, write_text_atomic
 from edofproj.imaging import project
 from edofproj.imaging.image_io import read_image, write_image
+from edofproj.methods.designs import OpticalDesign
 from edofproj.metrics import ssim
 from edofproj.runs import load_run
 from edofproj.training.trainer import train

@@ -40,16 +40,12 @@ from ..builtin_runs import BUILTIN_RUNS, PREFIX
 from ..config import STATEMENT_KEYS, apply_overrides, load_config, to_dict
 from ..errors import EdofprojError
 from ..evaluation import timing
-from ..evaluation.methods import METHOD_NAMES, OURS, method_spec
-from ..evaluation.pipeline import (
-    EVALUATION_OVERRIDE_PREFIXES,
-    Evaluation,
-    evaluate_run,
-    require_trained_run,
-)
+from ..evaluation.pipeline import EVALUATION_OVERRIDE_PREFIXES, Evaluation, evaluate_run
 from ..evaluation.scenes import evaluate_scenes
 from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
+from ..methods.builder import require_trained_run
+from ..methods.catalogue import METHOD_NAMES, OURS, method_spec
 from ..progress import StageProgress, format_duration
 from ..reporting.claims import Claim, ssim_claims, wall_time_claim
 from ..reporting.document import Figure, Heading, Paragraph, Table

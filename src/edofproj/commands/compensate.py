@@ -142,8 +142,8 @@ def run(args) -> int:
     import torch
 
     from ..compensation.closed_loop import closed_loop, flat_screen
-    from ..evaluation.pipeline import require_trained_run
     from ..imaging.image_io import check_output_path, read_image, write_image
+    from ..methods.builder import require_trained_run
     from ..runs import load_run
 
     if args.calib is not None and args.capture is None:
@@ -180,7 +180,7 @@ def run(args) -> int:
                 f"{captured.shape[-2]}x{captured.shape[-1]} px (height x width): warp the capture to projector space"
             )
     else:
-        from ..evaluation.designs import OpticalDesign
+        from ..methods.designs import OpticalDesign
 
         psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
     with torch.inference_mode():
@@ -296,10 +296,10 @@ def run_batch(args) -> int:
     from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
     from ..compensation.closed_loop import flat_screen
     from ..compensation.surface_net import SurfaceAwareNet
-    from ..evaluation.designs import OpticalDesign
-    from ..evaluation.pipeline import require_trained_run
     from ..imaging.projection import projection_bytes
     from ..limits import check_memory
+    from ..methods.builder import require_trained_run
+    from ..methods.designs import OpticalDesign
     from ..runs import load_run
 
     if args.depth_mm is None and args.depth_map is None:  # the parser's group asks for one of them or --capture

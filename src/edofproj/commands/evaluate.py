@@ -106,7 +106,7 @@ def register(subparsers) -> None:
 
 def _checked_methods(args) -> list[str] | None:
     """``--methods`` as a list of names (None: the default methods); an unknown name fails before any work."""
-    from ..evaluation.methods import method_spec
+    from ..methods.catalogue import method_spec
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
     for name in methods or ():
@@ -119,8 +119,8 @@ def _output_lock(args):
     trained and that the output may be written there: one writer per output directory, so a run being
     trained, or evaluated by another process, is refused."""
     from ..builtin_runs import require_output_outside
-    from ..evaluation.pipeline import require_trained_run
     from ..locking import directory_lock
+    from ..methods.builder import require_trained_run
 
     require_trained_run(args.run)
     if not args.out:

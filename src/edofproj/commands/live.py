@@ -74,7 +74,7 @@ def run(args) -> int:
     from ..application.live import frame_source, run_live
     from ..application.surface_frames import SurfaceLoop
     from ..compensation.surface_net import SurfaceAwareNet
-    from ..evaluation.pipeline import require_trained_run
+    from ..methods.builder import require_trained_run
     from ..procams.calibration import ProCamsCalibration
     from ..runs import load_run
     from .procams.devices import open_devices

@@ -119,7 +119,7 @@ def run_render(args) -> int:
     trained = None
     if args.run is not None:
         from ..config import apply_overrides
-        from ..evaluation.pipeline import require_trained_run
+        from ..methods.builder import require_trained_run
         from ..runs import load_run
 
         if args.config is not None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .methods import OURS
+from ..methods.catalogue import OURS
 from .results import CHANNEL_METRICS, MetricsTable
 
 #: The blind linear baseline the network is checked against.

@@ -3,10 +3,10 @@
 The straight line of an evaluation:
 
 1. load the run (config, fabricated DOE, network) and the separate baseline runs found in the
-   baselines directory (:data:`~edofproj.evaluation.methods.BASELINE_RUN_DIRS`; default: the
+   baselines directory (:data:`~edofproj.methods.catalogue.BASELINE_RUN_DIRS`; default: the
    run's parent directory, where the demo puts them side by side);
-2. prepare the methods (:mod:`.methods`): optical designs and their PSFs (:mod:`.designs`), the
-   Wiener NSR of each design tuned on *training* crops, the networks;
+2. build the methods (:mod:`edofproj.methods`: optical designs and their PSFs, the Wiener NSR of
+   each design tuned on *training* crops, the networks behind their display guard);
 3. score every method on every held-out image at every depth (:func:`.sweep.flat_screen_sweep`)
    and on the tilted screen (:func:`.sweep.tilted_screen_sweep`);
 4. write ``metrics.csv`` and ``tilted_metrics.csv`` into the output directory. The figures and
@@ -27,41 +27,24 @@ from typing import Sequence
 
 import torch
 
-from ..builtin_runs import require_output_outside, resolve_run_dir
-from ..compensation.registry import describe_network
-from ..config import Config, apply_overrides, to_dict, without_statements
+from ..builtin_runs import require_output_outside
+from ..config import Config, apply_overrides
 from ..data import evaluation_images
 from ..data.validation import validation_images
-from ..doe import build_doe
 from ..errors import EdofprojError
+from ..methods.builder import MethodBuilder, PreparedMethod, require_trained_run
+from ..methods.catalogue import select_methods
+from ..methods.compensators import score_range_mm
+from ..methods.designs import OpticalDesign
+from ..methods.guard import guard_notes
 from ..progress import StageProgress
-from ..runs import CONFIG_NAME, TrainedRun, last_checkpoint_path, load_run
-from .designs import OpticalDesign
-from .guard import GuardedNetworkCompensation, guard_depths_m, guard_notes, network_filter
-from .methods import (
-    ConstrainedCompensation,
-    EnsembleWienerCompensation,
-    MethodSpec,
-    NetworkCompensation,
-    PreparedMethod,
-    WienerCompensation,
-    ensemble_depths_m,
-    ensemble_radius,
-    no_compensation,
-    score_range_mm,
-    select_methods,
-    training_crops,
-    tune_ensemble_nsr,
-    tune_nsr,
-)
+from ..runs import TrainedRun, load_run
 from .results import MetricsTable
 from .sweep import PERCEPTUAL_COLUMNS, example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
 from .timing import time_methods
 
 METRICS_NAME = "metrics.csv"
 TILTED_METRICS_NAME = "tilted_metrics.csv"
-#: Config sections a baseline run must share with the evaluated run (same projector, same light).
-SHARED_SECTIONS = ("optics", "spectrum")
 #: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained).
 EVALUATION_OVERRIDE_PREFIXES = ("evaluation.", "imaging.", "data.max_test_images")
 
@@ -98,20 +81,7 @@ class Evaluation:
     image_set: str = "test"
 
 
-# --------------------------------------------------------------------------- runs
-
-
-def require_trained_run(run_dir: str | Path) -> Path:
-    """The run directory (a path or ``builtin:NAME``), or a one-line error when it is missing or has
-    no checkpoint."""
-    path = resolve_run_dir(run_dir)
-    if not path.is_dir():
-        raise EdofprojError(f"run directory '{run_dir}' does not exist")
-    if not (path / CONFIG_NAME).is_file():
-        raise EdofprojError(f"'{run_dir}' is not a training run (no {CONFIG_NAME})")
-    if not last_checkpoint_path(path).is_file():
-        raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(path)}): train it first")
-    return path
+# --------------------------------------------------------------------------- evaluation
 
 
 def evaluation_config(cfg, overrides: Sequence[str] = ()):
@@ -124,175 +94,6 @@ def evaluation_config(cfg, overrides: Sequence[str] = ()):
                 "(the rest is the run's trained configuration)"
             )
     return apply_overrides(cfg, overrides) if overrides else cfg
-
-
-def _expected_keys(spec: MethodSpec) -> dict[str, str]:
-    return dict(item.split("=", 1) for item in spec.train_overrides)
-
-
-def baseline_mismatch(spec: MethodSpec, path: Path, cfg, baseline_cfg) -> str | None:
-    """Why the baseline run at ``path`` cannot stand for ``spec`` next to ``cfg`` (None: it can)."""
-    flat = {"doe.kind": baseline_cfg.doe.kind, "net.architecture": baseline_cfg.net.architecture}
-    for key, value in _expected_keys(spec).items():
-        if key in flat and flat[key] != value:
-            return f"its config has {key}={flat[key]}, expected {value}"
-    for section in SHARED_SECTIONS:
-        if without_statements(section, to_dict(getattr(baseline_cfg, section))) != without_statements(
-            section, to_dict(getattr(cfg, section))
-        ):
-            return f"its {section} section differs from the evaluated run's (a different projector)"
-    return None
-
-
-# --------------------------------------------------------------------------- preparation
-
-
-class MethodBuilder:
-    """Builds :class:`PreparedMethod` objects, sharing designs and tuned NSRs between methods."""
-
-    def __init__(
-        self, run: TrainedRun, cfg: Config, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu"
-    ) -> None:
-        self.device = torch.device(device)
-        self.run = run
-        self.cfg = cfg
-        self.baselines_dir = baselines_dir
-        self.explicit = explicit
-        self.designs: dict[str, OpticalDesign] = {}
-        self.nsr: dict[str, float] = {}
-        self.notes: list[str] = []
-        self.baseline_runs: dict[str, TrainedRun] = {}
-        self._build_doe = build_doe
-        self._train_images: torch.Tensor | None = None
-
-    def design(self, key: str, label: str, doe) -> OpticalDesign:
-        if key not in self.designs:
-            self.designs[key] = OpticalDesign(key, label, doe, self.cfg, self.device)
-        return self.designs[key]
-
-    def lens(self) -> OpticalDesign:
-        return self.design("lens", "lens", self._build_doe(self.cfg, "lens"))
-
-    def run_design(self) -> OpticalDesign:
-        return self.design("run", "doe", self.run.doe)
-
-    def train_images(self) -> torch.Tensor:
-        if self._train_images is None:
-            self._train_images = training_crops(
-                self.cfg, self.cfg.evaluation.wiener_tuning_images, seed=self.cfg.train.seed
-            ).to(self.device)
-        return self._train_images
-
-    def tuned_nsr(self, design: OpticalDesign) -> float:
-        if design.key not in self.nsr:
-            self.nsr[design.key], _ = tune_nsr(design, self.train_images(), self.cfg)
-        return self.nsr[design.key]
-
-    def tuned_ensemble_nsr(self, design: OpticalDesign) -> float:
-        key = f"{design.key}+ensemble"
-        if key not in self.nsr:
-            self.nsr[key], _ = tune_ensemble_nsr(design, self.train_images(), self.cfg)
-        return self.nsr[key]
-
-    def baseline(self, spec: MethodSpec) -> TrainedRun | None:
-        """The separate run of ``spec``, or None (with a note) when it is missing or unsuitable."""
-        if spec.run_dir is None:
-            raise EdofprojError(f"method {spec.name} has no separate run")
-        path = self.baselines_dir / spec.run_dir
-        if not last_checkpoint_path(path).is_file():
-            reason = f"no trained run at '{path}'"
-            hint = " ".join(f"--set {o}" for o in spec.train_overrides)
-            if self.explicit:
-                raise EdofprojError(
-                    f"method {spec.name} needs {reason} (train one: edofproj train --config "
-                    f"<config> --out {path} {hint})"
-                )
-            self.notes.append(f"{spec.name} skipped: {reason}")
-            return None
-        baseline = load_run(path)
-        problem = baseline_mismatch(spec, path, self.cfg, baseline.cfg)
-        if problem:
-            if self.explicit:
-                raise EdofprojError(f"method {spec.name}: the run '{path}' does not fit: {problem}")
-            self.notes.append(f"{spec.name} skipped: the run '{path}' does not fit: {problem}")
-            return None
-        self.baseline_runs[spec.name] = baseline
-        return baseline
-
-    def build_all(self, specs, progress: StageProgress) -> list[PreparedMethod]:
-        """Every method of ``specs`` that can be built here (the others leave a note), advancing ``progress``
-        once per method; raises :class:`EdofprojError` when none can."""
-        prepared = []
-        for spec in specs:
-            method = self.build(spec)
-            if method is not None:
-                prepared.append(method)
-            progress.advance(1, detail=spec.name)
-        if not prepared:
-            raise EdofprojError("no method could be evaluated: " + "; ".join(self.notes))
-        return prepared
-
-    def build(self, spec: MethodSpec) -> PreparedMethod | None:
-        baseline = self.baseline(spec) if spec.needs_separate_run else None
-        if spec.needs_separate_run and baseline is None:
-            return None
-        if spec.optics == "lens":
-            design = self.lens()
-        elif spec.optics == "run":
-            design = self.run_design()
-        else:
-            if baseline is None or spec.run_dir is None:
-                raise EdofprojError(f"method {spec.name}: optics '{spec.optics}' needs a separate run")
-            design = self.design(spec.run_dir, spec.name.split("+")[0], baseline.doe)
-        detail = ""
-        if spec.compensation == "none":
-            compensate = no_compensation
-        elif spec.compensation == "wiener":
-            nsr = self.tuned_nsr(design)
-            compensate = WienerCompensation(nsr)
-            near_mm, far_mm = score_range_mm(self.cfg)
-            detail = (
-                f"NSR {nsr:.3g}, tuned for {self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops "
-                f"at {near_mm:.0f}-{far_mm:.0f} mm"
-            )
-        elif spec.compensation == "ensemble":
-            nsr = self.tuned_ensemble_nsr(design)
-            radius = ensemble_radius(self.cfg)
-            depths_m = ensemble_depths_m(self.cfg)
-            compensate = EnsembleWienerCompensation(design.psf(depths_m), nsr, radius)
-            near_mm, far_mm = score_range_mm(self.cfg)
-            detail = (
-                f"{len(depths_m)} depths uniform in 1/z over {near_mm:.0f}-{far_mm:.0f} mm, "
-                f"{2 * radius + 1}x{2 * radius + 1} taps, NSR {nsr:.3g} tuned for "
-                f"{self.cfg.evaluation.wiener_tuning_metric.upper()} on training crops"
-            )
-        elif spec.compensation == "cls":
-            compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
-            detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
-        else:
-            source = baseline if baseline is not None else self.run
-            net = source.net.to(self.device)
-            guarded = self.cfg.evaluation.display_guard and network_filter(net) is not None
-            near_mm, far_mm = score_range_mm(self.cfg)
-            compensate = (
-                GuardedNetworkCompensation(net, design.psf(guard_depths_m(near_mm * 1e-3, far_mm * 1e-3)))
-                if guarded
-                else NetworkCompensation(net)
-            )
-            loss = source.cfg.loss
-            perceptual = (
-                f" + {loss.beta:g} (1 - {loss.perceptual.upper()})"
-                if loss.beta > 0 and loss.perceptual != "none"
-                else ""
-            )
-            detail = (
-                f"{describe_network(source.cfg.net)}, loss {loss.alpha:g} MSE{perceptual}, {source.step} steps "
-                f"({source.run_dir})" + ("; display guard on" if guarded else "")
-            )
-        return PreparedMethod(spec, design, compensate, detail)
-
-
-# --------------------------------------------------------------------------- evaluation
 
 
 @dataclass(frozen=True)

@@ -34,13 +34,13 @@ import torch
 from ..config import apply_overrides
 from ..data import evaluation_images
 from ..errors import EdofprojError
+from ..methods.catalogue import select_methods
+from ..methods.designs import OpticalDesign
 from ..metrics import ssim_map
 from ..optics.geometry import ProjectorGeometry
 from ..progress import StageProgress
 from ..scenes import BUILTIN_SCENES, cast_scene, check_scene_depth_range, load_scene, render_scene
 from ..scenes.render import scene_layers_m
-from .designs import OpticalDesign
-from .methods import select_methods
 from .pipeline import open_run
 from .results import MetricsTable
 

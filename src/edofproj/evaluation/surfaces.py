@@ -48,9 +48,11 @@ from ..data import evaluation_images
 from ..data.textures import surface_reflectance
 from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
+from ..methods.builder import PreparedMethod
+from ..methods.catalogue import select_methods
+from ..methods.compensators import score_range_mm
 from ..metrics import psnr, ssim
 from ..progress import StageProgress
-from .methods import PreparedMethod, score_range_mm, select_methods
 from .pipeline import open_run
 from .results import MetricsTable
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..evaluation.methods import OURS
 from ..evaluation.results import MetricsTable
+from ..methods.catalogue import OURS
 
 
 @dataclass

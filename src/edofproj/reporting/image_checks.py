@@ -9,8 +9,8 @@ from ..evaluation.image_checks import (
     behind_linear_filter,
     channel_imbalances,
 )
-from ..evaluation.methods import OURS
 from ..evaluation.results import MetricsTable
+from ..methods.catalogue import OURS
 from .document import Paragraph, Table
 
 

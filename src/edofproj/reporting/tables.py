@@ -20,8 +20,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import EdofprojError
-from ..evaluation.methods import METHOD_NAMES, method_spec
 from ..evaluation.results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
+from ..methods.catalogue import METHOD_NAMES, method_spec
 from .document import Table
 
 

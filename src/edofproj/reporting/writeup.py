@@ -16,9 +16,9 @@ from typing import Sequence
 import numpy as np
 
 from ..doe import build_doe
-from ..evaluation.designs import OpticalDesign
-from ..evaluation.methods import METHOD_NAMES
 from ..evaluation.results import METRIC_LABELS, headline_metrics
+from ..methods.catalogue import METHOD_NAMES
+from ..methods.designs import OpticalDesign
 from ..progress import StageProgress
 from ..runs import FIGURES_DIR
 from ..runs.figures import plot_doe_profile
