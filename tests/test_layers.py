@@ -27,6 +27,7 @@ LAYERS = [
         "limits",
         "progress",
         "builtin_runs",
+        "machine",
     },  # foundation
     {"optics"},
     {"doe"},

@@ -67,7 +67,7 @@ def photometric_input(
 
 
 def compensate_on_surface(
-    net: torch.nn.Module,
+    net: Callable[..., torch.Tensor],
     target: torch.Tensor,
     capture: np.ndarray,
     calibration: ProCamsCalibration,
@@ -98,7 +98,7 @@ class SurfaceLoop:
     is the absolute light ``I*`` the surface's ambient is measured in (module docstring).
     """
 
-    def __init__(self, calibration: ProCamsCalibration, net: torch.nn.Module, what: str = "live") -> None:
+    def __init__(self, calibration: ProCamsCalibration, net: Callable[..., torch.Tensor], what: str = "live") -> None:
         self.aware = isinstance(net, SurfaceAwareNet)
         self.surface = measured_surface(calibration, what)
         black = calibration.color.camera_to_output(calibration.black_image, np.zeros(3)).astype(np.float32)

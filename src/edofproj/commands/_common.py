@@ -36,6 +36,29 @@ def run_directory(text: str) -> str:
 RUN_HELP_SUFFIX = " or a built-in run (builtin:cpu-doe-net)"
 
 
+def add_method_options(parser: argparse.ArgumentParser, blind_only: bool = False) -> None:
+    """``--method NAME`` (default: the run's own network, as ``evaluate`` scores it) and ``--baselines DIR``."""
+    from ..methods.catalogue import METHOD_NAMES, OURS  # no torch: the catalogue is plain data
+
+    parser.add_argument(
+        "--method",
+        default=OURS,
+        choices=METHOD_NAMES,
+        metavar="NAME",
+        help=f"the compensation method, exactly as 'edofproj evaluate' scores it (default: {OURS}, the run's own "
+        "network, behind its display guard where the run has one); "
+        + ("a blind one of: " if blind_only else "one of: ")
+        + ", ".join(METHOD_NAMES),
+    )
+    parser.add_argument(
+        "--baselines",
+        default=None,
+        metavar="DIR",
+        help="where the separate runs of the baseline networks are (lens_net, cubic_net, ...; default: the run's "
+        "parent directory)",
+    )
+
+
 def add_design_source_argument(parser: argparse.ArgumentParser) -> None:
     """The positional ``RUN|DESIGN_FILE`` (into ``args.source``): a run directory holding ``doe.npz``,
     a built-in run, or a DOE ``.npz`` file."""

@@ -3,9 +3,12 @@
 Methods: ``wiener`` (non-blind Wiener with a cached filter: SciPy FFT and PyTorch), ``unet``
 (the compensation network: PyTorch with channels_last in inference mode, and ONNX Runtime),
 ``onlineprodeb`` (the baseline re-implementation, PyTorch and ONNX Runtime) and ``cls``
-(box-constrained least squares, 100 iterations, PyTorch). The network is the one of
-``--run`` (trained weights) or an untrained one of ``--widths``: the cost does not depend on
-the weights. Each case runs on the CPU, and on CUDA when available (timed with CUDA events,
+(box-constrained least squares, 100 iterations, PyTorch). With ``--run``, ``unet`` times what
+``compensate`` and ``live`` run for that run's ``--method`` (default: its own network, behind its
+display guard where it has one, built as ``edofproj evaluate`` scores it) and, when a guard is
+part of it, the bare network beside it; without ``--run`` an untrained network of ``--widths``
+(the cost does not depend on the weights). The header names the CPU's instruction sets
+(:mod:`edofproj.machine`). Each case runs on the CPU, and on CUDA when available (timed with CUDA events,
 and each PyTorch case also replayed as a CUDA graph, ``torch+graph``). The median over
 ``--repeats`` timed frames after ``--warmup`` frames is reported.
 """
@@ -18,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, parse_name_list, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, parse_name_list, run_directory
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
 DEFAULT_SIZES = "256x256,600x800,768x1024"
@@ -45,8 +48,9 @@ def register(subparsers) -> None:
         "--run",
         default=None,
         type=run_directory,
-        help="time the trained network of this run directory" + RUN_HELP_SUFFIX,
+        help="time what compensate runs for this run directory (its --method)" + RUN_HELP_SUFFIX,
     )
+    add_method_options(p)
     p.add_argument(
         "--widths",
         default=None,
@@ -101,6 +105,7 @@ def run(args) -> int:
     from ..evaluation import timing
     from ..evaluation.timing import disk_psf
     from ..fileio import write_text_atomic
+    from ..machine import instruction_sets
 
     sizes = timing.parse_sizes(args.sizes)
     for height, width in sizes:  # every size is refused before the first is timed
@@ -132,16 +137,17 @@ def run(args) -> int:
     cfg = Config()
     net = None
     net_label = "unet"
+    networks = []
     if "unet" in methods:
         if args.run:
-            from ..runs import last_checkpoint_path, load_run
+            from ..methods.builder import build_method
 
-            if not last_checkpoint_path(args.run).is_file():
-                raise EdofprojError(
-                    f"run '{args.run}' has no checkpoint ({last_checkpoint_path(args.run)}): train it first"
-                )
-            trained = load_run(args.run)
-            cfg, net, net_label = trained.cfg, trained.net, trained.cfg.net.architecture
+            shipped = build_method(args.run, args.method, args.baselines)
+            if shipped.module is None:
+                raise EdofprojError(f"--method {shipped.name} has no network to time (the linear filter is 'wiener')")
+            cfg, net, net_label = shipped.design.cfg, shipped.module, shipped.name
+            if shipped.network is not None and shipped.network is not shipped.module:
+                networks.append((f"{shipped.name} without guard", shipped.network))
         else:
             net = network_from_widths(
                 args.widths or "default", args.space_to_depth, args.prefilter_bins, args.architecture
@@ -149,9 +155,8 @@ def run(args) -> int:
             net_label = args.architecture
     psf = disk_psf(args.window if args.window is not None else cfg.psf.window)
 
-    networks = []
     if net is not None:
-        networks.append((net_label, net))
+        networks.insert(0, (net_label, net))
     if "onlineprodeb" in methods:
         from ..compensation.onlineprodeb import OnlineProDebNet
 
@@ -216,7 +221,8 @@ def run(args) -> int:
     threads = args.threads or torch.get_num_threads()
     gpu = f", GPU {torch.cuda.get_device_name()}" if any(t.device.startswith("cuda") for t in results) else ""
     print(
-        f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()}{gpu}, "
+        f"edofproj bench: torch {torch.__version__}, {threads} CPU thread(s) of {os.cpu_count()} "
+        f"[{instruction_sets()}]{gpu}, "
         f"PSF window {psf.shape[-1]}, median of {args.repeats} frames (ms per 3-channel frame; "
         f"CUDA: CUDA events)"
     )

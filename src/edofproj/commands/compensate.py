@@ -1,4 +1,4 @@
-"""``edofproj compensate``: the trained network on image files -> the image to send to the projector.
+"""``edofproj compensate``: a run's compensation method on image files -> the image to send to the projector.
 
     edofproj compensate RUN --image TARGET --capture CAPTURED --out PROJ.png
     edofproj compensate RUN --image TARGET --depth-mm Z --out PROJ.png [--preview SHOWN.png]
@@ -6,7 +6,10 @@
     edofproj compensate RUN (--images DIR | --video FILE) (--depth-mm Z | --depth-map MAP.npy)
                         --out (FOLDER | VIDEO.avi | VIDEO.mp4) [--calib calib.npz]
 
-The network computes ``x = net(I, I*)`` from the desired image ``I`` and the uncompensated
+``--method NAME`` chooses the method, built from the run exactly as ``edofproj evaluate`` builds
+and scores it (:mod:`edofproj.methods`); the default is the run's own network (``doe+net``),
+behind its display guard where the run has one. The network computes ``x = net(I, I*)`` from the
+desired image ``I`` and the uncompensated
 projection ``I*``: either a camera capture already warped into projector space (``--capture``,
 same size as the target) or the simulated capture ``I* = project(I, p_z)`` of the run's DOE on a
 flat screen at ``--depth-mm``. ``x`` is clamped to ``[0, 1]`` (what a projector can emit) and
@@ -51,16 +54,17 @@ import math
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "compensate",
-        help="compute the projector image for a target with a trained network",
+        help="compute the projector image for a target with a run's compensation method",
         description=__doc__.split("\n")[0],
     )
     p.add_argument("run", metavar="RUN", type=run_directory, help="trained run directory" + RUN_HELP_SUFFIX)
+    add_method_options(p)
     targets = p.add_mutually_exclusive_group(required=True)
     targets.add_argument("--image", default=None, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
     targets.add_argument("--images", default=None, metavar="DIR", help="a folder of target images (with --depth-mm)")
@@ -143,8 +147,6 @@ def run(args) -> int:
 
     from ..compensation.closed_loop import closed_loop, flat_screen
     from ..imaging.image_io import check_output_path, read_image, write_image
-    from ..methods.builder import require_trained_run
-    from ..runs import load_run
 
     if args.calib is not None and args.capture is None:
         raise EdofprojError("--calib goes with --capture (a raw camera frame to rectify)")
@@ -155,7 +157,7 @@ def run(args) -> int:
     check_output_path(args.out, args.bits)
     if args.preview is not None:
         check_output_path(args.preview, args.bits)
-    trained = load_run(require_trained_run(args.run))
+    method = _build_method(args)
     target = read_image(args.image).unsqueeze(0)
     psf = None
     calibration = None
@@ -166,9 +168,9 @@ def run(args) -> int:
 
         calibration = ProCamsCalibration.load(args.calib)
         calibration.check_projector_hw((target.shape[-2], target.shape[-1]), what=f"--image '{args.image}'")
-        if args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet):
+        if args.surface_from_calib or isinstance(method.network, SurfaceAwareNet):
             return _compensate_on_surface(
-                args, trained.net, target, calibration, read_rgb(args.capture, what="capture")
+                args, _surface_network(method), target, calibration, read_rgb(args.capture, what="capture")
             )
         light = calibration.to_output_space(read_rgb(args.capture, what="capture"))
         captured = torch.from_numpy(light.astype("float32").transpose(2, 0, 1).copy())[None]
@@ -180,13 +182,12 @@ def run(args) -> int:
                 f"{captured.shape[-2]}x{captured.shape[-1]} px (height x width): warp the capture to projector space"
             )
     else:
-        from ..methods.designs import OpticalDesign
-
-        psf = OpticalDesign("run", "doe", trained.doe, trained.cfg).psf([args.depth_mm * 1e-3])
+        psf = method.design.psf([args.depth_mm * 1e-3])
+    compensate = method.frame_function(psf)  # a non-blind method without a simulated screen: refused here
     with torch.inference_mode():
-        # a simulated screen runs the whole loop (its projection is the preview); a capture, the network alone
-        loop = closed_loop(target, flat_screen(psf), trained.net) if psf is not None else None
-        emitted = loop.emitted if loop is not None else trained.net(target, captured).clamp(0.0, 1.0)
+        # a simulated screen runs the whole loop (its projection is the preview); a capture, the method alone
+        loop = closed_loop(target, flat_screen(psf), compensate) if psf is not None else None
+        emitted = loop.emitted if loop is not None else compensate(target, captured).clamp(0.0, 1.0)
     if calibration is not None:
         write_image(args.out, calibration.to_projector_input(emitted)[0], bits=args.bits)
         print(
@@ -194,7 +195,7 @@ def run(args) -> int:
         )
         return 0
     write_image(args.out, emitted[0], bits=args.bits)
-    print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px, height x width)")
+    print(f"wrote {args.out} ({target.shape[-2]}x{target.shape[-1]} px, height x width; method {method.name})")
     if args.preview is not None:
         if loop is None:  # refused above: --preview needs --depth-mm, which excludes --capture
             raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
@@ -206,6 +207,24 @@ def run(args) -> int:
             f"uncompensated projection {_quality(loop.captured, target)}"
         )
     return 0
+
+
+def _build_method(args):
+    """The method ``--method`` of the run, built as ``evaluate`` builds it (:func:`edofproj.methods.builder.build_method`)."""
+    from ..methods.builder import build_method
+
+    return build_method(args.run, args.method, args.baselines)
+
+
+def _surface_network(method):
+    """What compensates on the calibration's surface: a surface-aware network itself (given the
+    surface, as ``evaluate --surface`` scores ``doe+surface-net``); any other method in cascade after
+    the photometric correction, as the method ``M+photometric`` is scored."""
+    from ..compensation.surface_net import SurfaceAwareNet
+
+    if isinstance(method.network, SurfaceAwareNet):
+        return method.network.eval()
+    return method.frame_function()
 
 
 def _compensate_on_surface(args, net, target, calibration, capture) -> int:
@@ -298,9 +317,6 @@ def run_batch(args) -> int:
     from ..compensation.surface_net import SurfaceAwareNet
     from ..imaging.projection import projection_bytes
     from ..limits import check_memory
-    from ..methods.builder import require_trained_run
-    from ..methods.designs import OpticalDesign
-    from ..runs import load_run
 
     if args.depth_mm is None and args.depth_map is None:  # the parser's group asks for one of them or --capture
         raise EdofprojError(
@@ -321,26 +337,33 @@ def run_batch(args) -> int:
         raise EdofprojError(
             f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"
         )
-    trained = load_run(require_trained_run(args.run))
+    method = _build_method(args)
+    if not method.blind and args.depth_map is not None:
+        raise EdofprojError(
+            f"method {method.name} is not blind: it needs one PSF, which only a flat screen (--depth-mm) gives"
+        )
+    surface_aware = isinstance(method.network, SurfaceAwareNet)
     calibration = None
     if args.calib is not None:
         from ..procams.calibration import ProCamsCalibration
 
         calibration = ProCamsCalibration.load(args.calib)
-        if calibration.has_surface and not (args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet)):
+        if calibration.has_surface and not (args.surface_from_calib or surface_aware):
             print(
                 f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
                 file=sys.stderr,
             )
     source = open_frames(args.images, args.video, calibration.projector_hw if calibration is not None else None)
     H, W = source.size_hw
-    design = OpticalDesign("run", "doe", trained.doe, trained.cfg)
+    design = method.design
+    cfg = method.design.cfg
+    psf = None
     if args.depth_map is not None:
         from ..scenes.render import render_masked_depth_map
         from .render import load_depth_map_m
 
         depth_map_m = load_depth_map_m(args.depth_map, (H, W))
-        layers = int(trained.cfg.imaging.depth_layers)
+        layers = int(cfg.imaging.depth_layers)
 
         def forward(images):
             return render_masked_depth_map(images, depth_map_m, design.psf, layers)
@@ -348,10 +371,11 @@ def run_batch(args) -> int:
         screen = f"depth map {np.nanmin(depth_map_m) * 1e3:.0f}-{np.nanmax(depth_map_m) * 1e3:.0f} mm"
     else:
         layers = 1
-        forward = flat_screen(design.psf([args.depth_mm * 1e-3]))
+        psf = design.psf([args.depth_mm * 1e-3])
+        forward = flat_screen(psf)
         screen = f"flat screen at {args.depth_mm:g} mm"
     check_memory(
-        args.batch * projection_bytes(H, W, trained.cfg.psf.window, layers),
+        args.batch * projection_bytes(H, W, cfg.psf.window, layers),
         f"compensating batches of {args.batch} frames of {W}x{H}",
         "lower --batch",
     )
@@ -361,12 +385,12 @@ def run_batch(args) -> int:
         else FolderSink(args.out, bits=args.bits, overwrite=args.overwrite)
     )
     to_input = calibration.inverse_table.apply if calibration is not None else None
-    net = trained.net
-    if calibration is not None and (args.surface_from_calib or isinstance(net, SurfaceAwareNet)):
-        net, forward = _on_surface(args, net, forward, calibration)
+    net = method.frame_function(psf)
+    if calibration is not None and (args.surface_from_calib or surface_aware):
+        net, forward = _on_surface(args, _surface_network(method), forward, calibration)
         screen = f"{screen} on the surface measured in {args.calib}"
     count = source.count or "unknown number of"
-    print(f"compensating the {source.description}: {count} frames of {W}x{H}, for a {screen}")
+    print(f"compensating the {source.description} with {method.name}: {count} frames of {H}x{W}, for a {screen}")
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
         summary = compensate_frames(
             net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update

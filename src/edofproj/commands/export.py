@@ -1,4 +1,9 @@
-"""``edofproj export``: export the compensation network of a trained run (ONNX or TorchScript).
+"""``edofproj export``: export what ``compensate`` runs for a trained run (ONNX or TorchScript).
+
+``--method NAME`` (default: the run's own network, behind its display guard where the run has one)
+is built exactly as ``edofproj evaluate`` scores it and ``compensate`` runs it; its module -- the
+network, or the network and its guard as one graph -- is what is written. Methods without a
+network (the linear filters) have nothing to export.
 
 The export itself (formats, verification, fixed-size ONNX for Fourier networks) is
 :mod:`edofproj.compensation.export`.
@@ -9,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
 
 EXPORT_FORMATS = ("onnx", "torchscript")
 """= ``compensation.export.EXPORT_FORMATS`` (tests/test_cli_help.py checks): not imported, so that
@@ -21,6 +26,7 @@ def register(subparsers) -> None:
         "export", help="export a run's compensation network to ONNX or TorchScript", description=__doc__.split("\n")[0]
     )
     p.add_argument("run", metavar="RUN", type=run_directory, help="a training run directory" + RUN_HELP_SUFFIX)
+    add_method_options(p)
     p.add_argument("--format", choices=EXPORT_FORMATS, default="onnx", help="output format (default: onnx)")
     p.add_argument("--out", default=None, help="output file (default: RUN/net.onnx or RUN/net.torchscript.pt)")
     p.add_argument("--height", type=int, default=256, help="example frame height for tracing (default 256)")
@@ -39,21 +45,22 @@ def run(args) -> int:
         require_onnx,
         verification_sizes,
     )
-    from ..runs import last_checkpoint_path, load_run
+    from ..methods.builder import build_method, require_trained_run
+    from ..runs import load_run
 
-    run_dir = Path(args.run)
-    if not run_dir.is_dir():
-        raise EdofprojError(f"run directory '{run_dir}' does not exist")
-    if not last_checkpoint_path(run_dir).is_file():
-        raise EdofprojError(f"run '{run_dir}' has no checkpoint ({last_checkpoint_path(run_dir)}): train it first")
+    run_dir = require_trained_run(args.run)
     if args.format == "onnx":
         require_onnx()
     if not args.out:
         require_output_outside(run_dir, "--out")
     out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
-    trained = load_run(run_dir)
-    worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)
-    fixed_size = args.format == "onnx" and fixed_size_onnx(trained.net)
+    method = build_method(run_dir, args.method, args.baselines)
+    module = method.module
+    if module is None:
+        raise EdofprojError(f"method {method.name} has no network to export (a linear filter: nothing trained)")
+    step = load_run(run_dir).step if method.spec.run_dir is None else None
+    worst = export_network(module, out, args.format, args.height, args.width, verify=not args.no_verify)
+    fixed_size = args.format == "onnx" and fixed_size_onnx(module)
     checked = (
         ""
         if args.no_verify
@@ -68,5 +75,10 @@ def run(args) -> int:
         dynamic = f"torch.export, for 1x3x{args.height}x{args.width} frames only (Fourier filter)"
     else:
         dynamic = f"opset {ONNX_OPSET}, dynamic batch/height/width"
-    print(f"wrote {out} ({args.format}, {dynamic}, step {trained.step}{checked})")
+    what = f"method {method.name}" + (", display guard in the graph" if module is not method.network else "")
+    print(
+        f"wrote {out} ({args.format}, {what}, {dynamic}"
+        + (f", step {step}" if step is not None else "")
+        + f"{checked})"
+    )
     return 0

@@ -3,7 +3,9 @@
     edofproj live RUN --calib calib.npz --camera SPEC --display SPEC (--image F | --images DIR | --video F)
 
 For each frame: show the target ``I``, capture ``I*``, rectify it into projector space,
-compensate with the run's network, show ``Î`` (through the inverse of the measured projector
+compensate with the run's method (``--method``, default the run's own network behind its display
+guard where it has one, built exactly as ``edofproj evaluate`` scores it; a blind method: the loop
+does not know the screen's depth), show ``Î`` (through the inverse of the measured projector
 response). Display, camera and network run in their own threads, so a frame is captured while
 the previous one is computed. Prints each frame, then the throughput (frames/s), the latency
 (target taken -> compensated frame shown; median and 99th percentile) and each stage's median
@@ -24,7 +26,7 @@ surface in the calibration is not used (a note says so).
 from __future__ import annotations
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
 
 DEFAULT_STALL_TIMEOUT_S = 2.0  # application.live.DEFAULT_STALL_TIMEOUT_S, not imported: --help stays fast
 
@@ -38,6 +40,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "run", metavar="RUN", type=run_directory, help="trained (or fine-tuned) run directory" + RUN_HELP_SUFFIX
     )
+    add_method_options(p, blind_only=True)
     p.add_argument("--calib", required=True, help="calibration .npz (from 'procams calibrate')")
     add_device_options(p)
     source = p.add_mutually_exclusive_group(required=True)
@@ -74,21 +77,28 @@ def run(args) -> int:
     from ..application.live import frame_source, run_live
     from ..application.surface_frames import SurfaceLoop
     from ..compensation.surface_net import SurfaceAwareNet
-    from ..methods.builder import require_trained_run
+    from ..methods.builder import build_method
     from ..procams.calibration import ProCamsCalibration
-    from ..runs import load_run
     from .procams.devices import open_devices
 
     if args.frames is not None and args.frames < 1:
         raise EdofprojError(f"--frames {args.frames} must be >= 1")
-    trained = load_run(require_trained_run(args.run))
+    method = build_method(args.run, args.method, args.baselines)
+    if not method.blind:
+        raise EdofprojError(
+            f"--method {method.name} is not blind: it needs the screen's PSF, which the live loop does not know"
+        )
     calibration = ProCamsCalibration.load(args.calib)
     surface = None
-    if args.surface_from_calib or isinstance(trained.net, SurfaceAwareNet):
+    # a surface-aware network is given the surface (doe+surface-net); any other method runs after the
+    # photometric correction (M+photometric), as evaluate --surface scores them
+    surface_aware = isinstance(method.network, SurfaceAwareNet)
+    net = method.network.eval() if surface_aware and method.network is not None else method.frame_function()
+    if args.surface_from_calib or surface_aware:
         what = (
             "--surface-from-calib" if args.surface_from_calib else "the run's surface-aware network (net.surface_input)"
         )
-        surface = SurfaceLoop(calibration, trained.net, what)
+        surface = SurfaceLoop(calibration, net, what)
     elif calibration.has_surface:
         print(
             f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
@@ -105,9 +115,12 @@ def run(args) -> int:
 
     with display, camera:
         H, W = calibration.projector_hw
-        print(f"live: {W}x{H} projector, camera '{camera.spec}', display '{display.spec}' (Ctrl-C stops)")
+        print(
+            f"live: {H}x{W} projector, method {method.name}, camera '{camera.spec}', display '{display.spec}' "
+            "(Ctrl-C stops)"
+        )
         summary = run_live(
-            trained.net,
+            net,
             calibration,
             display,
             camera,

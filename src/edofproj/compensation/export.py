@@ -61,8 +61,13 @@ def require_onnx(fourier: bool = False) -> None:
 
 def fixed_size_onnx(net: torch.nn.Module) -> bool:
     """Whether an ONNX export of ``net`` is for one frame size only: it holds a radial Fourier
-    filter or a linear base filter (an FFT convolution; module docstring)."""
-    return getattr(net, "prefilter", None) is not None or getattr(net, "linear_base", None) is not None
+    filter or a linear base filter (an FFT convolution; module docstring), or says so itself
+    (``fixed_size_export``: a network behind its display guard, whose projections are FFTs)."""
+    return (
+        getattr(net, "prefilter", None) is not None
+        or getattr(net, "linear_base", None) is not None
+        or bool(getattr(net, "fixed_size_export", False))
+    )
 
 
 def verification_sizes(height: int, width: int, fixed_size: bool = False) -> list[tuple[int, int]]:

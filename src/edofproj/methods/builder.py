@@ -76,6 +76,12 @@ class PreparedMethod:
         return self.spec.blind
 
     @property
+    def network(self) -> torch.nn.Module | None:
+        """The trained network the method runs (without its guard), None for a method without one."""
+        compensate = self.compensate
+        return compensate.net if isinstance(compensate, (GuardedNetworkCompensation, NetworkCompensation)) else None
+
+    @property
     def module(self) -> torch.nn.Module | None:
         compensate = self.compensate
         if isinstance(compensate, GuardedNetworkCompensation):

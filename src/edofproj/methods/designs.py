@@ -43,6 +43,7 @@ class OpticalDesign:
         self.key = key
         self.label = label
         self.doe = doe
+        self.cfg = cfg
         self.engine = design_engine(doe, cfg.psf.engine)
         self._simulator = simulator_from_config(cfg, engine=self.engine)
         self._cache: dict[int, torch.Tensor] = {}
