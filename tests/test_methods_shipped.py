@@ -32,9 +32,24 @@ SAFE = [
     "net.linear_radius=5",
     "net.correction_bound=0.2",
     "train.linear_every=2",
+    "psf.pupil_samples=512",  # the axicon's phase needs 512 samples
 ]
-#: Methods of the tiny runs (cubic, axicon and OnlineProDeb have no run here).
-METHODS = ("lens", "lens+wiener", "lens+cls", "lens+net", "doe", "doe+wiener", "doe+ensemble", "doe+net")
+#: Methods of the tiny runs (the cubic, axicon and OnlineProDeb networks have no run here; the classic
+#: elements' linear baselines need none).
+METHODS = (
+    "lens",
+    "lens+wiener",
+    "lens+cls",
+    "lens+net",
+    "doe",
+    "doe+wiener",
+    "doe+ensemble",
+    "doe+net",
+    "axicon",
+    "axicon+ensemble",
+    "multifocal+wiener",
+    "multifocal+ensemble",
+)
 DEPTH_MM = 300.0
 HW = (48, 64)  # = evaluation.image_size of TINY_EVALUATION: the evaluation's centre crop is the image itself
 #: 16-bit files: half a step of quantization, plus float rounding.

@@ -30,7 +30,7 @@ from ..doe import build_doe
 from ..errors import EdofprojError
 from ..progress import StageProgress
 from ..runs import CONFIG_NAME, TrainedRun, last_checkpoint_path, load_run
-from .catalogue import OURS, MethodSpec, method_spec
+from .catalogue import CLASSIC_ELEMENTS, OURS, MethodSpec, method_spec
 from .compensators import (
     Compensator,
     ConstrainedCompensation,
@@ -142,7 +142,12 @@ class MethodBuilder:
     """Builds :class:`PreparedMethod` objects, sharing designs and tuned NSRs between methods."""
 
     def __init__(
-        self, run: TrainedRun, cfg: Config, baselines_dir: Path, explicit: bool, device: str | torch.device = "cpu"
+        self,
+        run: TrainedRun | None,
+        cfg: Config,
+        baselines_dir: Path,
+        explicit: bool,
+        device: str | torch.device = "cpu",
     ) -> None:
         self.device = torch.device(device)
         self.run = run
@@ -165,7 +170,12 @@ class MethodBuilder:
         return self.design("lens", "lens", self._build_doe(self.cfg, "lens"))
 
     def run_design(self) -> OpticalDesign:
-        return self.design("run", "doe", self.run.doe)
+        return self.design("run", "doe", self._require_run().doe)
+
+    def _require_run(self) -> TrainedRun:
+        if self.run is None:
+            raise EdofprojError("this method needs a trained run (its DOE or its network); none was given")
+        return self.run
 
     def train_images(self) -> torch.Tensor:
         if self._train_images is None:
@@ -231,6 +241,8 @@ class MethodBuilder:
             design = self.lens()
         elif spec.optics == "run":
             design = self.run_design()
+        elif spec.optics in CLASSIC_ELEMENTS:
+            design = self.design(spec.optics, spec.optics, self._build_doe(self.cfg, spec.optics))
         else:
             if baseline is None or spec.run_dir is None:
                 raise EdofprojError(f"method {spec.name}: optics '{spec.optics}' needs a separate run")
@@ -261,7 +273,7 @@ class MethodBuilder:
             compensate = ConstrainedCompensation(self.cfg.evaluation.cls_iterations)
             detail = f"{self.cfg.evaluation.cls_iterations} FISTA iterations"
         else:
-            source = baseline if baseline is not None else self.run
+            source = baseline if baseline is not None else self._require_run()
             net = source.net.to(self.device)
             guarded = self.cfg.evaluation.display_guard and network_filter(net) is not None
             near_mm, far_mm = score_range_mm(self.cfg)

@@ -29,7 +29,16 @@ name                 optics            compensation
 ``doe+net``          the run's DOE     the run's jointly trained U-Net (ours)
 ``cubic+net``        cubic phase plate the U-Net trained with that plate (a separate run)
 ``axicon+net``       axicon            the U-Net trained with that axicon (a separate run)
+``X``                classic element X none; X one of ``cubic``, ``axicon``, ``multifocal``, built
+                                       from the run's configuration (``doe.cubic_waves``,
+                                       ``doe.axicon_near_mm``/``far_mm``, ``doe.multifocal_foci_mm``)
+``X+wiener``         classic element X Wiener, NSR tuned for this design (non-blind)
+``X+ensemble``       classic element X the design's depth-ensemble Wiener filter (blind)
 ==================== ================= =====================================================
+
+The classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) are scored when asked
+for by name (``--methods``; :attr:`MethodSpec.default` is False): their parameters are those of the
+evaluated run's configuration, which ``edofproj tune-classic`` chooses for a projector and a range.
 
 **Blind and non-blind.** A *blind* method knows nothing of the screen's depth or PSF at run
 time: no compensation, the networks (they see ``I`` and the simulated capture ``I*``, their
@@ -55,8 +64,10 @@ from ..errors import EdofprojError
 class MethodSpec:
     """A method's definition: which optics, which compensation, and which run provides them.
 
-    ``optics``: ``"lens"`` (the bare lens), ``"run"`` (the evaluated run's DOE) or
-    ``"baseline"`` (the DOE of the separate run ``run_dir``). ``compensation``: ``"none"``,
+    ``optics``: ``"lens"`` (the bare lens), ``"run"`` (the evaluated run's DOE),
+    ``"baseline"`` (the DOE of the separate run ``run_dir``) or a classic element of
+    :data:`CLASSIC_ELEMENTS` built from the evaluated run's configuration. ``default``: scored when no
+    method is named. ``compensation``: ``"none"``,
     ``"wiener"``, ``"cls"``, ``"ensemble"`` (one depth-ensemble Wiener filter) or ``"net"`` (the network of the evaluated run when ``run_dir`` is
     None, else of ``run_dir``). ``train_overrides``: config overrides that turn the evaluated
     run's configuration into this baseline's training run.
@@ -68,6 +79,7 @@ class MethodSpec:
     summary: str
     run_dir: str | None = None
     train_overrides: tuple[str, ...] = field(default_factory=tuple)
+    default: bool = True
 
     @property
     def needs_separate_run(self) -> bool:
@@ -77,6 +89,27 @@ class MethodSpec:
     def blind(self) -> bool:
         """True when the method runs without knowing the screen's depth or PSF (module docstring)."""
         return self.compensation not in NON_BLIND_COMPENSATIONS
+
+
+#: Classic EDOF elements whose linear baselines are built from a configuration (``doe.kind`` values).
+CLASSIC_ELEMENTS = ("cubic", "axicon", "multifocal")
+CLASSIC_LABELS = {"cubic": "cubic phase plate", "axicon": "axicon", "multifocal": "multifocal zones"}
+
+
+def classic_linear_methods(kind: str) -> tuple[MethodSpec, ...]:
+    """``X``, ``X+wiener`` and ``X+ensemble`` of the classic element ``kind`` (not scored by default)."""
+    label = CLASSIC_LABELS[kind]
+    return (
+        MethodSpec(kind, kind, "none", f"{label}, no compensation", default=False),
+        MethodSpec(f"{kind}+wiener", kind, "wiener", f"{label} + non-blind Wiener deconvolution", default=False),
+        MethodSpec(
+            f"{kind}+ensemble",
+            kind,
+            "ensemble",
+            f"{label} + its depth-ensemble Wiener filter for every depth (blind linear baseline)",
+            default=False,
+        ),
+    )
 
 
 #: Compensations that are given the exact PSF of each depth.
@@ -128,6 +161,7 @@ METHODS: tuple[MethodSpec, ...] = (
         run_dir="axicon_net",
         train_overrides=("doe.kind=axicon",),
     ),
+    *(spec for kind in CLASSIC_ELEMENTS for spec in classic_linear_methods(kind)),
 )
 
 METHOD_NAMES: tuple[str, ...] = tuple(m.name for m in METHODS)
@@ -145,8 +179,8 @@ def method_spec(name: str) -> MethodSpec:
 
 
 def select_methods(names: Sequence[str] | None) -> list[MethodSpec]:
-    """The specs of ``names`` in the canonical order (None or empty: all methods)."""
+    """The specs of ``names`` in the canonical order (None or empty: every method scored by default)."""
     if not names:
-        return list(METHODS)
+        return [spec for spec in METHODS if spec.default]
     wanted = {method_spec(name).name for name in names}
     return [spec for spec in METHODS if spec.name in wanted]
