@@ -62,7 +62,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
+from ..imaging.image_io import IMAGE_EXTENSIONS, open_video, read_image_array, to_unit_float
 from ..metrics import ssim
 from ..procams.calibration import ProCamsCalibration
 from ..procams.devices import Camera, Display, GrabSettings, grab_frame
@@ -116,7 +116,7 @@ def frame_source(
     if video is not None:
         if not Path(video).is_file():
             raise EdofprojError(f"video '{video}' does not exist")
-        capture = cv2.VideoCapture(video)
+        capture = open_video(video)
         if not capture.isOpened():
             raise EdofprojError(f"OpenCV cannot open the video '{video}'")
         count, number = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0
