@@ -323,8 +323,8 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     if "doe+wiener" in by_name and psf is not None:
         cases.append(timing.wiener_scipy_case(psf, evaluation.nsr.get("run", 1e-3), workers=torch.get_num_threads()))
     for name in (OURS, "lens+onlineprodeb"):
-        if name in by_name:
-            cases.append(timing.network_torch_case(by_name[name].compensate.net, name))
+        if name in by_name:  # the forward pass alone: no display guard (the summary's ms/frame has it)
+            cases.append(timing.network_torch_case(by_name[name].compensate.net, f"{name} network alone"))
     results = timing.time_cases(cases, list(settings.timing_sizes), repeats=settings.timing_repeats, warmup=1)
     if "lens+cls" in by_name and psf is not None:
         cls_case = timing.cls_torch_case(psf, evaluation.cfg.evaluation.cls_iterations)
