@@ -21,6 +21,9 @@ Substitutions, printed with the results:
 
 * a ``folder`` data source whose folder is absent (the paper preset's DIV2K) is replaced by
   ``dead-leaves`` crops of the same size (the cost of a step does not depend on the pixels);
+* a fixed DOE whose file is absent (the realtime preset's ``runs/demo/doe_net/doe.npz``, there
+  once ``edofproj demo`` has run in the current folder) is replaced by the DOE of the shipped
+  reference run, ``builtin:cpu-doe-net`` (a DOE of the same kind and size: the same cost);
 * a DISTS loss whose pretrained weights are absent is timed with randomly initialized VGG16
   weights (same architecture, hence the same compute and memory).
 """
@@ -38,6 +41,29 @@ import time
 from pathlib import Path
 
 DEFAULT_STEPS = {"cpu": 8, "paper": 2}
+#: The DOE a preset's absent fixed DOE file is replaced by (module docstring).
+SHIPPED_DOE = "builtin:cpu-doe-net"
+
+
+def substitutions(preset: str, overrides: list[str]) -> tuple[list[str], list[str]]:
+    """The overrides that stand in for what ``preset`` (with ``overrides``) needs and this machine
+    lacks (module docstring), and a note for each."""
+    from edofproj.config import load_config
+    from edofproj.doe.factory import resolve_doe_file
+    from edofproj.errors import EdofprojError
+
+    extra, notes = [], []
+    cfg = load_config(preset, overrides)
+    if cfg.data.source == "folder" and not Path(cfg.data.folder or "").is_dir():
+        extra += ["data.source=dead-leaves", "data.folder=null"]
+        notes.append(f"data: dead-leaves instead of the absent folder '{cfg.data.folder}'")
+    if cfg.doe.kind == "file":
+        try:
+            resolve_doe_file(str(cfg.doe.path))
+        except EdofprojError:
+            extra.append(f"doe.path={SHIPPED_DOE}")
+            notes.append(f"doe: the DOE of {SHIPPED_DOE} instead of the absent '{cfg.doe.path}'")
+    return extra, notes
 
 
 def stage_seconds(preset: str, threads: int, repeats: int, overrides: list[str]) -> dict:
@@ -57,9 +83,8 @@ def stage_seconds(preset: str, threads: int, repeats: int, overrides: list[str])
     torch.set_num_threads(threads)
     clock = time.process_time if threads == 1 else time.perf_counter
     warnings.simplefilter("ignore")
-    cfg = load_config(preset, overrides)
-    if cfg.data.source == "folder" and not Path(cfg.data.folder or "").is_dir():
-        cfg = load_config(preset, overrides + ["data.source=dead-leaves", "data.folder=null"])
+    extra, notes = substitutions(preset, overrides)
+    cfg = load_config(preset, overrides + extra)
 
     def median(fn, n=repeats):
         fn()
@@ -122,7 +147,13 @@ def stage_seconds(preset: str, threads: int, repeats: int, overrides: list[str])
             "checkpoint": median(session.save, 3) / cfg.train.checkpoint_every,
         }
         stages["step"] = median(session.train_step)
-    return {"preset": preset, "threads": torch.get_num_threads(), "clock": clock.__name__, "stages": stages}
+    return {
+        "preset": preset,
+        "threads": torch.get_num_threads(),
+        "clock": clock.__name__,
+        "stages": stages,
+        "notes": notes,
+    }
 
 
 def run_preset(preset: str, steps: int, threads: int) -> dict:
@@ -135,12 +166,9 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
     from edofproj.training import losses
     from edofproj.training.trainer import train
 
-    notes = []
     overrides = [f"train.steps={steps}", f"train.checkpoint_every={steps}", f"train.threads={threads}"]
-    cfg = load_config(preset, overrides)
-    if cfg.data.source == "folder" and not Path(cfg.data.folder or "").is_dir():
-        cfg = load_config(preset, overrides + ["data.source=dead-leaves", "data.folder=null"])
-        notes.append(f"data: dead-leaves instead of the absent folder '{load_config(preset).data.folder}'")
+    extra, notes = substitutions(preset, overrides)
+    cfg = load_config(preset, overrides + extra)
     if cfg.loss.perceptual == "dists" and cfg.loss.beta > 0:
         from edofproj.perceptual.dists import DISTS, dists_backbone
         from edofproj.perceptual.weights import PerceptualWeightsMissing
@@ -243,6 +271,9 @@ def print_stages(args) -> int:
         print(f"{stage:12s}" + "".join(f"{1e3 * r['stages'][stage]:12.1f}" for r in results))
     total = [sum(v for k, v in r["stages"].items() if k != "step") for r in results]
     print(f"{'sum':12s}" + "".join(f"{1e3 * t:12.1f}" for t in total))
+    for r in results:
+        for note in r["notes"]:
+            print(f"{r['preset']}: note: {note}")
     return 0
 
 

@@ -1,8 +1,9 @@
 """One configuration per network architecture (``edofproj.net_config``): the registry and the
 configuration classes name the same networks, each option is checked against what it declares,
 ``--set`` switches and refuses keys per architecture, and the single flat ``net`` section of older
-files -- every shipped run's ``config.yaml`` -- still loads, converted with a one-line note, into
-the configuration that rebuilds the network its checkpoint holds."""
+files -- the configuration each shipped checkpoint records -- still loads, converted with a one-line
+note, into the shipped ``config.yaml`` (which needs no conversion), the configuration that rebuilds
+the network its checkpoint holds."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 from edofproj.builtin_runs import BUILTIN_RUNS, PREFIX, builtin_run_dir
 from edofproj.compensation.registry import NETWORKS, build_network
-from edofproj.config import ConfigError, dump_config, load_config, safe_load_yaml, to_dict
+from edofproj.config import Config, ConfigError, dump_config, from_dict, load_config, safe_load_yaml, to_dict
 from edofproj.errors import ConfigConversionWarning
 from edofproj.net_config import (
     FLAT_NET_KEYS,
@@ -21,10 +22,12 @@ from edofproj.net_config import (
     MultirateConfig,
     OnlineProDebConfig,
     UNetConfig,
+    convert_flat_net,
     declared_options,
     option_names,
 )
 from edofproj.runs import load_run
+from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.runs.directory import saved_config
 
 
@@ -144,29 +147,39 @@ def test_a_flat_multirate_section_is_renamed_with_a_note(tmp_path):
 
 
 @pytest.mark.parametrize("name", list(BUILTIN_RUNS))
-def test_every_shipped_run_loads_through_the_conversion(name):
-    """The shipped ``config.yaml`` files are kept in the flat format (this test's case): each loads
-    with one note, keeps every value its network read, drops only the keys its network ignored, and
-    rebuilds the network whose weights its checkpoint holds (``load_run`` loads them strictly)."""
-    path = builtin_run_dir(name) / "config.yaml"
-    flat = safe_load_yaml(path.read_text(encoding="utf-8"))["net"]
-    assert "space_to_depth" in flat and "init_nsr" in flat  # still the old format: the test is not vacuous
-    with pytest.warns(ConfigConversionWarning, match=r"net: a single flat section of an older edofproj") as caught:
+def test_every_shipped_run_loads_without_a_note(name):
+    """A shipped ``config.yaml`` is in the current format: commands on a built-in run print no
+    conversion note (a warning on every command would be noise a user cannot act on)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConfigConversionWarning)
         cfg = saved_config(PREFIX + name)
-    assert len(caught) == 1 and str(path) in str(caught[0].message) and "\n" not in str(caught[0].message)
+    flat = safe_load_yaml((builtin_run_dir(name) / "config.yaml").read_text(encoding="utf-8"))["net"]
+    assert set(flat) - {"architecture"} <= set(option_names(type(cfg.net)))
+
+
+@pytest.mark.parametrize("name", list(BUILTIN_RUNS))
+def test_the_flat_section_a_shipped_run_was_trained_with_converts_to_its_config(name):
+    """Each shipped checkpoint records the configuration it was trained with in the single flat
+    format (the older files' case): converted, it keeps every value its network read, drops only
+    the keys its network ignored with one note, and gives exactly the shipped ``config.yaml`` --
+    so the shipped file scores as the trained network did -- and rebuilds the network whose weights
+    the checkpoint holds (``load_run`` loads them strictly)."""
+    recorded = load_checkpoint(builtin_run_dir(name) / "checkpoints" / "last.pt")["config"]
+    flat = recorded["net"]
+    assert "space_to_depth" in flat and "init_nsr" in flat  # the old format: the test is not vacuous
+    net, note = convert_flat_net(flat)
+    assert note is not None and "net: a single flat section of an older edofproj" in note and "\n" not in note
     cls = NET_CONFIGS[flat["architecture"]]
-    assert type(cfg.net) is cls
-    kept = to_dict(cfg.net)
     renamed = RENAMED.get(cls.architecture, {})
     for key, value in flat.items():
         if key in option_names(cls) or key == "architecture":
-            assert kept[key] == value, key
+            assert net[key] == value, key
         elif key in renamed:
-            assert kept[renamed[key]] == value, key
+            assert net[renamed[key]] == value, key
         else:
-            assert key in FLAT_NET_KEYS and key not in kept, key
-            assert f"dropped {key}" in str(caught[0].message) or f", {key}" in str(caught[0].message)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConfigConversionWarning)
-        run = load_run(PREFIX + name)
+            assert key in FLAT_NET_KEYS and key not in net, key
+            assert f"dropped {key}" in note or f", {key}" in note
+    shipped = to_dict(saved_config(PREFIX + name))
+    assert to_dict(from_dict(Config, {**recorded, "net": net})) == shipped
+    run = load_run(PREFIX + name)
     assert isinstance(run.net, NETWORKS[cls.architecture].network)

@@ -84,8 +84,11 @@ def test_network_description_names_the_prefilter():
     prefiltered = load_config("cpu", ["net.prefilter_bins=48", "net.linear_base=none"]).net
     assert describe_network(prefiltered) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
     assert describe_network(load_config("cpu").net) == (
-        "U-Net 16-128 (4 scales) as a correction of at most 0.2 on the DOE's depth-ensemble linear filter"
+        "U-Net 16-128 (4 scales) as a correction of at most 0.2 on its optics' depth-ensemble linear filter"
     )
+    # the same words describe lens+net, whose optics is the bare lens: they must not name a DOE
+    lens_net = load_config("cpu", ["doe.kind=lens"]).net
+    assert "DOE" not in describe_network(lens_net)
     assert describe_network(load_config("paper").net) == "U-Net 32-256 (7 scales)"
 
 

@@ -26,6 +26,12 @@ def test_the_readme_test_command_is_the_one_ci_runs():
     assert demo.endswith(".venv/bin/edofproj demo")
 
 
+def test_the_readme_names_what_a_fresh_debian_lacks_for_its_first_command():
+    """``python3 -m venv`` fails on a fresh Debian without the ``python3-venv`` package."""
+    setup = README.split("```bash", 1)[0]
+    assert "python3 -m venv" in _bash_block()[0] and "apt install python3-venv" in setup
+
+
 def test_every_relative_link_of_the_readme_resolves():
     targets = re.findall(r"\]\(([^)\s]+)\)", README)
     relative = [t for t in targets if not re.match(r"[a-z]+:", t)]

@@ -501,8 +501,9 @@ class EvaluationConfig:
     """Depth sweep and methods for ``edofproj evaluate`` (see :mod:`edofproj.evaluation.pipeline`).
 
     ``depths_mm``: flat-screen depths of the sweep. ``comparison_depths_mm``: the rows of the
-    side-by-side figure (paper Fig. 6: 320, 630, 800 mm). Tilted screen (paper Sec. 5.3): a plane
-    turned by ``tilt_deg`` whose depth runs from the in-focus distance ``v`` to
+    side-by-side figure (paper Fig. 6: 320, 630, 800 mm), each drawn at the nearest depth of
+    ``depths_mm`` (a scored one: its tiles can be found in the tables). Tilted screen (paper
+    Sec. 5.3): a plane turned by ``tilt_deg`` whose depth runs from the in-focus distance ``v`` to
     ``v + tilt_span_mm``. ``image_size``: ``[height, width]`` of the scored images (``[]``:
     native sizes); ``image_scaling``: ``crop`` takes the centre of each image at its native
     resolution (the pixel scale of the training crops; smaller images are scaled up to cover),

@@ -260,7 +260,8 @@ class UNetConfig(UNetBodyConfig):
     )
     linear_base: str = option(
         "none",
-        "ensemble: a bounded correction of the DOE's depth-ensemble linear filter (the safe network); none: not",
+        "ensemble: a bounded correction of its optics' (lens or DOE) depth-ensemble linear filter (the safe network); "
+        "none: not",
         choices=("none", "ensemble"),
     )
     correction_bound: float = option(

@@ -12,14 +12,19 @@ import sys
 import time
 
 
-def format_duration(seconds: float) -> str:
-    """``"mm:ss"`` (or ``"h:mm:ss"``); ``"--:--"`` when unknown."""
+def format_duration(seconds: float, unit: bool = False) -> str:
+    """A duration as a clock: ``"mm:ss"`` below an hour, ``"h:mm:ss"`` from an hour on; ``"--:--"``
+    when unknown. With ``unit`` the clock says which it is: ``"07:48 (min:s)"``,
+    ``"1:27:58 (h:min:s)"``. The one formatter of the durations the console and the reports print."""
     if seconds is None or seconds != seconds or seconds < 0 or seconds == float("inf"):
         return "--:--"
     seconds = int(round(seconds))
     hours, rest = divmod(seconds, 3600)
     minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes:02d}:{secs:02d}"
+    clock = f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes:02d}:{secs:02d}"
+    if not unit:
+        return clock
+    return clock + (" (h:min:s)" if hours else " (min:s)")
 
 
 class StageProgress:

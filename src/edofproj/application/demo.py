@@ -6,7 +6,8 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
    (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
    :attr:`DemoSettings.ours_steps` steps) and ``lens_net`` (the same U-Net without a DOE) always;
    ``axicon_net``, ``cubic_net`` and ``lens_onlineprodeb`` when they are predicted to fit the time
-   budget. A baseline that does not fit is taken from the run the package ships for it
+   budget (planned before any training, :meth:`~.schedule.ParallelTrainer.plan`, and printed in one
+   line, :func:`plan_line`). A baseline that does not fit is taken from the run the package ships for it
    (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
    which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
@@ -201,6 +202,20 @@ def demo_jobs(
     return jobs
 
 
+def plan_line(jobs: Sequence[TrainingJob]) -> str:
+    """The training plan in one line: the runs trained here and those taken from shipped runs or
+    left out (each with why, in its job's note)."""
+    trained = [f"{j.method} ({j.steps} steps)" for j in jobs if j.status == "pending"]
+    parts = [f"plan: trains {', '.join(trained)}" if trained else "plan: trains nothing"]
+    shipped = [j.method for j in jobs if j.status == "built-in"]
+    if shipped:
+        parts.append(f"takes {', '.join(shipped)} from the shipped runs (predicted not to fit the time budget)")
+    left_out = [j.method for j in jobs if j.status == "skipped"]
+    if left_out:
+        parts.append(f"leaves out {', '.join(left_out)} (predicted not to fit, no shipped run of its recipe)")
+    return "; ".join(parts)
+
+
 def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" = None) -> Table:
     rows = []
     if pretrained is not None:
@@ -304,8 +319,8 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     if "doe+wiener" in by_name and psf is not None:
         cases.append(timing.wiener_scipy_case(psf, evaluation.nsr.get("run", 1e-3), workers=torch.get_num_threads()))
     for name in (OURS, "lens+onlineprodeb"):
-        if name in by_name:
-            cases.append(timing.network_torch_case(by_name[name].compensate.net, name))
+        if name in by_name:  # the forward pass alone: no display guard (the summary's ms/frame has it)
+            cases.append(timing.network_torch_case(by_name[name].compensate.net, f"{name} network alone"))
     results = timing.time_cases(cases, list(settings.timing_sizes), repeats=settings.timing_repeats, warmup=1)
     if "lens+cls" in by_name and psf is not None:
         cls_case = timing.cls_torch_case(psf, evaluation.cfg.evaluation.cls_iterations)
@@ -437,8 +452,11 @@ def run_demo(
     ours = None
     if pretrained is not None:
         ours = copy_pretrained(pretrained, out / OURS_RUN_DIR, list(settings.overrides) + list(overrides))
-    progress.start("stage 1/4 training", sum(j.steps for j in jobs), later_s=later)
     trainer = ParallelTrainer(jobs, training_config, out / LOG_DIR, workers, deadline, progress, later_s=later)
+    trainer.plan()  # before any training: the baselines predicted not to fit are named now
+    use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
+    progress.note(plan_line(jobs))
+    progress.start("stage 1/4 training", trainer.total_work(), later_s=later)
     trainer.run()
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
@@ -478,8 +496,8 @@ def run_demo(
                 if ours
                 else f"{jobs[0].steps} training steps for {OURS}, {cfg.train.steps} for each baseline"
             )
-            + f", built-in photographs only. Wall time {format_duration(wall_s)} (min:s) "
-            f"up to the report, budget {format_duration(budget)}."
+            + f", built-in photographs only. Wall time {format_duration(wall_s, unit=True)} "
+            f"up to the report, budget {format_duration(budget, unit=True)}."
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
         ),
         jobs_table(jobs, ours),
@@ -575,6 +593,6 @@ def demo_finished_message(result: DemoResult) -> str:
     lines += [
         "",
         f"report: {result.report_html}",
-        f"(markdown: {result.report_html.with_suffix('.md')}; total {format_duration(result.wall_s)})",
+        f"(markdown: {result.report_html.with_suffix('.md')}; total {format_duration(result.wall_s, unit=True)})",
     ]
     return "\n".join(lines)

@@ -35,7 +35,8 @@ screen) are reported separately (:class:`LiveSummary`). With ``measure`` the com
 projection is captured and rectified too (``check``, not in the frame time; frame ``n + 1`` is
 then captured only after frame ``n`` was shown and checked), and both captures are scored with
 SSIM against ``I``. Ctrl-C (``KeyboardInterrupt`` in the calling thread, or
-raised by a device) ends the loop; a device error (a camera frame of the wrong size, a camera
+raised by a device) or SIGTERM (:func:`sigterm_as_ctrl_c`) ends the loop with the summary of the
+frames done; a device error (a camera frame of the wrong size, a camera
 that raises) ends it and is raised in the calling thread. Either way every thread the loop
 started has ended when :func:`run_live` returns.
 
@@ -49,6 +50,7 @@ photometric correction), and the captures are scored against ``g`` as absolute l
 from __future__ import annotations
 
 import queue
+import signal
 import threading
 import time
 import warnings
@@ -62,7 +64,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
+from ..imaging.image_io import IMAGE_EXTENSIONS, open_video, read_image_array, to_unit_float
 from ..metrics import ssim
 from ..procams.calibration import ProCamsCalibration
 from ..procams.devices import Camera, Display, GrabSettings, grab_frame
@@ -116,7 +118,7 @@ def frame_source(
     if video is not None:
         if not Path(video).is_file():
             raise EdofprojError(f"video '{video}' does not exist")
-        capture = cv2.VideoCapture(video)
+        capture = open_video(video)
         if not capture.isOpened():
             raise EdofprojError(f"OpenCV cannot open the video '{video}'")
         count, number = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0
@@ -255,6 +257,26 @@ def _wait_put(q: queue.Queue, item: Any, stop: threading.Event) -> None:
         except queue.Full:
             if stop.is_set():
                 raise _Stopped from None
+
+
+def sigterm_as_ctrl_c() -> Callable[[], None]:
+    """Handle SIGTERM (``kill PID``, a service manager stopping the loop) as Ctrl-C until the
+    returned function is called: the handler raises ``KeyboardInterrupt`` in the calling thread,
+    so the loop ends with the summary of the frames done instead of dying without one. Installed
+    only from the main thread (the one Python runs signal handlers in); the returned function
+    restores the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+
+    def restore() -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+    return restore
 
 
 def _wait_get(q: queue.Queue, stop: threading.Event | None = None) -> Any:
@@ -595,6 +617,7 @@ def run_live(
 
     devices.thread.start()
     running = True
+    restore_sigterm = sigterm_as_ctrl_c()
     try:
         while True:
             job = _wait_get(devices.captures, devices.ended)
@@ -629,6 +652,7 @@ def run_live(
     except _Stopped:
         pass
     finally:
+        restore_sigterm()  # a second SIGTERM while stopping ends the process
         devices.stop.set()
         devices.thread.join()
         worker.close(join_timeout_s=stall_timeout_s)

@@ -32,7 +32,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import atomic_path
-from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float, write_image
+from ..imaging.image_io import IMAGE_EXTENSIONS, open_video, read_image_array, to_unit_float, write_image
 from ..procams.capture_io import atomic_folder
 from .live import fit_to_projector, network_memory_format
 
@@ -85,7 +85,7 @@ def open_frames(
         path = Path(video)
         if not path.is_file():
             raise EdofprojError(f"video '{path}' does not exist")
-        capture = cv2.VideoCapture(str(path))
+        capture = open_video(path)
         if not capture.isOpened():
             raise EdofprojError(f"OpenCV cannot open the video '{path}'")
         count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -171,7 +171,7 @@ class VideoSink:
 
     def _check_written(self) -> None:
         """Read the video back: the frame count and the last frame (a full disk loses the end)."""
-        capture = cv2.VideoCapture(str(self._tmp))
+        capture = open_video(self._tmp)
         try:
             count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
             last_ok = False

@@ -14,7 +14,15 @@ with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_r
 ``cpu`` preset's ``lens+net`` step on the 2-core development machine), and
 ``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
 and its one-off start-up cost (process start, PSF tables). A job that cannot fit is skipped
-with a note. Progress is read from each run's ``train_log.csv``.
+with a note.
+
+:meth:`ParallelTrainer.plan` decides before any training which optional jobs fit, simulating the
+worker slots with the predicted times (the rule above, applied when a slot frees), and says which
+will not be trained; the loop applies the same rule again with the measured rate when each job is
+due to start. Progress is read from each run's ``train_log.csv`` and counted in *work*: steps
+weighted by each job's ``relative_cost`` (a step of a job 8.5 times as costly counts 8.5 times), over
+the jobs planned -- so the percentage follows the predicted time and does not jump when a job is
+left out.
 """
 
 from __future__ import annotations
@@ -200,6 +208,50 @@ class ParallelTrainer:
                     job.process.kill()
                 job.status, job.note = "failed", "stopped"
 
+    # -- the plan ----------------------------------------------------------------------------
+    def _slots_after_running(self) -> list[float]:
+        """Predicted seconds until each worker slot is free, from the running jobs."""
+        slots = sorted(self.remaining_seconds(j) for j in self.jobs if j.status == "running")
+        return slots + [0.0] * (self.workers - len(slots))
+
+    def plan(self) -> list[TrainingJob]:
+        """Decide which pending optional jobs fit before ``deadline``, before they are due to start:
+        each pending job starts when the first worker slot frees (in order), and an optional one that
+        would then end after the deadline is skipped with a note (shown at once). Returns the skipped
+        jobs. :meth:`run` calls it first; calling it again re-plans with the current estimates."""
+        now = time.perf_counter()
+        slots = self._slots_after_running()
+        skipped = []
+        for job in self.jobs:
+            if job.status != "pending":
+                continue
+            slots.sort()
+            predicted = self.predicted_seconds(job)
+            if job.required or now + slots[0] + predicted <= self.deadline:
+                slots[0] += predicted
+                continue
+            self.skip(job, predicted)
+            skipped.append(job)
+        return skipped
+
+    def skip(self, job: TrainingJob, predicted: float) -> None:
+        """Mark ``job`` skipped with a note saying why, shown at once."""
+        job.status = "skipped"
+        job.note = (
+            f"not trained: predicted {format_duration(predicted, unit=True)} for {job.steps} steps "
+            f"would end after the time budget"
+        )
+        self.progress.note(f"{job.method}: {job.note}")
+
+    @staticmethod
+    def work(job: TrainingJob, steps: int) -> float:
+        """Progress units of ``steps`` steps of ``job``: ``steps * relative_cost`` (module docstring)."""
+        return min(steps, job.steps) * job.relative_cost
+
+    def total_work(self) -> float:
+        """Work of the jobs planned (pending, running or done)."""
+        return sum(self.work(j, j.steps) for j in self.jobs if j.status in ("running", "done", "pending"))
+
     # -- the loop ----------------------------------------------------------------------------
     def next_job(self) -> TrainingJob | None:
         """The next pending job that may start now; optional jobs that cannot fit are skipped."""
@@ -211,19 +263,15 @@ class ParallelTrainer:
             predicted = self.predicted_seconds(job)
             if time.perf_counter() + predicted <= self.deadline:
                 return job
-            job.status = "skipped"
-            job.note = (
-                f"not trained: predicted {format_duration(predicted)} (min:s) for {job.steps} steps "
-                f"would end after the time budget"
-            )
-            self.progress.note(f"{job.method}: {job.note}")
+            self.skip(job, predicted)
         return None
 
     def run(self) -> list[TrainingJob]:
-        """Train the jobs: keep up to ``workers`` processes running (starting the next job that
-        :meth:`next_job` allows), poll them every ``POLL_S`` seconds and report progress, until no job runs
-        or may start. Returns the jobs with their final status and notes. On any exception (a failed
-        required job, Ctrl-C) the processes are stopped and the exception re-raised."""
+        """Train the jobs: :meth:`plan` them, then keep up to ``workers`` processes running (starting the
+        next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds and report progress,
+        until no job runs or may start. Returns the jobs with their final status and notes. On any
+        exception (a failed required job, Ctrl-C) the processes are stopped and the exception re-raised."""
+        self.plan()
         try:
             while True:
                 running = [j for j in self.jobs if j.status == "running"]
@@ -245,11 +293,11 @@ class ParallelTrainer:
         return self.jobs
 
     def report(self) -> None:
-        """Update the progress display: steps done of the steps of the pending, running and done jobs, each
-        running or done job's ``method done/steps`` as detail, and :meth:`eta_s` as the stage's ETA."""
-        active = [j for j in self.jobs if j.status in ("running", "done", "pending")]
-        done = sum(min(j.steps_done(), j.steps) for j in active)
-        total = sum(j.steps for j in active)
+        """Update the progress display: the work done of the work of the pending, running and done jobs
+        (:meth:`work`), each running or done job's ``method done/steps`` as detail, and :meth:`eta_s` as the
+        stage's ETA."""
+        done = sum(self.work(j, j.steps_done()) for j in self.jobs if j.status in ("running", "done"))
+        total = self.total_work()
         detail = ", ".join(
             f"{j.method} {min(j.steps_done(), j.steps)}/{j.steps}" for j in self.jobs if j.status in ("running", "done")
         )
@@ -261,8 +309,7 @@ class ParallelTrainer:
         """Time until the last job ends, simulating the worker slots with the current estimates
         (optional jobs that would end after the deadline are left out: they will be skipped)."""
         now = time.perf_counter()
-        slots = sorted(self.remaining_seconds(j) for j in self.jobs if j.status == "running")
-        slots += [0.0] * (self.workers - len(slots))
+        slots = self._slots_after_running()
         for job in self.jobs:
             if job.status == "pending":
                 slots.sort()

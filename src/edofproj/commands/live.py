@@ -10,9 +10,10 @@ response). Display, camera and network run in their own threads, so a frame is c
 the previous one is computed. Prints each frame, then the throughput (frames/s), the latency
 (target taken -> compensated frame shown; median and 99th percentile) and each stage's median
 and 99th percentile. A camera that returns no frame for ``--stall-timeout-s`` is reported in one
-line while the last compensated frame stays on screen. ``--frames N`` stops after N frames,
-Ctrl-C stops cleanly. ``--camera virtual:CAPTURES --display memory`` runs it headless through
-the virtual ProCams of a 'procams simulate' folder.
+line while the last compensated frame stays on screen. ``--frames N`` stops after N frames;
+Ctrl-C or SIGTERM stops cleanly ("interrupted", the summary of the frames done, exit code 0).
+``--camera virtual:CAPTURES --display memory`` runs it headless through the virtual ProCams of a
+'procams simulate' folder.
 
 On a coloured, textured object whose surface the calibration holds (``procams calibrate
 --surface-captures``), a run trained with ``net.surface_input`` compensates for it (a calibration

@@ -56,7 +56,8 @@ def _describe_unet(net_cfg) -> str:
     if net_cfg.prefilter_bins:
         text += f" + radial pre-filter ({net_cfg.prefilter_bins} nodes)"
     if net_cfg.linear_base == "ensemble":
-        text += f" as a correction of at most {net_cfg.correction_bound:g} on the DOE's depth-ensemble linear filter"
+        # the same network serves every optics (lens+net, axicon+net, doe+net): the filter is its optics'
+        text += f" as a correction of at most {net_cfg.correction_bound:g} on its optics' depth-ensemble linear filter"
     return text
 
 

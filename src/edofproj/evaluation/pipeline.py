@@ -40,7 +40,14 @@ from ..methods.guard import guard_notes
 from ..progress import StageProgress
 from ..runs import TrainedRun, load_run
 from .results import MetricsTable
-from .sweep import PERCEPTUAL_COLUMNS, example_displays, flat_screen_sweep, load_perceptual_metrics, tilted_screen_sweep
+from .sweep import (
+    PERCEPTUAL_COLUMNS,
+    example_displays,
+    flat_screen_sweep,
+    load_perceptual_metrics,
+    nearest_scored_depths_mm,
+    tilted_screen_sweep,
+)
 from .timing import time_methods
 
 METRICS_NAME = "metrics.csv"
@@ -210,7 +217,7 @@ def evaluate_run(
     builder.notes.extend(guard_notes(prepared))
     progress.start("tilted screen", units)
     tilted, tilted_examples = tilted_screen_sweep(prepared, images, cfg, perceptual, progress.advance, device)
-    comparison_depths = [float(z) for z in cfg.evaluation.comparison_depths_mm]
+    comparison_depths = nearest_scored_depths_mm(cfg.evaluation.comparison_depths_mm, depths)
     comparison = example_displays(prepared, images[0][1], comparison_depths, perceptual, device)
     progress.finish()
 

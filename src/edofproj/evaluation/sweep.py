@@ -152,6 +152,18 @@ def flat_screen_sweep(
     return table
 
 
+def nearest_scored_depths_mm(wanted_mm: Sequence[float], scored_mm: Sequence[float]) -> list[float]:
+    """Each depth of ``wanted_mm`` (the comparison figure's rows, ``evaluation.comparison_depths_mm``)
+    replaced by the nearest depth of the sweep, ``scored_mm`` (repeats dropped, order kept): the figure
+    then shows depths whose scores are in the tables."""
+    rows: list[float] = []
+    for z in wanted_mm:
+        nearest = float(min(scored_mm, key=lambda s: (abs(float(s) - float(z)), float(s))))
+        if nearest not in rows:
+            rows.append(nearest)
+    return rows
+
+
 def example_displays(
     methods, image: torch.Tensor, depths_mm: Sequence[float], perceptual: dict, device: str | torch.device = "cpu"
 ) -> dict:

@@ -5,6 +5,13 @@
   orientation of photographs is applied. ``value / (2^bits - 1)``.
 * :func:`write_image`: ``round(clamp(x, 0, 1) * (2^bits - 1))`` as 8 or 16 bits, written
   atomically (:mod:`edofproj.fileio`); the format follows the file extension.
+* :func:`open_video`: a video file (or camera) opened with OpenCV, quietly.
+
+A file that cannot be read gets one line from edofproj (:class:`~edofproj.errors.EdofprojError`)
+and nothing from the libraries under it: OpenCV's log is silenced while it decodes, FFmpeg's own
+log (e.g. "moov atom not found") is off (``OPENCV_FFMPEG_LOGLEVEL=-8``, AV_LOG_QUIET, set unless
+the environment already sets it: OpenCV reads it once, when its FFmpeg backend first starts) and
+Pillow's warnings about damaged metadata are not shown.
 
 OpenCV stores colour as BGR; the conversion to and from RGB happens here and nowhere else.
 """
@@ -14,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import warnings
 from pathlib import Path
 
 import cv2
@@ -32,6 +40,9 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
 
+#: FFmpeg's own log off (AV_LOG_QUIET) unless the environment says otherwise (module docstring).
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
 
 def _jpeg_is_truncated(data: bytes) -> bool:
     """True for a JPEG that stops before its end-of-image marker (OpenCV decodes those silently).
@@ -44,8 +55,10 @@ def _jpeg_is_truncated(data: bytes) -> bool:
     from PIL import Image  # start-up: `edofproj --help` loads this module; Pillow costs ~40 ms
 
     try:
-        with Image.open(io.BytesIO(data)) as picture:
-            picture.load()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # e.g. "Corrupt EXIF data": the decode decides
+            with Image.open(io.BytesIO(data)) as picture:
+                picture.load()
     except (OSError, SyntaxError, ValueError):
         return True
     return False
@@ -53,9 +66,10 @@ def _jpeg_is_truncated(data: bytes) -> bool:
 
 @contextlib.contextmanager
 def _quiet_opencv():
-    """Silence OpenCV's own warnings (e.g. "PNG input buffer is incomplete"): we raise our own error."""
+    """Silence OpenCV's own log (e.g. "PNG input buffer is incomplete", a TIFF or BMP decoder's
+    ERROR lines): we raise our own one-line error."""
     level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
@@ -74,8 +88,10 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
     limit = Image.MAX_IMAGE_PIXELS
     Image.MAX_IMAGE_PIXELS = None  # reading the header of a huge image is what we want here
     try:
-        with Image.open(io.BytesIO(data)) as picture:
-            width, height = picture.size
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # e.g. "Corrupt EXIF data": OpenCV decides below
+            with Image.open(io.BytesIO(data)) as picture:
+                width, height = picture.size
     except Exception:  # noqa: BLE001 - any header Pillow cannot read: OpenCV decides below
         return None
     finally:
@@ -111,6 +127,19 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     if pixels.dtype not in (np.uint8, np.uint16):
         raise EdofprojError(f"image '{name}' has {pixels.dtype} pixels; only 8- and 16-bit images are supported")
     return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+
+
+def open_video(source: int | str | os.PathLike) -> cv2.VideoCapture:
+    """``cv2.VideoCapture`` of a camera index, a video file or an image-sequence pattern, opened
+    quietly (module docstring); the caller checks ``isOpened()`` and raises its own error. A video
+    file is opened with FFmpeg alone: OpenCV's fallback readers print their complaints about a
+    damaged file (e.g. "Unexpected list type" of its AVI parser) where no log level reaches them."""
+    with _quiet_opencv():
+        if isinstance(source, int):
+            return cv2.VideoCapture(source)
+        if Path(source).is_file():
+            return cv2.VideoCapture(str(source), cv2.CAP_FFMPEG)
+        return cv2.VideoCapture(str(source))
 
 
 def to_unit_float(pixels: np.ndarray) -> np.ndarray:

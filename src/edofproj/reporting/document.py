@@ -50,13 +50,17 @@ class Bullets:
 
 @dataclass
 class Table:
-    """A table of text cells: ``header`` (one name per column), ``rows`` (lists of cells) and an optional
-    ``caption`` shown above it. Columns after the first whose cells are all numbers (or ``NA``, ``-``,
+    """A table of text cells: ``header`` (one name per column, none blank), ``rows`` (lists of cells) and an
+    optional ``caption`` shown above it. Columns after the first whose cells are all numbers (or ``NA``, ``-``,
     empty) are right-aligned."""
 
     header: list[str]
     rows: list[list[str]]
     caption: str = ""
+
+    def __post_init__(self) -> None:
+        if any(not str(name).strip() for name in self.header):
+            raise ValueError(f"every column of a table has a name: {self.header}")
 
 
 @dataclass

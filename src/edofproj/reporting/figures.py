@@ -11,6 +11,10 @@
 
 The PSF figure is :func:`edofproj.reporting.psf_plots.plot_psf_comparison` and the DOE profile
 :func:`edofproj.runs.figures.plot_doe_profile`.
+
+Every plot that draws methods as lines takes their colours from :func:`method_colour` (one colour
+per method, the same in every figure, no two methods alike) and PSNR axes stop at
+:data:`PSNR_AXIS_MAX_DB` (:func:`clip_psnr_axis`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..methods.catalogue import METHOD_NAMES, METHODS, OURS  # noqa: E402
 from ..evaluation.results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 from ..fileio import atomic_path  # noqa: E402
 
@@ -58,12 +63,59 @@ def label_tile(
     ax.set_yticks([])
 
 
+#: Variants of a method drawn in its lighter shade (:func:`method_colour`).
+VARIANT_SUFFIXES = ("+photometric",)
+
+
+def method_colour(name: str) -> tuple | str:
+    """The colour of method ``name`` in every figure: ours (``doe+net``) black; each other method of
+    :data:`~edofproj.methods.catalogue.METHOD_NAMES` the dark shade of its own pair of matplotlib's
+    ``tab20`` map, in their order (the 10 methods scored by default, 10 pairs: no two alike); the
+    methods scored only by name (the classic elements' linear baselines) each their own colour of
+    ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
+    (ours' variant grey); any other name a colour of ``tab20b`` fixed by its letters."""
+    for suffix in VARIANT_SUFFIXES:
+        if name.endswith(suffix):
+            base = name[: -len(suffix)]
+            if base == OURS:
+                return "0.55"
+            if base in _PAIRED:
+                return plt.cm.tab20(2 * _PAIRED.index(base) + 1)
+    if name == OURS:
+        return "black"
+    if name in _PAIRED:
+        return plt.cm.tab20(2 * _PAIRED.index(name))
+    if name in _BY_NAME_ONLY:
+        return plt.cm.tab20b(_BY_NAME_ONLY.index(name) % 20)
+    return plt.cm.tab20b(sum(name.encode()) % 20)
+
+
+#: The methods scored by default other than ours (a ``tab20`` pair each), and those scored only by name.
+_PAIRED = [m.name for m in METHODS if m.default and m.name != OURS]
+_BY_NAME_ONLY = [m.name for m in METHODS if not m.default]
+assert len(_PAIRED) <= 10 and set(_PAIRED) | set(_BY_NAME_ONLY) | {OURS} == set(METHOD_NAMES)
+
+
 def _method_style(index: int, name: str) -> dict:
-    """Ours thick and black, the rest from a colour cycle; lens-based dashed, DOE-based solid."""
-    if name == "doe+net":
+    """Ours thick and black, the rest in their :func:`method_colour`; lens-based dashed, DOE-based solid."""
+    if name == OURS:
         return dict(color="black", lw=2.4, ls="-", marker="o", ms=4, zorder=5)
-    colour = plt.cm.tab10(index % 10)
-    return dict(color=colour, lw=1.3, ls="--" if name.startswith("lens") else "-", marker=".", ms=5)
+    return dict(color=method_colour(name), lw=1.3, ls="--" if name.startswith("lens") else "-", marker=".", ms=5)
+
+
+#: The top of a PSNR axis: higher values (a method at the one depth where it is exact, e.g. CLS at the
+#: focus) are drawn on the top edge, marked, so that they do not flatten every other curve.
+PSNR_AXIS_MAX_DB = 50.0
+
+
+def clip_psnr_axis(ax, values: Sequence[float]) -> bool:
+    """Stop the y-axis at :data:`PSNR_AXIS_MAX_DB` when a value is above it; True when it did."""
+    finite = [v for v in values if np.isfinite(v)]
+    if not finite or max(finite) <= PSNR_AXIS_MAX_DB:
+        return False
+    low = min(finite)
+    ax.set_ylim(max(0.0, low - 0.05 * (PSNR_AXIS_MAX_DB - low)), PSNR_AXIS_MAX_DB)
+    return True
 
 
 def plot_metric_vs_depth(
@@ -78,17 +130,32 @@ def plot_metric_vs_depth(
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     if scored_range_mm is not None:
         ax.axvspan(*scored_range_mm, color="0.92", zorder=0, label="scored range")
+    values = []
     for index, method in enumerate(table.methods()):
         means = table.per_depth_means(method, metric)
         depths = sorted(means)
         ax.plot(depths, [means[z] for z in depths], label=method, **_method_style(index, method))
+        values += [means[z] for z in depths]
+    default_title = f"{METRIC_LABELS.get(metric, metric)} vs depth (mean over the test images)"
+    if metric == "psnr" and clip_psnr_axis(ax, values):
+        above = [
+            (z, v, m)
+            for m in table.methods()
+            for z, v in table.per_depth_means(m, metric).items()
+            if v > PSNR_AXIS_MAX_DB
+        ]
+        for z, v, m in above:
+            ax.plot([z], [PSNR_AXIS_MAX_DB], marker="^", ms=8, color=method_colour(m), clip_on=False, zorder=6)
+            ax.annotate(f"{v:.0f}", (z, PSNR_AXIS_MAX_DB), xytext=(0, -14), textcoords="offset points",
+                        ha="center", fontsize=7, color=method_colour(m))  # fmt: skip
+        default_title += f"; axis clipped at {PSNR_AXIS_MAX_DB:.0f} dB (▲: higher, value written)"
     ax.set_xlabel("screen depth z (mm)")
     ax.set_ylabel(
         METRIC_LABELS.get(metric, metric) + ("" if metric not in ("lpips", "dists") else " (lower is better)")
     )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2, loc="best")
-    ax.set_title(title or f"{METRIC_LABELS.get(metric, metric)} vs depth (mean over the test images)", fontsize=10)
+    ax.set_title(title or default_title, fontsize=10)
     _save(fig, path)
 
 
@@ -127,14 +194,23 @@ def _annotate(ax, parts: list[tuple[str, bool]]) -> None:
         y += 0.15
 
 
-def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, dict]]]], path, title: str) -> None:
-    """``rows``: ``(row label, target, [(method, display, scores)])``. Each row's tiles (the target
-    first) wrap after :data:`GRID_MAX_COLUMNS`, so that the figure stays readable at page width;
-    every tile carries its method's name."""
-    n_cells = 1 + max(len(r[2]) for r in rows)
-    lines_per_row = -(-n_cells // GRID_MAX_COLUMNS)
-    n_cols = -(-n_cells // lines_per_row)  # balanced lines: 9 tiles as 3 x 3, not 4 + 4 + 1
-    height, width = rows[0][1].shape[:2]
+def grid_shape(n_cells: int) -> tuple[int, int]:
+    """``(lines, columns)`` of ``n_cells`` tiles wrapped after :data:`GRID_MAX_COLUMNS` in balanced
+    lines (9 tiles as 3 x 3, not 4 + 4 + 1)."""
+    lines = -(-n_cells // GRID_MAX_COLUMNS)
+    return lines, -(-n_cells // lines)
+
+
+def _image_grid(
+    rows: Sequence[tuple[str, np.ndarray | None, Sequence[tuple[str, np.ndarray, dict]]]], path, title: str
+) -> None:
+    """``rows``: ``(row label, target or None, [(method, display, scores)])``. Each row's tiles (the
+    target first, when given) wrap after :data:`GRID_MAX_COLUMNS`, so that the figure stays readable at
+    page width; every tile carries its method's name."""
+    n_cells = max((r[1] is not None) + len(r[2]) for r in rows)
+    lines_per_row, n_cols = grid_shape(n_cells)
+    first = rows[0][1] if rows[0][1] is not None else rows[0][2][0][1]
+    height, width = first.shape[:2]
     tile = GRID_TILE_IN
     n_lines = len(rows) * lines_per_row
     fig_height_in = (tile * height / width + 0.35) * n_lines + 0.7
@@ -144,7 +220,7 @@ def _image_grid(rows: list[tuple[str, np.ndarray, list[tuple[str, np.ndarray, di
         ax.set_yticks([])
     for r, (label, target, tiles) in enumerate(rows):
         best = _best_of([scores for _, _, scores in tiles])
-        cells = [("target", target, None)] + list(tiles)
+        cells = ([("target", target, None)] if target is not None else []) + list(tiles)
         for index in range(lines_per_row * n_cols):
             ax = axes[r * lines_per_row + index // n_cols, index % n_cols]
             if index >= len(cells):
@@ -277,19 +353,19 @@ def plot_scene_grid(
 
 
 def plot_scene_ssim_maps(examples: dict, scenes: Sequence[str], methods: Sequence[str], path: str | Path) -> None:
-    """Local SSIM (0 black to 1 white, grey off the object), rows = scenes, columns = methods."""
-    fig, axes = plt.subplots(
-        len(scenes), len(methods), figsize=(2.0 * len(methods), 1.6 * len(scenes) + 0.6), squeeze=False
-    )
-    for r, scene in enumerate(scenes):
-        for c, method in enumerate(methods):
-            ax = axes[r, c]
-            ax.set_facecolor("0.5")
+    """Local SSIM (0 black to 1 white, grey off the object), a row of tiles per scene (wrapped as
+    :func:`_image_grid` wraps), each tile's SSIM over the object written on it."""
+    rows = []
+    for scene in scenes:
+        tiles = []
+        for method in methods:
             if (scene, method) in examples:
                 _, local, scores = examples[(scene, method)]
-                ax.imshow(local, cmap="gray", vmin=0, vmax=1)
-                ax.set_xlabel(f"SSIM {scores['ssim']:.3f}", fontsize=8)
-            label_tile(ax, r, c, method, scene)
-    fig.suptitle("Local SSIM on the objects (white = 1)", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path, dpi=110)
+                grey = np.where(np.isfinite(local), np.clip(local, 0.0, 1.0), 0.5)
+                tiles.append((method, np.repeat(grey[..., None], 3, axis=-1), {"ssim": scores["ssim"]}))
+        if tiles:
+            rows.append((scene, None, tiles))
+    if rows:
+        _image_grid(
+            rows, path, "Local SSIM on the objects (white = 1, grey: off the object; S = mean SSIM, best in red)"
+        )

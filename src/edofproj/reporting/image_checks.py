@@ -17,8 +17,8 @@ from .document import Paragraph, Table
 def behind_linear_filter_blocks(
     table: MetricsTable, range_mm: tuple[float, float], ours: str = OURS, linear: str = LINEAR_FILTER
 ) -> list:
-    """A verdict paragraph and a per-image table (flagged images marked **behind**); [] when the
-    evaluation did not score both methods."""
+    """A verdict paragraph and a per-image table (its last column says whether the network is behind
+    on the image); [] when the evaluation did not score both methods."""
     rows = behind_linear_filter(table, range_mm, ours, linear)
     if not rows:
         return []
@@ -40,11 +40,11 @@ def behind_linear_filter_blocks(
             f"{r.ssim_net - r.ssim_linear:+.4f}",
             f"{r.de_net:.2f}",
             f"{r.de_linear:.2f}",
-            "**behind**" if r.behind else "",
+            "**yes**" if r.behind else "no",
         ]
         for r in rows
     ]
-    header = ["image", f"SSIM {ours}", f"SSIM {linear}", "difference", f"ΔE2000 {ours}", f"ΔE2000 {linear}", ""]
+    header = ["image", f"SSIM {ours}", f"SSIM {linear}", "difference", f"ΔE2000 {ours}", f"ΔE2000 {linear}", "behind"]
     caption = f"Per image, means over {lo:.0f}-{hi:.0f} mm: the network against the linear filter of the same DOE."
     return [Paragraph(verdict), Table(header, table_rows, caption)]
 

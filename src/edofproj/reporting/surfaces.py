@@ -73,52 +73,65 @@ def surface_summary_markdown(evaluation: SurfaceEvaluation) -> str:
 
 
 def plot_surface_figure(evaluation: SurfaceEvaluation, path: str | Path) -> None:
-    """Per surface (rows): the reflectance, the goal and each method's projection at the nearest scored
-    depth, then SSIM over depth."""
+    """Per surface: the reflectance, the goal and each method's projection at the nearest scored depth
+    (tiles wrapped as the other image grids, :func:`~.figures.grid_shape`, their text at the grids'
+    size), then SSIM over depth across the figure's width, each method in its
+    :func:`~.figures.method_colour`."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .figures import label_tile
+    from .figures import GRID_DPI, GRID_TILE_IN, TILE_FONT_PT, grid_shape, method_colour
 
-    columns = 2 + len(evaluation.methods) + 1
-    fig, axes = plt.subplots(
-        len(evaluation.surfaces), columns, figsize=(1.9 * columns, 2.0 * len(evaluation.surfaces) + 0.6), squeeze=False
-    )
+    lines, n_cols = grid_shape(2 + len(evaluation.methods))
+    first = next((tile for tile in evaluation.examples.values() if tile is not None), None)
+    aspect = first.shape[0] / first.shape[1] if first is not None else 1.0
+    tile_h, plot_h = GRID_TILE_IN * aspect + 0.45, 2.8
+    ratios = ([tile_h] * lines + [plot_h]) * len(evaluation.surfaces)
+    fig = plt.figure(figsize=(GRID_TILE_IN * n_cols, sum(ratios) + 0.6))
+    grid = fig.add_gridspec(len(ratios), n_cols, height_ratios=ratios)
     for r, surface in enumerate(evaluation.surfaces):
+        top = r * (lines + 1)
         sub = surface_table(evaluation, surface)
         tiles: list[tuple[str, np.ndarray | None, float | None]] = [
-            ("reflectance", evaluation.examples.get((surface, "reflectance")), None)
+            ("reflectance", evaluation.examples.get((surface, "reflectance")), None),
+            ("goal", evaluation.examples.get((surface, "goal")), None),
         ]
-        tiles.append(("goal", evaluation.examples.get((surface, "goal")), None))
         for method in evaluation.methods:
             mean = sub.mean("ssim", method=method, depth_mm=evaluation.example_depth_mm)
             tiles.append((method, evaluation.examples.get((surface, method)), mean))
-        for c, (title, tile, value) in enumerate(tiles):
-            ax = axes[r, c]
+        for index, (title, tile, value) in enumerate(tiles):
+            ax = fig.add_subplot(grid[top + index // n_cols, index % n_cols])
+            ax.set_xticks([])
+            ax.set_yticks([])
             if tile is not None:
                 ax.imshow(np.clip(tile, 0, 1))
+            ax.set_title(title, fontsize=TILE_FONT_PT, fontweight="bold" if title == "doe+net" else "normal")
             if value is not None:
-                ax.set_xlabel(f"SSIM {value:.3f}", fontsize=7)
-            label_tile(ax, r, c, title, surface, title_size=7, row_label_size=8)
-        ax = axes[r, -1]
-        for index, method in enumerate(evaluation.methods):
+                ax.set_xlabel(f"SSIM {value:.3f}", fontsize=TILE_FONT_PT)
+            if index % n_cols == 0:
+                ax.set_ylabel(surface, fontsize=TILE_FONT_PT + 1)
+        ax = fig.add_subplot(grid[top + lines, :])
+        for method in evaluation.methods:
             means = sub.per_depth_means(method, "ssim")
-            style = "-" if method == SURFACE_NET else ("--" if method.startswith("lens") else ":")
-            ax.plot(list(means), list(means.values()), style, marker=".", lw=1.2, label=method, color=f"C{index % 10}")
-        ax.set_xlabel("depth (mm)", fontsize=7)
-        ax.tick_params(labelsize=6)
-        if r == 0:
-            ax.set_title("SSIM over depth", fontsize=7)
-            ax.legend(fontsize=5, loc="lower center")
+            style = "-" if method == SURFACE_NET else ("--" if method.startswith("lens") else "-")
+            width = 2.2 if method in ("doe+net", SURFACE_NET) else 1.3
+            ax.plot(list(means), list(means.values()), style, marker=".", lw=width, label=method,
+                    color=method_colour(method))  # fmt: skip
+        ax.set_xlabel("screen depth (mm)", fontsize=TILE_FONT_PT)
+        ax.set_ylabel("SSIM against the goal", fontsize=TILE_FONT_PT)
+        ax.tick_params(labelsize=TILE_FONT_PT - 1)
+        ax.grid(alpha=0.3)
+        ax.set_title(f"{surface}: SSIM over depth", fontsize=TILE_FONT_PT)
+        ax.legend(fontsize=TILE_FONT_PT - 2, ncol=2, loc="best")
     fig.suptitle(
         f"Projection on textured surfaces at {evaluation.example_depth_mm:.0f} mm (scored against the goal)",
-        fontsize=9,
+        fontsize=TILE_FONT_PT + 1,
     )
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight")
+        fig.savefig(tmp, dpi=GRID_DPI, format="png", bbox_inches="tight")
     plt.close(fig)
 
 

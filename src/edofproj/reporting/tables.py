@@ -65,10 +65,12 @@ def range_table(
     range_mm: tuple[float, float],
     metrics: Sequence[str] | None = None,
     frame_ms: dict[str, float] | None = None,
+    frame_ms_note: str = "",
 ) -> Table:
     """Rows = methods, blind ones first; columns = what the method knows at run time, the mean and
     worst depth of each metric over ``range_mm`` (the best of each group in bold) and, with
-    ``frame_ms``, the milliseconds per compensated frame."""
+    ``frame_ms``, the milliseconds per compensated frame (``frame_ms_note``, what they measure, ends
+    the caption)."""
     metrics = list(metrics or headline_metrics(table.metrics))
     methods = grouped_methods(table.methods())
     kinds = [method_kind(m) for m in methods]
@@ -100,7 +102,7 @@ def range_table(
         f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
         f"images; worst = lowest, or highest for LPIPS/DISTS). Blind methods know nothing of the depth "
         f"or the PSF at run time; non-blind ones are given the exact PSF of each depth. Best of each "
-        f"group in bold.",
+        f"group in bold." + (f" {frame_ms_note}." if frame_ms and frame_ms_note else ""),
     )
 
 

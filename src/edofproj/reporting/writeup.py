@@ -19,6 +19,7 @@ from ..doe import build_doe
 from ..evaluation.results import METRIC_LABELS, headline_metrics
 from ..methods.catalogue import METHOD_NAMES
 from ..methods.designs import OpticalDesign
+from ..methods.guard import GuardedNetworkCompensation
 from ..progress import StageProgress
 from ..runs import FIGURES_DIR
 from ..runs.figures import plot_doe_profile
@@ -96,19 +97,35 @@ def methods_section(ev) -> list:
     )
     if ev.frame_ms:
         notes.append(
-            f"ms/frame: median milliseconds of each method's compensation of one "
-            f"{ev.images[0][1].shape[-2]}x{ev.images[0][1].shape[-1]} frame as evaluated "
-            f"({ev.timing_threads} CPU thread(s) unless run on a GPU): the non-blind Wiener filter is computed for "
-            f"each frame (its PSF follows the depth), CLS runs {ev.cfg.evaluation.cls_iterations} iterations, "
-            f"doe+ensemble and the networks are fixed. A separate timing table (the demo's, `edofproj bench`) "
-            f"times the kernels alone at fixed sizes: its figures differ from these."
+            f"{frame_ms_caption(ev)}: the non-blind Wiener filter is computed for each frame (its PSF follows the "
+            f"depth), CLS runs {ev.cfg.evaluation.cls_iterations} iterations, doe+ensemble and the networks are "
+            f"fixed. A separate timing table (the demo's, `edofproj bench`) times the kernels alone at fixed sizes "
+            f"(a network's forward pass without its guard): its figures differ from these."
         )
     blocks += [Heading("Notes", 3), Bullets(notes)]
     return blocks
 
 
+def frame_ms_caption(ev) -> str:
+    """What the summary's ms/frame measures, in one sentence: the frame size, the threads, and which
+    networks ran with their display guard (its predicted displays are timed with them)."""
+    height, width = ev.images[0][1].shape[-2:]
+    guarded = [m.name for m in ev.methods if isinstance(m.compensate, GuardedNetworkCompensation)]
+    return (
+        f"ms/frame: median milliseconds of each method's whole compensation of one {height}x{width} frame as "
+        f"evaluated, right after scoring ({ev.timing_threads} CPU thread(s) unless run on a GPU"
+        + (f"; {', '.join(guarded)} with the display guard" if guarded else "")
+        + ")"
+    )
+
+
 def results_tables(ev) -> list:
-    blocks = [range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms), image_spread_table(ev.table, ev.range_mm)]
+    blocks = [
+        range_table(
+            ev.table, ev.range_mm, frame_ms=ev.frame_ms, frame_ms_note=frame_ms_caption(ev) if ev.frame_ms else ""
+        ),
+        image_spread_table(ev.table, ev.range_mm),
+    ]
     for metric in headline_metrics(ev.table.metrics):
         blocks.append(depth_table(ev.table, metric, ev.range_mm))
     return blocks
@@ -165,7 +182,11 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.extend(overview(ev))
     report.extend(list(preface))
     report.add(Heading("Summary"))
-    report.add(range_table(ev.table, ev.range_mm, frame_ms=ev.frame_ms))
+    report.add(
+        range_table(
+            ev.table, ev.range_mm, frame_ms=ev.frame_ms, frame_ms_note=frame_ms_caption(ev) if ev.frame_ms else ""
+        )
+    )
     report.add(image_spread_table(ev.table, ev.range_mm))
     report.extend(image_checks_section(ev))
     figures = ev.figures
@@ -184,7 +205,9 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
         report,
         figures,
         "comparison",
-        "Simulated projections of the first test image on flat screens; "
+        "Simulated projections of the first test image on flat screens at "
+        + ", ".join(f"{z:.0f}" for z in sorted({z for z, _ in ev.comparison}))
+        + " mm (depths of the tables, nearest to the paper's Fig. 6); "
         "PSNR (P), SSIM (S) of each tile, best of each row in red.",
     )
     report.add(Heading("Tilted screen (paper Sec. 5.3)"))
@@ -202,8 +225,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
         report,
         figures,
         "psf",
-        "RGB PSFs across the training depth range: bare lens vs the learned DOE "
-        "(and baseline optics); E = energy inside the PSF window.",
+        psf_caption(ev),
     )
     _add_figure(report, figures, "doe_profile", "Height profile of the learned DOE as fabricated (wrapped, quantized).")
     if "training" in figures:
@@ -212,6 +234,17 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
     report.extend(list(extra))
     report.extend(methods_section(ev))
     return report
+
+
+def psf_caption(ev) -> str:
+    """The PSF figure's caption, naming the depths it shows (:func:`psf_figure_depths_m`)."""
+    depths_mm = psf_figure_depths_m(ev.cfg) * 1e3
+    near, far = ev.range_mm
+    return (
+        f"RGB PSFs at {', '.join(f'{z:.0f}' for z in depths_mm)} mm: the depth range the PSFs are simulated and "
+        f"trained over (psf.depth_min_mm-psf.depth_max_mm; the scores cover {near:.0f}-{far:.0f} mm), bare lens vs "
+        "the learned DOE (and baseline optics); E = energy inside the PSF window."
+    )
 
 
 def psf_figure_depths_m(cfg, count: int = 6) -> np.ndarray:
@@ -235,7 +268,7 @@ def write_figures(ev) -> None:
     plot_comparison(
         target,
         ev.comparison,
-        ev.cfg.evaluation.comparison_depths_mm,
+        sorted({z for z, _ in ev.comparison}),  # the rows computed: scored depths (nearest_scored_depths_mm)
         methods,
         ev.figures["comparison"],
         image_name=name,

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from ...errors import EdofprojError
-from ...imaging.image_io import IMAGE_EXTENSIONS, to_unit_float
+from ...imaging.image_io import IMAGE_EXTENSIONS, open_video, to_unit_float
 from ..capture_io import read_rgb_counts
 from ..virtual import VirtualProCams
 from .base import Camera, Display
@@ -52,12 +52,7 @@ class OpenCVCamera(Camera):
     def __init__(self, source: str, exposure: float | None = None) -> None:
         self.spec = f"opencv:{source}"
         self.source: int | str = int(source) if source.isdigit() else source
-        level = cv2.utils.logging.getLogLevel()
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # we raise our own error
-        try:
-            self.capture = cv2.VideoCapture(self.source)
-        finally:
-            cv2.utils.logging.setLogLevel(level)
+        self.capture = open_video(self.source)  # quietly: we raise our own error
         if not self.capture.isOpened():
             self.capture.release()
             raise EdofprojError(

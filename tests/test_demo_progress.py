@@ -1,0 +1,113 @@
+"""What the demo tells a user while it runs: durations in one format that says when it holds hours,
+the training plan (which baselines it will not train) before any training, and a progress
+percentage that follows the predicted work instead of jumping when a baseline is left out."""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+
+from edofproj.application import demo
+from edofproj.application.schedule import ParallelTrainer, TrainingJob
+from edofproj.config import load_config
+from edofproj.progress import StageProgress, format_duration
+
+SRC = Path(__file__).parents[1] / "src" / "edofproj"
+
+
+def test_a_duration_of_an_hour_or_more_says_hours():
+    assert format_duration(5278, unit=True) == "1:27:58 (h:min:s)"  # was "1:27:58 (min:s)"
+    assert format_duration(468, unit=True) == "07:48 (min:s)"
+    assert format_duration(3600, unit=True) == "1:00:00 (h:min:s)"
+    assert format_duration(75) == "01:15" and format_duration(3725) == "1:02:05"
+
+
+def test_the_duration_format_is_written_in_one_place():
+    """No module writes its own "(min:s)" after a clock (which an hour turns wrong): the one formatter does."""
+    writers = [
+        str(path.relative_to(SRC))
+        for path in SRC.rglob("*.py")
+        if "min:s)" in path.read_text(encoding="utf-8") and path.name != "progress.py"
+    ]
+    assert not writers, writers
+
+
+def full_demo_trainer(tmp_path, stream, workers=2) -> ParallelTrainer:
+    """The full demo's jobs and budget on the development machine's predicted rate (0.1 s/step)."""
+    cfg = load_config("cpu", list(demo.FULL.overrides))
+    jobs = demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [])
+    later = demo.FULL.evaluation_estimate_s + demo.TIMING_ESTIMATE_S["full"]
+    deadline = time.perf_counter() + demo.FULL.budget_s - later - demo.REPORT_MARGIN_S
+    progress = StageProgress("demo", stream=stream)
+    return ParallelTrainer(jobs, "cpu", tmp_path / "logs", workers, deadline, progress, later_s=later)
+
+
+def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_path):
+    stream = io.StringIO()
+    trainer = full_demo_trainer(tmp_path, stream)
+    skipped = trainer.plan()
+    assert [job.method for job in skipped] == ["axicon+net", "cubic+net", "lens+onlineprodeb"]
+    assert all(job.process is None for job in trainer.jobs)  # nothing started
+    printed = stream.getvalue()
+    for job in skipped:
+        assert f"{job.method}: not trained: predicted " in printed
+    assert [job.status for job in trainer.jobs[:2]] == ["pending", "pending"]
+    line = demo.plan_line(trainer.jobs)
+    assert line.startswith("plan: trains doe+net (2400 steps), lens+net (1800 steps)")
+    assert "leaves out axicon+net, cubic+net, lens+onlineprodeb" in line
+    # once planned, the loop skips no more at the predicted rate: the job each free slot takes is a planned one
+    assert trainer.next_job() is trainer.jobs[0]
+
+
+def test_a_baseline_that_fits_is_planned_and_trained(tmp_path):
+    trainer = full_demo_trainer(tmp_path, io.StringIO())
+    trainer.deadline += 3600.0  # an hour more: every baseline fits
+    assert trainer.plan() == []
+    assert demo.plan_line(trainer.jobs).startswith("plan: trains doe+net (2400 steps), lens+net (1800 steps), axicon")
+
+
+def write_log(run_dir: Path, steps: int, seconds_per_step: float = 0.1) -> None:
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rows = ["step,loss,seconds"] + [f"{i},0.5,{(i + 1) * seconds_per_step}" for i in range(steps)]
+    (run_dir / "train_log.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
+def test_progress_counts_work_so_the_percentage_follows_the_predicted_time(tmp_path):
+    """Two runs of 100 steps, one 8.5 times as costly per step: with the cheap one done and the costly
+    one half done, 110 + 425 of 110 + 850 units are done (56 %), not 150 of 200 steps (75 %)."""
+    stream = io.StringIO()
+    progress = StageProgress("demo", stream=stream)
+    jobs = [
+        TrainingJob("doe+net", tmp_path / "a", [], 100, True, 1.1),
+        TrainingJob("lens+onlineprodeb", tmp_path / "b", [], 100, True, 8.5),
+    ]
+    trainer = ParallelTrainer(jobs, "cpu", tmp_path / "logs", 2, time.perf_counter() + 1e6, progress)
+    write_log(jobs[0].run_dir, 100)
+    write_log(jobs[1].run_dir, 50, 0.85)
+    jobs[0].status, jobs[1].status = "done", "running"
+    jobs[1].started = time.perf_counter()
+    trainer.report()
+    assert progress.total == 110 + 850 and progress.done == 110 + 425
+    assert "56%" in progress.line()
+
+
+def test_the_demo_prints_its_plan_before_training(tmp_path, monkeypatch):
+    """``run_demo`` names the runs it trains and those it will not, before its training stage starts
+    (the training itself is replaced by a stand-in that records what had been printed by then)."""
+    stream = io.StringIO()
+    seen = {}
+
+    def fake_run(self):
+        seen["printed"] = stream.getvalue()
+        raise KeyboardInterrupt  # stop the demo here: only the plan is under test
+
+    monkeypatch.setattr(ParallelTrainer, "run", fake_run)
+    try:
+        demo.run_demo(tmp_path / "demo", progress=StageProgress("demo", stream=stream))
+    except KeyboardInterrupt:
+        pass
+    printed = seen["printed"]
+    assert "demo | plan: trains doe+net (2400 steps), lens+net (1800 steps)" in printed
+    assert printed.index("plan:") < printed.index("stage 1/4 training")
+    assert "takes axicon+net, cubic+net, lens+onlineprodeb from the shipped runs" in printed
