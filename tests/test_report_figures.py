@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from edofproj.config import load_config
-from edofproj.evaluation.methods import METHOD_NAMES
 from edofproj.evaluation.results import MetricsTable
 from edofproj.evaluation.surfaces import SurfaceEvaluation
 from edofproj.evaluation.sweep import nearest_scored_depths_mm
+from edofproj.methods.catalogue import METHOD_NAMES
 from edofproj.reporting import figures, surfaces
 from edofproj.reporting.document import Table
 from edofproj.reporting.figures import PSNR_AXIS_MAX_DB, method_colour

@@ -28,9 +28,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..methods.catalogue import METHOD_NAMES, METHODS, OURS  # noqa: E402
 from ..evaluation.results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 from ..fileio import atomic_path  # noqa: E402
+from ..methods.catalogue import METHOD_NAMES, METHODS, OURS  # noqa: E402
 
 #: Metrics written on the tiles of the comparison figures, with their short labels (paper Fig. 6).
 TILE_METRICS = (("psnr", "P", "{:.2f}"), ("ssim", "S", "{:.3f}"), ("lpips", "L", "{:.3f}"))
