@@ -12,12 +12,12 @@ from edofproj.cli import main
 from edofproj.compensation.achievable import achievable_goal
 from edofproj.compensation.surface_net import SurfaceAwareNet
 from edofproj.compensation.unet import CompensationUNet
-from edofproj.evaluation.surfaces import PHOTOMETRIC, SURFACE_NET, surface_methods
 from edofproj.imaging import write_image
 from edofproj.imaging.projection import project
 from edofproj.methods.builder import PreparedMethod
 from edofproj.methods.catalogue import method_spec
 from edofproj.methods.compensators import NetworkCompensation, no_compensation
+from edofproj.methods.surface_variants import PHOTOMETRIC, SURFACE_NET, surface_methods
 
 H, W = 32, 40
 

@@ -36,21 +36,19 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from ..compensation.achievable import SurfaceRangeWarning, achievable_goal, clipped_fraction, warn_if_out_of_reach
-from ..compensation.photometric import light_for_goal, photometric_compensation
-from ..compensation.surface_net import SurfaceAwareNet
 from ..data import evaluation_images
 from ..data.textures import surface_reflectance
 from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
-from ..methods.builder import PreparedMethod
 from ..methods.catalogue import select_methods
 from ..methods.compensators import score_range_mm
+from ..methods.surface_variants import surface_methods
 from ..metrics import psnr, ssim
 from ..progress import StageProgress
 from .pipeline import open_run
@@ -61,21 +59,6 @@ SURFACE_SUMMARY_NAME = "surface_summary.md"
 SURFACE_FIGURE_NAME = "eval_surfaces.png"
 #: Base methods scored by default (``lens+net`` only where its separate run exists).
 DEFAULT_BASE_METHODS = ("lens", "doe", "doe+net", "lens+net")
-PHOTOMETRIC = "+photometric"
-SURFACE_NET = "doe+surface-net"
-
-#: ``compensate(goal, captured, psf, reflectance, ambient, screen) -> projector input``; ``screen(x) = A(x)``
-#: is what the camera sees of ``x`` projected (the cascade captures its own first stage)
-SurfaceCompensator = Callable[..., torch.Tensor]
-
-
-@dataclass
-class SurfaceMethod:
-    """A method on a textured surface: its name, optical design and compensation (module docstring)."""
-
-    name: str
-    design: object  # :class:`~edofproj.evaluation.designs.OpticalDesign`
-    compensate: SurfaceCompensator
 
 
 @dataclass
@@ -93,47 +76,6 @@ class SurfaceEvaluation:
     notes: list[str] = field(default_factory=list)
     files: dict[str, Path] = field(default_factory=dict)
     seconds: float = math.nan
-
-
-def _blind(method: PreparedMethod) -> SurfaceCompensator:
-    return lambda goal, captured, psf, rho, ambient, screen: method.compensate(goal, captured, psf)
-
-
-def _photometric_only(goal, captured, psf, rho, ambient, screen):
-    return photometric_compensation(goal, rho, ambient)
-
-
-def _cascade(method: PreparedMethod) -> SurfaceCompensator:
-    def compensate(goal, captured, psf, rho, ambient, screen):
-        light = photometric_compensation(goal, rho, ambient)
-        light_captured = light_for_goal(screen(light), rho, ambient).clamp(0.0, 1.0)
-        return method.compensate(light, light_captured, psf)
-
-    return compensate
-
-
-def _surface_net(net: torch.nn.Module) -> SurfaceCompensator:
-    def compensate(goal, captured, psf, rho, ambient, screen):
-        return net(goal, screen(photometric_compensation(goal, rho, ambient)), rho, ambient)
-
-    return compensate
-
-
-def surface_methods(prepared: Sequence[PreparedMethod], run_net: torch.nn.Module | None) -> list[SurfaceMethod]:
-    """Each base method blind and with the photometric correction, then the surface network if the run has one."""
-    methods = []
-    for method in prepared:
-        if method.spec.compensation == "none":
-            methods.append(SurfaceMethod(method.name, method.design, _blind(method)))
-            methods.append(SurfaceMethod(method.name + PHOTOMETRIC, method.design, _photometric_only))
-        else:
-            methods.append(SurfaceMethod(method.name, method.design, _blind(method)))
-            methods.append(SurfaceMethod(method.name + PHOTOMETRIC, method.design, _cascade(method)))
-    if isinstance(run_net, SurfaceAwareNet):
-        run_design = next((m.design for m in prepared if m.spec.optics == "run"), None)
-        if run_design is not None:
-            methods.append(SurfaceMethod(SURFACE_NET, run_design, _surface_net(run_net.eval())))
-    return methods
 
 
 def evaluate_surfaces(

@@ -13,12 +13,12 @@ import numpy as np
 from ..evaluation.surfaces import (
     SURFACE_FIGURE_NAME,
     SURFACE_METRICS_NAME,
-    SURFACE_NET,
     SURFACE_SUMMARY_NAME,
     SurfaceEvaluation,
     surface_table,
 )
 from ..fileio import atomic_path, write_text_atomic
+from ..methods.surface_variants import SURFACE_NET
 
 
 class SummaryTable(NamedTuple):
