@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, run_directory
+from ._common import RUN_HELP_SUFFIX, refuse_output_over, run_directory
 
 EXPORT_FORMATS = ("onnx", "torchscript")
 """= ``compensation.export.EXPORT_FORMATS`` (tests/test_cli_help.py checks): not imported, so that
@@ -51,6 +51,7 @@ def run(args) -> int:
     if not args.out:
         require_output_outside(run_dir, "--out")
     out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
+    refuse_output_over(str(out), "--out", runs=[("RUN", args.run)], file_output=True)
     trained = load_run(run_dir)
     worst = export_network(trained.net, out, args.format, args.height, args.width, verify=not args.no_verify)
     fixed_size = args.format == "onnx" and fixed_size_onnx(trained.net)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import EdofprojError
+from .._common import refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -26,9 +27,12 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ...imaging.image_io import IMAGE_EXTENSIONS, check_output_path, write_image
+    from ...outputs import refuse_colliding_names
     from ...procams.calibration import ProCamsCalibration
     from ...procams.capture_io import atomic_folder, read_rgb
 
+    inputs = [("CAPTURE", args.capture), ("--calib", args.calib)]
+    refuse_output_over(args.out, "--out", inputs, file_output=not Path(args.capture).is_dir())
     calibration = ProCamsCalibration.load(args.calib)
     source = Path(args.capture)
 
@@ -40,7 +44,8 @@ def run(args) -> int:
         files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
         if not files:
             raise EdofprojError(f"capture folder '{source}' holds no image")
-        with atomic_folder(args.out) as tmp:
+        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"captures of '{source}'")
+        with atomic_folder(args.out, what="edofproj procams rectify") as tmp:
             for path in files:
                 write_image(tmp / (path.stem + ".png"), rectified(path), bits=args.bits)
         print(f"wrote {len(files)} rectified captures to {args.out}")
