@@ -33,18 +33,20 @@ def run(args) -> int:
 
     inputs = [("CAPTURE", args.capture), ("--calib", args.calib)]
     refuse_output_over(args.out, "--out", inputs, file_output=not Path(args.capture).is_dir())
-    calibration = ProCamsCalibration.load(args.calib)
     source = Path(args.capture)
+    files = []
+    if source.is_dir():  # the folder's files and their output names, checked before any work
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
+        if not files:
+            raise EdofprojError(f"capture folder '{source}' holds no image")
+        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"captures of '{source}'")
+    calibration = ProCamsCalibration.load(args.calib)
 
     def rectified(path: Path) -> np.ndarray:
         light = calibration.to_output_space(read_rgb(path, what="capture"))
         return np.ascontiguousarray(light.transpose(2, 0, 1))
 
     if source.is_dir():
-        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
-        if not files:
-            raise EdofprojError(f"capture folder '{source}' holds no image")
-        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"captures of '{source}'")
         with atomic_folder(args.out, what="edofproj procams rectify") as tmp:
             for path in files:
                 write_image(tmp / (path.stem + ".png"), rectified(path), bits=args.bits)
