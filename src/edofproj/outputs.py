@@ -103,7 +103,7 @@ def refuse_output_over_inputs(
             )
 
 
-def refuse_colliding_names(sources: Sequence[Path], output_name, what: str = "input") -> None:
+def refuse_colliding_names(sources: Sequence[Path], output_name, what: str = "the inputs") -> None:
     """Raise one line when two of ``sources`` would be written under the same output name
     ``output_name(source)`` (module docstring: ``x.png`` and ``x.jpg`` both giving ``x.png``)."""
     seen: dict[str, Path] = {}
@@ -118,7 +118,7 @@ def refuse_colliding_names(sources: Sequence[Path], output_name, what: str = "in
         first, second, name = clashes[0]
         more = f" (and {len(clashes) - 1} more clash(es))" if len(clashes) > 1 else ""
         raise EdofprojError(
-            f"{what}s '{first.name}' and '{second.name}' would both be written as '{name}'{more}: "
+            f"{what}: '{first.name}' and '{second.name}' would both be written as '{name}'{more}; "
             "rename one of them (one output per name)"
         )
 

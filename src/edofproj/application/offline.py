@@ -121,7 +121,7 @@ def open_frames(
     paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
     if not paths:
         raise EdofprojError(f"image folder '{folder}' holds no image ({', '.join(IMAGE_EXTENSIONS)})")
-    refuse_colliding_names(paths, frame_file_name, what=f"images of '{folder}'")
+    refuse_colliding_names(paths, frame_file_name, what=f"the images of '{folder}'")
     first_image = read_image_array(paths[0])
     size = size_hw or (int(first_image.shape[0]), int(first_image.shape[1]))
     reference = "the calibrated projector" if size_hw is not None else f"the first image '{paths[0].name}'"

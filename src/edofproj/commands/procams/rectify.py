@@ -39,7 +39,7 @@ def run(args) -> int:
         files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
         if not files:
             raise EdofprojError(f"capture folder '{source}' holds no image")
-        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"captures of '{source}'")
+        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"the captures of '{source}'")
     calibration = ProCamsCalibration.load(args.calib)
 
     def rectified(path: Path) -> np.ndarray:
