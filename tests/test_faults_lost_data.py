@@ -535,3 +535,16 @@ def test_cli_a_session_keeps_its_camera(virtual_session, tmp_path):
         json.dumps({**info, "cameras": {**info["cameras"], "virtual:x": 1}})
     )
     _refused(_cli(*calibrate[:-1], "c2.npz", cwd=tmp_path), "mixes the captures of 2 cameras")
+
+
+def test_any_other_write_that_meets_a_full_disk_is_one_line(tmp_path, capsys, monkeypatch):
+    """A write outside the atomic helpers (a library writing directly) reaches the CLI as OSError
+    ENOSPC: one line naming the file and its disk, no traceback."""
+    from edofproj.commands import render
+
+    def writes_on_a_full_disk(args):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "o.png"))
+
+    monkeypatch.setattr(render, "run", writes_on_a_full_disk)
+    line = run_error(capsys, ["render", "--image", "a.png", "--doe", "lens", "--out", str(tmp_path / "o.png")])
+    assert f"cannot write '{tmp_path / 'o.png'}': the disk of '/" in line and "the command stopped there" in line
