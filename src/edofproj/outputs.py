@@ -14,9 +14,9 @@ work, with paths compared after resolving symlinks, ``..`` and relative paths
 
 Each case is refused with one line naming both options. An input that does not exist (a
 built-in name such as a texture, or a file the command will fail to read) has nothing to lose and
-is skipped. A *holder* is a folder that holds inputs
-without being read as a whole (a run directory: its ``config.yaml``, ``doe.npz`` and checkpoints
-are the inputs): an output may lie inside it, but may not be it or contain it.
+is skipped. A *holder* is a folder that holds inputs without being read as a whole (a run
+directory: its ``config.yaml``, ``doe.npz`` and checkpoints are the inputs): an output may lie
+inside it, but may not be it or contain it.
 
 Folder outputs named after their inputs (``x.jpg`` -> ``x.png``) can collide: two inputs ``x.png``
 and ``x.jpg`` would both become ``x.png``, the second silently replacing the first.
