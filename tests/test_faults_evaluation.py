@@ -124,3 +124,22 @@ def test_an_interrupted_evaluate_leaves_the_previous_set_alone(run, tmp_path, ca
     assert main(args + ["--depths-mm", "400,600"]) == 130
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
+
+
+def test_re_evaluating_into_the_same_out_leaves_no_file_of_the_previous_run(run, tmp_path, capsys):
+    """A surface evaluation, then a flat one, then a scene one into the same --out: each replaces the
+    previous set as a whole (no surface_metrics.csv beside the new report); the user's file stays."""
+    out = tmp_path / "ev"
+    base = ["evaluate", str(run), "--out", str(out), "--methods", "doe", "--quiet"]
+    assert main(base + ["--surface", "white", "--depths-mm", "400"]) == 0
+    assert {"surface_metrics.csv", "surface_summary.md"} <= {p.name for p in out.iterdir()}
+    (out / "notes.txt").write_text("the user's\n")
+    assert main(base + ["--depths-mm", "400"]) == 0
+    names = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    assert {"metrics.csv", "report.md", "notes.txt"} <= names
+    assert not names & {"surface_metrics.csv", "surface_summary.md", "figures/eval_surfaces.png"}
+    assert main(base + ["--scene", "steps"]) == 0
+    names = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    assert {"scene_metrics.csv", "scene_summary.md", "notes.txt"} <= names
+    assert not names & {"metrics.csv", "report.md", "report.html", "summary.md", "tilted_metrics.csv"}
+    assert not [p for p in out.iterdir() if p.name.startswith(".evaluate-staging-")]

@@ -20,6 +20,7 @@ LAYERS = [
     {
         "errors",
         "fileio",
+        "outputs",
         "config",
         "net_config",
         "presets",

@@ -260,7 +260,7 @@ def test_capture_session_resumes_after_an_interruption(tmp_path, pattern_dir):
     out = tmp_path / "captures"
 
     class Interrupting(Camera):
-        spec = "interrupting"
+        spec = "virtual"  # the same virtual camera, interrupted: the session is tied to its camera's spec
         grabs = 0
 
         def grab(self):

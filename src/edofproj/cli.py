@@ -94,8 +94,8 @@ def _refuse_outputs_in_builtin_runs(args: argparse.Namespace) -> argparse.Namesp
 def main(argv=None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``) and return the exit code: the subcommand's
     return value (0 for None); 2 with one ``edofproj: error:`` line on stderr for an
-    :class:`~edofproj.errors.EdofprojError` or a missing, directory or forbidden file (re-raised when
-    ``EDOFPROJ_DEBUG`` is set); 130 on Ctrl-C. Parse errors exit with code 2 (``SystemExit``), and
+    :class:`~edofproj.errors.EdofprojError` or a missing, directory or forbidden file or a full disk
+    (re-raised when ``EDOFPROJ_DEBUG`` is set); 130 on Ctrl-C. Parse errors exit with code 2 (``SystemExit``), and
     warnings print as one line ``edofproj: warning: ...``."""
     warnings.formatwarning = _one_line_warning
     debug = bool(os.environ.get("EDOFPROJ_DEBUG"))
@@ -114,6 +114,16 @@ def main(argv=None) -> int:
         if debug:
             raise
         print(f"edofproj: error: {exc.strerror or exc}: '{exc.filename}'", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        from .fileio import disk_full_error, is_disk_full
+
+        if debug or not is_disk_full(exc):
+            raise
+        print(
+            f"edofproj: error: {disk_full_error(exc.filename or os.getcwd(), 'the command stopped there')}",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         print("edofproj: interrupted", file=sys.stderr)

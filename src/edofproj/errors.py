@@ -10,6 +10,11 @@ class EdofprojError(Exception):
     """An error caused by the user's input, reported as one line by the CLI."""
 
 
+class DiskFullError(EdofprojError):
+    """A write that failed because its disk (or the user's quota) is full; the message names the
+    disk and what was kept (:func:`edofproj.fileio.disk_full_error`)."""
+
+
 class ConfigError(EdofprojError):
     """A configuration key or value that does not exist or is out of range."""
 

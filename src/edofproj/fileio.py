@@ -9,6 +9,7 @@ behind; :func:`remove_stale_temp_files` removes those of a directory the caller 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import shutil
@@ -21,16 +22,63 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from .errors import EdofprojError, RecoveryWarning
+from .errors import DiskFullError, EdofprojError, RecoveryWarning
 
 TEMP_MARKER = ".tmp-"
+#: How the lock files of :mod:`edofproj.locking` end (``.edofproj.lock``; that module imports this one).
+LOCK_FILE_SUFFIX = ".edofproj.lock"
 #: Temporary files of :func:`atomic_path`: ``.<target>.tmp-<8 random chars><suffix>`` (and the
 #: ``.<target>.<8 random chars><suffix>`` names of earlier versions).
 TEMP_PATTERN = re.compile(r"^\.(?P<target>.+?)\.(?:tmp-)?[a-z0-9_]{8}(?:\.[A-Za-z0-9]+)+$")
 
 
+#: The ``errno`` values of a full disk: no space left, and the user's disk quota exceeded.
+DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` is an :class:`OSError` of a full disk (:data:`DISK_FULL_ERRNOS`)."""
+    return isinstance(exc, OSError) and exc.errno in DISK_FULL_ERRNOS
+
+
+def _mount_point(path: Path) -> Path:
+    """The mount point of the file system that holds ``path`` (its nearest existing folder's)."""
+    folder = Path(os.path.abspath(path))
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    while not os.path.ismount(folder) and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def disk_full_error(path: str | os.PathLike, kept: str) -> DiskFullError:
+    """The one line of a write to ``path`` that the full disk stopped: the disk (its mount point and
+    the space left on it) and ``kept``, what the failed write left as it was."""
+    disk = _mount_point(Path(path))
+    try:
+        free = f", {shutil.disk_usage(disk).free / 1e6:.1f} MB free"
+    except OSError:
+        free = ""
+    return DiskFullError(f"cannot write '{os.fspath(path)}': the disk of '{disk}' is full{free}; {kept}")
+
+
+def kept_phrase(target: str | os.PathLike) -> str:
+    """What a failed write of ``target`` left: the previous file or folder, or nothing."""
+    return f"the previous '{os.fspath(target)}' is kept" if Path(target).exists() else "nothing was written"
+
+
+def user_mode(mode: int = 0o777) -> int:
+    """``mode`` less the process's umask: the permissions of a file (``0o666``) or folder (``0o777``)
+    the user creates (``mkstemp``/``mkdtemp`` make private ones, 0600/0700, that an output must not keep)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return mode & ~umask
+
+
 def _write_error(target: Path, exc: OSError) -> EdofprojError:
     """A one-line error about writing ``target`` (never the temporary file's name)."""
+    if is_disk_full(exc):
+        return disk_full_error(target, kept_phrase(target))
     reason = exc.strerror or type(exc).__name__
     hint = f": is '{target.parent}' writable?" if isinstance(exc, PermissionError) else ""
     return EdofprojError(f"cannot write '{target}': {reason}{hint}")
@@ -55,9 +103,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except OSError as exc:
         raise _write_error(target, exc) from None
     os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
+    os.chmod(tmp, user_mode(0o666))  # mkstemp creates 0600; outputs get the usual permissions
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -65,9 +111,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             os.replace(tmp_path, target)
         except OSError as exc:
             raise _write_error(target, exc) from None
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
+        if is_disk_full(exc):
+            raise disk_full_error(target, kept_phrase(target)) from None
         raise
 
 
@@ -120,17 +168,25 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
         tmp.write_bytes(data)
 
 
-def remove_stale_temp_files(directory: str | os.PathLike, recursive: bool = False) -> list[Path]:
+def remove_stale_temp_files(
+    directory: str | os.PathLike, recursive: bool = False, target: str | None = None
+) -> list[Path]:
     """Delete the temporary files that interrupted atomic writes left in ``directory`` (and, with
     ``recursive``, its subdirectories); returns them. Call it only while holding the directory's
-    lock (:mod:`edofproj.locking`): another writer's temporary file would be deleted too."""
+    lock (:mod:`edofproj.locking`): another writer's temporary file would be deleted too. With
+    ``target`` (a file name), only the temporary files of that file (hold that file's lock)."""
     root = Path(directory)
     if not root.is_dir():
         return []
     candidates = root.rglob(".*") if recursive else root.glob(".*")
     removed = []
     for path in sorted(candidates):
-        if path.is_file() and not path.is_symlink() and TEMP_PATTERN.match(path.name):
+        match = TEMP_PATTERN.match(path.name)
+        if path.name.endswith(LOCK_FILE_SUFFIX):
+            continue  # a lock file beside a folder or file (``.<name>.edofproj.lock``) is never a temporary file
+        if target is not None and (match is None or match.group("target") != target):
+            continue
+        if path.is_file() and not path.is_symlink() and match:
             with contextlib.suppress(FileNotFoundError):
                 path.unlink()
                 removed.append(path)

@@ -37,13 +37,14 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from .errors import EdofprojError, RecoveryWarning
+from .fileio import LOCK_FILE_SUFFIX, disk_full_error, is_disk_full
 
 try:
     import fcntl  # optional: POSIX only (no file locks on Windows)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-LOCK_NAME = ".edofproj.lock"
+LOCK_NAME = LOCK_FILE_SUFFIX
 
 
 class DirectoryLockedError(EdofprojError):
@@ -207,9 +208,20 @@ class DirectoryLock:
                         RecoveryWarning,
                         stacklevel=2,
                     )
-            os.ftruncate(fd, 0)
-            os.write(fd, json.dumps(self._owner_record()).encode("utf-8"))
-            os.fsync(fd)
+            try:
+                os.ftruncate(fd, 0)
+                os.write(fd, json.dumps(self._owner_record()).encode("utf-8"))
+                os.fsync(fd)
+            except OSError as exc:  # a full disk: no lock file is left behind, empty or not
+                with contextlib.suppress(OSError):
+                    os.unlink(self.path)
+                os.close(fd)
+                if self._created:
+                    with contextlib.suppress(OSError):
+                        self.directory.rmdir()
+                if is_disk_full(exc):
+                    raise disk_full_error(self.path, "nothing was written (no lock file is left)") from None
+                raise EdofprojError(f"cannot lock '{self.directory}': {exc.strerror or exc}") from None
             self._fd = fd
             return self
         raise EdofprojError(f"cannot lock '{self.directory}': its lock file keeps changing")

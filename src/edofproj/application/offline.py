@@ -15,13 +15,22 @@ show: for each batch of ``B`` target frames ``I`` ``(B, 3, H, W)``,
 
 Faults end in one line and leave no partial output: a video that stops decoding before the frame
 count its container gives ("cannot be decoded after frame N of M"), frames that did not reach the
-disk (a full disk: the written video reads back short), an unwritable folder.
+disk (a full disk: the written video is decoded back frame by frame, and fewer frames decode than
+were written), an unwritable folder. Two inputs of a folder that would give one output name
+(``x.png`` and ``x.jpg``) are refused before any work (:func:`edofproj.outputs.refuse_colliding_names`).
+
+A video output is locked while it is written (the lock file beside it, as for a folder) and the
+temporary files a killed writer left beside it (``.NAME.tmp-XXXXXXXX.avi``) are removed first. Its
+frame rate must lie in :data:`VIDEO_FPS_RANGE`, what both containers store (measured with
+OpenCV 4.x-5.x: an MJPG ``.avi`` stores up to 1000 frames/s and writes 600 for any higher rate; a
+writer below about 0.002 frames/s does not open); the rate is also read back.
 """
 
 from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -30,9 +39,11 @@ import cv2
 import numpy as np
 import torch
 
-from ..errors import EdofprojError
-from ..fileio import atomic_path
+from ..errors import EdofprojError, RecoveryWarning
+from ..fileio import atomic_path, remove_stale_temp_files
 from ..imaging.image_io import IMAGE_EXTENSIONS, open_video, read_image_array, to_unit_float, write_image
+from ..locking import directory_lock
+from ..outputs import refuse_colliding_names
 from ..procams.capture_io import atomic_folder
 from .live import fit_to_projector, network_memory_format
 
@@ -40,6 +51,11 @@ VIDEO_CODECS = {".avi": "MJPG", ".mp4": "mp4v"}
 """Video outputs by extension and the OpenCV codec (FourCC) each is written with."""
 DEFAULT_VIDEO_FPS = 30.0
 """Frame rate of a video made from a folder of images."""
+VIDEO_FPS_RANGE = (0.01, 1000.0)
+"""Frame rates (frames/s) a video output may have: what OpenCV's writers store for both containers
+(module docstring); a rate is stored to 1/1000 frame/s."""
+WRITER = "edofproj compensate"
+"""The command named in the lock of an output being written."""
 
 
 def is_video_path(path: str | Path) -> bool:
@@ -105,6 +121,7 @@ def open_frames(
     paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
     if not paths:
         raise EdofprojError(f"image folder '{folder}' holds no image ({', '.join(IMAGE_EXTENSIONS)})")
+    refuse_colliding_names(paths, frame_file_name, what=f"the images of '{folder}'")
     first_image = read_image_array(paths[0])
     size = size_hw or (int(first_image.shape[0]), int(first_image.shape[1]))
     reference = "the calibrated projector" if size_hw is not None else f"the first image '{paths[0].name}'"
@@ -116,25 +133,36 @@ def open_frames(
                 raise EdofprojError(
                     f"image '{path}' is {image.shape[1]}x{image.shape[0]}, not {size[1]}x{size[0]} like {reference}"
                 )
-            yield path.stem, image.astype(np.float32)
+            yield Path(frame_file_name(path)).stem, image.astype(np.float32)
 
     return FrameSource(f"folder '{folder}'", len(paths), DEFAULT_VIDEO_FPS, size, frames())
 
 
+def frame_file_name(path: Path) -> str:
+    """The output file of the input frame ``path`` (``x.jpg`` -> ``x.png``)."""
+    return f"{path.stem}.png"
+
+
 class FolderSink:
-    """Writes frames as ``NAME.png`` into a folder that appears only when complete."""
+    """Writes frames as ``NAME.png`` into a folder that appears only when complete; a name written
+    twice is refused (it would replace a frame)."""
 
     def __init__(self, path: str | Path, bits: int = 8, overwrite: bool = False) -> None:
         self.path, self.bits, self.overwrite = Path(path), bits, overwrite
         self.written = 0
+        self._names: set[str] = set()
 
     def __enter__(self) -> "FolderSink":
-        self._context = atomic_folder(self.path, overwrite=self.overwrite)
+        self._context = atomic_folder(self.path, overwrite=self.overwrite, what=WRITER)
         self._folder = self._context.__enter__()
         return self
 
     def write(self, name: str, frame: np.ndarray) -> None:
-        write_image(self._folder / f"{name}.png", np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=self.bits)
+        file_name = f"{name}.png"
+        if file_name in self._names:
+            raise EdofprojError(f"two frames would both be written as '{file_name}' in '{self.path}'")
+        self._names.add(file_name)
+        write_image(self._folder / file_name, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=self.bits)
         self.written += 1
 
     def __exit__(self, *exc) -> bool | None:
@@ -149,19 +177,39 @@ class VideoSink:
         self.path, self.fps, self.size_hw = Path(path), fps, size_hw
         if not is_video_path(self.path):
             raise EdofprojError(f"video output '{self.path}' must end in one of {', '.join(VIDEO_CODECS)}")
+        low, high = VIDEO_FPS_RANGE
+        if not (math.isfinite(fps) and low <= fps <= high):
+            raise EdofprojError(
+                f"a video's frame rate must lie in {low:g}-{high:g} frames/s (what its container stores), not {fps:g}"
+            )
         if self.path.exists() and not overwrite:
             raise EdofprojError(f"'{self.path}' exists (use --overwrite to replace it)")
         self.written = 0
 
     def __enter__(self) -> "VideoSink":
-        self._context = atomic_path(self.path)
-        self._tmp = self._context.__enter__()
+        # one writer per video; the temporary files of a killed one are removed under its lock
+        self._lock = directory_lock(self.path, WRITER, "--out", beside=True)
+        self._lock.__enter__()
+        try:
+            stale = remove_stale_temp_files(self.path.parent, target=self.path.name)
+            if stale:
+                warnings.warn(
+                    f"removed {len(stale)} unfinished video(s) of an interrupted write beside '{self.path}'",
+                    RecoveryWarning,
+                    stacklevel=2,
+                )
+            self._context = atomic_path(self.path)
+            self._tmp = self._context.__enter__()
+        except BaseException:
+            self._lock.__exit__(None, None, None)
+            raise
         H, W = self.size_hw
         fourcc = cv2.VideoWriter_fourcc(*VIDEO_CODECS[self.path.suffix.lower()])  # type: ignore[attr-defined]
         self._writer = cv2.VideoWriter(str(self._tmp), fourcc, self.fps, (W, H))
         if not self._writer.isOpened():
             error = EdofprojError(f"OpenCV cannot write a {self.path.suffix} video to '{self.path}'")
             self._context.__exit__(EdofprojError, error, None)  # removes the temporary file
+            self._lock.__exit__(None, None, None)
             raise error
         return self
 
@@ -170,31 +218,38 @@ class VideoSink:
         self.written += 1
 
     def _check_written(self) -> None:
-        """Read the video back: the frame count and the last frame (a full disk loses the end)."""
+        """Decode the video back frame by frame (a full disk loses the end, while the container
+        may still announce every frame) and read its frame rate back."""
         capture = open_video(self._tmp)
+        decoded = 0
         try:
-            count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
-            last_ok = False
-            if count == self.written and count > 0:
-                capture.set(cv2.CAP_PROP_POS_FRAMES, count - 1)
-                last_ok = capture.read()[0]
+            fps = float(capture.get(cv2.CAP_PROP_FPS)) if capture.isOpened() else float("nan")
+            while decoded <= self.written and capture.isOpened() and capture.read()[0]:
+                decoded += 1
         finally:
             capture.release()
-        if count != self.written or not last_ok:
+        if decoded != self.written:
             raise EdofprojError(
-                f"cannot write '{self.path}': the video reads back with {max(count, 0)} of {self.written} frames "
-                "(is the disk full?); nothing was written"
+                f"cannot write '{self.path}': {decoded} of the {self.written} frames written decode when the video is "
+                "read back (is the disk full?); nothing was written"
+            )
+        if not (abs(fps - self.fps) <= max(1e-3, 1e-4 * self.fps)):
+            raise EdofprojError(
+                f"cannot write '{self.path}': OpenCV stored {fps:g} frames/s, not {self.fps:g}; nothing was written"
             )
 
     def __exit__(self, exc_type, exc, traceback) -> bool | None:
-        self._writer.release()
-        if exc_type is None:
-            try:
-                self._check_written()
-            except EdofprojError as error:
-                self._context.__exit__(EdofprojError, error, None)
-                raise
-        return self._context.__exit__(exc_type, exc, traceback)
+        try:
+            self._writer.release()
+            if exc_type is None:
+                try:
+                    self._check_written()
+                except EdofprojError as error:
+                    self._context.__exit__(EdofprojError, error, None)
+                    raise
+            return self._context.__exit__(exc_type, exc, traceback)
+        finally:
+            self._lock.__exit__(None, None, None)
 
 
 @dataclass

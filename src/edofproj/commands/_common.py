@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -113,3 +114,34 @@ def parse_number_list(text: str, what: str) -> list[float]:
 
 def parse_name_list(text: str) -> list[str]:
     return [p.strip() for p in str(text).split(",") if p.strip()]
+
+
+def refuse_output_over(
+    output: str | None,
+    option: str,
+    inputs: Sequence[tuple[str, str | None]] = (),
+    runs: Sequence[tuple[str, str | None]] = (),
+    file_output: bool = False,
+) -> None:
+    """:func:`edofproj.outputs.refuse_output_over_inputs` for a command's options: ``output`` (the
+    option ``option``) is none of ``inputs`` (``(option, path)``; a path None or of nothing on disk is
+    skipped), contains none, lies inside none; ``runs`` are ``(option, path)`` of run directories
+    (the holder of their files, :func:`edofproj.runs.run_inputs`) or design files; ``file_output``:
+    ``output`` is one file (it may lie inside an input folder)."""
+    from pathlib import Path
+
+    from ..outputs import refuse_output_over_inputs
+
+    if output is None:
+        return
+    named: list[tuple[str, Any]] = list(inputs)
+    holders = []
+    for what, path in runs:
+        if path is not None and Path(path).is_dir():
+            from ..runs import run_inputs  # start-up: torch
+
+            holders.append((what, path))
+            named += run_inputs(path, what)
+        else:
+            named.append((what, path))
+    refuse_output_over_inputs(output, named, option, holders=holders, file_output=file_output)

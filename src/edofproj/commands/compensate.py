@@ -54,7 +54,7 @@ import math
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, refuse_output_over, run_directory
 
 
 def register(subparsers) -> None:
@@ -125,6 +125,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    refuse_outputs_over_inputs(args)
     if args.capture is None and args.depth_mm is None and args.depth_map is None:
         if args.surface_from_calib and args.image is not None:
             return run_photometric(args)
@@ -225,6 +226,18 @@ def _surface_network(method):
     if isinstance(method.network, SurfaceAwareNet):
         return method.network.eval()
     return method.frame_function()
+
+
+def refuse_outputs_over_inputs(args) -> None:
+    """``--out`` and ``--preview`` are none of the inputs, contain none, lie inside none (the run's
+    own files included; :func:`edofproj.outputs.refuse_output_over_inputs`)."""
+    inputs = [("--image", args.image), ("--images", args.images), ("--video", args.video), ("--capture", args.capture)]
+    inputs += [("--depth-map", args.depth_map), ("--calib", args.calib), ("--baselines", args.baselines)]
+    for option in ("--out", "--preview"):
+        value = getattr(args, option[2:])  # a file (an image, a video) or, without a suffix, a folder of frames
+        refuse_output_over(
+            value, option, inputs, runs=[("RUN", args.run)], file_output=bool(value and Path(value).suffix)
+        )
 
 
 def _compensate_on_surface(args, net, target, calibration, capture) -> int:
@@ -333,6 +346,8 @@ def run_batch(args) -> int:
     video_out = is_video_path(args.out)
     if video_out and args.bits != 8:
         raise EdofprojError(f"videos hold 8-bit frames, not --bits {args.bits} (write a folder for 16 bits)")
+    if not video_out and args.fps is not None:
+        raise EdofprojError(f"--fps goes with a video output (.avi, .mp4); --out '{args.out}' is a folder of images")
     if not video_out and Path(args.out).suffix:
         raise EdofprojError(
             f"--out '{args.out}': with --images/--video the output is a folder (no extension) or a video (.avi, .mp4)"

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 
 from ..application.durations import FULL_BUDGET_MIN, FULL_DURATION, QUICK_BUDGET_MIN, QUICK_DURATION
-from ._common import add_set_option, parse_name_list
+from ._common import add_set_option, parse_name_list, refuse_output_over
 
 DEFAULT_PRETRAINED = "builtin:cpu-doe-net"
 SUMMARY = f"train, evaluate and write a report on built-in data ({FULL_DURATION}; --quick: {QUICK_DURATION})"
@@ -93,6 +93,7 @@ def run(args) -> int:
     from ..progress import StageProgress
 
     methods = parse_name_list(args.methods) if args.methods is not None else None
+    refuse_output_over(args.out, "--out", [("--config", args.config)], runs=[("--pretrained", args.pretrained)])
     result = run_demo(
         args.out,
         quick=args.quick,

@@ -20,12 +20,19 @@ for all of them -- or a reflectance file the size of the evaluation images; repe
 methods are scored over depth on coloured, textured surfaces, with photometric variants and the
 surface-aware network: ``surface_metrics.csv``, ``surface_summary.md`` and
 ``figures/eval_surfaces.png`` (:mod:`edofproj.evaluation.surfaces`, :mod:`edofproj.reporting.surfaces`).
+
+Each evaluation replaces the previous one in its output folder as a whole: the files of an earlier
+evaluation of any kind that the new one does not write are removed
+(:mod:`edofproj.evaluation.output_set`). ``--out`` may not be, contain or lie inside an input
+(``--images``, a ``--surface`` or ``--scene`` file, the run's configuration, DOE and checkpoints).
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
+from pathlib import Path
 
 from ._common import RUN_HELP_SUFFIX, add_set_option, parse_name_list, parse_number_list, run_directory
 
@@ -121,11 +128,35 @@ def _output_lock(args):
     from ..builtin_runs import require_output_outside
     from ..locking import directory_lock
     from ..methods.builder import require_trained_run
+    from ..runs import run_inputs
+    from ._common import refuse_output_over
 
     require_trained_run(args.run)
     if not args.out:
         require_output_outside(args.run, "--out")
+    # evaluate writes its own files into the folder (never replaces it): the run may hold them, its files may not be them
+    named = [("--images", args.images), *(("--surface", s) for s in args.surfaces or ())]
+    named += [("--scene", s) for s in args.scenes or ()]
+    refuse_output_over(args.out, "--out", named + run_inputs(args.run))
     return directory_lock(args.out or args.run, "edofproj evaluate", "--out" if args.out else "RUN")
+
+
+@contextlib.contextmanager
+def _staged_set(args):
+    """``(stage, settle)``: the evaluation is written into ``stage`` and replaces the output folder's
+    previous evaluation as a whole (:func:`edofproj.evaluation.output_set.staged_output_set`);
+    ``settle(evaluation)``, after the swap, points its paths at their final places."""
+    from ..builtin_runs import resolve_run_dir
+    from ..evaluation.output_set import moved_path, staged_output_set
+
+    out = Path(args.out or resolve_run_dir(args.run))
+    with staged_output_set(out) as stage:
+
+        def settle(evaluation) -> None:
+            evaluation.files = {key: moved_path(path, stage, out) for key, path in evaluation.files.items()}
+            evaluation.out_dir = out
+
+        yield stage, settle
 
 
 def _print_notes_and_files(evaluation, seconds: float) -> None:
@@ -151,18 +182,21 @@ def run_scenes(args) -> int:
         raise EdofprojError("--depths-mm is for flat screens; with --scene the depths come from the scenes")
     methods = _checked_methods(args)
     clock = time.perf_counter()
-    evaluation = evaluate_scenes(
-        args.run,
-        [item for text in args.scenes for item in parse_name_list(text)],
-        out_dir=args.out,
-        images_dir=args.images,
-        methods=methods,
-        baselines_dir=args.baselines,
-        overrides=args.overrides,
-        progress=StageProgress("evaluate", enabled=not args.quiet),
-        device=choose_device(args.device, option="--device"),
-    )
-    write_scene_report(evaluation)
+    device = choose_device(args.device, option="--device")
+    with _output_lock(args), _staged_set(args) as (stage, settle):
+        evaluation = evaluate_scenes(
+            args.run,
+            [item for text in args.scenes for item in parse_name_list(text)],
+            out_dir=stage,
+            images_dir=args.images,
+            methods=methods,
+            baselines_dir=args.baselines,
+            overrides=args.overrides,
+            progress=StageProgress("evaluate", enabled=not args.quiet),
+            device=device,
+        )
+        write_scene_report(evaluation)
+    settle(evaluation)
     print("SSIM over the objects' pixels:")
     print(format_text_table(scene_summary_table(evaluation, "ssim")))
     _print_notes_and_files(evaluation, time.perf_counter() - clock)
@@ -191,11 +225,11 @@ def run_surfaces(args) -> int:
                 surfaces.append(item)
     depths = parse_number_list(args.depths_mm, "--depths-mm") if args.depths_mm is not None else None
     device = choose_device(args.device, option="--device")
-    with _output_lock(args):
+    with _output_lock(args), _staged_set(args) as (stage, settle):
         evaluation = evaluate_surfaces(
             args.run,
             surfaces,
-            out_dir=args.out,
+            out_dir=stage,
             images_dir=args.images,
             methods=methods,
             depths_mm=depths,
@@ -206,6 +240,7 @@ def run_surfaces(args) -> int:
             device=device,
         )
         write_surface_report(evaluation)
+    settle(evaluation)
     for surface in evaluation.surfaces:
         print(f"surface {surface}:")
         print(format_table(surface_summary_table(evaluation, surface)))
@@ -234,8 +269,6 @@ def run(args) -> int:
 
 
 def _evaluate_locked(args, methods, depths, device, progress) -> int:
-    from pathlib import Path
-
     from ..builtin_runs import resolve_run_dir
     from ..evaluation.image_checks import behind_linear_filter
     from ..evaluation.output_set import moved_path, staged_output_set

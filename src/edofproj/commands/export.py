@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, refuse_output_over, run_directory
 
 EXPORT_FORMATS = ("onnx", "torchscript")
 """= ``compensation.export.EXPORT_FORMATS`` (tests/test_cli_help.py checks): not imported, so that
@@ -54,6 +54,7 @@ def run(args) -> int:
     if not args.out:
         require_output_outside(run_dir, "--out")
     out = Path(args.out) if args.out else run_dir / DEFAULT_FILE_NAMES[args.format]
+    refuse_output_over(str(out), "--out", runs=[("RUN", args.run)], file_output=True)
     method = build_method(run_dir, args.method, args.baselines)
     module = method.module
     if module is None:

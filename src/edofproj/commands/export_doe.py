@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..errors import EdofprojError
-from ._common import add_config_options, add_design_source_argument
+from ._common import add_config_options, add_design_source_argument, refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if args.critical_dimension_um is not None and not args.critical_dimension_um > 0:
         raise EdofprojError(f"--critical-dimension-um {args.critical_dimension_um:g} must be > 0")
     design = DesignInput.resolve(args.source)
+    refuse_output_over(args.out, "--out", [("--config", args.config)], runs=[("RUN|DESIGN_FILE", args.source)])
     cfg = design.config(args.config, args.overrides)
     cd_um = (
         args.critical_dimension_um if args.critical_dimension_um is not None else cfg.fabrication.critical_dimension_um

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import RUN_HELP_SUFFIX, run_directory
+from ._common import RUN_HELP_SUFFIX, refuse_output_over, run_directory
 
 
 def register(subparsers) -> None:
@@ -47,6 +47,8 @@ def run(args) -> int:
     run_path = Path(args.run.rstrip("/"))
     default_parent = Path("runs") if is_builtin_run_dir(run_path) else run_path.parent
     out = args.out or str(default_parent / (run_path.name + "-finetuned"))
+    psfs = [("--psfs", path) for path in args.psfs or args.patch_psfs]
+    refuse_output_over(out, "--out", psfs, runs=[("RUN", args.run)])
     result = finetune(
         args.run,
         args.psfs or args.patch_psfs,

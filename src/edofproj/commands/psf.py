@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import EdofprojError
-from ._common import add_config_options, config_from_args, parse_number_list
+from ._common import add_config_options, config_from_args, parse_number_list, refuse_output_over
 
 
 def add_optics_options(parser) -> None:
@@ -93,6 +93,9 @@ def run(args) -> int:
     depths_m = depths_from_args(args.depth_mm, cfg)
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
+    for option in ("--out", "--plot"):
+        output = getattr(args, option[2:])
+        refuse_output_over(output, option, [("--config", args.config)], runs=[("--doe", args.doe)], file_output=True)
     doe = build_doe(cfg, args.doe)
     engine = cfg.psf.engine
     if not doe.radially_symmetric and engine == "radial":

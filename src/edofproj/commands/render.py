@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import EdofprojError
-from ._common import add_config_options, config_from_args
+from ._common import add_config_options, config_from_args, refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -162,6 +162,9 @@ def run(args) -> int:
 
     check_arguments(args)
     check_output_path(args.out, args.bits)
+    inputs = [("--image", args.image), ("--psf", args.psf), ("--depth-map", args.depth_map)]
+    inputs += [("--surface", args.surface), ("--config", args.config)]
+    refuse_output_over(args.out, "--out", inputs, runs=[("--doe", args.doe)], file_output=True)
     cfg = config_from_args(args)
     size = image_file_size(args.image)
     if size is not None:

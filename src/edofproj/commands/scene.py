@@ -20,7 +20,7 @@ projections against the image, as ``evaluate --scene`` scores them.
 
 from __future__ import annotations
 
-from ._common import RUN_HELP_SUFFIX, add_config_options, config_from_args, run_directory
+from ._common import RUN_HELP_SUFFIX, add_config_options, config_from_args, refuse_output_over, run_directory
 
 
 def register(subparsers) -> None:
@@ -116,6 +116,10 @@ def run_render(args) -> int:
         if args.run is None:
             raise EdofprojError("--projector-out goes with --run (a trained network to compensate with)")
         check_output_path(args.projector_out, args.bits)
+    inputs = [("--image", args.image), ("--scene", args.scene), ("--config", args.config)]
+    for option in ("--out", "--projector-out", "--depth-out", "--figure"):
+        output = getattr(args, option[2:].replace("-", "_"))
+        refuse_output_over(output, option, inputs, runs=[("--doe", args.doe), ("--run", args.run)], file_output=True)
     trained = None
     if args.run is not None:
         from ..config import apply_overrides

@@ -10,6 +10,7 @@ one session has the camera's size.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import shutil
@@ -20,9 +21,13 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from ..errors import EdofprojError, RecoveryWarning
+from ..errors import DiskFullError, EdofprojError, RecoveryWarning
+from ..fileio import disk_full_error, is_disk_full, kept_phrase, user_mode
 from ..imaging.image_io import read_image_array, to_unit_float, write_image
 from ..locking import directory_lock
+
+CAPTURE_INFO_JSON = "captures.json"
+"""The record of how a capture folder was made (``procams capture``, ``procams simulate``)."""
 
 SATURATION_LEVEL = 1.0 - 0.5 / 255.0
 """A value counts as saturated within half an 8-bit step of the sensor's top."""
@@ -53,11 +58,13 @@ def read_captures(
     """The captures ``{file: (H, W, 3)}`` of ``files`` from ``folder``.
 
     Raises one line naming the missing captures, or the first capture whose size differs from
-    ``expected_hw`` (or, without it, from the first capture).
+    ``expected_hw`` (or, without it, from the first capture), or when the folder's record says its
+    captures come from several cameras (:func:`check_one_camera`).
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise EdofprojError(f"capture folder '{folder}' does not exist")
+    check_one_camera(folder)
     files = list(files)
     missing = [f for f in files if not (folder / f).is_file()]
     if missing:
@@ -77,29 +84,63 @@ def read_captures(
     return captures
 
 
+def recorded_cameras(folder: str | Path) -> list[str]:
+    """The cameras whose captures a capture folder holds, as its ``captures.json`` records them
+    (``cameras``: ``{spec: captures}``, written by ``procams capture``); empty without a record."""
+    path = Path(folder) / CAPTURE_INFO_JSON
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []
+    cameras = info.get("cameras") if isinstance(info, dict) else None
+    return [str(spec) for spec in cameras] if isinstance(cameras, dict) else []
+
+
+def check_one_camera(folder: str | Path) -> None:
+    """Refuse a capture folder whose captures were taken by more than one camera (its record names
+    several): a calibration or PSF needs one camera's geometry and response."""
+    cameras = recorded_cameras(folder)
+    if len(cameras) > 1:
+        raise EdofprojError(
+            f"capture folder '{folder}' mixes the captures of {len(cameras)} cameras ({', '.join(cameras)}; "
+            f"{CAPTURE_INFO_JSON}): capture every pattern with one camera"
+        )
+
+
 def saturated_fraction(image: np.ndarray) -> float:
     """Fraction of pixels with at least one channel at the sensor's top value."""
     return float(np.mean(np.any(np.asarray(image) >= SATURATION_LEVEL, axis=-1)))
 
 
 @contextlib.contextmanager
-def atomic_folder(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
+def atomic_folder(path: str | Path, overwrite: bool = False, what: str = "edofproj procams") -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``path``; on success it becomes ``path``.
 
     An existing non-empty ``path`` is refused (before any work) unless ``overwrite``; then it
     is replaced only after the new folder is complete. On failure nothing at ``path`` changes.
     One writer at a time: the folder is locked (:mod:`edofproj.locking`, the lock file beside
-    it) while it is written, and temporary folders that a killed writer left are removed first.
+    it, naming the writer ``what``, e.g. ``"edofproj compensate"``) while it is written, and
+    temporary folders that a killed writer left are removed first. The folder gets the user's
+    usual permissions (``0o777`` less the umask), and a full disk ends in one line naming the
+    disk and saying that the previous folder is kept (:func:`edofproj.fileio.disk_full_error`).
+    The caller checks that ``path`` is none of its inputs (:mod:`edofproj.outputs`).
     """
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise EdofprojError(f"'{target}' exists and is not a folder")
-    with directory_lock(target, "edofproj procams", beside=True):
+    with directory_lock(target, what, beside=True):
         if target.is_dir() and any(target.iterdir()) and not overwrite:
             raise EdofprojError(f"folder '{target}' exists and is not empty (use --overwrite to replace it)")
         _remove_stale_temp_folders(target)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+        kept = kept_phrase(target)
         try:
+            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+        except OSError as exc:
+            if is_disk_full(exc):
+                raise disk_full_error(target, kept) from None
+            raise
+        try:
+            tmp.chmod(user_mode(0o777))  # mkdtemp makes it private (0700); the output should not be
             yield tmp
             if target.is_dir():
                 old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
@@ -108,8 +149,10 @@ def atomic_folder(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
                 shutil.rmtree(old, ignore_errors=True)
             else:
                 os.replace(tmp, target)
-        except BaseException:
+        except BaseException as exc:
             shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(exc, DiskFullError) or is_disk_full(exc):
+                raise disk_full_error(target, kept) from None
             raise
 
 
@@ -134,6 +177,9 @@ __all__ = [
     "write_rgb_png",
     "read_captures",
     "saturated_fraction",
+    "recorded_cameras",
+    "check_one_camera",
+    "CAPTURE_INFO_JSON",
     "atomic_folder",
     "SATURATION_LEVEL",
 ]

@@ -5,7 +5,7 @@ or 16-bit for a mean of several frames; each written atomically: temp file, then
 
     {"source": "edofproj procams capture", "patterns": ".../manifest.json",
      "projector_hw": [H, W], "camera_hw": [Hc, Wc], "depth_mm": Z,
-     "display": {...}, "camera": {...}, "settle_s": s, "average": N,
+     "display": {...}, "camera": {...}, "cameras": {"SPEC": n}, "settle_s": s, "average": N,
      "captured": n, "total": N_patterns, "complete": true|false,
      "patterns_sha256": "..."}
 
@@ -14,7 +14,10 @@ written; running it again skips them and continues. A folder is resumed only wit
 pattern manifest, depth and number of frames averaged, and every capture must have the camera
 size of the first. The session is tied to the *content* of its patterns: ``patterns_sha256``
 (:meth:`PatternManifest.content_hash`, the manifest and every pattern file) must match on
-resume, so patterns regenerated in place (another seed or size) are refused. Each capture
+resume, so patterns regenerated in place (another seed or size) are refused. It is tied to its
+camera as well: a session holding captures is resumed only with the same ``--camera`` spec
+(``cameras`` records the captures each camera took; :func:`~.capture_io.read_captures`, which
+``calibrate`` and ``estimate-psf`` read through, refuses a folder whose record names several). Each capture
 already in the folder is read back before it counts: one that does not decode or has another
 size than the session's camera is removed and captured again (with a ``RecoveryWarning``).
 """
@@ -33,11 +36,10 @@ from ..errors import EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files, write_text_atomic
 from ..imaging.image_io import write_image
 from ..locking import directory_lock
-from .capture_io import read_rgb, saturated_fraction, write_rgb_png
+from .capture_io import CAPTURE_INFO_JSON, read_rgb, saturated_fraction, write_rgb_png
 from .devices import Camera, Display, GrabSettings, grab_frame
 from .devices.base import SATURATION_WARN_FRACTION
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
-from .virtual import CAPTURE_INFO_JSON
 
 CAPTURE_SOURCE = "edofproj procams capture"
 
@@ -92,6 +94,32 @@ def _check_resume(
             f"'{out}' was captured at --depth-mm {info.get('depth_mm')}, not {depth_mm}: resume with the same depth"
         )
     return info
+
+
+def _session_cameras(previous: dict | None) -> list[str]:
+    """The camera specs a session's record names (``cameras``, and ``camera`` of older records)."""
+    if previous is None:
+        return []
+    recorded = previous.get("camera")
+    specs = {recorded["spec"]} if isinstance(recorded, dict) and isinstance(recorded.get("spec"), str) else set()
+    cameras = previous.get("cameras")
+    if isinstance(cameras, dict):
+        specs |= {str(spec) for spec in cameras}
+    return sorted(specs)
+
+
+def _check_camera(out: Path, previous: dict | None, camera: Camera, done: int, todo: int) -> bool:
+    """Whether ``camera`` is the session's: a session that holds captures (``done``) is resumed with
+    another camera only when nothing is left to capture (``todo``: then it takes nothing), else refused."""
+    specs = _session_cameras(previous)
+    if not done or not specs or specs == [camera.spec]:
+        return True
+    if todo:
+        raise EdofprojError(
+            f"'{out}' was captured with --camera '{', '.join(specs)}', not '{camera.spec}': a session is tied to its "
+            "camera; resume with the same --camera, or capture into a new --out"
+        )
+    return False
 
 
 def _stored_camera_hw(previous: dict | None, out: Path) -> tuple[int, int] | None:
@@ -184,9 +212,16 @@ def capture_patterns(
         camera_hw = _verify_existing_captures(out, [e.file for e in manifest.entries], camera_hw)
         done = [e for e in manifest.entries if (out / e.file).is_file()]
         todo = [e for e in manifest.entries if not (out / e.file).is_file()]
+        cameras = {camera.spec: len(done)}
+        if previous is not None and not _check_camera(out, previous, camera, len(done), len(todo)):
+            info["camera"] = previous.get("camera")  # a complete session: the other camera took nothing
+            cameras = previous["cameras"] if isinstance(previous.get("cameras"), dict) else {}
 
         def write_info(captured: int) -> None:
             info.update(camera_hw=list(camera_hw) if camera_hw else None, captured=captured)
+            if cameras.get(camera.spec) is not None:  # the session's camera (never another one's count)
+                cameras[camera.spec] = captured
+            info["cameras"] = {spec: n for spec, n in cameras.items() if n}
             info["complete"] = captured == len(manifest.entries)
             write_text_atomic(out / CAPTURE_INFO_JSON, json.dumps(info, indent=1) + "\n")
 

@@ -55,7 +55,7 @@ from ..imaging import haze_term, layer_weights, project, render_depth_map
 from ..imaging.surfaces import check_reflectance
 from ..optics.psf_bank import PSFBank
 from .calibration import ProCamsCalibration
-from .capture_io import atomic_folder, write_rgb_png
+from .capture_io import CAPTURE_INFO_JSON, atomic_folder, write_rgb_png
 from .color import RESPONSE_LUT_SIZE, ColorCalibration
 from .geometry import CameraMap
 from .patterns import MANIFEST_NAME, PatternManifest, read_pattern
@@ -66,7 +66,6 @@ DEFAULT_MIXING_MATRIX = np.array([[0.62, 0.12, 0.04], [0.10, 0.60, 0.10], [0.03,
 GROUND_TRUTH_JSON = "ground_truth.json"
 GROUND_TRUTH_NPZ = "ground_truth.npz"
 TRUE_PSF_NPZ = "true_psf.npz"
-CAPTURE_INFO_JSON = "captures.json"
 
 
 def _rgb_triple(value) -> tuple[float, float, float]:
@@ -439,7 +438,7 @@ def simulate_captures(
         )
     rng = np.random.default_rng(seed)
     map_x, map_y = rig.true_camera_map()
-    with atomic_folder(out_dir, overwrite=overwrite) as tmp:
+    with atomic_folder(out_dir, overwrite=overwrite, what="edofproj procams simulate") as tmp:
         for number, entry in enumerate(manifest.entries):
             pattern = read_pattern(pattern_dir, entry, manifest)
             write_rgb_png(tmp / entry.file, rig.capture(pattern, rng))

@@ -28,7 +28,7 @@ def evaluate_captures(
     into ``out_dir`` (module docstring)."""
     calibration = calib if isinstance(calib, ProCamsCalibration) else ProCamsCalibration.load(calib)
     targets, methods = read_methods(Path(targets_dir), Path(captures_dir))
-    with atomic_folder(out_dir, overwrite=overwrite) as tmp:
+    with atomic_folder(out_dir, overwrite=overwrite, what="edofproj procams evaluate") as tmp:
         result = score_captures(targets, methods, calibration, weights_dir)
         (tmp / "scores.csv").write_text(result.csv_text(), encoding="utf-8")
         write_capture_report(result, tmp)

@@ -61,6 +61,17 @@ def with_absolute_paths(cfg: Config, base: str | Path | None = None) -> Config:
     return cfg
 
 
+def run_inputs(run_dir: str | Path | None, what: str = "RUN") -> list[tuple[str, Path]]:
+    """The files and folders of a run that the commands read -- its ``config.yaml``, ``doe.npz`` and
+    ``checkpoints/`` -- named for messages (``RUN's doe.npz``): the inputs that no output may replace
+    (:func:`edofproj.outputs.refuse_output_over_inputs`; the run directory itself is their holder).
+    Empty for None."""
+    if run_dir is None:
+        return []
+    run = Path(run_dir)
+    return [(f"{what}'s {name}", run / name) for name in (CONFIG_NAME, DOE_NAME, CHECKPOINT_DIR)]
+
+
 def last_checkpoint_path(run_dir: str | Path) -> Path:
     return resolve_run_dir(run_dir) / CHECKPOINT_DIR / LAST_NAME
 

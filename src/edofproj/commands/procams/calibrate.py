@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import EdofprojError
+from .._common import refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -49,6 +50,12 @@ def run(args) -> int:
 
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
+    inputs = [
+        ("--patterns", args.patterns),
+        ("--captures", args.captures),
+        ("--surface-captures", args.surface_captures),
+    ]
+    refuse_output_over(args.out, "--out", inputs, file_output=True)
     manifest, calibration = calibrate_folders(args.patterns, args.captures, neighbours=args.neighbours)
     if args.surface_captures is not None:
         from ...procams.surface import measure_surface_folders

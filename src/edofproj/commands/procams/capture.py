@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import EdofprojError
+from .._common import refuse_output_over
 from .devices import add_device_options, open_devices
 
 
@@ -30,6 +31,7 @@ def run(args) -> int:
 
     if args.depth_mm is not None and not (np.isfinite(args.depth_mm) and args.depth_mm > 0):
         raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
+    refuse_output_over(args.out, "--out", [("--patterns", args.patterns)])
     display, camera, grab = open_devices(args)
     with display, camera:
         print(f"capturing with camera '{camera.spec}' and display '{display.spec}' into {args.out}")

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import EdofprojError
-from .._common import add_config_options, config_from_args
+from .._common import add_config_options, config_from_args, refuse_output_over
 from ..psf import add_optics_options, psf_overrides
 from ._common import note_width
 
@@ -83,6 +83,10 @@ def run(args) -> int:
     for flag, path in (("--out", args.out), ("--patch-psfs", args.patch_psfs)):
         if path is not None and not str(path).endswith(".npz"):
             raise EdofprojError(f"{flag} '{path}' must end in .npz")
+    inputs = [("--patterns", args.patterns), ("--captures", args.captures), ("--calib", args.calib)]
+    for option in ("--out", "--patch-psfs"):
+        output = getattr(args, option[2:].replace("-", "_"))
+        refuse_output_over(output, option, inputs + [("--config", args.config)], file_output=True)
     cfg = config_from_args(args, psf_overrides(args))
     depth_mm = _depth_mm(args)
     manifest = PatternManifest.load(args.patterns)

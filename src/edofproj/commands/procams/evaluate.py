@@ -8,6 +8,8 @@ against their targets; the report goes to REPORT_DIR.
 
 from __future__ import annotations
 
+from .._common import refuse_output_over
+
 
 def register(subparsers) -> None:
     """Add ``procams evaluate`` to the ``procams`` subcommands."""
@@ -28,6 +30,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ...reporting.captures import evaluate_captures
 
+    inputs = [("--targets", args.targets), ("--captures", args.captures), ("--calib", args.calib)]
+    refuse_output_over(args.out, "--out", inputs + [("--weights-dir", args.weights_dir)])
     result = evaluate_captures(
         args.targets, args.captures, args.calib, args.out, weights_dir=args.weights_dir, overwrite=args.overwrite
     )

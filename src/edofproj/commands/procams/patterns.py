@@ -50,7 +50,7 @@ def run(args) -> int:
         color_levels=args.color_levels,
     )
     manifest, images = build_pattern_set(spec)
-    with atomic_folder(args.out, overwrite=args.overwrite) as tmp:
+    with atomic_folder(args.out, overwrite=args.overwrite, what="edofproj procams patterns") as tmp:
         for name, image in images.items():
             write_rgb_png(tmp / name, image)
         (tmp / MANIFEST_NAME).write_text(manifest_json_text(manifest), encoding="utf-8")

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import EdofprojError
+from .._common import refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -26,21 +27,27 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ...imaging.image_io import IMAGE_EXTENSIONS, check_output_path, write_image
+    from ...outputs import refuse_colliding_names
     from ...procams.calibration import ProCamsCalibration
     from ...procams.capture_io import atomic_folder, read_rgb
 
-    calibration = ProCamsCalibration.load(args.calib)
+    inputs = [("CAPTURE", args.capture), ("--calib", args.calib)]
+    refuse_output_over(args.out, "--out", inputs, file_output=not Path(args.capture).is_dir())
     source = Path(args.capture)
+    files = []
+    if source.is_dir():  # the folder's files and their output names, checked before any work
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
+        if not files:
+            raise EdofprojError(f"capture folder '{source}' holds no image")
+        refuse_colliding_names(files, lambda path: path.stem + ".png", what=f"the captures of '{source}'")
+    calibration = ProCamsCalibration.load(args.calib)
 
     def rectified(path: Path) -> np.ndarray:
         light = calibration.to_output_space(read_rgb(path, what="capture"))
         return np.ascontiguousarray(light.transpose(2, 0, 1))
 
     if source.is_dir():
-        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
-        if not files:
-            raise EdofprojError(f"capture folder '{source}' holds no image")
-        with atomic_folder(args.out) as tmp:
+        with atomic_folder(args.out, what="edofproj procams rectify") as tmp:
             for path in files:
                 write_image(tmp / (path.stem + ".png"), rectified(path), bits=args.bits)
         print(f"wrote {len(files)} rectified captures to {args.out}")

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ...errors import EdofprojError
-from .._common import add_config_options, config_from_args
+from .._common import add_config_options, config_from_args, refuse_output_over
 from ..psf import add_optics_options, psf_overrides
 from ._common import note_width
 
@@ -99,6 +99,13 @@ def run(args) -> int:
     from ...procams.patterns import PatternManifest
     from ...procams.virtual import VirtualProCams, simulate_captures
 
+    inputs = [
+        ("--patterns", args.patterns),
+        ("--psf", args.psf),
+        ("--surface", args.surface),
+        ("--config", args.config),
+    ]
+    refuse_output_over(args.out, "--out", inputs, runs=[("--doe", args.doe)])
     cfg = config_from_args(args, psf_overrides(args))
     if args.depth_mm <= 0:
         raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
