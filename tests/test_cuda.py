@@ -5,6 +5,10 @@ Every test here needs a CUDA GPU and is skipped without one (the reason says so)
 the GPU's result with the same computation on the CPU, an independent implementation as far as
 the kernels go (cuFFT/cuDNN/cuBLAS against pocketfft/oneDNN/MKL): float64 work must agree to
 about 1e-10, float32 work to float32 rounding (TF32 is turned off by ``float32_matmul``).
+
+Device placement itself (a tensor made on the CPU, a CPU generator, float64 in float32 work) is
+checked without a GPU by ``tests/test_device_placement.py``, which ``benchmarks/gpu/run_gpu_checks.sh``
+runs first: a failure here is then a numerical difference of CUDA, or CUDA's own API.
 """
 
 from __future__ import annotations
