@@ -11,7 +11,9 @@ The model of one capture ``C`` of projector image ``u`` (grey, ``(H, W)`` in ``[
 * ``P(q) - o``: the projector point camera pixel ``q`` sees (:mod:`.structured_light`, with the
   offset the PSF map estimated), sampled bilinearly (:func:`cv2.remap`);
 * ``D``, ``B``: what the camera sees at ``q`` with the projector off and fully on (ambient light,
-  reflectance, vignetting), from the decoding's dark and bright levels;
+  reflectance, vignetting), from the decoding's dark and bright levels, median-filtered over
+  ``flat_filter_px`` camera pixels: a Gray code's per-pixel min and max are partial values where a
+  pixel's only dark (or lit) plane has an edge next to it, a thin band that the median removes;
 * ``alpha``, ``beta``: the capture's gain and offset (an auto-exposure that changes between frames),
   fitted by least squares over the valid pixels that are neither saturated nor black in the capture.
 
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 from skimage.metrics import structural_similarity
 
 from ..errors import EdofprojError
@@ -147,6 +150,7 @@ def predict_capture(
     region: np.ndarray | None = None,
     top: float = 1.0,
     offset_px: tuple[float, float] | None = None,
+    flat_filter_px: int = 11,
 ) -> Prediction:
     """The module docstring's model for a grey projector image ``(H, W)`` in ``[0, 1]`` and a grey
     capture ``(Hc, Wc)`` in image units, scored over ``region`` (default: the map's valid pixels
@@ -162,6 +166,9 @@ def predict_capture(
     if psf_map is not None:
         light = blur(light, psf_map)
     seen = sample_at_map(light, corr, offset_px)
+    if flat_filter_px > 1:
+        dark = ndimage.median_filter(np.asarray(dark, dtype=np.float64), size=flat_filter_px)
+        bright = ndimage.median_filter(np.asarray(bright, dtype=np.float64), size=flat_filter_px)
     model = dark + (bright - dark) * seen
     if region is None:
         region = corr.valid & (bright > dark)

@@ -165,7 +165,7 @@ def decode_phase_shift(
     weights = np.exp(-1j * delta)[:, None, None]
     unwrapped = np.zeros(stack.shape[1:])
     mean = np.zeros(stack.shape[1:])
-    modulation_fine = np.zeros(stack.shape[1:])
+    modulation_coarse = np.zeros(stack.shape[1:])
     for j, f in enumerate(periods):
         group = stack[j * steps : (j + 1) * steps]
         s = np.sum(group * weights, axis=0)
@@ -183,11 +183,14 @@ def decode_phase_shift(
             valid &= np.abs(turns - whole) <= max_unwrap_residual
             unwrapped = phase + 2 * math.pi * whole
         mean += group.mean(axis=0) / len(periods)
-        modulation_fine = modulation
+        if j == 0:
+            modulation_coarse = modulation  # the least blurred: the fine sinusoids lose contrast to the PSF
     coordinate = unwrapped * length_px / (2 * math.pi * periods[-1])
     valid &= (coordinate > -0.5) & (coordinate < length_px - 0.5)
     coordinate = np.where(valid, coordinate, np.nan)
-    return AxisDecoding(coordinate=coordinate, valid=valid, dark=mean - modulation_fine, bright=mean + modulation_fine)
+    return AxisDecoding(
+        coordinate=coordinate, valid=valid, dark=mean - modulation_coarse, bright=mean + modulation_coarse
+    )
 
 
 def decode_gray_code(

@@ -1,9 +1,10 @@
 """``edofproj procams predict``: predict the capture of a projector image and score it against the real one.
 
-    edofproj procams predict --map map.npz [--psf-map psf_map.npz] --image PROJ.png --capture CAP.png [--out PRED.png]
+    edofproj procams predict --map map.npz [--psf-map psf_map.npz] --image PROJ.png --capture CAP.png
+                             [--black BLACK.png --white WHITE.png] [--out PRED.png]
 
 The projector image (grey: the mean of its channels) blurred by the PSF map, seen through the map,
-scaled between the map's per-pixel dark and bright levels, with the capture's own gain and offset
+scaled between the per-pixel dark and bright levels (the black and white captures, or the map's), with the capture's own gain and offset
 fitted (auto-exposure); PSNR and SSIM over the valid region (:mod:`edofproj.procams.prediction`).
 Without ``--psf-map``: the same model without blur. This is how a lab checks its model before it
 trusts compensation.
@@ -23,6 +24,8 @@ def register(subparsers) -> None:
     p.add_argument("--psf-map", default=None, help="PSF map ('procams psf-map'); without it: no blur")
     p.add_argument("--image", required=True, help="the projector image (at the projector's size)")
     p.add_argument("--capture", required=True, help="its capture")
+    p.add_argument("--black", default=None, help="a capture of the black field (dark level; default: the map's)")
+    p.add_argument("--white", default=None, help="a capture of the white field (bright level; default: the map's)")
     p.add_argument("--channel", default="mean", choices=("mean", "red", "green", "blue"), help="grey from (mean)")
     p.add_argument(
         "--offset-px",
@@ -46,8 +49,18 @@ def run(args) -> int:
 
     corr = CorrespondenceMap.load(args.map)
     stored = read_arrays(args.map, what="correspondence map")
-    if "dark" not in stored or "bright" not in stored or stored["dark"].shape != corr.camera_hw:
-        raise EdofprojError(f"'{args.map}' has no dark and bright levels (make it with 'edofproj procams decode')")
+    if (args.black is None) != (args.white is None):
+        raise EdofprojError("give both --black and --white (or neither: the map's dark and bright levels)")
+    if args.black is not None:
+        stored = {
+            "dark": to_grey(read_rgb(args.black, what="black capture"), args.channel),
+            "bright": to_grey(read_rgb(args.white, what="white capture"), args.channel),
+        }
+    if any(stored.get(key) is None or stored[key].shape != corr.camera_hw for key in ("dark", "bright")):
+        raise EdofprojError(
+            f"no dark and bright levels of the map's {corr.camera_hw[1]}x{corr.camera_hw[0]} camera "
+            "(a map from 'edofproj procams decode', or --black and --white captures of that size)"
+        )
     psf_map = PSFMap.load(args.psf_map) if args.psf_map else None
     image = to_grey(read_rgb(args.image, what="projector image"), args.channel)
     capture = to_grey(read_rgb(args.capture, what="capture"), args.channel)
