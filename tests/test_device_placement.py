@@ -36,18 +36,9 @@ from edofproj.errors import BlurExceedsWindowWarning, SpectralSamplingWarning
 from edofproj.evaluation import timing
 
 # the compensation methods that ship, and the display guard (moving to edofproj.methods)
-from edofproj.evaluation.designs import OpticalDesign
-from edofproj.evaluation.guard import GuardedNetworkCompensation
-from edofproj.evaluation.methods import (
-    ConstrainedCompensation,
-    EnsembleWienerCompensation,
-    NetworkCompensation,
-    WienerCompensation,
-    no_compensation,
-    training_crops,
-    tune_ensemble_nsr,
-    tune_nsr,
-)
+from edofproj.methods.designs import OpticalDesign
+from edofproj.methods.guard import GuardedNetworkCompensation
+from edofproj.methods.compensators import ConstrainedCompensation, EnsembleWienerCompensation, NetworkCompensation, WienerCompensation, no_compensation, training_crops, tune_ensemble_nsr, tune_nsr
 from edofproj.imaging.convolution import convolve_same
 from edofproj.imaging.depth_layers import bank_layers, layer_depths_m, render_depth_map
 from edofproj.imaging.field_varying import field_centres_px, project_field_varying
