@@ -109,22 +109,52 @@ def _ssim_maps(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, 
         cs   = (2 sigma_xy + C2) / (sigma_x^2 + sigma_y^2 + C2)
         SSIM = (2 mu_x mu_y + C1) / (mu_x^2 + mu_y^2 + C1) * cs
     """
-    window = gaussian_window(dtype=pred.dtype, device=pred.device)
-    if min(pred.shape[-2:]) < window.numel():
-        raise EdofprojError(
-            f"SSIM needs images of at least {window.numel()}x{window.numel()} pixels, got "
-            f"{pred.shape[-2]}x{pred.shape[-1]}"
+    return SSIMReference(target).maps(pred)
+
+
+class SSIMReference:
+    """SSIM against one fixed ``target`` ``(B, C, H, W)``: its local mean and second moment are
+    filtered once, so that scoring many images against it (:meth:`ssim`, e.g. a display guard's
+    candidates at several depths) filters only ``x``, ``x^2`` and ``x y`` of each (the same values as
+    :func:`ssim`; the channels are filtered independently). ``pred`` may hold ``k B`` images, the
+    target's batch repeated ``k`` times."""
+
+    def __init__(self, target: torch.Tensor) -> None:
+        self.target = target
+        self.window = gaussian_window(dtype=target.dtype, device=target.device)
+        if min(target.shape[-2:]) < self.window.numel():
+            raise EdofprojError(
+                f"SSIM needs images of at least {self.window.numel()}x{self.window.numel()} pixels, got "
+                f"{target.shape[-2]}x{target.shape[-1]}"
+            )
+        channels = target.shape[1]
+        self.mu_y, self.yy = torch.split(
+            _filter_valid(torch.cat([target, target * target], dim=1), self.window), channels, dim=1
         )
-    channels = pred.shape[1]
-    stacked = torch.cat([pred, target, pred * pred, target * target, pred * target], dim=1)
-    mu_x, mu_y, xx, yy, xy = torch.split(_filter_valid(stacked, window), channels, dim=1)
-    var_x = xx - mu_x * mu_x
-    var_y = yy - mu_y * mu_y
-    cov_xy = xy - mu_x * mu_y
-    c1, c2 = SSIM_K1**2, SSIM_K2**2
-    contrast_structure = (2 * cov_xy + c2) / (var_x + var_y + c2)
-    luminance = (2 * mu_x * mu_y + c1) / (mu_x * mu_x + mu_y * mu_y + c1)
-    return luminance * contrast_structure, contrast_structure
+
+    def maps(self, pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Local SSIM and contrast-structure maps of ``pred`` (as :func:`_ssim_maps`)."""
+        repeats = pred.shape[0] // self.target.shape[0]
+        if pred.shape[1:] != self.target.shape[1:] or repeats * self.target.shape[0] != pred.shape[0]:
+            raise EdofprojError(
+                f"ssim needs two (B, C, H, W) batches of the same shape, got {tuple(pred.shape)} and "
+                f"{tuple(self.target.shape)}"
+            )
+        target, mu_y, yy = (t.repeat(repeats, 1, 1, 1) if repeats > 1 else t for t in (self.target, self.mu_y, self.yy))
+        channels = pred.shape[1]
+        stacked = torch.cat([pred, pred * pred, pred * target], dim=1)
+        mu_x, xx, xy = torch.split(_filter_valid(stacked, self.window.to(pred.dtype)), channels, dim=1)
+        var_x = xx - mu_x * mu_x
+        var_y = yy - mu_y * mu_y
+        cov_xy = xy - mu_x * mu_y
+        c1, c2 = SSIM_K1**2, SSIM_K2**2
+        contrast_structure = (2 * cov_xy + c2) / (var_x + var_y + c2)
+        luminance = (2 * mu_x * mu_y + c1) / (mu_x * mu_x + mu_y * mu_y + c1)
+        return luminance * contrast_structure, contrast_structure
+
+    def ssim(self, pred: torch.Tensor) -> torch.Tensor:
+        """SSIM per image of ``pred`` against the target, ``(len(pred),)``."""
+        return self.maps(pred)[0].flatten(1).mean(1)
 
 
 def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
