@@ -62,7 +62,8 @@ def main() -> int:
             write_image(folder / files[name], image, bits=16)
         for depth_mm in (float(z) for z in args.depths_mm.split(",")):
             out = Path(tmp) / f"out{depth_mm:g}"
-            command = [sys.executable, "-m", "edofproj", "compensate", args.run, "--images", str(folder)]
+            cli = "import sys; from edofproj.cli import main; sys.exit(main(sys.argv[1:]))"
+            command = [sys.executable, "-c", cli, "compensate", args.run, "--images", str(folder)]
             command += ["--depth-mm", f"{depth_mm:g}", "--out", str(out), "--bits", "16"]
             subprocess.run(command, check=True, capture_output=True, env=env)
             psf = shipped_by["doe+net"].design.psf([depth_mm * 1e-3])
