@@ -92,12 +92,16 @@ def gaussian_window(
 
 
 def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
-    """Separable Gaussian filter of every channel, only where the window fits ("valid")."""
+    """Separable Gaussian filter of every channel, only where the window fits ("valid").
+
+    The depthwise convolutions run on channels-last images (the same values, about 3x faster on a
+    CPU: oneDNN's depthwise kernels are written for that layout); the result is contiguous."""
+    images = images.contiguous(memory_format=torch.channels_last)
     channels = images.shape[1]
     size = window.numel()
     rows = window.view(1, 1, 1, size).expand(channels, 1, 1, size)
     cols = window.view(1, 1, size, 1).expand(channels, 1, size, 1)
-    return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels)
+    return F.conv2d(F.conv2d(images, rows, groups=channels), cols, groups=channels).contiguous()
 
 
 def _ssim_maps(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
