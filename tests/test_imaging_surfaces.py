@@ -116,7 +116,7 @@ def test_bad_reflectance_and_ambient_are_one_line_errors(tmp_path):
         Surface.from_arrays(np.full((3, H, W), 1.2))
     with pytest.raises(EdofprojError, match="NaN"):
         check_reflectance(np.full((H, W, 3), np.nan), (H, W))
-    with pytest.raises(EdofprojError, match=">= 0"):
+    with pytest.raises(EdofprojError, match=r"in \[0, 1\]"):
         check_ambient(-0.01, (H, W))
     with pytest.raises(EdofprojError, match="RGB map"):
         check_reflectance(np.full((H, W), 0.5), (H, W))
@@ -172,3 +172,29 @@ def test_render_on_a_texture_file_and_its_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
         assert not out.exists()
+
+
+@pytest.mark.parametrize("value", [-0.01, 1.01, 5.0, 1e30, float("nan"), float("inf")])
+def test_an_ambient_illuminance_outside_zero_to_one_is_refused(value):
+    """One bound for --ambient (evaluate, render), --surface-ambient (procams simulate) and ambient maps."""
+    from edofproj.imaging.surfaces import check_illuminance
+
+    with pytest.raises(EdofprojError, match=r"must lie in \[0, 1\]: a fraction of the projector's white"):
+        check_illuminance(value, "--ambient")
+    if np.isfinite(value):
+        with pytest.raises(EdofprojError, match=r"must be finite and in \[0, 1\]"):
+            check_ambient(np.full((3, 4, 5), value), None)
+    assert check_illuminance(1.0) == 1.0 and check_illuminance(0.0) == 0.0
+
+
+def test_a_calibration_whose_surface_ambient_exceeds_the_projectors_white_is_refused_on_load():
+    from edofproj.procams.calibration import _check_surface_arrays
+
+    rho = np.full((4, 5, 3), 0.5, np.float32)
+
+    def fail(message):
+        raise EdofprojError(message)
+
+    _check_surface_arrays({"surface_reflectance": rho, "surface_ambient": np.full_like(rho, 1.0)}, (4, 5), fail)
+    with pytest.raises(EdofprojError, match=r"ambient light of 1e\+30\.\.1e\+30, outside \[0, 1\]"):
+        _check_surface_arrays({"surface_reflectance": rho, "surface_ambient": np.full_like(rho, 1e30)}, (4, 5), fail)

@@ -152,9 +152,9 @@ def check_array_headers(path: str | os.PathLike, what: str = "file") -> None:
                 with zipfile.ZipFile(path) as archive:
                     for info in archive.infolist():
                         if info.filename.endswith(".npy"):
-                            with archive.open(info) as member:
-                                shape, dtype = _header(member, what, path, info.filename[:-4])
-                                declared[info.filename[:-4]] = (shape, dtype, info.file_size - member.tell())
+                            with archive.open(info) as stream:
+                                shape, dtype = _header(stream, what, path, info.filename[:-4])
+                                declared[info.filename[:-4]] = (shape, dtype, info.file_size - stream.tell())
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error):
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
     for member, (shape, dtype, stored) in declared.items():

@@ -102,8 +102,9 @@ def check_arguments(args) -> None:
             raise EdofprojError("--doe needs the screen depth: --depth-mm Z (or --depth-map / --tilt-deg)")
     if args.surface is None and args.ambient != 0.0:
         raise EdofprojError("--ambient goes with --surface (ambient light reflected by a textured screen)")
-    if not (np.isfinite(args.ambient) and args.ambient >= 0):
-        raise EdofprojError(f"--ambient {args.ambient:g} must be a finite illuminance >= 0")
+    from ..imaging.surfaces import check_illuminance
+
+    check_illuminance(args.ambient, "--ambient")
     for name in ("depth_mm", "near_mm", "far_mm"):
         value = getattr(args, name)
         if value is not None and not (np.isfinite(value) and value > 0):

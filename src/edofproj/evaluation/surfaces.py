@@ -41,13 +41,20 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ..compensation.achievable import SurfaceRangeWarning, achievable_goal, clipped_fraction, warn_if_out_of_reach
+from ..compensation.achievable import (
+    SurfaceRangeWarning,
+    achievable_goal,
+    clipped_fraction,
+    require_visible,
+    warn_if_out_of_reach,
+)
 from ..compensation.photometric import light_for_goal, photometric_compensation
 from ..compensation.surface_net import SurfaceAwareNet
 from ..data import evaluation_images
 from ..data.textures import surface_reflectance
 from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
+from ..imaging.surfaces import check_illuminance
 from ..metrics import psnr, ssim
 from ..progress import StageProgress
 from .methods import PreparedMethod, score_range_mm, select_methods
@@ -153,8 +160,7 @@ def evaluate_surfaces(
     ``ambient``: the illuminance ``E >= 0`` (``a = s E``); ``methods``: base methods (default
     :data:`DEFAULT_BASE_METHODS`)."""
     clock = time.perf_counter()
-    if not (math.isfinite(ambient) and ambient >= 0):
-        raise EdofprojError(f"--ambient {ambient:g} must be a finite illuminance >= 0")
+    ambient = check_illuminance(ambient, "--ambient")
     if not surfaces:
         raise EdofprojError("--surface needs at least one texture")
     opened = open_run(run_dir, out_dir, overrides)
@@ -163,6 +169,8 @@ def evaluate_surfaces(
     images = evaluation_images(cfg, images_dir)
     height, width = (int(v) for v in images[0][1].shape[-2:])
     textures = {str(name): surface_reflectance(name, (height, width)).to(device) for name in dict.fromkeys(surfaces)}
+    for name, rho in textures.items():  # before any work: a surface that shows nothing would score SSIM 1
+        require_visible(rho, rho * ambient, f"surface '{name}'" + (f" under ambient {ambient:g}" if ambient else ""))
     depths = np.asarray(depths_mm if depths_mm is not None else cfg.evaluation.depths_mm, dtype=float)
     if depths.size == 0 or not np.all(np.isfinite(depths) & (depths > 0)):
         raise EdofprojError(f"--depths-mm must be positive depths, got {depths.tolist()}")

@@ -27,6 +27,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import read_arrays, save_npz_atomic
+from ..imaging.surfaces import MAX_AMBIENT
 from ..limits import check_memory
 from .capture_io import read_captures, saturated_fraction
 from .color import RESPONSE_LUT_SIZE, ColorCalibration, calibrate_color
@@ -214,7 +215,8 @@ def _surface_error(message: str) -> None:
 
 
 def _check_surface_arrays(data: Mapping[str, np.ndarray], projector_hw: tuple[int, int], fail) -> None:
-    """Both surface arrays or neither; ``(H, W, 3)``, finite, reflectance in ``[0, 1]``, ambient ``>= 0``."""
+    """Both surface arrays or neither; ``(H, W, 3)``, finite, reflectance in ``[0, 1]``, ambient in
+    ``[0, MAX_AMBIENT]`` (:mod:`edofproj.imaging.surfaces`)."""
     present = [key for key in SURFACE_KEYS if key in data]
     if not present:
         return
@@ -229,8 +231,11 @@ def _check_surface_arrays(data: Mapping[str, np.ndarray], projector_hw: tuple[in
             fail(f"has NaN or infinite values in '{key}'")
     if data["surface_reflectance"].min() < 0 or data["surface_reflectance"].max() > 1:
         fail("has a reflectance outside [0, 1]")
-    if data["surface_ambient"].min() < 0:
-        fail("has a negative ambient light")
+    if data["surface_ambient"].min() < 0 or data["surface_ambient"].max() > MAX_AMBIENT:
+        fail(
+            f"has an ambient light of {data['surface_ambient'].min():.4g}..{data['surface_ambient'].max():.4g}, "
+            f"outside [0, {MAX_AMBIENT:g}] (the projector's white)"
+        )
 
 
 def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> None:

@@ -52,7 +52,7 @@ import torch
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
 from ..imaging import haze_term, layer_weights, project, render_depth_map
-from ..imaging.surfaces import check_reflectance
+from ..imaging.surfaces import check_illuminance, check_reflectance
 from ..optics.psf_bank import PSFBank
 from .calibration import ProCamsCalibration
 from .capture_io import atomic_folder, write_rgb_png
@@ -120,8 +120,8 @@ class VirtualProCams:
         if not (0.0 <= self.projector_black < 1.0):
             raise EdofprojError(f"projector_black={self.projector_black} must be in [0, 1)")
         self.surface_ambient = _rgb_triple(self.surface_ambient)
-        if min(self.surface_ambient) < 0:
-            raise EdofprojError(f"surface_ambient={self.surface_ambient} must be >= 0")
+        for value in self.surface_ambient:
+            check_illuminance(value, "surface_ambient")
         if self.reflectance is not None:
             rho = check_reflectance(
                 self.reflectance,

@@ -53,7 +53,7 @@ def run(args) -> int:
     if args.surface_captures is not None:
         from ...procams.surface import measure_surface_folders
 
-        measured = measure_surface_folders(calibration, args.patterns, args.surface_captures)
+        measured = measure_surface_folders(calibration, args.patterns, args.surface_captures, args.captures)
         calibration = calibration.with_surface(measured.reflectance, measured.ambient)
     calibration.save(args.out)
     cm = calibration.camera_map

@@ -14,8 +14,6 @@ screen's captures, its folder holds the black and white fields that ``procams ca
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ...errors import EdofprojError
@@ -106,8 +104,9 @@ def run(args) -> int:
         raise EdofprojError("--gamma takes one or three values in 0.1-10")
     if args.noise_sigma < 0 or not (1.0 <= args.camera_scale <= 10.0):
         raise EdofprojError("--noise-sigma must be >= 0 and --camera-scale in 1-10")
-    if not (math.isfinite(args.surface_ambient) and 0.0 <= args.surface_ambient <= 1.0):
-        raise EdofprojError(f"--surface-ambient {args.surface_ambient:g} must lie in [0, 1]")
+    from ...imaging.surfaces import check_illuminance
+
+    check_illuminance(args.surface_ambient, "--surface-ambient")
     if args.surface is None and args.surface_ambient != 0.0:
         raise EdofprojError("--surface-ambient goes with --surface")
     manifest = PatternManifest.load(args.patterns)
