@@ -194,10 +194,22 @@ def _table(depths=(300.0, 500.0), images=("a", "b"), value=0.8, method_values=No
         (lambda p: p.write_text("\n".join(_table().to_csv().splitlines()[:-2]) + "\n"), [], "lacks 2 of the 4 scores"),
         (lambda p: p.write_bytes(_table().to_csv().encode("utf-16")), [], "not UTF-8"),
         (lambda p: _table(value=float("nan")).write_csv(p), [], "no ssim score \\(NA\\) for doe\\+net"),
-        (lambda p: _table().write_csv(p), ["--reference", "nosuch"], "--reference 'nosuch' is not a method"),
+        (lambda p: _table(value=0.81).write_csv(p), ["--reference", "nosuch"], "--reference 'nosuch' is not a method"),
+        (
+            lambda p: _table(value=float("inf")).write_csv(p),
+            [],
+            "4 ssim score\\(s\\) of doe\\+net that no evaluation gives",
+        ),
+        (lambda p: _table(value=-float("inf")).write_csv(p), [], "that no evaluation gives \\(e.g. -inf;"),
+        (lambda p: _table(value=-2.0).write_csv(p), [], "e.g. -2; a score is finite and in \\[-1, 1\\]"),
+        (lambda p: _table(value=1.5).write_csv(p), [], "e.g. 1.5;"),
+        (lambda p: p.symlink_to(p.parent / "a.csv"), [], "'.*b.csv' is the same file as '.*a.csv'"),
+        (lambda p: p.write_bytes((p.parent / "a.csv").read_bytes()), [], "b.csv' holds the same scores as"),
     ],
 )
 def test_summarize_refuses_what_it_cannot_average(tmp_path, capsys, second, extra, message):
+    """Unlike evaluations, damaged files, scores no metric takes (inf, NaN, SSIM outside [-1, 1]) and one
+    evaluation given twice (a link, a copy: it would count as a second run that agrees exactly)."""
     import re
 
     _table().write_csv(tmp_path / "a.csv")
@@ -380,3 +392,12 @@ def test_camera_folders_of_dead_processes_are_removed(tmp_path):
         (folder / "frame.png").write_bytes(b"x")
     assert remove_stale_camera_folders(str(tmp_path)) == [stale]
     assert alive.exists() and not stale.exists()
+
+
+def test_summarize_refuses_a_folder_given_twice_through_a_link(tmp_path, capsys):
+    for name in ("s0", "s1"):
+        (tmp_path / name).mkdir()
+    _table().write_csv(tmp_path / "s0" / "metrics.csv")
+    (tmp_path / "link").symlink_to(tmp_path / "s0")
+    line = run_error(capsys, ["summarize", str(tmp_path / "s0"), str(tmp_path / "link")])
+    assert "link/metrics.csv" not in line and "'" + str(tmp_path / "link") + "' is the same file as" in line

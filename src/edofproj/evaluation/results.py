@@ -61,6 +61,29 @@ METRIC_LABELS = {
 }
 
 
+#: The values a score can take, per metric column (finite in any case): SSIM and its variants lie in
+#: [-1, 1] by definition, PSNR is any finite number of dB, the differences are >= 0.
+METRIC_RANGES = {
+    "psnr": (-math.inf, math.inf),
+    "ssim": (-1.0, 1.0),
+    "ms_ssim": (-1.0, 1.0),
+    "lpips": (0.0, math.inf),
+    "dists": (0.0, math.inf),
+    "de2000": (0.0, math.inf),
+    "de2000_p95": (0.0, math.inf),
+    "ssim_r": (-1.0, 1.0),
+    "ssim_g": (-1.0, 1.0),
+    "ssim_b": (-1.0, 1.0),
+}
+
+
+def valid_score(metric: str, value: float) -> bool:
+    """Whether ``value`` is a score ``metric`` can take (:data:`METRIC_RANGES`; finite; an unknown
+    metric: any finite number)."""
+    low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
+    return math.isfinite(value) and low <= value <= high
+
+
 def headline_metrics(metrics) -> tuple[str, ...]:
     """The metrics of the summary tables and figures: all but the per-channel SSIM columns."""
     return tuple(m for m in metrics if m not in CHANNEL_METRICS)

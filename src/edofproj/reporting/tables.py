@@ -21,7 +21,15 @@ import numpy as np
 
 from ..errors import EdofprojError
 from ..evaluation.methods import METHOD_NAMES, method_spec
-from ..evaluation.results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
+from ..evaluation.results import (
+    HIGHER_IS_BETTER,
+    METRIC_LABELS,
+    METRIC_RANGES,
+    MetricsTable,
+    better,
+    headline_metrics,
+    valid_score,
+)
 from .document import Table
 
 
@@ -232,6 +240,15 @@ def check_like_runs(
                 )
             if any(r["method"] == method and math.isnan(float(r[metric])) for r in rows):
                 raise EdofprojError(f"'{name}' has no {metric} score (NA) for {method}: choose another --metric")
+            bad = [
+                float(r[metric]) for r in rows if r["method"] == method and not valid_score(metric, float(r[metric]))
+            ]
+            if bad:
+                low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
+                raise EdofprojError(
+                    f"'{name}' has {len(bad)} {metric} score(s) of {method} that no evaluation gives (e.g. {bad[0]:g}; "
+                    f"a score is finite and in [{low:g}, {high:g}]): an edited or damaged file?"
+                )
         grid = (depths, images)
         if first_grid is not None and grid[1] != first_grid[1]:
             raise EdofprojError(f"'{name}' scores other images than '{first_name}': compare like with like")
