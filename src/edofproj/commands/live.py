@@ -105,7 +105,9 @@ def run(args) -> int:
 
     with display, camera:
         H, W = calibration.projector_hw
-        print(f"live: {W}x{H} projector, camera '{camera.spec}', display '{display.spec}' (Ctrl-C stops)")
+        print(
+            f"live: {H}x{W} (height x width) projector, camera '{camera.spec}', display '{display.spec}' (Ctrl-C stops)"
+        )
         summary = run_live(
             trained.net,
             calibration,

@@ -84,6 +84,11 @@ def valid_score(metric: str, value: float) -> bool:
     return math.isfinite(value) and low <= value <= high
 
 
+def format_span_mm(near_mm: float, far_mm: float) -> str:
+    """A range of depths as headings state it: ``'300-800'``, or ``'400'`` for one depth (mm)."""
+    return f"{near_mm:.0f}" if f"{near_mm:.0f}" == f"{far_mm:.0f}" else f"{near_mm:.0f}-{far_mm:.0f}"
+
+
 def headline_metrics(metrics) -> tuple[str, ...]:
     """The metrics of the summary tables and figures: all but the per-channel SSIM columns."""
     return tuple(m for m in metrics if m not in CHANNEL_METRICS)

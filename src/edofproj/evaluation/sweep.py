@@ -22,6 +22,11 @@ methods can do on a screen whose blur varies across the image.
 Scores per image: PSNR, SSIM, MS-SSIM, the CIEDE2000 colour difference (mean and 95th percentile),
 the SSIM of each colour channel (:mod:`edofproj.metrics`) and the perceptual metrics whose weights
 are present (LPIPS with AlexNet, DISTS).
+
+The depths scored are stated: :func:`scored_range_mm` is the range the tables' means and worst
+depths cover (the score range ``evaluation.score_range_mm`` met by the depths asked for; all of
+them when none lies in it), and :func:`depth_notes` names the depths outside the score range and
+outside the range the run was trained on (``psf.depth_min_mm``-``psf.depth_max_mm``).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from ..compensation.closed_loop import closed_loop, flat_screen
 from ..config import M_PER_MM
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.screens import tilted_plane_depth_map
-from .results import BASE_METRICS, MetricsTable
+from .results import BASE_METRICS, MetricsTable, format_span_mm
 
 Progress = Callable[[int], None]
 """``progress(units_done)``: called after each method has run on a batch, with the number of images."""
@@ -228,3 +233,43 @@ def tilted_screen_sweep(
 def _to_array(image: torch.Tensor) -> np.ndarray:
     """The first image of a batch as an ``(H, W, 3)`` array in ``[0, 1]``."""
     return image[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+
+
+def _within(depths_mm: Sequence[float], range_mm: tuple[float, float]) -> list[float]:
+    return [float(z) for z in depths_mm if range_mm[0] - 1e-9 <= z <= range_mm[1] + 1e-9]
+
+
+def scored_range_mm(depths_mm: Sequence[float], score_range_mm: tuple[float, float]) -> tuple[float, float]:
+    """The depths (mm) the means and worst depths of the tables cover: those of ``depths_mm`` in
+    ``score_range_mm`` (from the nearest to the farthest), or all of ``depths_mm`` when none is."""
+    inside = _within(depths_mm, score_range_mm) or [float(z) for z in depths_mm]
+    return min(inside), max(inside)
+
+
+def trained_range_mm(cfg) -> tuple[float, float]:
+    """The depths (mm) a run was trained on: ``psf.depth_min_mm``-``psf.depth_max_mm``."""
+    return float(cfg.psf.depth_min_mm), float(cfg.psf.depth_max_mm)
+
+
+def depth_notes(
+    depths_mm: Sequence[float],
+    trained_range_mm: tuple[float, float],
+    score_range_mm: tuple[float, float] | None = None,
+) -> list[str]:
+    """Notes naming the depths asked for outside the score range (when given) and outside the trained range."""
+    notes = []
+    outside = [z for z in depths_mm if score_range_mm and z not in _within(depths_mm, score_range_mm)]
+    if outside and score_range_mm:
+        scored = scored_range_mm(depths_mm, score_range_mm)
+        notes.append(
+            f"depths {', '.join(f'{z:g}' for z in outside)} mm lie outside the score range "
+            f"{format_span_mm(*score_range_mm)} mm (evaluation.score_range_mm): means and worst depths are over "
+            f"{format_span_mm(*scored)} mm"
+        )
+    untrained = [z for z in depths_mm if z not in _within(depths_mm, trained_range_mm)]
+    if untrained:
+        notes.append(
+            f"depths {', '.join(f'{z:g}' for z in untrained)} mm lie outside the range the run was trained on, "
+            f"{format_span_mm(*trained_range_mm)} mm: the networks never saw their blur"
+        )
+    return notes

@@ -77,8 +77,8 @@ def check_reflectance(values, height_width: tuple[int, int] | None, what: str = 
     tensor = _as_chw(values, what)
     if height_width is not None and tuple(tensor.shape[-2:]) != tuple(height_width):
         raise EdofprojError(
-            f"{what} is {tensor.shape[-1]}x{tensor.shape[-2]} px but the projector image is "
-            f"{height_width[1]}x{height_width[0]}: a reflectance map has one pixel per projector pixel"
+            f"{what} is {tensor.shape[-2]}x{tensor.shape[-1]} px but the projector image is "
+            f"{height_width[0]}x{height_width[1]} (height x width): a reflectance map has one pixel per projector pixel"
         )
     if not bool(torch.isfinite(tensor).all()):
         raise EdofprojError(f"{what} has NaN or infinite values")
@@ -117,8 +117,8 @@ def check_ambient(values, height_width: tuple[int, int] | None, what: str = "the
         tensor = _as_chw(tensor, what)
         if height_width is not None and tuple(tensor.shape[-2:]) != tuple(height_width):
             raise EdofprojError(
-                f"{what} is {tensor.shape[-1]}x{tensor.shape[-2]} px but the projector image is "
-                f"{height_width[1]}x{height_width[0]}"
+                f"{what} is {tensor.shape[-2]}x{tensor.shape[-1]} px but the projector image is "
+                f"{height_width[0]}x{height_width[1]} (height x width)"
             )
     if not bool(torch.isfinite(tensor).all()) or float(tensor.min()) < 0.0 or float(tensor.max()) > MAX_AMBIENT:
         raise EdofprojError(
@@ -167,8 +167,8 @@ class Surface:
         """``s ⊙ light + a``: what the surface shows under ``light (B, 3, H, W)`` (the light reaching it)."""
         if tuple(light.shape[-2:]) != self.height_width:
             raise EdofprojError(
-                f"the surface is {self.height_width[1]}x{self.height_width[0]} px but the image is "
-                f"{light.shape[-1]}x{light.shape[-2]}"
+                f"the surface is {self.height_width[0]}x{self.height_width[1]} px but the image is "
+                f"{light.shape[-2]}x{light.shape[-1]} (height x width)"
             )
         rho = self.reflectance.to(device=light.device, dtype=light.dtype)
         return rho * light + self.ambient.to(device=light.device, dtype=light.dtype)

@@ -237,7 +237,7 @@ class VirtualProCams:
         """
         H, W = self.projector_hw
         if image.shape[:2] != (H, W):
-            raise EdofprojError(f"pattern is {image.shape[1]}x{image.shape[0]}, the projector {W}x{H}")
+            raise EdofprojError(f"pattern is {image.shape[0]}x{image.shape[1]}, the projector {H}x{W} (height x width)")
         m = self.canvas_margin_px
         output = torch.from_numpy(np.ascontiguousarray(self.projector_output(image).transpose(2, 0, 1)))[None]
         canvas = torch.nn.functional.pad(output, (m, m, m, m))
@@ -434,8 +434,8 @@ def simulate_captures(
     manifest = PatternManifest.load(pattern_dir)
     if (manifest.height, manifest.width) != tuple(rig.projector_hw):
         raise EdofprojError(
-            f"patterns are {manifest.width}x{manifest.height} but the virtual projector is "
-            f"{rig.projector_hw[1]}x{rig.projector_hw[0]}"
+            f"patterns are {manifest.height}x{manifest.width} but the virtual projector is "
+            f"{rig.projector_hw[0]}x{rig.projector_hw[1]} (height x width)"
         )
     rng = np.random.default_rng(seed)
     map_x, map_y = rig.true_camera_map()

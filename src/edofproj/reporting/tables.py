@@ -27,6 +27,7 @@ from ..evaluation.results import (
     METRIC_RANGES,
     MetricsTable,
     better,
+    format_span_mm,
     headline_metrics,
     valid_score,
 )
@@ -105,7 +106,7 @@ def range_table(
     return Table(
         header,
         rows,
-        f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
+        f"Mean and worst depth over {format_span_mm(lo, hi)} mm (per-depth means over the test "
         f"images; worst = lowest, or highest for LPIPS/DISTS). Blind methods know nothing of the depth "
         f"or the PSF at run time; non-blind ones are given the exact PSF of each depth. Best of each "
         f"group in bold.",
@@ -159,7 +160,7 @@ def image_spread_table(
     return Table(
         ["method", f"mean {label} ± sd over images", "lowest image", f"{reference} minus method (images better)"],
         rows,
-        f"{label} per image (mean over {lo:.0f}-{hi:.0f} mm), spread over the images: sample standard deviation",
+        f"{label} per image (mean over {format_span_mm(lo, hi)} mm), spread over the images: sample standard deviation",
     )
 
 
@@ -209,7 +210,7 @@ def run_spread_table(
             f"{reference} minus method: worst depth (runs better)",
         ],
         rows,
-        f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
+        f"{label} over {format_span_mm(lo, hi)} mm, spread over {len(tables)} runs: sample standard deviation",
     )
 
 
@@ -291,7 +292,11 @@ def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float])
     stats = [table.range_stats(m, metric, lo, hi) for m in methods]
     columns.append(_cells(metric, [s.mean for s in stats]))
     columns.append(_cells(metric, [s.worst for s in stats]))
-    header = ["method"] + [f"{z:.0f}" for z in depths] + [f"mean {lo:.0f}-{hi:.0f}", f"worst {lo:.0f}-{hi:.0f}"]
+    header = (
+        ["method"]
+        + [f"{z:.0f}" for z in depths]
+        + [f"mean {format_span_mm(lo, hi)}", f"worst {format_span_mm(lo, hi)}"]
+    )
     rows = [[m] + [col[i] for col in columns] for i, m in enumerate(methods)]
     return Table(header, rows, f"{label} per depth (mm), mean over the test images")
 

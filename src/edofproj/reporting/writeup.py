@@ -18,7 +18,7 @@ import numpy as np
 from ..doe import build_doe
 from ..evaluation.designs import OpticalDesign
 from ..evaluation.methods import METHOD_NAMES
-from ..evaluation.results import METRIC_LABELS, headline_metrics
+from ..evaluation.results import METRIC_LABELS, format_span_mm, headline_metrics
 from ..progress import StageProgress
 from ..runs import FIGURES_DIR
 from ..runs.figures import plot_doe_profile
@@ -58,7 +58,7 @@ def overview(ev) -> list:
             f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
             f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
             f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
-            f"{lo:.0f}-{hi:.0f} mm."
+            f"{format_span_mm(lo, hi)} mm."
         ),
         Paragraph(
             f"Scored on {len(ev.images)} {IMAGE_SET_LABELS.get(ev.image_set, 'held-out')} image(s) ({images}) "

@@ -58,7 +58,7 @@ def run(args) -> int:
     calibration.save(args.out)
     cm = calibration.camera_map
     print(
-        f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[1]}x{cm.camera_hw[0]}, "
+        f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[0]}x{cm.camera_hw[1]} (height x width), "
         f"{cm.camera_pixels_per_projector_pixel():.2f} camera px per projector px, lens distortion up to "
         f"{cm.homography_residual_px().max():.2f} camera px beyond the homography"
     )

@@ -98,8 +98,9 @@ def run(args) -> int:
     from ...procams.virtual import VirtualProCams, simulate_captures
 
     cfg = config_from_args(args, psf_overrides(args))
-    if args.depth_mm <= 0:
-        raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
+    from ...optics.geometry import check_screen_depths_mm
+
+    check_screen_depths_mm(args.depth_mm, "--depth-mm")
     if len(args.gamma) not in (1, 3) or any(not (0.1 <= g <= 10) for g in args.gamma):
         raise EdofprojError("--gamma takes one or three values in 0.1-10")
     if args.noise_sigma < 0 or not (1.0 <= args.camera_scale <= 10.0):
@@ -133,7 +134,7 @@ def run(args) -> int:
         surface_ambient=args.surface_ambient,
     )
     print(
-        f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[1]}x{rig.camera_hw[0]} camera "
+        f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[0]}x{rig.camera_hw[1]} (height x width) camera "
         f"({rig.camera_pixels_per_projector_pixel():.2f} camera px per projector px), PSF window {psf.shape[-1]} px, "
         f"in-window energy {np.round(psf.sum(axis=(-1, -2)), 4).tolist()}"
     )
