@@ -34,17 +34,26 @@ from edofproj.doe import build_doe, load_doe, save_doe
 from edofproj.doe.base import DOE
 from edofproj.errors import BlurExceedsWindowWarning, SpectralSamplingWarning
 from edofproj.evaluation import timing
-
-# the compensation methods that ship, and the display guard (moving to edofproj.methods)
-from edofproj.methods.designs import OpticalDesign
-from edofproj.methods.guard import GuardedNetworkCompensation
-from edofproj.methods.compensators import ConstrainedCompensation, EnsembleWienerCompensation, NetworkCompensation, WienerCompensation, no_compensation, training_crops, tune_ensemble_nsr, tune_nsr
 from edofproj.imaging.convolution import convolve_same
 from edofproj.imaging.depth_layers import bank_layers, layer_depths_m, render_depth_map
 from edofproj.imaging.field_varying import field_centres_px, project_field_varying
 from edofproj.imaging.projection import ScreenProjection, project
 from edofproj.imaging.screens import tilted_plane_depth_map
 from edofproj.imaging.surfaces import Surface
+from edofproj.methods.compensators import (
+    ConstrainedCompensation,
+    EnsembleWienerCompensation,
+    NetworkCompensation,
+    WienerCompensation,
+    no_compensation,
+    training_crops,
+    tune_ensemble_nsr,
+    tune_nsr,
+)
+
+# the compensation methods that ship, and the display guard (moving to edofproj.methods)
+from edofproj.methods.designs import OpticalDesign
+from edofproj.methods.guard import GuardedNetworkCompensation
 from edofproj.optics.psf_bank import PSFBank, simulator_from_config
 from edofproj.reporting.psf_plots import plot_psf_comparison
 from edofproj.runs.figures import plot_doe_profile

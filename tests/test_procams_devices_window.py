@@ -25,7 +25,7 @@ def test_screen_shows_the_exact_pixels(dummy_video):
         image = np.random.default_rng(0).integers(0, 256, (height, width, 3)) / 255.0
         display.show(image)
         np.testing.assert_array_equal(display.read_back(), np.round(image * 255).astype(np.uint8))
-        with pytest.raises(EdofprojError, match=f"but display 'screen:0' is {width}x{height}"):
+        with pytest.raises(EdofprojError, match=f"but display 'screen:0' is {height}x{width}"):
             display.show(image[:-1])
 
 

@@ -86,7 +86,7 @@ def run(args) -> int:
             (tmp / LAB_MANIFEST_NAME).write_text(json.dumps(lab.to_json(), indent=1) + "\n", encoding="utf-8")
     counts = {role: len(manifest.with_role(role)) for role in ("bernoulli", "color_sample")}
     print(
-        f"wrote {len(images)} patterns of {args.width}x{args.height} to {args.out}: {counts['bernoulli']} Bernoulli, "
+        f"wrote {len(images)} patterns of {args.height}x{args.width} (height x width) to {args.out}: {counts['bernoulli']} Bernoulli, "
         f"{spec.dot_grid[0]}x{spec.dot_grid[1]} dots, 5 full fields, {counts['color_sample']} colour samples"
     )
     if lab is not None:
