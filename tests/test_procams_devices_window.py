@@ -30,7 +30,7 @@ def test_screen_shows_the_exact_pixels(dummy_video):
 
 
 def test_missing_screen_lists_the_screens_found(dummy_video):
-    with pytest.raises(EdofprojError, match=r"'screen:3' does not exist; found screen:0 \(\d+x\d+\)"):
+    with pytest.raises(EdofprojError, match=r"'screen:3' does not exist; found screen:0 \(\d+x\d+, height x width\)"):
         open_display("screen:3")
     with pytest.raises(EdofprojError, match="must be an integer"):
         open_display("screen:left")
