@@ -164,7 +164,7 @@ def test_every_command_refuses_a_huge_array_header_in_one_line(tmp_path, capsys,
         render + ["--depth-mm", "400", "--surface", str(huge_rgb)],
         render + ["--depth-map", str(huge_map)],
         ["compensate", "builtin:cpu-doe-net", "--images", str(tmp_path), "--depth-map", str(huge_map)]
-        + ["--out", str(tmp_path / "u")],
+        + ["--out", str(tmp_path.parent / f"{tmp_path.name}-u")],  # outside the input folder
         ["evaluate", "builtin:cpu-doe-net", "--surface", str(huge_rgb), "--methods", "doe", "--depths-mm", "400"]
         + ["--out", str(tmp_path / "ev"), "--quiet"],
     ):
@@ -172,7 +172,7 @@ def test_every_command_refuses_a_huge_array_header_in_one_line(tmp_path, capsys,
         assert main(argv) == 2, argv
         err = [line for line in capsys.readouterr().err.strip().splitlines() if "older edofproj" not in line]
         assert len(err) == 1 and "header declares an array of shape" in err[0], (argv, err)
-    assert not (tmp_path / "o.png").exists() and not (tmp_path / "u").exists()
+    assert not (tmp_path / "o.png").exists() and not (tmp_path.parent / f"{tmp_path.name}-u").exists()
 
 
 @pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])
