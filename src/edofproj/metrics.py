@@ -138,27 +138,38 @@ class SSIMReference:
 
     def maps(self, pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Local SSIM and contrast-structure maps of ``pred`` (as :func:`_ssim_maps`)."""
-        repeats = pred.shape[0] // self.target.shape[0]
-        if pred.shape[1:] != self.target.shape[1:] or repeats * self.target.shape[0] != pred.shape[0]:
+        batch = self.target.shape[0]
+        repeats = pred.shape[0] // batch
+        if pred.shape[1:] != self.target.shape[1:] or repeats * batch != pred.shape[0]:
             raise EdofprojError(
                 f"ssim needs two (B, C, H, W) batches of the same shape, got {tuple(pred.shape)} and "
                 f"{tuple(self.target.shape)}"
             )
-        target, mu_y, yy = (t.repeat(repeats, 1, 1, 1) if repeats > 1 else t for t in (self.target, self.mu_y, self.yy))
         channels = pred.shape[1]
-        stacked = torch.cat([pred, pred * pred, pred * target], dim=1)
-        mu_x, xx, xy = torch.split(_filter_valid(stacked, self.window.to(pred.dtype)), channels, dim=1)
-        var_x = xx - mu_x * mu_x
-        var_y = yy - mu_y * mu_y
-        cov_xy = xy - mu_x * mu_y
+        # (k, B, C, H, W) against the target's (B, C, H, W): broadcast, never copied k times
+        cross = (pred.view(repeats, batch, *pred.shape[1:]) * self.target).view(pred.shape)
+        stacked = torch.cat([pred, pred * pred, cross], dim=1)
+        filtered = _filter_valid(stacked, self.window.to(pred.dtype))
+        mu_x, xx, xy = (m.view(repeats, batch, channels, *m.shape[-2:]) for m in torch.split(filtered, channels, dim=1))
+        mu_y, var_y, mu_y2 = self._target_terms()
         c1, c2 = SSIM_K1**2, SSIM_K2**2
-        contrast_structure = (2 * cov_xy + c2) / (var_x + var_y + c2)
-        luminance = (2 * mu_x * mu_y + c1) / (mu_x * mu_x + mu_y * mu_y + c1)
-        return luminance * contrast_structure, contrast_structure
+        mu_x2 = mu_x * mu_x
+        mu_xy = mu_x * mu_y
+        contrast_structure = (2 * (xy - mu_xy) + c2) / ((xx - mu_x2) + var_y + c2)
+        luminance = (2 * mu_xy + c1) / (mu_x2 + mu_y2 + c1)
+        shape = (pred.shape[0], channels, *filtered.shape[-2:])
+        return (luminance * contrast_structure).view(shape), contrast_structure.view(shape)
+
+    def _target_terms(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``mu_y``, ``sigma_y^2`` and ``mu_y^2`` of the target (computed on first use, then kept)."""
+        if not hasattr(self, "_terms"):
+            mu_y2 = self.mu_y * self.mu_y
+            self._terms = (self.mu_y, self.yy - mu_y2, mu_y2)
+        return self._terms
 
     def ssim(self, pred: torch.Tensor) -> torch.Tensor:
         """SSIM per image of ``pred`` against the target, ``(len(pred),)``."""
-        return self.maps(pred)[0].flatten(1).mean(1)
+        return self.maps(pred)[0].mean(dim=(1, 2, 3))
 
 
 def _ssim_and_contrast_structure(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
