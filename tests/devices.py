@@ -1,7 +1,9 @@
 """Which devices the tests run on: the CPU always, a CUDA GPU when PyTorch sees one.
 
 On a machine without CUDA the GPU cases are skipped with :data:`NO_CUDA` as the reason; on the
-GPU machine ``benchmarks/gpu/run_gpu_checks.sh`` runs the whole suite, and they run there.
+GPU machine ``benchmarks/gpu/run_gpu_checks.sh tests`` runs them (every test with ``cuda`` in its
+name or parameters), after ``tests/test_device_placement.py`` has checked on the CPU that every
+tensor is made on its inputs' device.
 """
 
 import pytest

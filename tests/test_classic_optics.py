@@ -67,3 +67,14 @@ def test_an_axicon_focused_on_the_range_beats_one_focused_beyond_it(tmp_path, ca
     summary = (tmp_path / "sweep" / "classic_sweep.md").read_text()
     assert "**chosen**" in summary and "2000-4000 mm" in summary
     assert (tmp_path / "sweep" / "classic_sweep.png").stat().st_size > 0
+
+
+def test_a_chosen_candidate_at_the_end_of_the_sweep_is_flagged():
+    from edofproj.evaluation.classic_optics import ClassicSweep
+
+    candidates = parse_candidates("cubic", "5,10,20")
+    sweep = ClassicSweep("cubic", candidates, [300.0], ["a"], table=None)  # type: ignore[arg-type]
+    sweep.summary = {"5 waves": (0.9, 0.8, 300.0), "10 waves": (0.8, 0.7, 300.0), "20 waves": (0.7, 0.6, 300.0)}
+    assert sweep.chosen.label == "5 waves" and sweep.chosen_at_edge
+    sweep.summary["10 waves"] = (0.95, 0.7, 300.0)
+    assert sweep.chosen.label == "10 waves" and not sweep.chosen_at_edge

@@ -1,4 +1,4 @@
-"""The display guard (:mod:`edofproj.evaluation.guard`): a safe network's input is sent only where its
+"""The display guard (:mod:`edofproj.methods.guard`): a safe network's input is sent only where its
 predicted display scores at least its linear filter's, so the guarded network is never behind the
 filter in mean SSIM over the guard's depths, whatever the weights."""
 

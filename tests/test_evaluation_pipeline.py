@@ -269,3 +269,23 @@ def test_a_baseline_that_differs_only_in_a_statement_fits_one_that_differs_in_ph
     assert baseline_mismatch(spec, tmp_path, cfg, restated) is None
     resampled = dataclasses.replace(baseline, spectrum=dataclasses.replace(baseline.spectrum, nodes_per_primary=3))
     assert "spectrum section differs" in baseline_mismatch(spec, tmp_path, cfg, resampled)
+
+
+def test_depths_outside_the_score_range_are_stated_never_a_table_of_na(runs, tmp_path, capsys):
+    """--depths-mm beyond the score range (here the training range, 300-800 mm): the headings say the depths
+    scored, the notes say which lie outside the score and the trained range; one depth: its own."""
+    for depths, span in (("1500,3000", "1500-3000"), ("500", "500")):
+        out = tmp_path / depths.replace(",", "_")
+        capsys.readouterr()
+        argv = ["evaluate", str(runs / "doe_net"), "--methods", "doe", "--depths-mm", depths, "--out", str(out)]
+        assert main(argv + ["--quiet"]) == 0
+        printed, err = capsys.readouterr()
+        summary = (out / "summary.md").read_text()
+        assert f"over {span} mm" in summary and "over 300-800 mm" not in summary and "| NA" not in summary
+        assert " NA " not in printed
+        if depths == "500":
+            assert "outside" not in err
+        else:
+            assert "depths 1500, 3000 mm lie outside the score range 300-800 mm" in err
+            assert "depths 1500, 3000 mm lie outside the range the run was trained on, 300-800 mm" in err
+            assert "outside the score range" in summary

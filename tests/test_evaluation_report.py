@@ -111,7 +111,7 @@ def test_range_table_puts_blind_methods_first_and_bolds_the_best_of_each_group()
 
 def test_only_wiener_and_cls_are_non_blind():
     non_blind = {spec.name for spec in METHODS if not spec.blind}
-    assert non_blind == {"lens+wiener", "lens+cls", "doe+wiener"}
+    assert non_blind == {"lens+wiener", "lens+cls", "doe+wiener", "cubic+wiener", "axicon+wiener", "multifocal+wiener"}
 
 
 def test_method_registry():
@@ -127,7 +127,9 @@ def test_method_registry():
         "doe+net",
         "cubic+net",
         "axicon+net",
+        *(f"{kind}{suffix}" for kind in ("cubic", "axicon", "multifocal") for suffix in ("", "+wiener", "+ensemble")),
     )
+    assert [s.name for s in select_methods(None)] == list(METHOD_NAMES[:11])  # scored by default
     assert set(BASELINE_RUN_DIRS) == {"lens+net", "lens+onlineprodeb", "cubic+net", "axicon+net"}
     assert [s.name for s in select_methods(["doe+net", "lens"])] == ["lens", "doe+net"]  # canonical order
     with pytest.raises(EdofprojError, match="known: lens, lens\\+wiener"):

@@ -92,10 +92,15 @@ def test_bad_surface_options_are_one_line_errors(tmp_path, capsys):
     base = ["evaluate", "builtin:cpu-doe-net", "--out", str(tmp_path / "out"), "--quiet"]
     cases = [
         (["--surface", "nowhere-texture"], "neither a built-in texture"),
-        (["--surface", "checker", "--ambient", "-0.5"], "--ambient -0.5 must be a finite illuminance >= 0"),
+        (["--surface", "checker", "--ambient", "-0.5"], "--ambient -0.5 must lie in [0, 1]"),
+        (["--surface", "checker", "--ambient", "5"], "--ambient 5 must lie in [0, 1]: a fraction of the projector's"),
+        (["--surface", "checker", "--ambient", "1e30"], "--ambient 1e+30 must lie in [0, 1]"),
         (["--ambient", "0.1"], "--ambient goes with --surface"),
         (["--surface", "checker", "--scene", "steps"], "give --surface or --scene, not both"),
     ]
+    black = tmp_path / "black.npy"  # an all-zero surface shows nothing: it would score SSIM 1, PSNR inf
+    np.save(black, np.zeros((256, 256, 3), np.float32))
+    cases.append((["--surface", "checker", "--surface", str(black)], f"surface '{black}' cannot show an image"))
     small = tmp_path / "small.png"
     write_image(small, torch.full((3, 8, 8), 0.5))
     cases.append((["--surface", str(small), "--set", "evaluation.image_size=[48,64]"], "is 8x8 px but the projector"))

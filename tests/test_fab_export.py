@@ -8,6 +8,7 @@ import pytest
 from edofproj.cli import main
 from edofproj.doe import save_doe
 from edofproj.doe.storage import TabulatedRadialDOE
+from edofproj.errors import EdofprojError
 from edofproj.fabrication import export as export_module
 from edofproj.fabrication.export import export_doe
 from edofproj.fabrication.gdsii import APERTURE_LAYER, inside_layer, read_layers
@@ -167,6 +168,9 @@ def test_cli_success_and_strict(design, tmp_path, capsys):
     "extra, message",
     [
         (["--levels", "12"], "levels=12 is not a power of two"),
+        # steps below the etch resolution: masks of 0.0 nm and an efficiency near 100 % of a DOE no one can make
+        (["--levels", "2048"], "2048 levels make steps of 0.584 nm (h_2pi 1195.9 nm / 2048), the etch depth"),
+        (["--levels", "1048576"], "below the 1 nm an etch can control; at most 1024 levels"),
         (["--critical-dimension-um", "0"], "must be > 0"),
         (["--critical-dimension-um", "-1"], "must be > 0"),
         (["--set", "fabrication.critical_dimension_um=0"], "critical_dimension_um=0"),
@@ -189,3 +193,12 @@ def test_cli_bad_inputs(tmp_path, capsys):
     assert main(["export-doe", str(odd), "--out", str(tmp_path / "out")]) == 2
     assert "not a power of two" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_step_of_the_shallowest_mask_is_checked_against_the_etch_resolution():
+    from edofproj.fabrication.profile import MIN_STEP_NM, check_step
+
+    assert check_step(1024, 1196e-9) == pytest.approx(1196e-9 / 1024)
+    with pytest.raises(EdofprojError, match="at most 1024 levels"):
+        check_step(2048, 1196e-9)
+    assert MIN_STEP_NM == 1.0

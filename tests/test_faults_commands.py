@@ -194,10 +194,22 @@ def _table(depths=(300.0, 500.0), images=("a", "b"), value=0.8, method_values=No
         (lambda p: p.write_text("\n".join(_table().to_csv().splitlines()[:-2]) + "\n"), [], "lacks 2 of the 4 scores"),
         (lambda p: p.write_bytes(_table().to_csv().encode("utf-16")), [], "not UTF-8"),
         (lambda p: _table(value=float("nan")).write_csv(p), [], "no ssim score \\(NA\\) for doe\\+net"),
-        (lambda p: _table().write_csv(p), ["--reference", "nosuch"], "--reference 'nosuch' is not a method"),
+        (lambda p: _table(value=0.81).write_csv(p), ["--reference", "nosuch"], "--reference 'nosuch' is not a method"),
+        (
+            lambda p: _table(value=float("inf")).write_csv(p),
+            [],
+            "4 ssim score\\(s\\) of doe\\+net that no evaluation gives",
+        ),
+        (lambda p: _table(value=-float("inf")).write_csv(p), [], "that no evaluation gives \\(e.g. -inf;"),
+        (lambda p: _table(value=-2.0).write_csv(p), [], "e.g. -2; a score is finite and in \\[-1, 1\\]"),
+        (lambda p: _table(value=1.5).write_csv(p), [], "e.g. 1.5;"),
+        (lambda p: p.symlink_to(p.parent / "a.csv"), [], "'.*b.csv' is the same file as '.*a.csv'"),
+        (lambda p: p.write_bytes((p.parent / "a.csv").read_bytes()), [], "b.csv' holds the same scores as"),
     ],
 )
 def test_summarize_refuses_what_it_cannot_average(tmp_path, capsys, second, extra, message):
+    """Unlike evaluations, damaged files, scores no metric takes (inf, NaN, SSIM outside [-1, 1]) and one
+    evaluation given twice (a link, a copy: it would count as a second run that agrees exactly)."""
     import re
 
     _table().write_csv(tmp_path / "a.csv")
@@ -380,3 +392,72 @@ def test_camera_folders_of_dead_processes_are_removed(tmp_path):
         (folder / "frame.png").write_bytes(b"x")
     assert remove_stale_camera_folders(str(tmp_path)) == [stale]
     assert alive.exists() and not stale.exists()
+
+
+def test_summarize_refuses_a_folder_given_twice_through_a_link(tmp_path, capsys):
+    for name in ("s0", "s1"):
+        (tmp_path / name).mkdir()
+    _table().write_csv(tmp_path / "s0" / "metrics.csv")
+    (tmp_path / "link").symlink_to(tmp_path / "s0")
+    line = run_error(capsys, ["summarize", str(tmp_path / "s0"), str(tmp_path / "link")])
+    assert "link/metrics.csv" not in line and "'" + str(tmp_path / "link") + "' is the same file as" in line
+
+
+# ----------------------------------------------------------------------------- screen depths (issue 42, item 7)
+
+
+def test_the_depths_scored_are_the_ones_stated():
+    from edofproj.evaluation.results import format_span_mm
+    from edofproj.evaluation.sweep import depth_notes, scored_range_mm
+
+    assert scored_range_mm([250, 300, 500, 800, 900], (300, 800)) == (300, 800)
+    assert scored_range_mm([400], (300, 800)) == (400, 400) and format_span_mm(400, 400) == "400"
+    assert scored_range_mm([1500, 3000], (300, 800)) == (1500, 3000)
+    assert depth_notes([400, 500], (275, 800), (300, 800)) == []
+    far, untrained = depth_notes([250, 1500], (275, 800), (300, 800))
+    assert far.startswith("depths 250, 1500 mm lie outside the score range 300-800 mm") and "over 300-800" not in far
+    assert untrained.startswith("depths 250, 1500 mm lie outside the range the run was trained on, 275-800 mm")
+    assert depth_notes([1e4], (275, 800)) == [
+        "depths 10000 mm lie outside the range the run was trained on, 275-800 mm: the networks never saw their blur"
+    ]
+
+
+@pytest.mark.parametrize("value", [0.0, -5.0, float("nan"), float("inf"), 1e9, 100_001.0])
+def test_a_screen_depth_must_be_a_physical_one(value):
+    from edofproj.optics.geometry import check_screen_depths_mm
+
+    with pytest.raises(EdofprojError, match=r"--depth-mm must be screen depths in \(0, 100000\] mm"):
+        check_screen_depths_mm(value, "--depth-mm")
+    assert check_screen_depths_mm([300, 100_000], "--depth-mm").tolist() == [300, 100_000]
+
+
+def test_non_physical_depths_are_refused_before_any_work(tmp_path, capsys):
+    from edofproj.imaging.image_io import write_image
+
+    write_image(tmp_path / "t.png", torch.rand(3, 16, 16))
+    for argv in (
+        ["compensate", "builtin:cpu-doe-net", "--image", str(tmp_path / "t.png"), "--depth-mm", "1e9"],
+        ["evaluate", "builtin:cpu-doe-net", "--depths-mm", "400,1e9", "--quiet"],
+        ["evaluate", "builtin:cpu-doe-net", "--surface", "checker", "--depths-mm", "1e9", "--quiet"],
+    ):
+        line = run_error(capsys, argv + ["--out", str(tmp_path / "out.png")])
+        assert "must be screen depths in (0, 100000] mm, got 1e+09" in line, line
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_images_smaller_than_the_linear_filter_get_advice_the_user_can_follow():
+    """The radius of a trained run is fixed (evaluate refuses --set net.*): the advice names the image size."""
+    from edofproj.compensation.linear_base import LinearBase
+
+    with pytest.raises(EdofprojError) as refused:
+        LinearBase(radius=33)(torch.zeros(1, 3, 24, 32))
+    message = str(refused.value)
+    assert "at least 34x34 px, got 24x32 (height x width)" in message
+    assert "a trained run's radius is fixed: to evaluate, a larger evaluation.image_size" in message
+
+
+@pytest.mark.slow
+def test_evaluate_on_images_too_small_for_the_filter_says_what_evaluate_can_change(tmp_path, capsys):
+    argv = ["evaluate", "builtin:cpu-doe-net", "--set", "evaluation.image_size=[24,32]", "--methods", "doe+net"]
+    line = run_error(capsys, argv + ["--depths-mm", "400", "--out", str(tmp_path / "ev"), "--quiet"])
+    assert "a larger evaluation.image_size" in line and "use a smaller net.linear_radius" not in line

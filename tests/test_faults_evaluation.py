@@ -61,7 +61,7 @@ def test_evaluate_does_not_score_images_smaller_than_the_evaluation_size(run, tm
     out = tmp_path / "ev"
     args = ["evaluate", str(run), "--images", str(images), "--out", str(out), "--methods", "doe", "--quiet"]
     assert main(args) == 0
-    assert "30x30 px is smaller than the evaluation size 64x48" in capsys.readouterr().err
+    assert "30x30 px is smaller than the evaluation size 48x64" in capsys.readouterr().err
     assert "1 image(s) scored; 1 skipped as smaller than the evaluation size" in (out / "report.md").read_text()
     scored = {line.split(",")[2] for line in (out / "metrics.csv").read_text().splitlines()[1:]}
     assert scored == {"b_large.png"}

@@ -91,7 +91,7 @@ def test_truncated_or_empty_calibration_files_are_refused_in_one_line(calib, tmp
         ({"projector_hw": [100000, 100000]}, "each side must be 1..32768"),
         ({"projector_hw": [-16, 20]}, "each side must be 1..32768"),
         ({"camera_hw": [16]}, "not two whole numbers"),
-        ({"map_x": np.full(HW, 25.0)}, "'map_x' outside the 20x16 camera frame"),
+        ({"map_x": np.full(HW, 25.0)}, r"'map_x' outside the 16x20 \(height x width\) camera frame"),
         ({"map_y": np.full(HW, -1.0)}, "'map_y' outside"),
         ({"black_level": [np.nan, 0, 0]}, "NaN or infinite values in 'black_level'"),
         ({"dots_cam": np.zeros((3, 2))}, "dot lists"),
@@ -188,7 +188,7 @@ def test_calibrating_a_huge_manifest_is_refused_before_anything_is_read(pattern_
     manifest = PatternManifest.load(pattern_dir)
     manifest.width = manifest.height = 31623  # 1e9 pixels
     monkeypatch.setenv("EDOFPROJ_MEMORY_BYTES", str(16 << 30))
-    with pytest.raises(EdofprojError, match="calibrating a 31623x31623 projector .* needs about"):
+    with pytest.raises(EdofprojError, match=r"calibrating a 31623x31623 \(height x width\) projector .* needs about"):
         calibrate(manifest, {})
 
 

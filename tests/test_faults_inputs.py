@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from edofproj.cli import main
 from edofproj.config import Config, apply_overrides
 from edofproj.doe import build_doe, load_doe, save_doe
 from edofproj.errors import ConfigError, EdofprojError
@@ -110,6 +111,68 @@ def test_pickled_objects_are_refused_without_numpy_advice(tmp_path):
     with pytest.raises(EdofprojError) as refused:
         read_arrays(path, "PSF file")
     assert "Python objects" in str(refused.value) and "allow_pickle" not in str(refused.value)
+
+
+def _claiming_header(path, shape, archive=False) -> None:
+    """A ``.npy`` (or a ``.npz`` holding one) whose header declares ``shape`` float32 over 64 bytes of data."""
+    import io
+    import zipfile
+
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buffer, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    buffer.write(b"\0" * 64)
+    if archive:
+        with zipfile.ZipFile(path, "w") as handle:
+            handle.writestr("psf.npy", buffer.getvalue())
+    else:
+        path.write_bytes(buffer.getvalue())
+
+
+@pytest.mark.parametrize("archive", [False, True])
+def test_an_array_file_whose_header_claims_a_huge_shape_is_refused_before_reading(tmp_path, monkeypatch, archive):
+    path = tmp_path / ("huge.npz" if archive else "huge.npy")
+    _claiming_header(path, (100_000, 100_000, 3), archive)
+    monkeypatch.setenv(ENV_LIMIT, str(2**30))
+    allocated = []
+    monkeypatch.setattr(np, "fromfile", lambda *a, **k: allocated.append(a) or np.zeros(0))
+    with pytest.raises(MemoryLimitError, match=r"header declares an array of shape \(100000, 100000, 3\)"):
+        read_arrays(path, "texture")
+    assert not allocated
+
+
+@pytest.mark.parametrize("archive", [False, True])
+def test_an_array_file_whose_header_claims_more_than_it_holds_is_truncated(tmp_path, archive):
+    path = tmp_path / ("cut.npz" if archive else "cut.npy")
+    _claiming_header(path, (400, 300, 3), archive)  # 1.4 MB declared, 64 bytes held
+    with pytest.raises(EdofprojError, match="is truncated: its header declares 1440000 bytes"):
+        read_arrays(path, "texture")
+
+
+@pytest.mark.slow
+def test_every_command_refuses_a_huge_array_header_in_one_line(tmp_path, capsys, monkeypatch):
+    """render --surface/--depth-map, compensate --depth-map, evaluate --surface: one line, exit 2."""
+    from edofproj.imaging.image_io import write_image
+
+    monkeypatch.setenv(ENV_LIMIT, str(2**30))
+    huge_rgb, huge_map = tmp_path / "rgb.npy", tmp_path / "map.npy"
+    _claiming_header(huge_rgb, (100_000, 100_000, 3))
+    _claiming_header(huge_map, (200_000, 150_000))
+    image = tmp_path / "t.png"
+    write_image(image, torch.rand(3, 48, 64))
+    render = ["render", "--image", str(image), "--doe", "lens", "--out", str(tmp_path / "o.png")]
+    for argv in (
+        render + ["--depth-mm", "400", "--surface", str(huge_rgb)],
+        render + ["--depth-map", str(huge_map)],
+        ["compensate", "builtin:cpu-doe-net", "--images", str(tmp_path), "--depth-map", str(huge_map)]
+        + ["--out", str(tmp_path.parent / f"{tmp_path.name}-u")],  # outside the input folder
+        ["evaluate", "builtin:cpu-doe-net", "--surface", str(huge_rgb), "--methods", "doe", "--depths-mm", "400"]
+        + ["--out", str(tmp_path / "ev"), "--quiet"],
+    ):
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = [line for line in capsys.readouterr().err.strip().splitlines() if "older edofproj" not in line]
+        assert len(err) == 1 and "header declares an array of shape" in err[0], (argv, err)
+    assert not (tmp_path / "o.png").exists() and not (tmp_path.parent / f"{tmp_path.name}-u").exists()
 
 
 @pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])
@@ -232,7 +295,9 @@ def test_pattern_sets_are_refused_before_they_are_drawn():
 
     spec = PatternSpec(width=100000, height=100000)
     assert spec.memory_bytes() > 10 * 2**40  # 227 patterns of 10^10 px
-    with pytest.raises(MemoryLimitError, match="a set of 227 patterns of 100000x100000 px needs about 25.0 TiB"):
+    with pytest.raises(
+        MemoryLimitError, match=r"a set of 227 patterns of 100000x100000 px \(height x width\) needs about 25.0 TiB"
+    ):
         spec.validate()
 
 
@@ -245,7 +310,7 @@ def test_an_image_too_large_for_the_memory_is_refused_from_its_header(tmp_path, 
     cv2.imwrite(str(path), np.zeros((300, 2000), np.uint8))
     assert image_file_size(path) == (300, 2000)
     monkeypatch.setenv(ENV_LIMIT, str(300 * 2000 * 10))
-    with pytest.raises(MemoryLimitError, match="2000x300 image"):
+    with pytest.raises(MemoryLimitError, match=r"300x2000 \(height x width\) image"):
         read_image(path)
 
 

@@ -108,7 +108,7 @@ def test_scene_on_a_texture_is_dark_where_nothing_is_hit():
 
 
 def test_bad_reflectance_and_ambient_are_one_line_errors(tmp_path):
-    with pytest.raises(EdofprojError, match="is 40x30 px but the projector image is 32x24"):
+    with pytest.raises(EdofprojError, match="is 30x40 px but the projector image is 24x32"):
         check_reflectance(np.full((30, 40, 3), 0.5), (H, W))
     with pytest.raises(EdofprojError, match=r"values -0.1..0.5; a reflectance lies in \[0, 1\]"):
         check_reflectance(np.r_[np.full(H * W * 3 - 1, 0.5), -0.1].reshape(H, W, 3), (H, W))
@@ -116,13 +116,13 @@ def test_bad_reflectance_and_ambient_are_one_line_errors(tmp_path):
         Surface.from_arrays(np.full((3, H, W), 1.2))
     with pytest.raises(EdofprojError, match="NaN"):
         check_reflectance(np.full((H, W, 3), np.nan), (H, W))
-    with pytest.raises(EdofprojError, match=">= 0"):
+    with pytest.raises(EdofprojError, match=r"in \[0, 1\]"):
         check_ambient(-0.01, (H, W))
     with pytest.raises(EdofprojError, match="RGB map"):
         check_reflectance(np.full((H, W), 0.5), (H, W))
     # files: an image of the wrong size, a float array with values outside [0, 1], a good one
     write_image(tmp_path / "small.png", torch.full((3, 10, 12), 0.5))
-    with pytest.raises(EdofprojError, match=r"texture '.*small.png' is 12x10 px") as err:
+    with pytest.raises(EdofprojError, match=r"texture '.*small.png' is 10x12 px") as err:
         read_reflectance(tmp_path / "small.png", (H, W))
     assert "\n" not in str(err.value)
     np.save(tmp_path / "bright.npy", np.full((H, W, 3), 1.5, dtype=np.float32))
@@ -164,7 +164,7 @@ def test_render_on_a_texture_file_and_its_bad_input(tmp_path, capsys):
     np.save(tmp_path / "small.npy", np.full((4, 4, 3), 0.5, np.float32))
     for extra, message in (
         (["--surface", tmp_path / "bright.npy"], r"has values 1.2..1.2; a reflectance lies in [0, 1]"),
-        (["--surface", tmp_path / "small.npy"], "is 4x4 px but the projector image is 32x24"),
+        (["--surface", tmp_path / "small.npy"], "is 4x4 px but the projector image is 24x32"),
         (["--ambient", 0.2], "--ambient goes with --surface"),
     ):
         out.unlink(missing_ok=True)
@@ -172,3 +172,29 @@ def test_render_on_a_texture_file_and_its_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
         assert not out.exists()
+
+
+@pytest.mark.parametrize("value", [-0.01, 1.01, 5.0, 1e30, float("nan"), float("inf")])
+def test_an_ambient_illuminance_outside_zero_to_one_is_refused(value):
+    """One bound for --ambient (evaluate, render), --surface-ambient (procams simulate) and ambient maps."""
+    from edofproj.imaging.surfaces import check_illuminance
+
+    with pytest.raises(EdofprojError, match=r"must lie in \[0, 1\]: a fraction of the projector's white"):
+        check_illuminance(value, "--ambient")
+    if np.isfinite(value):
+        with pytest.raises(EdofprojError, match=r"must be finite and in \[0, 1\]"):
+            check_ambient(np.full((3, 4, 5), value), None)
+    assert check_illuminance(1.0) == 1.0 and check_illuminance(0.0) == 0.0
+
+
+def test_a_calibration_whose_surface_ambient_exceeds_the_projectors_white_is_refused_on_load():
+    from edofproj.procams.calibration import _check_surface_arrays
+
+    rho = np.full((4, 5, 3), 0.5, np.float32)
+
+    def fail(message):
+        raise EdofprojError(message)
+
+    _check_surface_arrays({"surface_reflectance": rho, "surface_ambient": np.full_like(rho, 1.0)}, (4, 5), fail)
+    with pytest.raises(EdofprojError, match=r"ambient light of 1e\+30\.\.1e\+30, outside \[0, 1\]"):
+        _check_surface_arrays({"surface_reflectance": rho, "surface_ambient": np.full_like(rho, 1e30)}, (4, 5), fail)

@@ -116,7 +116,7 @@ def test_ctrl_c_stops_the_loop_after_the_frames_done(rig_and_calibration):
 def test_targets_of_another_size_are_refused(rig_and_calibration):
     rig, calibration = rig_and_calibration
     display = MemoryDisplay()
-    with pytest.raises(EdofprojError, match="calibration was made for a 32x24 projector"):
+    with pytest.raises(EdofprojError, match="calibration was made for a 24x32 projector"):
         run_live(identity_net, calibration, display, VirtualCamera(rig, display), [("t", np.zeros((20, 32, 3)))])
     with pytest.raises(EdofprojError, match="--average"):
         GrabSettings(average=0)
@@ -129,7 +129,7 @@ def test_frame_sources_cycle_images_and_refuse_another_size(tmp_path):
         cv2.imwrite(str(tmp_path / f"{index}.png"), np.full(HW + (3,), 100 * index, np.uint8))
     (tmp_path / "other").mkdir()
     cv2.imwrite(str(tmp_path / "other" / "big.png"), np.zeros((48, 64, 3), np.uint8))
-    with pytest.raises(EdofprojError, match="is 64x48 but the calibration was made for a"):
+    with pytest.raises(EdofprojError, match="is 48x64 but the calibration was made for a"):
         next(frame_source(HW, image=str(tmp_path / "other" / "big.png")))
     frames = frame_source(HW, images=str(tmp_path))
     names = [next(frames)[0] for _ in range(5)]
@@ -277,10 +277,10 @@ def test_camera_frames_of_another_size_and_displays_of_another_size_are_refused(
         def grab(self):
             return np.zeros((8, 10, 3), np.float32)
 
-    with pytest.raises(EdofprojError, match="camera frame of 't' is 10x8 pixels, the calibrated camera 32x24"):
+    with pytest.raises(EdofprojError, match="camera frame of 't' is 8x10 pixels, the calibrated camera 24x32"):
         run_live(identity_net, calibration, MemoryDisplay(), Small(), [("t", smooth_target())] * 3)
     assert not live_threads()
-    with pytest.raises(EdofprojError, match="display 'memory' is 64x48 but the calibration was made for a 32x24"):
+    with pytest.raises(EdofprojError, match="display 'memory' is 48x64 but the calibration was made for a 24x32"):
         run_live(identity_net, calibration, MemoryDisplay((48, 64)), Small(), [("t", smooth_target())])
 
 
@@ -347,5 +347,5 @@ def test_the_live_command_refuses_a_camera_of_another_size_in_one_line(tmp_path,
             f"virtual:{tmp_path / 'sim'}", "--display", "memory", "--image", str(tmp_path / "target.png")]  # fmt: skip
     assert main(args + ["--frames", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "is 40x30 pixels, the calibrated camera 32x24" in err[0] and "Traceback" not in err[0]
+    assert len(err) == 1 and "is 30x40 pixels, the calibrated camera 24x32" in err[0] and "Traceback" not in err[0]
     assert not live_threads()

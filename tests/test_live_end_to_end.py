@@ -176,5 +176,5 @@ def test_patterns_capture_calibrate_estimate_finetune_live(tmp_path, capsys):
         )
         == 2
     )
-    assert "calibration was made for a 128x96 projector" in capsys.readouterr().err
+    assert "calibration was made for a 96x128 projector" in capsys.readouterr().err
     assert not (tmp_path / "bad.png").exists()

@@ -113,7 +113,7 @@ def test_rectifier_is_the_direct_rectification():
     out = np.empty((H, W, 3), np.float32)
     assert rectifier(frame, out=out) is out
     np.testing.assert_allclose(out, direct, atol=1e-5)
-    with pytest.raises(EdofprojError, match="is 16x12 pixels, the calibrated camera 40x30"):
+    with pytest.raises(EdofprojError, match="is 12x16 pixels, the calibrated camera 30x40"):
         rectifier(frame[:12, :16])
 
 

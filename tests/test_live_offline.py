@@ -147,7 +147,9 @@ def test_bad_requests_are_one_line(run_dir, tmp_path, capsys):
     with pytest.raises(EdofprojError, match="must end in one of"):
         VideoSink(tmp_path / "x.mkv", 30, HW)
     write_image(tmp_path / "in" / "b.png", torch.rand(3, 20, 30))  # still images are not resized
-    with pytest.raises(EdofprojError, match="b.png' is 30x20, not 56x40 like the first image 'a.png'"):
+    with pytest.raises(
+        EdofprojError, match=r"b.png' is 20x30, not 40x56 \(height x width\) like the first image 'a.png'"
+    ):
         list(open_frames(images=str(tmp_path / "in")).frames)
     (tmp_path / "empty").mkdir()
     with pytest.raises(EdofprojError, match="holds no image"):
@@ -208,5 +210,5 @@ def test_a_calibration_for_another_projector_is_one_line_and_no_output(run_dir, 
         args = ["compensate", str(run_dir), "--images", str(tmp_path / "in"), "--depth-mm", "350"]
         assert main(args + ["--calib", str(tmp_path / "calib.npz"), "--out", str(tmp_path / out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "a.png' is 56x40, not 32x24 like the calibrated projector" in err[0]
+        assert len(err) == 1 and "a.png' is 40x56, not 24x32 (height x width) like the calibrated projector" in err[0]
         assert not (tmp_path / out).exists() and leftovers(tmp_path, ".o") == []

@@ -143,3 +143,17 @@ def test_metrics_reject_bad_input():
         ms_ssim(torch.rand(1, 3, 10, 32), torch.rand(1, 3, 10, 32))
     with pytest.raises(EdofprojError, match="same shape"):
         psnr(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 17))
+
+
+def test_ssim_against_a_fixed_reference_equals_ssim_for_every_repeat_of_its_batch():
+    """:class:`SSIMReference` filters the target once and scores ``k B`` images against it, as ``ssim`` does."""
+    from edofproj.metrics import SSIMReference
+
+    generator = torch.Generator().manual_seed(4)
+    target = torch.rand(2, 3, 24, 30, generator=generator)
+    pred = torch.rand(6, 3, 24, 30, generator=generator)
+    reference = SSIMReference(target)
+    torch.testing.assert_close(reference.ssim(pred), ssim(pred, target.repeat(3, 1, 1, 1)), atol=1e-7, rtol=0)
+    torch.testing.assert_close(reference.ssim(target), torch.ones(2), atol=1e-6, rtol=0)
+    with pytest.raises(EdofprojError, match="same shape"):
+        reference.ssim(pred[:3])

@@ -181,7 +181,7 @@ def test_wrong_capture_size_says_expected_and_got(session, tmp_path, capsys):
         capsys,
         estimate_psf_args(session, captures, tmp_path / "psf.npz"),
     )
-    assert "'bernoulli_02.png' is 400x300 pixels, expected 512x384" in message
+    assert "'bernoulli_02.png' is 300x400 pixels, expected 384x512" in message
     assert not (tmp_path / "psf.npz").exists()
 
 

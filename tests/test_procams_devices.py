@@ -71,7 +71,7 @@ def test_memory_display_shows_8bit_frames_and_checks_size():
     display.show(image)
     np.testing.assert_allclose(display.shown, np.round(np.clip(image, 0, 1) * 255) / 255, atol=1e-7)
     fixed = MemoryDisplay(size_hw=(4, 6))
-    with pytest.raises(EdofprojError, match="image is 5x4 but display 'memory' is 6x4"):
+    with pytest.raises(EdofprojError, match="image is 4x5 but display 'memory' is 4x6"):
         fixed.show(image)
     with pytest.raises(EdofprojError, match="NaN"):
         display.show(np.full((2, 2, 3), np.nan))
@@ -301,7 +301,7 @@ def test_capture_session_refuses_other_folders_and_camera_sizes(tmp_path, patter
     out = tmp_path / "captures"
     capture_patterns(folder, out, display, VirtualCamera(straight_rig((16, 20), delta_psf()), display), stop_after=2)
     bigger = VirtualProCams.example((16, 20), delta_psf(), camera_scale=2.0)
-    with pytest.raises(EdofprojError, match="the session's camera 20x16"):
+    with pytest.raises(EdofprojError, match="the session's camera 16x20"):
         capture_patterns(folder, out, display, VirtualCamera(bigger, display))
 
 

@@ -25,12 +25,12 @@ def test_screen_shows_the_exact_pixels(dummy_video):
         image = np.random.default_rng(0).integers(0, 256, (height, width, 3)) / 255.0
         display.show(image)
         np.testing.assert_array_equal(display.read_back(), np.round(image * 255).astype(np.uint8))
-        with pytest.raises(EdofprojError, match=f"but display 'screen:0' is {width}x{height}"):
+        with pytest.raises(EdofprojError, match=f"but display 'screen:0' is {height}x{width}"):
             display.show(image[:-1])
 
 
 def test_missing_screen_lists_the_screens_found(dummy_video):
-    with pytest.raises(EdofprojError, match=r"'screen:3' does not exist; found screen:0 \(\d+x\d+\)"):
+    with pytest.raises(EdofprojError, match=r"'screen:3' does not exist; found screen:0 \(\d+x\d+, height x width\)"):
         open_display("screen:3")
     with pytest.raises(EdofprojError, match="must be an integer"):
         open_display("screen:left")

@@ -84,7 +84,7 @@ def test_warp_brings_a_capture_back_to_projector_pixels():
     back = camera_map.warp(capture)
     assert back.shape == projector_image.shape
     assert np.abs(back - projector_image)[3:-3, 3:-3].max() < 0.01
-    with pytest.raises(EdofprojError, match="200x149 pixels, the calibrated camera 200x150"):
+    with pytest.raises(EdofprojError, match="149x200 pixels, the calibrated camera 150x200"):
         camera_map.warp(capture[:-1])
 
 

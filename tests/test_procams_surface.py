@@ -176,3 +176,49 @@ def test_a_surface_brighter_than_the_calibrations_white_is_warned(white_calibrat
     with pytest.warns(UserWarning, match="reflects more than the calibration's white"):
         measured = measure(rig, calibration, patterns)
     assert measured.reflectance.max() <= 1.0
+
+
+def test_swapped_white_and_black_captures_are_refused(white_calibration, patterns):
+    """The white field darker than the black one: the reflectance would clip to 0 everywhere."""
+    rig = VirtualProCams.example(PROJECTOR_HW, gaussian_psf(1.0), seed=3, reflectance=block_texture(1))
+    manifest, images = patterns
+    black, white = surface_capture_files(manifest)
+    rng = np.random.default_rng(0)
+    with pytest.raises(EdofprojError, match=r"the white field is darker than the black one at 100 % .* swapped"):
+        measure_surface(white_calibration, [rig.capture(images[white[0]], rng)], [rig.capture(images[black], rng)])
+
+
+@pytest.mark.parametrize("rho, ambient", [(0.0, 0.0), (0.0, 0.3), (0.005, 0.0)])
+def test_a_surface_that_cannot_show_an_image_is_not_recorded(white_calibration, patterns, rho, ambient):
+    """A black object (or one lit only by the room): one line, not a zero surface in calib.npz."""
+    rig = VirtualProCams.example(
+        PROJECTOR_HW, gaussian_psf(1.0), seed=3, reflectance=np.full((*PROJECTOR_HW, 3), rho), surface_ambient=ambient
+    )
+    with pytest.raises(EdofprojError, match=r"^the surface measured cannot show an image: .* is 0\.0[01]\d .* black"):
+        measure(rig, white_calibration, patterns)
+
+
+def test_a_camera_moved_between_the_sessions_is_measured_to_a_tenth_of_a_pixel(patterns):
+    """camera_shift_px of the full field less black: a still camera reads <= 0.15 camera px (other noise,
+    another texture than the white screen's), a move of d camera px reads d within 0.15."""
+    import dataclasses
+
+    from edofproj.procams.surface import camera_shift_px
+
+    manifest, images = patterns
+    black, white = surface_capture_files(manifest)
+
+    def session(rig, seed):
+        rng = np.random.default_rng(seed)
+        return rig.capture(images[black], rng), [rig.capture(images[white[0]], rng)]
+
+    screen = VirtualProCams.example(PROJECTOR_HW, gaussian_psf(1.0), seed=3, noise_sigma=0.005)
+    textured = dataclasses.replace(screen, reflectance=block_texture(1), surface_ambient=(0.05, 0.05, 0.05))
+    reference = session(screen, 0)
+    assert np.hypot(*camera_shift_px(reference, session(textured, 1))) <= 0.15
+    for dy, dx in ((0.0, 1.0), (-1.2, 1.6), (3.0, 0.0)):
+        moved = dataclasses.replace(
+            textured, homography=np.array([[1, 0, dx], [0, 1, dy], [0, 0, 1.0]]) @ textured.homography
+        )
+        shift = camera_shift_px(reference, session(moved, 2))
+        np.testing.assert_allclose(-shift, (dy, dx), atol=0.15)

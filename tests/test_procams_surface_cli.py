@@ -11,6 +11,8 @@ plain one in cascade) on that capture. Bad input: one line, exit 2, nothing writ
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -318,3 +320,33 @@ def test_the_offline_show_on_the_surface(lab, tmp_path, capsys):
         capsys, "compensate", lab / "run_surface", *base[:-1], lab / "plain.npz", "--out", tmp_path / "bad"
     )
     assert "needs the surface" in message and not (tmp_path / "bad").exists()
+
+
+def test_a_surface_that_cannot_be_read_is_refused_by_calibrate_compensate_and_live(lab, tmp_path, capsys):
+    """Swapped white and black captures, and a camera moved between the sessions (another seed: another
+    pose), are refused by calibrate; a calibration holding a zero surface (written by an older edofproj,
+    or edited) is refused by compensate and live as evaluate --surface refuses a black texture."""
+    calibrate = ["procams", "calibrate", "--patterns", lab / "pat", "--captures", lab / "white"]
+    swapped = tmp_path / "swapped"
+    shutil.copytree(lab / "object", swapped)
+    (swapped / "black.png").write_bytes((lab / "object" / "white.png").read_bytes())
+    (swapped / "white.png").write_bytes((lab / "object" / "black.png").read_bytes())
+    out = tmp_path / "c.npz"
+    assert "white and black captures swapped?" in run_error(
+        capsys, *calibrate, "--surface-captures", swapped, "--out", out
+    )
+    simulate = ["procams", "simulate", "--patterns", lab / "pat", "--depth-mm", 350, "--doe", "lens", "--window", 9]
+    run_cli(*simulate, "--seed", 2, "--out", tmp_path / "moved", "--surface", "checker")
+    message = run_error(capsys, *calibrate, "--surface-captures", tmp_path / "moved", "--out", out)
+    assert "the camera moved between the calibration's captures and the surface captures" in message
+    assert not out.exists()
+
+    arrays = dict(np.load(lab / "calib.npz"))
+    arrays["surface_reflectance"] = np.zeros_like(arrays["surface_reflectance"])
+    np.savez(tmp_path / "zero.npz", **arrays)
+    refused = "the surface measured in the calibration cannot show an image"
+    base = ["compensate", lab / "run_surface", "--image", lab / "target.png", "--calib", tmp_path / "zero.npz"]
+    assert refused in run_error(capsys, *base, "--surface-from-calib", "--out", tmp_path / "u0.png")
+    live = ["live", lab / "run_surface", "--calib", tmp_path / "zero.npz", "--image", lab / "target.png"]
+    assert refused in run_error(capsys, *live, "--camera", f"virtual:{lab / 'object'}", "--display", "memory")
+    assert not (tmp_path / "u0.png").exists()

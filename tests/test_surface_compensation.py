@@ -8,9 +8,11 @@ import pytest
 import torch
 
 from edofproj.compensation.achievable import (
+    MIN_GAIN,
     SurfaceRangeWarning,
     achievable_goal,
     clipped_fraction,
+    require_visible,
     warn_if_out_of_reach,
 )
 from edofproj.compensation.photometric import photometric_compensation
@@ -58,16 +60,56 @@ def test_goal_on_a_uniform_coloured_surface_is_the_closed_form():
     assert float(clipped_fraction(goal.image, rho, ambient)) == 0.0
 
 
-def test_a_few_dark_pixels_do_not_set_the_contrast_and_a_dark_surface_is_warned():
+def test_a_few_dark_pixels_do_not_set_the_contrast():
     rho = torch.full((1, 3, H, W), 0.8)
     rho[..., 0, :6] = 0.05  # 6 of 768 pixels (0.8 %): below the 2 % quantile
     target = torch.ones(1, 3, H, W)
     goal = achievable_goal(target, rho, torch.zeros(1, 3, 1, 1))
     assert float(goal.gain) == pytest.approx(0.8)
     assert float(clipped_fraction(goal.image, rho, torch.zeros(1, 3, 1, 1))) == pytest.approx(6 / (H * W))
-    dark = torch.full((1, 3, H, W), 0.02)
-    with pytest.warns(SurfaceRangeWarning, match=r"too dark for the target: .* % of the pixels cannot be reached"):
-        warn_if_out_of_reach(achievable_goal(target, dark, torch.zeros(1, 3, 1, 1)), dark, torch.zeros(1, 3, 1, 1))
+    assert require_visible(rho, torch.zeros(1, 3, 1, 1)) == pytest.approx(0.8)
+
+
+def test_a_target_with_many_pixels_out_of_reach_is_warned():
+    """Ambient 0.3 on three disjoint sets of 1.9 % of the pixels, one per colour: each colour's floor
+    stays 0 (its 98th percentile), so a black target is out of reach on 3 x 14 of 768 pixels (5.5 %)."""
+    rho = torch.full((1, 3, H, W), 0.8)
+    ambient = torch.zeros(1, 3, H, W)
+    per_colour = int(0.019 * H * W)
+    for c in range(3):
+        ambient.view(1, 3, -1)[0, c, c * per_colour : (c + 1) * per_colour] = 0.3
+    goal = achievable_goal(torch.zeros(1, 3, H, W), rho, ambient)
+    assert float(goal.gain) == pytest.approx(0.8)
+    with pytest.warns(
+        SurfaceRangeWarning, match=r"too dark for the target: 5\.[4-7] % of the pixels cannot be reached"
+    ):
+        warn_if_out_of_reach(goal, rho, ambient)
+
+
+def test_a_dark_surface_that_can_still_show_an_image_is_warned_not_refused():
+    dark = torch.full((1, 3, H, W), 0.03)  # 7.6 grey levels
+    assert require_visible(dark, torch.zeros(1, 3, 1, 1)) == pytest.approx(0.03)
+    goal = achievable_goal(torch.ones(1, 3, H, W), dark, torch.zeros(1, 3, 1, 1))
+    with pytest.warns(SurfaceRangeWarning, match=r"too dark for the target: .*0\.030 .*SSIM and PSNR are inflated"):
+        warn_if_out_of_reach(goal, dark, torch.zeros(1, 3, 1, 1))
+
+
+@pytest.mark.parametrize(
+    "rho, ambient",
+    [
+        (0.0, 0.0),  # a black object, or white and black captures swapped
+        (0.0, 0.5),  # lit only by the room: nothing the projector does shows
+        (0.01, 0.0),  # 1 % grey: 2.5 grey levels; SSIM's constants, not the projection, would be scored
+    ],
+)
+def test_a_surface_that_cannot_show_an_image_is_refused_in_one_line(rho, ambient):
+    """Its goal is nearly constant: every method would score SSIM ~1 (a silent wrong result)."""
+    reflectance = torch.full((1, 3, H, W), rho)
+    with pytest.raises(EdofprojError, match=r"^the surface cannot show an image: .* is 0\.0[01]0 of a white screen's"):
+        require_visible(reflectance, torch.full((1, 3, 1, 1), ambient))
+    assert (
+        float(achievable_goal(torch.rand(1, 3, H, W), reflectance, torch.full((1, 3, 1, 1), ambient)).gain) < MIN_GAIN
+    )
 
 
 def test_photometric_compensation_is_exact_for_a_sharp_projector_but_not_through_blur():

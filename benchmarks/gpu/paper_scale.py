@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from edofproj.config import load_config
-from edofproj.data import builtin_split, fit_to_size, load_builtin_photo, to_unit_float
-from edofproj.imaging.image_io import write_image
+from edofproj.data import builtin_split, fit_to_size, load_builtin_photo
+from edofproj.imaging.image_io import to_unit_float, write_image
 from edofproj.runs.log import read_log
 from edofproj.training.trainer import train
 

@@ -1,19 +1,34 @@
 #!/usr/bin/env bash
 # The CUDA checks and measurements of edofproj in one go, on a machine with an NVIDIA GPU.
 #
-#   bash benchmarks/gpu/run_gpu_checks.sh [setup|tests|bench|paper|scored|all]...   (default: all)
+#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|paper|scored|all]...   (default: all)
 #
-# setup   installs what the GPU image lacks (gdstk, from .whl/ when present, else from PyPI) and
-#         makes the package importable without a build (PYTHONPATH=src)
-# tests   the whole test suite; the CUDA cases (test_cuda.py, the `device`-parametrized tests,
-#         the one-process NCCL run) run because a GPU is present
-# bench   `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
-#         and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
-# paper   benchmarks/gpu/paper_scale.py: s/step and peak memory at the paper's sizes, fp32 vs bf16
-# scored  trains the `paper` preset for SCORED_STEPS steps and evaluates it and the `cpu` preset's
-#         run (REFERENCE_RUN, trained beforehand) on the same held-out images, on the GPU
+# setup      installs what the GPU image lacks from .whl/ (nothing can be fetched there; download
+#            the wheels beforehand, see below) and makes the package importable without a build
+#            (PYTHONPATH=src); stops the run when a package the checks import is missing
+# placement  the fast tier of tests/test_device_placement.py, on the CPU (seconds): every component on
+#            a second device (the meta device); a tensor made on the wrong device or in the wrong
+#            dtype fails there, and the run stops before any GPU work (KEEP_GOING=1 goes on regardless)
+# tests      the CUDA tests: test_cuda.py and every test parametrized with device=cuda (pytest -k cuda),
+#            and a summary of them
+# suite      the rest of the test suite (not part of `all`: CI runs it on the CPU)
+# bench      `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
+#            and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
+# paper      benchmarks/gpu/paper_scale.py: s/step and peak memory at the paper's sizes, fp32 vs bf16
+# scored     trains the `paper` preset for SCORED_STEPS steps and evaluates it and the reference
+#            model (REFERENCE_RUN, default the built-in run builtin:cpu-doe-net) on the GPU
 #
-# Results go to $OUT (default /tmp/edofproj-gpu): logs, CSV tables and results.tar.gz.
+# setup and placement always run first. Results go to $OUT (default /tmp/edofproj-gpu): logs, CSV
+# tables and results.tar.gz.
+#
+# Wheels the GPU image lacks (it has torch, numpy, scipy, scikit-image, OpenCV, matplotlib, tqdm,
+# torchmetrics, PyYAML, markdown-it-py): trimesh (edofproj.training imports it through
+# edofproj.scenes), rtree (scene ray casts), gdstk (fabrication). Before the loan, in the repository:
+#   echo /.whl/ >> .git/info/exclude
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+#       -d .whl trimesh rtree gdstk
+# and carry .whl with the working tree.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-/tmp/edofproj-gpu}
@@ -22,38 +37,46 @@ SCORED_STEPS=${SCORED_STEPS:-3000}
 SCORED_CROP=${SCORED_CROP:-256}
 SCORED_BATCH=${SCORED_BATCH:-4}
 SCORED_PRECISION=${SCORED_PRECISION:-bf16}
-REFERENCE_RUN=${REFERENCE_RUN:-runs/gpu_ref/cpu_doe_net}
+REFERENCE_RUN=${REFERENCE_RUN:-builtin:cpu-doe-net}
 mkdir -p "$OUT" "$WORK"
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/src:${PYTHONPATH:-}"
 CLI="python3 -m edofproj.cli"
 
 setup() {
     nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-    if ! python3 -c "import gdstk" 2>/dev/null; then
-        if compgen -G ".whl/*.whl" >/dev/null; then
-            python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || return 1
-            export PYTHONPATH="$PYTHONPATH:/tmp/site"
-        else
-            python3 -m pip install -q gdstk || return 1
-        fi
+    if compgen -G ".whl/*.whl" >/dev/null; then
+        python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || return 1
+        export PYTHONPATH="$PYTHONPATH:/tmp/site"
     fi
-    python3 -c "import torch, edofproj, gdstk; print('torch', torch.__version__, 'CUDA', torch.version.cuda, \
+    python3 - <<'PY' || return 1
+import importlib.util, sys
+needed = {"torch": "everything", "trimesh": "training (edofproj.training imports edofproj.scenes)"}
+optional = {"rtree": "scene ray casts (evaluate --scene, tests/test_scenes_*)", "gdstk": "fabrication (tests/test_fab_*)"}
+missing = {n: why for n, why in {**needed, **optional}.items() if importlib.util.find_spec(n) is None}
+for name, why in missing.items():
+    print(f"missing: {name} ({why}): put its wheel in .whl/ (see the header of this script)")
+sys.exit(1 if set(missing) & set(needed) else 0)
+PY
+    python3 -c "import torch, edofproj; print('torch', torch.__version__, 'CUDA', torch.version.cuda, \
 'GPU', torch.cuda.get_device_name(), 'cuDNN', torch.backends.cudnn.version())"
+}
+
+placement() {
+    python3 -m pytest tests/test_device_placement.py -m "not slow" -q -p no:cacheprovider 2>&1 \
+        | tee "$OUT/placement.log" | tail -15
 }
 
 tests() {
     local xdist=""
     python3 -c "import xdist" 2>/dev/null && xdist="-n 8"
-    timeout 300 python3 -m pytest tests -q -rs $xdist -p no:cacheprovider --junitxml="$OUT/junit.xml" 2>&1 \
-        | tee "$OUT/pytest.log" | tail -40
-    python3 - "$OUT/junit.xml" <<'PY'
+    timeout 420 python3 -m pytest tests -k cuda -q -rs $xdist -p no:cacheprovider --junitxml="$OUT/junit_cuda.xml" 2>&1 \
+        | tee "$OUT/pytest_cuda.log" | tail -25
+    python3 - "$OUT/junit_cuda.xml" <<'PY'
 import sys, xml.etree.ElementTree as ET
 cases = ET.parse(sys.argv[1]).getroot().iter("testcase")
 gpu = {"passed": [], "failed": [], "skipped": []}
 for case in cases:
     name = f"{case.get('classname')}::{case.get('name')}"
-    if "test_cuda" not in name and "cuda" not in case.get("name"):
-        continue
     state = "failed" if case.find("failure") is not None or case.find("error") is not None else \
         "skipped" if case.find("skipped") is not None else "passed"
     gpu[state].append(name)
@@ -61,15 +84,26 @@ print(f"CUDA tests: {len(gpu['passed'])} passed, {len(gpu['failed'])} failed, {l
 for state in ("failed", "skipped"):
     for name in gpu[state]:
         print(f"  {state}: {name}")
+sys.exit(1 if gpu["failed"] or not gpu["passed"] else 0)
 PY
+}
+
+suite() {
+    local xdist=""
+    python3 -c "import xdist" 2>/dev/null && xdist="-n 8"
+    timeout 500 python3 -m pytest tests -k "not cuda" -q -rs $xdist -p no:cacheprovider 2>&1 | tee "$OUT/pytest.log" | tail -15
 }
 
 bench() {
     local common="--device cuda --repeats 300 --warmup 20 --no-onnx --methods wiener,unet --sizes 256x256,600x800,768x1024"
-    $CLI bench $common --widths 16,32,64,128 --prefilter-bins 48 --csv "$OUT/bench_default.csv" 2>/dev/null
+    local status=0
+    $CLI bench $common --widths 16,32,64,128 --prefilter-bins 48 --csv "$OUT/bench_default.csv" \
+        2>>"$OUT/bench.log" || status=1
     $CLI bench $common --widths 8,16 --architecture multirate --space-to-depth 4 --prefilter-bins 48 \
-        --csv "$OUT/bench_realtime.csv" 2>/dev/null
-    $CLI bench $common --widths paper --csv "$OUT/bench_paper_unet.csv" 2>/dev/null
+        --csv "$OUT/bench_realtime.csv" 2>>"$OUT/bench.log" || status=1
+    $CLI bench $common --widths paper --csv "$OUT/bench_paper_unet.csv" 2>>"$OUT/bench.log" || status=1
+    [ $status -eq 0 ] || tail -5 "$OUT/bench.log"
+    return $status
 }
 
 paper() {
@@ -85,23 +119,35 @@ scored() {
         --set train.checkpoint_every=1000 --set train.device=cuda --set train.mixed_precision="$SCORED_PRECISION" \
         || return 1
     local methods="lens,lens+wiener,doe,doe+wiener,doe+net"
-    $CLI evaluate "$WORK/paper_gpu" --methods "$methods" --device cuda --out "$WORK/eval_paper" --quiet
-    $CLI evaluate "$REFERENCE_RUN" --methods "$methods" --device cuda --out "$WORK/eval_cpu" --quiet
+    $CLI evaluate "$WORK/paper_gpu" --methods "$methods" --device cuda --out "$WORK/eval_paper" --quiet || return 1
+    $CLI evaluate "$REFERENCE_RUN" --methods "$methods" --device cuda --out "$WORK/eval_cpu" --quiet || return 1
     cp "$WORK/paper_gpu/train_log.csv" "$OUT/paper_gpu_train_log.csv"
     tar -czf "$OUT/results.tar.gz" -C "$WORK" paper_gpu/config.yaml paper_gpu/doe.npz eval_paper/metrics.csv \
         eval_paper/tilted_metrics.csv eval_paper/summary.md eval_cpu/metrics.csv eval_cpu/tilted_metrics.csv \
         eval_cpu/summary.md 2>&1
 }
 
-steps=("$@")
-[ ${#steps[@]} -eq 0 ] && steps=(all)
-[ "${steps[0]}" = all ] && steps=(setup tests bench paper scored)
-[ "${steps[0]}" != setup ] && steps=(setup "${steps[@]}")
+steps=()
+for step in "$@"; do
+    case "$step" in
+    all) steps+=(tests bench paper scored) ;;
+    setup | placement) ;;  # always run first
+    tests | suite | bench | paper | scored) steps+=("$step") ;;
+    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, paper, scored, all)" >&2; exit 2 ;;
+    esac
+done
+[ $# -eq 0 ] && steps=(tests bench paper scored)
+steps=(setup placement "${steps[@]}")
 status=0
 for step in "${steps[@]}"; do
     echo "=== $step ($(date +%T))"
     start=$SECONDS
-    "$step" || { echo "=== $step FAILED"; status=1; [ "$step" = setup ] && exit 1; }
+    if ! "$step"; then
+        echo "=== $step FAILED"
+        status=1
+        [ "$step" = setup ] && exit 1
+        [ "$step" = placement ] && [ "${KEEP_GOING:-0}" != 1 ] && exit 1
+    fi
     echo "=== $step took $((SECONDS - start)) s"
 done
 exit $status

@@ -515,7 +515,7 @@ class EvaluationConfig:
     the NSR maximizes, ``ssim`` (the metric of the demo's claims, so the baseline is as strong as
     it can be there) or ``psnr`` (the MSE-optimal choice). ``display_guard``: a safe network's input
     is sent only where its display, predicted at three depths of the scored range, scores at least
-    the SSIM of its linear filter's, else the filter's (:mod:`edofproj.evaluation.guard`; ``false``:
+    the SSIM of its linear filter's, else the filter's (:mod:`edofproj.methods.guard`; ``false``:
     the network's input always).
     """
 

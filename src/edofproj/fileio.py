@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import re
 import shutil
@@ -23,6 +24,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from .errors import DiskFullError, EdofprojError, RecoveryWarning
+from .limits import check_memory
 
 TEMP_MARKER = ".tmp-"
 #: How the lock files of :mod:`edofproj.locking` end (``.edofproj.lock``; that module imports this one).
@@ -140,6 +142,7 @@ def read_arrays(path: str | os.PathLike, what: str = "file") -> dict[str, np.nda
         raise EdofprojError(f"cannot read {what} '{path}': {exc.strerror or exc}") from None
     if not (head.startswith(b"PK") or head.startswith(b"\x93NUMPY")):
         raise EdofprojError(f"{what} '{path}' is not a NumPy .npz/.npy file")
+    check_array_headers(path, what)
     try:
         loaded = np.load(path, allow_pickle=False)
         if isinstance(loaded, np.ndarray):
@@ -154,6 +157,68 @@ def read_arrays(path: str | os.PathLike, what: str = "file") -> dict[str, np.nda
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
     except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
+
+
+def _header(handle, what: str, path: Path, member: str = "") -> tuple[tuple[int, ...], np.dtype]:
+    """The shape and dtype a ``.npy`` header at ``handle`` declares (nothing else is read)."""
+    where = f"{what} '{path}'" + (f" (array '{member}')" if member else "")
+    try:
+        version = np.lib.format.read_magic(handle)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(handle)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(handle)
+    except ValueError as exc:
+        if "pickle" in str(exc) or "object" in str(exc).lower():
+            raise EdofprojError(
+                f"{where} holds Python objects, not plain arrays: it was not written by edofproj"
+            ) from None
+        raise EdofprojError(f"{where} has a damaged header") from None
+    except (OSError, EOFError):
+        raise EdofprojError(f"{where} is truncated or damaged") from None
+    return tuple(int(n) for n in shape), dtype
+
+
+def array_bytes(shape: tuple[int, ...], dtype: np.dtype) -> int:
+    """Bytes of an array of ``shape`` and ``dtype`` (Python integers: no overflow)."""
+    return math.prod(shape) * int(dtype.itemsize)
+
+
+def check_array_headers(path: str | os.PathLike, what: str = "file") -> None:
+    """Refuse in one line, before anything is allocated, a ``.npy`` file (or a member of a ``.npz``
+    archive) whose header declares an array larger than the memory available
+    (:func:`edofproj.limits.check_memory`) or larger than the bytes the file holds (truncated)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(2) != b"PK":
+                handle.seek(0)
+                shape, dtype = _header(handle, what, path)
+                declared = {"": (shape, dtype, path.stat().st_size - handle.tell())}
+            else:
+                declared = {}
+                with zipfile.ZipFile(path) as archive:
+                    for info in archive.infolist():
+                        if info.filename.endswith(".npy"):
+                            with archive.open(info) as stream:
+                                shape, dtype = _header(stream, what, path, info.filename[:-4])
+                                declared[info.filename[:-4]] = (shape, dtype, info.file_size - stream.tell())
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error):
+        raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
+    for member, (shape, dtype, stored) in declared.items():
+        needed = array_bytes(shape, dtype)
+        name = f"{what} '{path}'" + (f" (array '{member}')" if member else "")
+        if dtype.hasobject:
+            continue  # refused by np.load(allow_pickle=False): "holds Python objects"
+        check_memory(
+            needed,
+            f"{name} (its header declares an array of shape {shape}, {dtype})",
+            "is it the file you meant? (a damaged header declares any size)",
+        )
+        if needed > stored:
+            raise EdofprojError(
+                f"{name} is truncated: its header declares {needed} bytes of shape {shape}, the file holds {stored}"
+            )
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

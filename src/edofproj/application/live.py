@@ -100,8 +100,8 @@ def _still_at_projector_size(path: Path, size_hw: tuple[int, int]) -> np.ndarray
     image = to_unit_float(read_image_array(path))
     if image.shape[:2] != tuple(size_hw):
         raise EdofprojError(
-            f"image '{path}' is {image.shape[1]}x{image.shape[0]} but the calibration was made for a "
-            f"{size_hw[1]}x{size_hw[0]} projector"
+            f"image '{path}' is {image.shape[0]}x{image.shape[1]} but the calibration was made for a "
+            f"{size_hw[0]}x{size_hw[1]} projector (height x width)"
         )
     return image.astype(np.float32)
 
@@ -558,7 +558,9 @@ def run_live(
     H, W = calibration.projector_hw
     if display.size_hw is not None and tuple(display.size_hw) != (H, W):
         h, w = display.size_hw
-        raise EdofprojError(f"display '{display.spec}' is {w}x{h} but the calibration was made for a {W}x{H} projector")
+        raise EdofprojError(
+            f"display '{display.spec}' is {h}x{w} but the calibration was made for a {H}x{W} projector (height x width)"
+        )
     report = report or (lambda line: warnings.warn(line, RuntimeWarning, stacklevel=2))
     memory_format = network_memory_format(net)
     rectify, inverse = calibration.rectifier, calibration.inverse_table  # built before the clock starts

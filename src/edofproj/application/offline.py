@@ -131,7 +131,7 @@ def open_frames(
             image = to_unit_float(read_image_array(path))
             if image.shape[:2] != tuple(size):
                 raise EdofprojError(
-                    f"image '{path}' is {image.shape[1]}x{image.shape[0]}, not {size[1]}x{size[0]} like {reference}"
+                    f"image '{path}' is {image.shape[0]}x{image.shape[1]}, not {size[0]}x{size[1]} (height x width) like {reference}"
                 )
             yield Path(frame_file_name(path)).stem, image.astype(np.float32)
 

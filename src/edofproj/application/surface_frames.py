@@ -28,10 +28,11 @@ from typing import Callable, NamedTuple
 import numpy as np
 import torch
 
-from ..compensation.achievable import Goal, achievable_goal, warn_if_out_of_reach
+from ..compensation.achievable import Goal, achievable_goal, require_visible, warn_if_out_of_reach
 from ..compensation.photometric import light_for_goal, photometric_compensation
 from ..compensation.surface_net import SurfaceAwareNet
 from ..procams.calibration import ProCamsCalibration
+from ..procams.surface import SURFACE_HINT
 
 
 class MeasuredSurface(NamedTuple):
@@ -42,12 +43,16 @@ class MeasuredSurface(NamedTuple):
 
 
 def measured_surface(calibration: ProCamsCalibration, what: str = "this command") -> MeasuredSurface:
-    """The calibration's measured surface, or one line saying that it was made without the surface captures."""
+    """The calibration's measured surface, or one line saying that it was made without the surface
+    captures or that the surface cannot show an image (:func:`~edofproj.compensation.achievable.require_visible`:
+    ``compensate`` and ``live`` refuse what ``evaluate --surface`` refuses)."""
     rho, ambient = calibration.require_surface(what)
-    return MeasuredSurface(
+    surface = MeasuredSurface(
         torch.from_numpy(np.ascontiguousarray(rho.transpose(2, 0, 1)))[None].float(),
         torch.from_numpy(np.ascontiguousarray(ambient.transpose(2, 0, 1)))[None].float(),
     )
+    require_visible(*surface, "the surface measured in the calibration", SURFACE_HINT)
+    return surface
 
 
 def surface_goal(target: torch.Tensor, surface: MeasuredSurface, what: str = "the target") -> Goal:

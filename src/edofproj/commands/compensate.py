@@ -153,8 +153,10 @@ def run(args) -> int:
         raise EdofprojError("--calib goes with --capture (a raw camera frame to rectify)")
     if args.preview is not None and args.depth_mm is None:
         raise EdofprojError("--preview needs --depth-mm (a simulated screen to show the result on)")
-    if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
-        raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
+    if args.depth_mm is not None:
+        from ..optics.geometry import check_screen_depths_mm
+
+        check_screen_depths_mm(args.depth_mm, "--depth-mm")
     check_output_path(args.out, args.bits)
     if args.preview is not None:
         check_output_path(args.preview, args.bits)
@@ -184,6 +186,7 @@ def run(args) -> int:
             )
     else:
         psf = method.design.psf([args.depth_mm * 1e-3])
+        _note_untrained_depths([args.depth_mm], method.design.cfg)
     compensate = method.frame_function(psf)  # a non-blind method without a simulated screen: refused here
     with torch.inference_mode():
         # a simulated screen runs the whole loop (its projection is the preview); a capture, the method alone
@@ -238,6 +241,16 @@ def refuse_outputs_over_inputs(args) -> None:
         refuse_output_over(
             value, option, inputs, runs=[("RUN", args.run)], file_output=bool(value and Path(value).suffix)
         )
+
+
+def _note_untrained_depths(depths_mm, cfg) -> None:
+    """A note (stderr) when the screen lies outside the depths the run was trained on."""
+    import sys
+
+    from ..methods.depth_ranges import depth_notes, trained_range_mm
+
+    for note in depth_notes([float(z) for z in depths_mm], trained_range_mm(cfg)):
+        print(f"note: {note}", file=sys.stderr)
 
 
 def _compensate_on_surface(args, net, target, calibration, capture) -> int:
@@ -335,8 +348,10 @@ def run_batch(args) -> int:
         raise EdofprojError(
             "--images/--video need --depth-mm or --depth-map, the screen of the show (--capture is one frame)"
         )
-    if args.depth_mm is not None and not (math.isfinite(args.depth_mm) and args.depth_mm > 0):
-        raise EdofprojError(f"--depth-mm must be a positive depth in mm, got {args.depth_mm:g}")
+    if args.depth_mm is not None:
+        from ..optics.geometry import check_screen_depths_mm
+
+        check_screen_depths_mm(args.depth_mm, "--depth-mm")
     if args.preview is not None:
         raise EdofprojError("--preview goes with --image")
     if args.batch < 1:
@@ -384,14 +399,16 @@ def run_batch(args) -> int:
             return render_masked_depth_map(images, depth_map_m, design.psf, layers)
 
         screen = f"depth map {np.nanmin(depth_map_m) * 1e3:.0f}-{np.nanmax(depth_map_m) * 1e3:.0f} mm"
+        _note_untrained_depths([np.nanmin(depth_map_m) * 1e3, np.nanmax(depth_map_m) * 1e3], cfg)
     else:
         layers = 1
         psf = design.psf([args.depth_mm * 1e-3])
         forward = flat_screen(psf)
         screen = f"flat screen at {args.depth_mm:g} mm"
+        _note_untrained_depths([args.depth_mm], cfg)
     check_memory(
         args.batch * projection_bytes(H, W, cfg.psf.window, layers),
-        f"compensating batches of {args.batch} frames of {W}x{H}",
+        f"compensating batches of {args.batch} frames of {H}x{W} (height x width)",
         "lower --batch",
     )
     sink = (
@@ -405,7 +422,9 @@ def run_batch(args) -> int:
         net, forward = _on_surface(args, _surface_network(method), forward, calibration)
         screen = f"{screen} on the surface measured in {args.calib}"
     count = source.count or "unknown number of"
-    print(f"compensating the {source.description} with {method.name}: {count} frames of {H}x{W}, for a {screen}")
+    print(
+        f"compensating the {source.description} with {method.name}: {count} frames of {H}x{W} (height x width), for a {screen}"
+    )
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
         summary = compensate_frames(
             net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update

@@ -117,7 +117,7 @@ def run(args) -> int:
     with display, camera:
         H, W = calibration.projector_hw
         print(
-            f"live: {H}x{W} projector, method {method.name}, camera '{camera.spec}', display '{display.spec}' "
+            f"live: {H}x{W} (height x width) projector, method {method.name}, camera '{camera.spec}', display '{display.spec}' "
             "(Ctrl-C stops)"
         )
         summary = run_live(

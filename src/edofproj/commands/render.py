@@ -102,17 +102,21 @@ def check_arguments(args) -> None:
             raise EdofprojError("--doe needs the screen depth: --depth-mm Z (or --depth-map / --tilt-deg)")
     if args.surface is None and args.ambient != 0.0:
         raise EdofprojError("--ambient goes with --surface (ambient light reflected by a textured screen)")
-    if not (np.isfinite(args.ambient) and args.ambient >= 0):
-        raise EdofprojError(f"--ambient {args.ambient:g} must be a finite illuminance >= 0")
+    from ..imaging.surfaces import check_illuminance
+
+    check_illuminance(args.ambient, "--ambient")
+    from ..optics.geometry import check_screen_depths_mm
+
     for name in ("depth_mm", "near_mm", "far_mm"):
         value = getattr(args, name)
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise EdofprojError(f"--{name.replace('_', '-')} must be a positive depth in mm, got {value:g}")
+        if value is not None:
+            check_screen_depths_mm(value, f"--{name.replace('_', '-')}")
 
 
 def load_depth_map_m(path: str, image_hw: tuple[int, int]) -> np.ndarray:
     """A ``.npy`` depth map in mm (NaN: nothing hit), checked against the image size; returned in metres."""
     from ..fileio import read_arrays
+    from ..optics.geometry import check_screen_depths_mm
 
     arrays = read_arrays(path, what="depth map")
     if list(arrays) != [""]:
@@ -125,11 +129,9 @@ def load_depth_map_m(path: str, image_hw: tuple[int, int]) -> np.ndarray:
             f"depth map '{path}' has shape {depth_mm.shape}, expected the image's (H, W) = {tuple(image_hw)}"
         )
     depth_mm = depth_mm.astype(np.float64)
-    bad = np.isinf(depth_mm) | (depth_mm <= 0)
     if np.all(np.isnan(depth_mm)):
         raise EdofprojError(f"depth map '{path}' is all NaN: the light meets nothing")
-    if np.any(bad):
-        raise EdofprojError(f"depth map '{path}' must be positive finite depths in mm; found {depth_mm[bad][0]:g}")
+    check_screen_depths_mm(depth_mm[~np.isnan(depth_mm)], f"depth map '{path}'")
     return depth_mm * 1e-3
 
 
@@ -171,7 +173,7 @@ def run(args) -> int:
         layers = 1 if args.depth_map is None and args.tilt_deg is None else int(cfg.imaging.depth_layers)
         check_memory(
             projection_bytes(size[0], size[1], cfg.psf.window, layers),
-            f"rendering the {size[1]}x{size[0]} image '{args.image}'",
+            f"rendering the {size[0]}x{size[1]} (height x width) image '{args.image}'",
             "scale the image down first",
         )
     image = read_image(args.image)[None]

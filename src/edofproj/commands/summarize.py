@@ -4,7 +4,8 @@
 
 Each argument is an output directory of ``edofproj evaluate`` (or its ``metrics.csv``), e.g. one
 per training seed, scored on the same images and depths (refused otherwise, as are incomplete or
-truncated files, NA scores and an unknown ``--reference``). Prints, as Markdown, each method's mean
+truncated files, NA scores, scores outside their metric's range (inf, NaN, an SSIM outside
+[-1, 1]), an evaluation given twice (a link, a copy) and an unknown ``--reference``). Prints, as Markdown, each method's mean
 and worst-depth score over ``--range-mm`` as mean ± standard deviation over the evaluations, and
 the paired difference to ``--reference`` (:func:`edofproj.reporting.tables.run_spread_table`);
 then the same for the CIEDE2000 colour difference (``de2000``, ``de2000_p95``; lower is better)
@@ -44,13 +45,19 @@ def run(args) -> int:
     if not 0 < near <= far:
         raise EdofprojError(f"--range-mm '{args.range_mm}' needs 0 < NEAR <= FAR")
     tables: dict = {}
+    seen: dict = {}  # resolved path, then contents -> the argument that gave them
     for item in args.evaluations:
         path = Path(item)
         csv_path = path / "metrics.csv" if path.is_dir() else path
         if not csv_path.is_file():
             raise EdofprojError(f"'{item}' has no metrics.csv (an output directory of edofproj evaluate)")
-        if str(csv_path) in tables:
-            raise EdofprojError(f"'{item}' is given twice")
+        contents = csv_path.read_bytes()
+        for key, how in ((csv_path.resolve(), "is the same file as"), (contents, "holds the same scores as")):
+            if (
+                key in seen
+            ):  # a link, another spelling or a copy of one evaluation: counted once it would fake agreement
+                raise EdofprojError(f"'{item}' {how} '{seen[key]}': give each evaluation once")
+            seen[key] = item
         tables[str(csv_path)] = MetricsTable.read_csv(csv_path, ("method", "depth_mm", "image"))
     check_like_runs(tables, (near, far), args.metric, args.reference)
     print(markdown_table(run_spread_table(tables, (near, far), args.metric, args.reference)))

@@ -90,8 +90,11 @@ class LinearBase(nn.Module):
         r = self.radius
         if r >= min(image.shape[-2:]):
             raise EdofprojError(
-                f"net.linear_radius={r} needs images larger than {r} px (the filter mirrors them by its radius), got "
-                f"{image.shape[-2]}x{image.shape[-1]}: use a smaller net.linear_radius (e.g. psf.window) or larger crops"
+                f"the network's linear filter mirrors each image by its radius, net.linear_radius={r} px, so it needs "
+                f"images of at least {r + 1}x{r + 1} px, got {image.shape[-2]}x{image.shape[-1]} (height x width): "
+                f"give larger images (a trained run's radius is fixed: to evaluate, a larger evaluation.image_size or "
+                f"--images of at least {r + 1} px a side; to train a new run, larger data.crop or a smaller "
+                f"net.linear_radius)"
             )
         padded = F.pad(image, (r, r, r, r), mode="reflect")
         filtered = convolve_same(padded, self.kernel.unsqueeze(0).to(padded.dtype))

@@ -184,7 +184,7 @@ def builtin_photo_source(crop: int, test_fraction: float, seed: int = 0) -> Phot
         pixels = load_builtin_photo(name)
         if min(pixels.shape[:2]) < crop:
             warnings.warn(
-                f"built-in photograph '{name}' ({pixels.shape[1]}x{pixels.shape[0]}) is smaller than the "
+                f"built-in photograph '{name}' ({pixels.shape[0]}x{pixels.shape[1]}, height x width) is smaller than the "
                 f"crop {crop} px; skipped"
             )
             continue
@@ -234,7 +234,9 @@ class FolderSource:
             if size is None:
                 warnings.warn(f"skipping unreadable image '{path}'")
             elif min(size) < self.crop:
-                warnings.warn(f"skipping '{path}': {size[1]}x{size[0]} px is smaller than the crop {self.crop} px")
+                warnings.warn(
+                    f"skipping '{path}': {size[0]}x{size[1]} px (height x width) is smaller than the crop {self.crop} px"
+                )
             else:
                 self.paths.append(path)
                 self.sizes.append(size)

@@ -133,15 +133,15 @@ def smaller_than_size(pixels: np.ndarray, size: tuple[int, int] | None) -> bool:
 
 def _too_small_message(name: str, pixels: np.ndarray, size: tuple[int, int]) -> str:
     return (
-        f"skipping '{name}': {pixels.shape[1]}x{pixels.shape[0]} px is smaller than the evaluation size "
-        f"{size[1]}x{size[0]} (width x height; evaluation.image_size=[{size[0]},{size[1]}]): an enlarged image is "
+        f"skipping '{name}': {pixels.shape[0]}x{pixels.shape[1]} px is smaller than the evaluation size "
+        f"{size[0]}x{size[1]} (height x width; evaluation.image_size=[{size[0]},{size[1]}]): an enlarged image is "
         "smooth and scores too well; give a smaller --set evaluation.image_size=[H,W] to score it"
     )
 
 
 def _none_large_enough(where: str, size: tuple[int, int]) -> EdofprojError:
     return EdofprojError(
-        f"{where}: every image is smaller than the evaluation size {size[1]}x{size[0]} (width x height) and images "
+        f"{where}: every image is smaller than the evaluation size {size[0]}x{size[1]} (height x width) and images "
         f"are not enlarged for scoring: give larger images or --set evaluation.image_size=[H,W] (or [] for native sizes)"
     )
 

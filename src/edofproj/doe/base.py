@@ -12,6 +12,7 @@ The phase added at wavelength lambda is ``2 pi (n(lambda) - 1) h / lambda``.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -58,6 +59,14 @@ class DOE(nn.Module):
     def raw_height_map_m(self, x_m: torch.Tensor, y_m: torch.Tensor) -> torch.Tensor:
         """Unwrapped height (m) at pupil coordinates; override in 2-D designs."""
         raise NotImplementedError
+
+    @property
+    def device(self) -> torch.device:
+        """The device of the design's parameters and buffers (the CPU for a design with none): where
+        the coordinates it is evaluated at must be."""
+        for tensor in itertools.chain(self.parameters(), self.buffers()):
+            return tensor.device
+        return torch.device("cpu")
 
     # -- what engines call -----------------------------------------------------------
     def finish(self, raw_height_m: torch.Tensor) -> torch.Tensor:

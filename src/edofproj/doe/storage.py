@@ -112,7 +112,7 @@ def save_doe(doe: DOE, path: str | Path, samples: int = 1024) -> None:
         if isinstance(doe, RadialDOE):  # the radially symmetric DOEs
             rings = max(samples // 2, 1)
             edges = np.linspace(0.0, R, rings + 1)
-            centres = torch.as_tensor(0.5 * (edges[1:] + edges[:-1]), dtype=torch.float64)
+            centres = torch.as_tensor(0.5 * (edges[1:] + edges[:-1]), dtype=torch.float64, device=doe.device)
             height = doe.height_m(centres).double()
             if doe.quantize:
                 if doe.levels is None:
@@ -130,7 +130,7 @@ def save_doe(doe: DOE, path: str | Path, samples: int = 1024) -> None:
             )
         else:
             pitch = 2 * R / samples
-            c = (torch.arange(samples, dtype=torch.float64) - samples / 2 + 0.5) * pitch
+            c = (torch.arange(samples, dtype=torch.float64, device=doe.device) - samples / 2 + 0.5) * pitch
             y, x = torch.meshgrid(c, c, indexing="ij")
             height = doe.height_map_m(x, y).double()
             save_npz_atomic(

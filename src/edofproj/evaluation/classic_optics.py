@@ -122,6 +122,13 @@ class ClassicSweep:
     baseline_label: str | None = None
 
     @property
+    def chosen_at_edge(self) -> bool:
+        """Whether the chosen candidate has the smallest or the largest parameter value of the sweep
+        (with more than two candidates): the optimum may lie outside the swept range."""
+        values = [c.value for c in self.candidates]
+        return len(set(values)) > 2 and self.chosen.value in (min(values), max(values))
+
+    @property
     def chosen(self) -> Candidate:
         """The candidate with the highest mean SSIM (ties: the higher worst-depth SSIM)."""
         return max(self.candidates, key=lambda c: (self.summary[c.label][0], self.summary[c.label][1]))

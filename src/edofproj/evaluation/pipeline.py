@@ -37,16 +37,20 @@ from ..methods.catalogue import select_methods
 from ..methods.compensators import score_range_mm
 from ..methods.designs import OpticalDesign
 from ..methods.guard import guard_notes
+from ..optics.geometry import check_screen_depths_mm
 from ..progress import StageProgress
 from ..runs import TrainedRun, load_run
 from .results import MetricsTable
 from .sweep import (
     PERCEPTUAL_COLUMNS,
+    depth_notes,
     example_displays,
     flat_screen_sweep,
     load_perceptual_metrics,
     nearest_scored_depths_mm,
+    scored_range_mm,
     tilted_screen_sweep,
+    trained_range_mm,
 )
 from .timing import time_methods
 
@@ -161,16 +165,15 @@ def evaluate_run(
     clock = time.perf_counter()
     specs = select_methods(methods)  # unknown names fail before any work
     if depths_mm is not None:
-        depths_mm = [float(z) for z in depths_mm]
-        if not depths_mm or any(not (math.isfinite(z) and z > 0) for z in depths_mm):
-            raise EdofprojError(f"--depths-mm needs positive depths, got {depths_mm}")
+        depths_mm = [float(z) for z in check_screen_depths_mm(depths_mm, "--depths-mm")]
     opened = open_run(run_dir, out_dir, overrides)
     run, cfg, out = opened.run, opened.cfg, opened.out_dir
     progress = progress or StageProgress("evaluate", enabled=False)
     depths = sorted(set(depths_mm if depths_mm is not None else [float(z) for z in cfg.evaluation.depths_mm]))
     if depths_mm is not None:  # the sizes of the sweep asked for, before anything is simulated
         dataclasses.replace(cfg, evaluation=dataclasses.replace(cfg.evaluation, depths_mm=depths)).check_memory()
-    range_mm = score_range_mm(cfg)
+    range_mm = scored_range_mm(depths, score_range_mm(cfg))  # what the tables cover, stated in their headings
+    asked = depth_notes(depths, trained_range_mm(cfg), score_range_mm(cfg)) if depths_mm is not None else []
     if validation and images_dir is not None:
         raise EdofprojError("--validation and --images are two image sets: give one")
     with warnings.catch_warnings(record=True) as skipped:
@@ -198,7 +201,7 @@ def evaluate_run(
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = opened.method_builder(baselines_dir, explicit=bool(methods), device=device)
     prepared = builder.build_all(specs, progress)
-    builder.notes.extend(image_notes)
+    builder.notes.extend(image_notes + asked)
     for note in builder.notes:
         progress.note(note)
 

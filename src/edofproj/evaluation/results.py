@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import EdofprojError
 from ..fileio import write_text_atomic
+from ..methods.depth_ranges import format_span_mm  # noqa: F401 (the tables' headings use it)
 
 #: Colour fidelity: CIEDE2000 difference, mean and 95th percentile over the pixels.
 COLOUR_METRICS = ("de2000", "de2000_p95")
@@ -59,6 +60,29 @@ METRIC_LABELS = {
     "ssim_g": "SSIM green",
     "ssim_b": "SSIM blue",
 }
+
+
+#: The values a score can take, per metric column (finite in any case): SSIM and its variants lie in
+#: [-1, 1] by definition, PSNR is any finite number of dB, the differences are >= 0.
+METRIC_RANGES = {
+    "psnr": (-math.inf, math.inf),
+    "ssim": (-1.0, 1.0),
+    "ms_ssim": (-1.0, 1.0),
+    "lpips": (0.0, math.inf),
+    "dists": (0.0, math.inf),
+    "de2000": (0.0, math.inf),
+    "de2000_p95": (0.0, math.inf),
+    "ssim_r": (-1.0, 1.0),
+    "ssim_g": (-1.0, 1.0),
+    "ssim_b": (-1.0, 1.0),
+}
+
+
+def valid_score(metric: str, value: float) -> bool:
+    """Whether ``value`` is a score ``metric`` can take (:data:`METRIC_RANGES`; finite; an unknown
+    metric: any finite number)."""
+    low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
+    return math.isfinite(value) and low <= value <= high
 
 
 def headline_metrics(metrics) -> tuple[str, ...]:

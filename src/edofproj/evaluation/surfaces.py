@@ -41,18 +41,27 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..compensation.achievable import SurfaceRangeWarning, achievable_goal, clipped_fraction, warn_if_out_of_reach
+from ..compensation.achievable import (
+    SurfaceRangeWarning,
+    achievable_goal,
+    clipped_fraction,
+    require_visible,
+    warn_if_out_of_reach,
+)
 from ..data import evaluation_images
 from ..data.textures import surface_reflectance
 from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
+from ..imaging.surfaces import check_illuminance
 from ..methods.catalogue import select_methods
 from ..methods.compensators import score_range_mm
 from ..methods.surface_variants import surface_methods
 from ..metrics import psnr, ssim
+from ..optics.geometry import check_screen_depths_mm
 from ..progress import StageProgress
 from .pipeline import open_run
 from .results import MetricsTable
+from .sweep import depth_notes, scored_range_mm, trained_range_mm
 
 SURFACE_METRICS_NAME = "surface_metrics.csv"
 SURFACE_SUMMARY_NAME = "surface_summary.md"
@@ -97,8 +106,7 @@ def evaluate_surfaces(
     ``ambient``: the illuminance ``E >= 0`` (``a = s E``); ``methods``: base methods (default
     :data:`DEFAULT_BASE_METHODS`)."""
     clock = time.perf_counter()
-    if not (math.isfinite(ambient) and ambient >= 0):
-        raise EdofprojError(f"--ambient {ambient:g} must be a finite illuminance >= 0")
+    ambient = check_illuminance(ambient, "--ambient")
     if not surfaces:
         raise EdofprojError("--surface needs at least one texture")
     opened = open_run(run_dir, out_dir, overrides)
@@ -107,10 +115,10 @@ def evaluate_surfaces(
     images = evaluation_images(cfg, images_dir)
     height, width = (int(v) for v in images[0][1].shape[-2:])
     textures = {str(name): surface_reflectance(name, (height, width)).to(device) for name in dict.fromkeys(surfaces)}
-    depths = np.asarray(depths_mm if depths_mm is not None else cfg.evaluation.depths_mm, dtype=float)
-    if depths.size == 0 or not np.all(np.isfinite(depths) & (depths > 0)):
-        raise EdofprojError(f"--depths-mm must be positive depths, got {depths.tolist()}")
-    range_mm = score_range_mm(cfg)
+    for name, rho in textures.items():  # before any work: a surface that shows nothing would score SSIM 1
+        require_visible(rho, rho * ambient, f"surface '{name}'" + (f" under ambient {ambient:g}" if ambient else ""))
+    depths = check_screen_depths_mm(depths_mm if depths_mm is not None else cfg.evaluation.depths_mm, "--depths-mm")
+    range_mm = scored_range_mm(depths.tolist(), score_range_mm(cfg))  # what the summary covers, in its headings
 
     explicit = methods is not None
     specs = select_methods(list(methods) if methods is not None else list(DEFAULT_BASE_METHODS))
@@ -124,6 +132,8 @@ def evaluate_surfaces(
         opened.out_dir, opened.run_path, list(textures), [m.name for m in chosen], table, range_mm, float(ambient)
     )
     evaluation.notes = list(builder.notes)
+    if depths_mm is not None:
+        evaluation.notes += depth_notes(depths.tolist(), trained_range_mm(cfg), score_range_mm(cfg))
     in_range = depths[(depths >= range_mm[0] - 1e-9) & (depths <= range_mm[1] + 1e-9)]
     evaluation.example_depth_mm = float(in_range.min() if in_range.size else depths.min())
     progress.start(

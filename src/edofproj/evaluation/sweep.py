@@ -22,6 +22,11 @@ methods can do on a screen whose blur varies across the image.
 Scores per image: PSNR, SSIM, MS-SSIM, the CIEDE2000 colour difference (mean and 95th percentile),
 the SSIM of each colour channel (:mod:`edofproj.metrics`) and the perceptual metrics whose weights
 are present (LPIPS with AlexNet, DISTS).
+
+The depths scored are stated: :func:`scored_range_mm` is the range the tables' means and worst
+depths cover (the score range ``evaluation.score_range_mm`` met by the depths asked for; all of
+them when none lies in it), and :func:`depth_notes` names the depths outside the score range and
+outside the range the run was trained on (``psf.depth_min_mm``-``psf.depth_max_mm``).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from ..compensation.closed_loop import closed_loop, flat_screen
 from ..config import M_PER_MM
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.screens import tilted_plane_depth_map
+from ..methods.depth_ranges import depth_notes, scored_range_mm, trained_range_mm  # noqa: F401 (re-exported)
 from .results import BASE_METRICS, MetricsTable
 
 Progress = Callable[[int], None]

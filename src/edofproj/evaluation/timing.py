@@ -284,7 +284,7 @@ def time_methods(
 ) -> dict[str, float]:
     """Median milliseconds of each evaluated method's compensation of one frame, as evaluated.
 
-    ``methods``: :class:`~edofproj.evaluation.methods.PreparedMethod` objects; ``image`` ``(3, H, W)``
+    ``methods``: :class:`~edofproj.methods.builder.PreparedMethod` objects; ``image`` ``(3, H, W)``
     (or ``(1, 3, H, W)``), the frame; ``depth_m``: the depth whose PSF the method is given (the
     simulated capture ``I*`` is made with it and is not timed). Each method runs once untimed
     (caches, lazy initialization), then ``repeats`` times; a method whose first timed frame takes

@@ -8,6 +8,12 @@ the integer level and height
 
 Adjacent rings at the same level form a *zone*: a mask edge can only lie on a zone edge,
 so the zones are the smallest features any mask can contain.
+
+The step is also the etch depth of the shallowest mask. One below :data:`MIN_STEP_NM` is refused
+(:func:`check_step`): no etch controls its depth to a nanometre (the roughness of an etched
+fused-silica surface is about 1 nm RMS, and ``fabrication.etch_error_pct`` of a 100 nm etch is
+3 nm), and a report of it would show masks of 0.0 nm and the ideal efficiency of ``N`` levels,
+near 100 %, for a DOE that cannot be made.
 """
 
 from __future__ import annotations
@@ -31,6 +37,22 @@ def check_power_of_two_levels(levels: int) -> int:
             f"levels={levels} is not a power of two: k binary masks make 2^k levels (2, 4, 8, 16, 32, ...)"
         )
     return levels
+
+
+#: The shallowest etch (nm) a mask may ask for (module docstring).
+MIN_STEP_NM = 1.0
+
+
+def check_step(levels: int, h2pi_m: float) -> float:
+    """The step ``h_2pi / N`` in metres, or one line refusing a step below :data:`MIN_STEP_NM`."""
+    step_nm = h2pi_m / levels * 1e9
+    if not step_nm >= MIN_STEP_NM:
+        most = 1 << max(int(np.floor(np.log2(h2pi_m * 1e9 / MIN_STEP_NM))), 1)
+        raise EdofprojError(
+            f"{levels} levels make steps of {step_nm:.3g} nm (h_2pi {h2pi_m * 1e9:.1f} nm / {levels}), the etch depth "
+            f"of the shallowest mask: below the {MIN_STEP_NM:g} nm an etch can control; at most {most} levels"
+        )
+    return step_nm * 1e-9
 
 
 def mask_count(levels: int) -> int:
@@ -78,6 +100,7 @@ class RadialProfile:
         if not n_levels:
             raise EdofprojError("the design is continuous (not quantized): give the level count with --levels N")
         n_levels = check_power_of_two_levels(n_levels)
+        check_step(n_levels, float(doe.h2pi_m))
         height = doe.table_height_m.detach().to(torch.float64)
         level = quantize_levels(height, doe.h2pi_m, n_levels).cpu().numpy()
         return cls(

@@ -116,7 +116,7 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     if size is not None:
         check_memory(
             READ_BYTES_PER_PIXEL * size[0] * size[1],
-            f"reading the {size[1]}x{size[0]} image '{name}'",
+            f"reading the {size[0]}x{size[1]} (height x width) image '{name}'",
             "scale the image down first",
         )
     raw = np.frombuffer(data, dtype=np.uint8)

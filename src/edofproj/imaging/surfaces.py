@@ -18,9 +18,12 @@ correction ``L / s`` is itself blurred by the PSF before the surface sees it).
 * ``s`` -- the reflectance ``(B|1, 3, H, W)`` in ``[0, 1]``: 1 is a white screen, which gives
   today's rendering exactly. Values are linear (light reflected per light received), in the
   projector's primaries (a diagonal model: each primary is reflected by its own factor);
-* ``a`` -- ambient ``(B|1, 3, H|1, W|1)``, ``>= 0``: light in the same units as the projection
+* ``a`` -- ambient ``(B|1, 3, H|1, W|1)`` in ``[0, 1]``: light in the same units as the projection
   (1 = what a white surface shows under the full primary), already reflected by the surface
-  (it is what the surface shows when the projector is black).
+  (it is what the surface shows when the projector is black). An ambient illuminance ``E`` (the
+  ``--ambient`` of the commands, ``a = s E``) lies in ``[0, 1]`` too (:func:`check_illuminance`):
+  a room brighter than the projector's white leaves the projection under half its contrast, and a
+  larger number is a unit mistake (5 for 5 %).
 
 Closed forms (tests): ``s = rho`` uniform and ``a = 0`` gives ``rho * A(L)``; ambient adds
 ``a`` to every pixel whatever ``L`` is.
@@ -32,6 +35,7 @@ projector pixel, 8/16-bit image files or a float ``.npy`` array ``(H, W, 3)``), 
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,8 +77,8 @@ def check_reflectance(values, height_width: tuple[int, int] | None, what: str = 
     tensor = _as_chw(values, what)
     if height_width is not None and tuple(tensor.shape[-2:]) != tuple(height_width):
         raise EdofprojError(
-            f"{what} is {tensor.shape[-1]}x{tensor.shape[-2]} px but the projector image is "
-            f"{height_width[1]}x{height_width[0]}: a reflectance map has one pixel per projector pixel"
+            f"{what} is {tensor.shape[-2]}x{tensor.shape[-1]} px but the projector image is "
+            f"{height_width[0]}x{height_width[1]} (height x width): a reflectance map has one pixel per projector pixel"
         )
     if not bool(torch.isfinite(tensor).all()):
         raise EdofprojError(f"{what} has NaN or infinite values")
@@ -84,8 +88,24 @@ def check_reflectance(values, height_width: tuple[int, int] | None, what: str = 
     return tensor
 
 
+#: The largest ambient light (and ambient illuminance): the projector's white (module docstring).
+MAX_AMBIENT = 1.0
+
+
+def check_illuminance(value: float, option: str = "--ambient") -> float:
+    """An ambient illuminance ``E`` (a fraction of the projector's white), or one line unless it lies in
+    ``[0, MAX_AMBIENT]``: the one check of ``evaluate``, ``render`` and ``procams simulate``."""
+    value = float(value)
+    if not (math.isfinite(value) and 0.0 <= value <= MAX_AMBIENT):
+        raise EdofprojError(
+            f"{option} {value:g} must lie in [0, {MAX_AMBIENT:g}]: a fraction of the projector's white (5 % is 0.05)"
+        )
+    return value
+
+
 def check_ambient(values, height_width: tuple[int, int] | None, what: str = "the ambient light") -> torch.Tensor:
-    """Ambient light as ``(B|1, 3, H|1, W|1)`` float32: a number, an RGB triple or an RGB map, ``>= 0``."""
+    """Ambient light as ``(B|1, 3, H|1, W|1)`` float32: a number, an RGB triple or an RGB map, in
+    ``[0, MAX_AMBIENT]``."""
     tensor = values.detach().float() if torch.is_tensor(values) else torch.as_tensor(np.asarray(values, float)).float()
     if tensor.ndim == 0:
         tensor = tensor.reshape(1, 1, 1, 1).expand(1, 3, 1, 1)
@@ -97,11 +117,14 @@ def check_ambient(values, height_width: tuple[int, int] | None, what: str = "the
         tensor = _as_chw(tensor, what)
         if height_width is not None and tuple(tensor.shape[-2:]) != tuple(height_width):
             raise EdofprojError(
-                f"{what} is {tensor.shape[-1]}x{tensor.shape[-2]} px but the projector image is "
-                f"{height_width[1]}x{height_width[0]}"
+                f"{what} is {tensor.shape[-2]}x{tensor.shape[-1]} px but the projector image is "
+                f"{height_width[0]}x{height_width[1]} (height x width)"
             )
-    if not bool(torch.isfinite(tensor).all()) or float(tensor.min()) < 0.0:
-        raise EdofprojError(f"{what} must be finite and >= 0, got minimum {float(tensor.min()):.4g}")
+    if not bool(torch.isfinite(tensor).all()) or float(tensor.min()) < 0.0 or float(tensor.max()) > MAX_AMBIENT:
+        raise EdofprojError(
+            f"{what} must be finite and in [0, {MAX_AMBIENT:g}] (the projector's white), got "
+            f"{float(tensor.min()):.4g}..{float(tensor.max()):.4g}"
+        )
     return tensor.contiguous()
 
 
@@ -144,8 +167,8 @@ class Surface:
         """``s ⊙ light + a``: what the surface shows under ``light (B, 3, H, W)`` (the light reaching it)."""
         if tuple(light.shape[-2:]) != self.height_width:
             raise EdofprojError(
-                f"the surface is {self.height_width[1]}x{self.height_width[0]} px but the image is "
-                f"{light.shape[-1]}x{light.shape[-2]}"
+                f"the surface is {self.height_width[0]}x{self.height_width[1]} px but the image is "
+                f"{light.shape[-2]}x{light.shape[-1]} (height x width)"
             )
         rho = self.reflectance.to(device=light.device, dtype=light.dtype)
         return rho * light + self.ambient.to(device=light.device, dtype=light.dtype)

@@ -22,7 +22,8 @@ The guard is part of the shipped method: :class:`GuardedNetwork` is one ``torch.
 ``bench`` times and ``export`` writes (its projections are FFTs, so an ONNX export is for one frame
 size, as for any network with a Fourier filter). Its cost per frame: the linear filter once more and,
 per guard depth, one projection and one SSIM of the network's and the filter's inputs together
-(batched; the transfer functions are computed once per frame size).
+(batched; the transfer functions are computed once per frame size, the target's local SSIM
+statistics once per frame).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import torch
 
 from ..compensation.linear_base import LinearBase, ensemble_depths_m
 from ..imaging.projection import ScreenProjection, project
-from ..metrics import ssim
+from ..metrics import SSIMReference, ssim
 
 #: Number of depths the guard scores: the ends and the middle of the range in 1/z.
 GUARD_DEPTHS = 3
@@ -60,8 +61,8 @@ def guard_choice(
     or :func:`project` with the depth's PSF). Both inputs go through each screen as one batch."""
     batch = target.shape[0]
     both = torch.cat([network_input, filter_input])
-    targets = torch.cat([target, target])
-    scores = torch.stack([ssim(screen(both), targets) for screen in screens]).mean(dim=0)
+    reference = SSIMReference(target)  # the target's local statistics, filtered once for every screen
+    scores = torch.stack([reference.ssim(screen(both)) for screen in screens]).mean(dim=0)
     margin = scores[:batch] - scores[batch:]
     shown = torch.where((margin < 0).view(-1, 1, 1, 1), filter_input, network_input)
     return shown, margin

@@ -27,6 +27,7 @@ import torch
 
 from ..errors import EdofprojError
 from ..fileio import read_arrays, save_npz_atomic
+from ..imaging.surfaces import MAX_AMBIENT
 from ..limits import check_memory
 from .capture_io import read_captures, saturated_fraction
 from .color import RESPONSE_LUT_SIZE, ColorCalibration, calibrate_color
@@ -82,7 +83,8 @@ class ProCamsCalibration:
         H, W = self.projector_hw
         if tuple(height_width) != (H, W):
             raise EdofprojError(
-                f"{what} is {height_width[1]}x{height_width[0]} but the calibration was made for a {W}x{H} projector"
+                f"{what} is {height_width[0]}x{height_width[1]} but the calibration was made for a {H}x{W} projector "
+                "(height x width)"
             )
 
     @property
@@ -214,7 +216,8 @@ def _surface_error(message: str) -> None:
 
 
 def _check_surface_arrays(data: Mapping[str, np.ndarray], projector_hw: tuple[int, int], fail) -> None:
-    """Both surface arrays or neither; ``(H, W, 3)``, finite, reflectance in ``[0, 1]``, ambient ``>= 0``."""
+    """Both surface arrays or neither; ``(H, W, 3)``, finite, reflectance in ``[0, 1]``, ambient in
+    ``[0, MAX_AMBIENT]`` (:mod:`edofproj.imaging.surfaces`)."""
     present = [key for key in SURFACE_KEYS if key in data]
     if not present:
         return
@@ -229,8 +232,11 @@ def _check_surface_arrays(data: Mapping[str, np.ndarray], projector_hw: tuple[in
             fail(f"has NaN or infinite values in '{key}'")
     if data["surface_reflectance"].min() < 0 or data["surface_reflectance"].max() > 1:
         fail("has a reflectance outside [0, 1]")
-    if data["surface_ambient"].min() < 0:
-        fail("has a negative ambient light")
+    if data["surface_ambient"].min() < 0 or data["surface_ambient"].max() > MAX_AMBIENT:
+        fail(
+            f"has an ambient light of {data['surface_ambient'].min():.4g}..{data['surface_ambient'].max():.4g}, "
+            f"outside [0, {MAX_AMBIENT:g}] (the projector's white)"
+        )
 
 
 def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> None:
@@ -272,10 +278,12 @@ def validate_calibration_arrays(data: Mapping[str, np.ndarray], source: str) -> 
     (H, W), (Hc, Wc) = sizes["projector_hw"], sizes["camera_hw"]
     for key, shape in (("map_x", (H, W)), ("map_y", (H, W)), ("black_image", (H, W, 3))):
         if data[key].shape != shape:
-            fail(f"has '{key}' of shape {data[key].shape}, not {shape} (projector {W}x{H})")
+            fail(f"has '{key}' of shape {data[key].shape}, not {shape} (projector {H}x{W}, height x width)")
     for key, top in (("map_x", Wc - 1), ("map_y", Hc - 1)):
         if data[key].min() < 0 or data[key].max() > top:
-            fail(f"has '{key}' outside the {Wc}x{Hc} camera frame ({data[key].min():.6g}..{data[key].max():.6g})")
+            fail(
+                f"has '{key}' outside the {Hc}x{Wc} (height x width) camera frame ({data[key].min():.6g}..{data[key].max():.6g})"
+            )
     small: tuple[tuple[str, tuple[int, ...]], ...] = (
         ("homography", (3, 3)),
         ("mixing_matrix", (3, 3)),
@@ -341,7 +349,7 @@ def check_calibration_memory(manifest: PatternManifest) -> None:
     count = len(calibration_files(manifest))
     check_memory(
         calibration_memory_bytes(manifest.height, manifest.width, count),
-        f"calibrating a {manifest.width}x{manifest.height} projector from {count} captures",
+        f"calibrating a {manifest.height}x{manifest.width} (height x width) projector from {count} captures",
         "regenerate the patterns at the projector's size (or with fewer --color-levels)",
     )
 

@@ -77,8 +77,8 @@ def read_captures(
             expected_hw = image.shape[:2]
         if image.shape[:2] != tuple(expected_hw):
             raise EdofprojError(
-                f"capture '{name}' is {image.shape[1]}x{image.shape[0]} pixels, expected "
-                f"{expected_hw[1]}x{expected_hw[0]} (the camera's size)"
+                f"capture '{name}' is {image.shape[0]}x{image.shape[1]} pixels, expected "
+                f"{expected_hw[0]}x{expected_hw[1]} (height x width, the camera's size)"
             )
         captures[name] = image
     return captures

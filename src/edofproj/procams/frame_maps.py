@@ -334,8 +334,8 @@ class Rectifier:
         """Raise one line unless ``frame`` is ``(Hc, Wc, 3)`` of the calibrated camera."""
         Hc, Wc = self.camera_hw
         if frame.ndim != 3 or frame.shape != (Hc, Wc, 3):
-            size = f"{frame.shape[1]}x{frame.shape[0]}" if frame.ndim >= 2 else str(frame.shape)
-            raise EdofprojError(f"{what} is {size} pixels, the calibrated camera {Wc}x{Hc}")
+            size = f"{frame.shape[0]}x{frame.shape[1]}" if frame.ndim >= 2 else str(frame.shape)
+            raise EdofprojError(f"{what} is {size} pixels, the calibrated camera {Hc}x{Wc} (height x width)")
 
     def __call__(self, frame: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``o = M^-1 frame(q(x)) - M^-1 c_black(q(x))`` into ``out`` ``(H, W, 3)`` float32."""

@@ -142,8 +142,8 @@ class CameraMap:
         """A camera image ``(Hc, Wc, C)`` resampled into projector pixels ``(H, W, C)`` (bilinear)."""
         if tuple(capture.shape[:2]) != tuple(self.camera_hw):
             raise EdofprojError(
-                f"capture is {capture.shape[1]}x{capture.shape[0]} pixels, the calibrated camera "
-                f"{self.camera_hw[1]}x{self.camera_hw[0]}"
+                f"capture is {capture.shape[0]}x{capture.shape[1]} pixels, the calibrated camera "
+                f"{self.camera_hw[0]}x{self.camera_hw[1]} (height x width)"
             )
         warped = cv2.remap(
             np.asarray(capture, dtype=np.float32),

@@ -1,6 +1,6 @@
 """Calibration patterns for a projector-camera system (paper Sec. 5.1-5.2) and their manifest.
 
-One pattern set holds, all at the projector's resolution ``W x H`` (8-bit RGB PNG):
+One pattern set holds, all at the projector's resolution ``H x W`` (8-bit RGB PNG):
 
 * ``bernoulli_XX.png`` -- Bernoulli colour noise for PSF estimation (paper Eq. 13): every
   pixel and channel independently 0 or 1 with probability 1/2. Single pixels, not blocks:
@@ -73,7 +73,9 @@ class PatternSpec:
 
     def validate(self) -> None:
         if self.width < 16 or self.height < 16:
-            raise EdofprojError(f"pattern size {self.width}x{self.height} is too small (at least 16x16 pixels)")
+            raise EdofprojError(
+                f"pattern size {self.height}x{self.width} (height x width) is too small (at least 16x16 pixels)"
+            )
         if self.bernoulli_count < 1:
             raise EdofprojError(f"--bernoulli {self.bernoulli_count} must be >= 1")
         rows, cols = self.dot_grid
@@ -81,7 +83,7 @@ class PatternSpec:
             raise EdofprojError(f"the dot grid {rows}x{cols} needs at least 2 rows and 2 columns")
         if min(self.height / rows, self.width / cols) < 4:
             raise EdofprojError(
-                f"a {rows}x{cols} dot grid does not fit {self.width}x{self.height} pixels "
+                f"a {rows}x{cols} dot grid does not fit {self.height}x{self.width} (height x width) pixels "
                 f"(dot spacing {self.width / cols:.1f} x {self.height / rows:.1f} px; at least 4 px needed)"
             )
         if self.dot_radius_px is not None and self.dot_radius_px < 1:
@@ -90,7 +92,7 @@ class PatternSpec:
             raise EdofprojError(f"--color-levels {self.color_levels} must be in 2..17")
         check_memory(
             self.memory_bytes(),
-            f"a set of {self.pattern_count} patterns of {self.width}x{self.height} px",
+            f"a set of {self.pattern_count} patterns of {self.height}x{self.width} px (height x width)",
             "use a smaller --width/--height (or fewer --bernoulli and --color-levels)",
         )
 
@@ -218,10 +220,12 @@ class PatternManifest:
         admits for one pattern, at least one file, unique file names that are bare names inside
         the pattern folder (:func:`confined_file_name`), colours in ``[0, 1]`` and dots inside the image."""
         if not (16 <= self.width <= MAX_PATTERN_SIDE_PX and 16 <= self.height <= MAX_PATTERN_SIDE_PX):
-            raise ValueError(f"size {self.width}x{self.height} is not 16..{MAX_PATTERN_SIDE_PX} pixels per side")
+            raise ValueError(
+                f"size {self.height}x{self.width} (height x width) is not 16..{MAX_PATTERN_SIDE_PX} pixels per side"
+            )
         check_memory(
             30 * self.width * self.height,
-            f"a {self.width}x{self.height} pattern",
+            f"a {self.height}x{self.width} (height x width) pattern",
             "regenerate the patterns at the projector's size with 'edofproj procams patterns'",
         )
         if not self.entries:
@@ -237,9 +241,13 @@ class PatternManifest:
             if entry.dots is not None:
                 x, y = entry.dots[:, 0], entry.dots[:, 1]
                 if not (np.all(np.isfinite(entry.dots)) and x.min() >= 0 and y.min() >= 0):
-                    raise ValueError(f"'{entry.file}' has dots outside the {self.width}x{self.height} image")
+                    raise ValueError(
+                        f"'{entry.file}' has dots outside the {self.height}x{self.width} (height x width) image"
+                    )
                 if x.max() > self.width - 1 or y.max() > self.height - 1:
-                    raise ValueError(f"'{entry.file}' has dots outside the {self.width}x{self.height} image")
+                    raise ValueError(
+                        f"'{entry.file}' has dots outside the {self.height}x{self.width} (height x width) image"
+                    )
             if entry.radius_px is not None and entry.radius_px < 1:
                 raise ValueError(f"'{entry.file}' has radius_px {entry.radius_px} < 1")
 
@@ -387,8 +395,8 @@ def read_pattern(folder: str | Path, entry: PatternEntry, manifest: PatternManif
     image = read_rgb(Path(folder) / entry.file, what="pattern")
     if image.shape[:2] != (manifest.height, manifest.width):
         raise EdofprojError(
-            f"pattern '{entry.file}' is {image.shape[1]}x{image.shape[0]} but the manifest says "
-            f"{manifest.width}x{manifest.height}"
+            f"pattern '{entry.file}' is {image.shape[0]}x{image.shape[1]} but the manifest says "
+            f"{manifest.height}x{manifest.width} (height x width)"
         )
     return image
 

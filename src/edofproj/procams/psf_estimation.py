@@ -134,7 +134,7 @@ def patch_boxes(height: int, width: int, margin: int, patch: int) -> np.ndarray:
         return np.array([[margin, height - margin, margin, width - margin]])
     if patch > min(inner_h, inner_w):
         raise EdofprojError(
-            f"--patch {patch} does not fit the {inner_w}x{inner_h} px inner image (the image minus a border of "
+            f"--patch {patch} does not fit the {inner_h}x{inner_w} px (height x width) inner image (the image minus a border of "
             f"{margin} px, twice the window's radius); use --patch {min(inner_h, inner_w)} or smaller, or 0"
         )
     starts_y = np.round(np.linspace(margin, height - margin - patch, max(inner_h // patch, 1))).astype(int)
@@ -207,7 +207,7 @@ def estimate_psf(
     m = window // 2
     if min(H, W) - 4 * m < window:
         raise EdofprojError(
-            f"a {W}x{H} image is too small for a {window} px window (needs at least {window + 4 * m} px on each side)"
+            f"a {H}x{W} (height x width) image is too small for a {window} px window (needs at least {window + 4 * m} px on each side)"
         )
     patterns = patterns - patterns.mean(axis=(1, 2), keepdims=True)  # B' (module docstring, step 1)
     whole = _estimate_region(patterns, captures, patch_boxes(H, W, 2 * m, 0)[0], window, None, iterations, eps_rel)
@@ -243,8 +243,8 @@ def measure_psf(
     files = bernoulli_files(manifest)
     if calibration.projector_hw != (manifest.height, manifest.width):
         raise EdofprojError(
-            f"the calibration is for a {calibration.projector_hw[1]}x{calibration.projector_hw[0]} projector image, "
-            f"the patterns are {manifest.width}x{manifest.height}"
+            f"the calibration is for a {calibration.projector_hw[0]}x{calibration.projector_hw[1]} projector image, "
+            f"the patterns are {manifest.height}x{manifest.width} (height x width)"
         )
     warped = {f: calibration.camera_map.warp(captures[f]) for f in files}
     warn_if_saturated(warped)

@@ -241,8 +241,8 @@ def capture_patterns(
                     camera_hw = frame.shape[:2]
                 elif frame.shape[:2] != tuple(camera_hw):
                     raise EdofprojError(
-                        f"capture of '{entry.file}' is {frame.shape[1]}x{frame.shape[0]} pixels, the session's camera "
-                        f"{camera_hw[1]}x{camera_hw[0]}: did the camera's resolution change?"
+                        f"capture of '{entry.file}' is {frame.shape[0]}x{frame.shape[1]} pixels, the session's camera "
+                        f"{camera_hw[0]}x{camera_hw[1]} (height x width): did the camera's resolution change?"
                     )
                 if grab.average > 1:  # a mean of frames has more than 8 bits
                     write_image(out / entry.file, np.ascontiguousarray(frame.transpose(2, 0, 1)), bits=16)

@@ -52,7 +52,7 @@ import torch
 from ..errors import EdofprojError
 from ..fileio import save_npz_atomic
 from ..imaging import haze_term, layer_weights, project, render_depth_map
-from ..imaging.surfaces import check_reflectance
+from ..imaging.surfaces import check_illuminance, check_reflectance
 from ..optics.psf_bank import PSFBank
 from .calibration import ProCamsCalibration
 from .capture_io import CAPTURE_INFO_JSON, atomic_folder, write_rgb_png
@@ -119,8 +119,8 @@ class VirtualProCams:
         if not (0.0 <= self.projector_black < 1.0):
             raise EdofprojError(f"projector_black={self.projector_black} must be in [0, 1)")
         self.surface_ambient = _rgb_triple(self.surface_ambient)
-        if min(self.surface_ambient) < 0:
-            raise EdofprojError(f"surface_ambient={self.surface_ambient} must be >= 0")
+        for value in self.surface_ambient:
+            check_illuminance(value, "surface_ambient")
         if self.reflectance is not None:
             rho = check_reflectance(
                 self.reflectance,
@@ -236,7 +236,7 @@ class VirtualProCams:
         """
         H, W = self.projector_hw
         if image.shape[:2] != (H, W):
-            raise EdofprojError(f"pattern is {image.shape[1]}x{image.shape[0]}, the projector {W}x{H}")
+            raise EdofprojError(f"pattern is {image.shape[0]}x{image.shape[1]}, the projector {H}x{W} (height x width)")
         m = self.canvas_margin_px
         output = torch.from_numpy(np.ascontiguousarray(self.projector_output(image).transpose(2, 0, 1)))[None]
         canvas = torch.nn.functional.pad(output, (m, m, m, m))
@@ -433,8 +433,8 @@ def simulate_captures(
     manifest = PatternManifest.load(pattern_dir)
     if (manifest.height, manifest.width) != tuple(rig.projector_hw):
         raise EdofprojError(
-            f"patterns are {manifest.width}x{manifest.height} but the virtual projector is "
-            f"{rig.projector_hw[1]}x{rig.projector_hw[0]}"
+            f"patterns are {manifest.height}x{manifest.width} but the virtual projector is "
+            f"{rig.projector_hw[0]}x{rig.projector_hw[1]} (height x width)"
         )
     rng = np.random.default_rng(seed)
     map_x, map_y = rig.true_camera_map()

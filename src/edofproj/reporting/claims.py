@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..evaluation.results import MetricsTable
+from ..evaluation.results import MetricsTable, format_span_mm
 from ..methods.catalogue import OURS
 
 
@@ -39,7 +39,7 @@ class Claim:
 def ssim_claims(table: MetricsTable, range_mm: tuple[float, float], metric: str = "ssim") -> list[Claim]:
     """Claims (a) and (b) on ``table`` over ``range_mm``."""
     lo, hi = range_mm
-    span = f"{lo:.0f}-{hi:.0f} mm"
+    span = f"{format_span_mm(lo, hi)} mm"
     statement_a = f"{OURS} has the best mean SSIM over {span} of all evaluated methods"
     statement_b = f"{OURS}'s worst depth in {span} beats every other method's worst depth (SSIM)"
     methods = table.methods()

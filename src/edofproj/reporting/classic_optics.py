@@ -49,6 +49,11 @@ def sweep_markdown(sweep: ClassicSweep, current: str, command: str) -> str:
         )
     mean_chosen = sweep.summary[chosen.label][0]
     lines += ["", f"Chosen: **{chosen.label}** (`--set {' --set '.join(chosen.overrides)}`)."]
+    if sweep.chosen_at_edge:
+        lines.append(
+            "The chosen candidate lies at an end of the swept parameter: the best value may lie beyond it "
+            "(extend `--values`)."
+        )
     if current in sweep.summary and current != chosen.label:
         lines.append(
             f"The configuration's value, {current}, scores {sweep.summary[current][0]:.4f}: "

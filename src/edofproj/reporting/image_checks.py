@@ -9,7 +9,7 @@ from ..evaluation.image_checks import (
     behind_linear_filter,
     channel_imbalances,
 )
-from ..evaluation.results import MetricsTable
+from ..evaluation.results import MetricsTable, format_span_mm
 from ..methods.catalogue import OURS
 from .document import Paragraph, Table
 
@@ -28,10 +28,10 @@ def behind_linear_filter_blocks(
         names = ", ".join(f"{r.image} ({r.ssim_net - r.ssim_linear:+.4f})" for r in behind)
         verdict = (
             f"**{ours} is behind {linear}, its own DOE's blind linear filter, on {len(behind)} of {len(rows)} "
-            f"image(s)** (mean SSIM over {lo:.0f}-{hi:.0f} mm): {names}."
+            f"image(s)** (mean SSIM over {format_span_mm(lo, hi)} mm): {names}."
         )
     else:
-        verdict = f"{ours} is at least as good as {linear} on every image (mean SSIM over {lo:.0f}-{hi:.0f} mm)."
+        verdict = f"{ours} is at least as good as {linear} on every image (mean SSIM over {format_span_mm(lo, hi)} mm)."
     table_rows = [
         [
             r.image,
@@ -45,7 +45,9 @@ def behind_linear_filter_blocks(
         for r in rows
     ]
     header = ["image", f"SSIM {ours}", f"SSIM {linear}", "difference", f"ΔE2000 {ours}", f"ΔE2000 {linear}", "behind"]
-    caption = f"Per image, means over {lo:.0f}-{hi:.0f} mm: the network against the linear filter of the same DOE."
+    caption = (
+        f"Per image, means over {format_span_mm(lo, hi)} mm: the network against the linear filter of the same DOE."
+    )
     return [Paragraph(verdict), Table(header, table_rows, caption)]
 
 
@@ -66,7 +68,7 @@ def channel_imbalance_blocks(
         Table(
             ["method", "image", "SSIM red", "SSIM green", "SSIM blue", "spread"],
             rows,
-            f"Images where a method's per-channel SSIMs (means over {lo:.0f}-{hi:.0f} mm) differ by more than "
+            f"Images where a method's per-channel SSIMs (means over {format_span_mm(lo, hi)} mm) differ by more than "
             f"{spread:g}: a colour channel, often a nearly empty primary, is rendered worse than the others.",
         )
     ]

@@ -69,13 +69,13 @@ def plot_psf_comparison(panels, out_path, title: str | None = None) -> None:
             )
         if ax_height is not None:
             R = doe.aperture_radius_m
-            r = torch.linspace(0, R, 2000, dtype=torch.float64)
+            r = torch.linspace(0, R, 2000, dtype=torch.float64, device=doe.device)
             with torch.no_grad():
                 if doe.radially_symmetric:
                     h = doe.height_m(r)
                 else:
                     h = doe.height_map_m(r, torch.zeros_like(r))
-            ax_height.plot(r.numpy() * 1e3, h.numpy() * 1e9, styles[d % 4], lw=0.8, label=label)
+            ax_height.plot(r.cpu().numpy() * 1e3, h.cpu().numpy() * 1e9, styles[d % 4], lw=0.8, label=label)
     ax_profile.set_xlabel("pixel offset (centre row)")
     ax_profile.set_ylabel("fraction of pupil energy")
     ax_profile.set_ylim(1e-6, 1.2)

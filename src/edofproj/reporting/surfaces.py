@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..evaluation.results import format_span_mm
 from ..evaluation.surfaces import (
     SURFACE_FIGURE_NAME,
     SURFACE_METRICS_NAME,
@@ -49,7 +50,13 @@ def surface_summary_table(evaluation: SurfaceEvaluation, surface: str) -> Summar
             [method, f"{stats.mean:.4f}", f"{stats.worst:.4f} ({stats.worst_depth_mm:.0f} mm)", f"{power.mean:.2f}"]
         )
     return SummaryTable(
-        ["method", f"SSIM mean {lo:.0f}-{hi:.0f} mm", "SSIM worst depth", f"PSNR mean (dB) {lo:.0f}-{hi:.0f} mm"], rows
+        [
+            "method",
+            f"SSIM mean {format_span_mm(lo, hi)} mm",
+            "SSIM worst depth",
+            f"PSNR mean (dB) {format_span_mm(lo, hi)} mm",
+        ],
+        rows,
     )
 
 

@@ -20,7 +20,16 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import EdofprojError
-from ..evaluation.results import HIGHER_IS_BETTER, METRIC_LABELS, MetricsTable, better, headline_metrics
+from ..evaluation.results import (
+    HIGHER_IS_BETTER,
+    METRIC_LABELS,
+    METRIC_RANGES,
+    MetricsTable,
+    better,
+    format_span_mm,
+    headline_metrics,
+    valid_score,
+)
 from ..methods.catalogue import METHOD_NAMES, method_spec
 from .document import Table
 
@@ -99,7 +108,7 @@ def range_table(
     return Table(
         header,
         rows,
-        f"Mean and worst depth over {lo:.0f}-{hi:.0f} mm (per-depth means over the test "
+        f"Mean and worst depth over {format_span_mm(lo, hi)} mm (per-depth means over the test "
         f"images; worst = lowest, or highest for LPIPS/DISTS). Blind methods know nothing of the depth "
         f"or the PSF at run time; non-blind ones are given the exact PSF of each depth. Best of each "
         f"group in bold." + (f" {frame_ms_note}." if frame_ms and frame_ms_note else ""),
@@ -153,7 +162,7 @@ def image_spread_table(
     return Table(
         ["method", f"mean {label} ± sd over images", "lowest image", f"{reference} minus method (images better)"],
         rows,
-        f"{label} per image (mean over {lo:.0f}-{hi:.0f} mm), spread over the images: sample standard deviation",
+        f"{label} per image (mean over {format_span_mm(lo, hi)} mm), spread over the images: sample standard deviation",
     )
 
 
@@ -203,7 +212,7 @@ def run_spread_table(
             f"{reference} minus method: worst depth (runs better)",
         ],
         rows,
-        f"{label} over {lo:.0f}-{hi:.0f} mm, spread over {len(tables)} runs: sample standard deviation",
+        f"{label} over {format_span_mm(lo, hi)} mm, spread over {len(tables)} runs: sample standard deviation",
     )
 
 
@@ -234,6 +243,15 @@ def check_like_runs(
                 )
             if any(r["method"] == method and math.isnan(float(r[metric])) for r in rows):
                 raise EdofprojError(f"'{name}' has no {metric} score (NA) for {method}: choose another --metric")
+            bad = [
+                float(r[metric]) for r in rows if r["method"] == method and not valid_score(metric, float(r[metric]))
+            ]
+            if bad:
+                low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
+                raise EdofprojError(
+                    f"'{name}' has {len(bad)} {metric} score(s) of {method} that no evaluation gives (e.g. {bad[0]:g}; "
+                    f"a score is finite and in [{low:g}, {high:g}]): an edited or damaged file?"
+                )
         grid = (depths, images)
         if first_grid is not None and grid[1] != first_grid[1]:
             raise EdofprojError(f"'{name}' scores other images than '{first_name}': compare like with like")
@@ -276,7 +294,11 @@ def depth_table(table: MetricsTable, metric: str, range_mm: tuple[float, float])
     stats = [table.range_stats(m, metric, lo, hi) for m in methods]
     columns.append(_cells(metric, [s.mean for s in stats]))
     columns.append(_cells(metric, [s.worst for s in stats]))
-    header = ["method"] + [f"{z:.0f}" for z in depths] + [f"mean {lo:.0f}-{hi:.0f}", f"worst {lo:.0f}-{hi:.0f}"]
+    header = (
+        ["method"]
+        + [f"{z:.0f}" for z in depths]
+        + [f"mean {format_span_mm(lo, hi)}", f"worst {format_span_mm(lo, hi)}"]
+    )
     rows = [[m] + [col[i] for col in columns] for i, m in enumerate(methods)]
     return Table(header, rows, f"{label} per depth (mm), mean over the test images")
 

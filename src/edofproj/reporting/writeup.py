@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from ..doe import build_doe
-from ..evaluation.results import METRIC_LABELS, headline_metrics
+from ..evaluation.results import METRIC_LABELS, format_span_mm, headline_metrics
 from ..methods.catalogue import METHOD_NAMES
 from ..methods.designs import OpticalDesign
 from ..methods.guard import GuardedNetworkCompensation
@@ -59,7 +59,7 @@ def overview(ev) -> list:
             f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
             f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
             f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
-            f"{lo:.0f}-{hi:.0f} mm."
+            f"{format_span_mm(lo, hi)} mm."
         ),
         Paragraph(
             f"Scored on {len(ev.images)} {IMAGE_SET_LABELS.get(ev.image_set, 'held-out')} image(s) ({images}) "

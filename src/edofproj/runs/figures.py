@@ -63,10 +63,10 @@ def plot_doe_profile(doe, path: str | Path, samples: int = 1024) -> None:
     with torch.no_grad():
         if doe.radially_symmetric:
             rings = max(samples // 2, 1)
-            r = (torch.arange(rings, dtype=torch.float64) + 0.5) * (R / rings)
+            r = (torch.arange(rings, dtype=torch.float64, device=doe.device) + 0.5) * (R / rings)
             h = doe.height_m(r).double().cpu().numpy()
             fig, ax = plt.subplots(figsize=(7, 3.2))
-            ax.step(r.numpy() * 1e3, h * 1e9, where="mid", lw=0.8)
+            ax.step(r.cpu().numpy() * 1e3, h * 1e9, where="mid", lw=0.8)
             ax.set_xlabel("radius r (mm)")
             ax.set_ylabel("height h(r) (nm)")
             ax.set_xlim(0, R * 1e3)
@@ -75,10 +75,10 @@ def plot_doe_profile(doe, path: str | Path, samples: int = 1024) -> None:
             ax.grid(alpha=0.3)
         else:
             n = min(samples, 512)
-            c = (torch.arange(n, dtype=torch.float64) - n / 2 + 0.5) * (2 * R / n)
+            c = (torch.arange(n, dtype=torch.float64, device=doe.device) - n / 2 + 0.5) * (2 * R / n)
             y, x = torch.meshgrid(c, c, indexing="ij")
             h = doe.height_map_m(x, y).double().cpu().numpy()
-            h[(x**2 + y**2).numpy() > R**2] = np.nan
+            h[(x**2 + y**2).cpu().numpy() > R**2] = np.nan
             fig, ax = plt.subplots(figsize=(4.5, 4))
             image = ax.imshow(h * 1e9, extent=(-R * 1e3, R * 1e3, -R * 1e3, R * 1e3), cmap="viridis")
             fig.colorbar(image, ax=ax, label="height (nm)")

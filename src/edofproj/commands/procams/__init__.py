@@ -7,12 +7,18 @@
     edofproj procams capture --patterns PATTERNS --out CAPTURES --camera SPEC --display SPEC [--depth-mm Z]
     edofproj procams rectify CAPTURE --calib calib.npz --out OUT
     edofproj procams evaluate --targets DIR --captures DIR --calib calib.npz --out REPORT_DIR
+    edofproj procams decode --lab lab.json --x SEQ [--y SEQ] --out map.npz
+    edofproj procams psf-map --lab lab.json --dots SEQ --map map.npz --out psf_map.npz
+    edofproj procams predict --map map.npz [--psf-map psf_map.npz] --image PROJ --capture CAP
 
 Project every pattern, capture it with a camera (linear/RAW, fixed exposure, the whole
 projected image in view) into a folder under the pattern's file name (``capture`` does it
 with the devices named by --camera/--display, resumably), calibrate, then measure the PSF
 (paper Sec. 5.1-5.2); ``simulate`` plays projector and camera. ``rectify`` brings raw captures
-into projector space; ``evaluate`` scores captured projections against their targets.
+into projector space; ``evaluate`` scores captured projections against their targets. A rig with structured light (its
+own captures described by a lab manifest, or ``patterns --structured-light``) is read by
+``decode`` (camera -> projector map), ``psf-map`` (PSFs from single-pixel dots) and ``predict``
+(a projector image's capture predicted and scored).
 
 Each step is one module of this package defining ``register(subparsers)``, as each command is one
 module of :mod:`edofproj.commands`; :data:`STEPS` lists them in the order ``--help`` shows them.
@@ -21,10 +27,10 @@ The device options that ``capture`` shares with ``live`` are in :mod:`.devices`.
 
 from __future__ import annotations
 
-from . import calibrate, capture, estimate_psf, evaluate, patterns, rectify, simulate
+from . import calibrate, capture, decode, estimate_psf, evaluate, patterns, predict, psf_map, rectify, simulate
 
 #: The ``procams`` steps, in the order of a measurement (and of ``edofproj procams --help``).
-STEPS = (patterns, simulate, calibrate, estimate_psf, capture, rectify, evaluate)
+STEPS = (patterns, simulate, calibrate, estimate_psf, capture, rectify, evaluate, decode, psf_map, predict)
 
 
 def register(subparsers) -> None:

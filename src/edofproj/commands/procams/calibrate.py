@@ -60,12 +60,12 @@ def run(args) -> int:
     if args.surface_captures is not None:
         from ...procams.surface import measure_surface_folders
 
-        measured = measure_surface_folders(calibration, args.patterns, args.surface_captures)
+        measured = measure_surface_folders(calibration, args.patterns, args.surface_captures, args.captures)
         calibration = calibration.with_surface(measured.reflectance, measured.ambient)
     calibration.save(args.out)
     cm = calibration.camera_map
     print(
-        f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[1]}x{cm.camera_hw[0]}, "
+        f"wrote {args.out}: {len(cm.dots_proj)} dots matched, camera {cm.camera_hw[0]}x{cm.camera_hw[1]} (height x width), "
         f"{cm.camera_pixels_per_projector_pixel():.2f} camera px per projector px, lens distortion up to "
         f"{cm.homography_residual_px().max():.2f} camera px beyond the homography"
     )

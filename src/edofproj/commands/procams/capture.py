@@ -43,6 +43,6 @@ def run(args) -> int:
     hw = result.camera_hw
     print(
         f"captured {result.captured} patterns ({result.skipped} already there) of {result.total} into {args.out}"
-        + (f", camera {hw[1]}x{hw[0]}" if hw else "")
+        + (f", camera {hw[0]}x{hw[1]} (height x width)" if hw else "")
     )
     return 0

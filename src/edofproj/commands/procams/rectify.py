@@ -56,5 +56,7 @@ def run(args) -> int:
         write_image(args.out, rectified(source), bits=args.bits)
         print(f"wrote {args.out}")
     H, W = calibration.projector_hw
-    print(f"projector space: {W}x{H}, projector output light (full primary = 1; clipped to [0, 1] in the file)")
+    print(
+        f"projector space: {H}x{W} (height x width), projector output light (full primary = 1; clipped to [0, 1] in the file)"
+    )
     return 0

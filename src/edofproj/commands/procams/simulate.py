@@ -14,8 +14,6 @@ screen's captures, its folder holds the black and white fields that ``procams ca
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ...errors import EdofprojError
@@ -107,14 +105,16 @@ def run(args) -> int:
     ]
     refuse_output_over(args.out, "--out", inputs, runs=[("--doe", args.doe)])
     cfg = config_from_args(args, psf_overrides(args))
-    if args.depth_mm <= 0:
-        raise EdofprojError(f"--depth-mm {args.depth_mm:g} must be positive")
+    from ...optics.geometry import check_screen_depths_mm
+
+    check_screen_depths_mm(args.depth_mm, "--depth-mm")
     if len(args.gamma) not in (1, 3) or any(not (0.1 <= g <= 10) for g in args.gamma):
         raise EdofprojError("--gamma takes one or three values in 0.1-10")
     if args.noise_sigma < 0 or not (1.0 <= args.camera_scale <= 10.0):
         raise EdofprojError("--noise-sigma must be >= 0 and --camera-scale in 1-10")
-    if not (math.isfinite(args.surface_ambient) and 0.0 <= args.surface_ambient <= 1.0):
-        raise EdofprojError(f"--surface-ambient {args.surface_ambient:g} must lie in [0, 1]")
+    from ...imaging.surfaces import check_illuminance
+
+    check_illuminance(args.surface_ambient, "--surface-ambient")
     if args.surface is None and args.surface_ambient != 0.0:
         raise EdofprojError("--surface-ambient goes with --surface")
     manifest = PatternManifest.load(args.patterns)
@@ -141,7 +141,7 @@ def run(args) -> int:
         surface_ambient=args.surface_ambient,
     )
     print(
-        f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[1]}x{rig.camera_hw[0]} camera "
+        f"simulating {len(manifest.entries)} captures with a {rig.camera_hw[0]}x{rig.camera_hw[1]} (height x width) camera "
         f"({rig.camera_pixels_per_projector_pixel():.2f} camera px per projector px), PSF window {psf.shape[-1]} px, "
         f"in-window energy {np.round(psf.sum(axis=(-1, -2)), 4).tolist()}"
     )

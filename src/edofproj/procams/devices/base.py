@@ -70,7 +70,7 @@ class Display(abc.ABC):
         size = self.size_hw
         if size is not None and frame.shape[:2] != tuple(size):
             raise EdofprojError(
-                f"image is {frame.shape[1]}x{frame.shape[0]} but display '{self.spec}' is {size[1]}x{size[0]} "
+                f"image is {frame.shape[0]}x{frame.shape[1]} but display '{self.spec}' is {size[0]}x{size[1]} (height x width) "
                 "(make the patterns at the projector's native size)"
             )
         self._present(frame)

@@ -55,7 +55,7 @@ class PygameDisplay(Display):
         if not screens:
             raise EdofprojError("no screen found (SDL lists no monitor)")
         if not (0 <= index < len(screens)):
-            found = ", ".join(f"screen:{i} ({w}x{h})" for i, (w, h) in enumerate(screens))
+            found = ", ".join(f"screen:{i} ({h}x{w}, height x width)" for i, (w, h) in enumerate(screens))
             raise EdofprojError(f"display 'screen:{index}' does not exist; found {found}")
         pygame = self._pg = _pygame()
         self.index = index

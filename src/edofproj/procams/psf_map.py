@@ -1,0 +1,382 @@
+"""The PSF across the surface, in projector pixels, from a captured grid of single-pixel dots.
+
+A dot is one lit projector pixel at ``d = (x_d, y_d)`` (a grid with spacing ``s``: ``x_d = i s``,
+``y_d = j s``). A camera pixel ``q`` sees the projector point ``P(q)`` (the decoded map,
+:mod:`.structured_light`), so around each dot the capture is modelled in projector pixels as an
+anisotropic Gaussian plus a background,
+
+    I(q) = b + a exp(-1/2 r^T S^-1 r),   r = P(q) - d - o - c,   S = R(theta) diag(s1^2, s2^2) R(theta)^T,
+
+with ``o`` one offset for the whole grid and ``c`` the dot's own small residual. ``S`` is the PSF's
+covariance in projector pixels: its marginal widths along the projector's columns and rows are
+``sigma_x = sqrt(S_xx)`` and ``sigma_y = sqrt(S_yy)``; a tilted screen makes them differ, and a
+screen tilted about an oblique axis turns the ellipse (``theta``).
+
+**Censoring.** A saturated sample only says ``I >= top`` and a sample clipped to black only
+``I <= 0``: they enter the least-squares fit (:func:`scipy.optimize.least_squares`) as one-sided
+residuals, ``max(0, top - model)`` and ``max(0, model - 0)``, never as values. A dot whose core is
+saturated is then measured by its unsaturated flanks.
+
+**The offset.** A rig whose phase-shift patterns put the phase origin elsewhere than pixel centre 0
+(e.g. 1-based columns) decodes ``P`` shifted by a constant. ``o`` is estimated, not assumed: every
+dot is first fitted with a free centre over a window of half the spacing, and ``o`` is the median
+of ``centre - d``; the dots are then fitted again about ``d + o``.
+
+**The map.** The fitted covariances on the dot grid, median-filtered over ``3 x 3`` dots (outliers),
+gaps filled from the nearest fitted dot; between dots the covariance is interpolated bilinearly
+(a convex combination of covariances is a covariance). :class:`PSFMap` is saved as ``.npz``
+(format ``edofproj-procams-psf-map``).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.interpolate import RegularGridInterpolator
+from scipy.optimize import least_squares
+
+from ..errors import EdofprojError
+from ..fileio import read_arrays, save_npz_atomic
+from .structured_light import CorrespondenceMap
+
+PSF_MAP_FORMAT = "edofproj-procams-psf-map"
+MAX_SIGMA_PX = 20.0
+"""Largest PSF width (projector px) a fit may return."""
+
+
+def covariance(sigma1: float, sigma2: float, theta: float) -> np.ndarray:
+    """``S = R(theta) diag(sigma1^2, sigma2^2) R(theta)^T`` (2x2, projector px^2)."""
+    c, s = math.cos(theta), math.sin(theta)
+    rotation = np.array([[c, -s], [s, c]])
+    return rotation @ np.diag([sigma1**2, sigma2**2]) @ rotation.T
+
+
+@dataclass
+class DotFit:
+    """One dot's fit: ``amplitude`` and ``background`` (image units), ``centre`` ``(x, y)`` in projector
+    px, ``cov`` 2x2 (projector px^2), the samples used and the censored ones among them."""
+
+    amplitude: float
+    background: float
+    centre: np.ndarray
+    cov: np.ndarray
+    samples: int
+    censored: int
+
+
+def _model(params: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    a, b, cx, cy, log_s1, log_s2, theta = params
+    S = covariance(math.exp(log_s1), math.exp(log_s2), theta)
+    inv = np.linalg.inv(S)
+    dx, dy = px - cx, py - cy
+    return b + a * np.exp(-0.5 * (inv[0, 0] * dx * dx + 2 * inv[0, 1] * dx * dy + inv[1, 1] * dy * dy))
+
+
+def fit_dot(
+    px: np.ndarray,
+    py: np.ndarray,
+    values: np.ndarray,
+    high: np.ndarray,
+    low: np.ndarray,
+    centre: tuple[float, float],
+    top: float,
+    sigma0: float = 1.5,
+) -> DotFit | None:
+    """Fit the module docstring's model to samples at projector points ``(px, py)`` (1-D arrays)
+    with values ``values``; ``high`` marks saturated samples (at least ``top``), ``low`` samples
+    clipped to black (at most 0): both censored. None when the fit does not converge or the dot has
+    fewer than 8 uncensored samples."""
+    fitted = ~(high | low)
+    if fitted.sum() < 8:
+        return None
+    b0 = float(np.percentile(values[fitted], 10))
+    a0 = max(float(values.max()) - b0, 1e-3)
+    x0 = np.array([a0, b0, centre[0], centre[1], math.log(sigma0), math.log(sigma0), 0.0])
+    lower = [0.0, -top, centre[0] - 3, centre[1] - 3, math.log(0.2), math.log(0.2), -math.pi]
+    upper = [50 * top, top, centre[0] + 3, centre[1] + 3, math.log(MAX_SIGMA_PX), math.log(MAX_SIGMA_PX), math.pi]
+    x0 = np.clip(x0, np.array(lower) + 1e-9, np.array(upper) - 1e-9)
+
+    def residuals(params: np.ndarray) -> np.ndarray:
+        model = _model(params, px, py)
+        return np.where(high, np.maximum(0.0, top - model), np.where(low, np.maximum(0.0, model), model - values))
+
+    try:
+        result = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", max_nfev=200)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if not result.success:
+        return None
+    a, b, cx, cy, log_s1, log_s2, theta = result.x
+    return DotFit(
+        amplitude=float(a),
+        background=float(b),
+        centre=np.array([cx, cy]),
+        cov=covariance(math.exp(log_s1), math.exp(log_s2), theta),
+        samples=int(len(values)),
+        censored=int((high | low).sum()),
+    )
+
+
+@dataclass
+class DotGrid:
+    """Dots at ``x = origin_x + i spacing_x``, ``y = origin_y + j spacing_y`` (projector px), ``cols x rows``."""
+
+    spacing_px: tuple[int, int]  # (along y, along x) = (row spacing, column spacing)
+    origin_px: tuple[float, float]  # (y, x) of dot (0, 0)
+    rows: int
+    cols: int
+
+    @classmethod
+    def covering(cls, projector_hw: tuple[int, int], spacing_px: tuple[int, int], origin_px=(0, 0)) -> "DotGrid":
+        H, W = projector_hw
+        sy, sx = spacing_px
+        if sy < 4 or sx < 4:
+            raise EdofprojError(f"a dot spacing of {sx}x{sy} px leaves the dots' PSFs overlapping (at least 4 px)")
+        oy, ox = origin_px
+        return cls((sy, sx), (float(oy), float(ox)), int((H - 1 - oy) // sy) + 1, int((W - 1 - ox) // sx) + 1)
+
+    @property
+    def xs(self) -> np.ndarray:
+        return self.origin_px[1] + self.spacing_px[1] * np.arange(self.cols)
+
+    @property
+    def ys(self) -> np.ndarray:
+        return self.origin_px[0] + self.spacing_px[0] * np.arange(self.rows)
+
+
+@dataclass
+class PSFMap:
+    """Anisotropic Gaussian PSFs on a grid of projector points (module docstring): ``cov``
+    ``(rows, cols, 2, 2)`` in projector px^2 at ``ys`` x ``xs`` (the dots' nominal positions);
+    ``offset_px`` the estimated offset ``o`` ``(x, y)`` of the decoded map: the projector pixel a
+    camera pixel sees is ``P(q) - o``; ``fitted`` ``(rows, cols)`` where a dot was fitted."""
+
+    xs: np.ndarray
+    ys: np.ndarray
+    cov: np.ndarray
+    offset_px: np.ndarray
+    fitted: np.ndarray
+    projector_hw: tuple[int, int]
+
+    @property
+    def sigma_x(self) -> np.ndarray:
+        """``(rows, cols)`` marginal width along the projector's x (across columns), px."""
+        return np.sqrt(self.cov[..., 0, 0])
+
+    @property
+    def sigma_y(self) -> np.ndarray:
+        """``(rows, cols)`` marginal width along the projector's y (across rows), px."""
+        return np.sqrt(self.cov[..., 1, 1])
+
+    @property
+    def angle_deg(self) -> np.ndarray:
+        """``(rows, cols)`` angle of the ellipse's major axis from the x axis, degrees in (-90, 90]."""
+        c = self.cov
+        return np.degrees(0.5 * np.arctan2(2 * c[..., 0, 1], c[..., 0, 0] - c[..., 1, 1]))
+
+    def covariance_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``(..., 2, 2)`` covariance at projector points ``(x, y)``, bilinear between grid points
+        (clamped to the grid's edges)."""
+        x = np.clip(np.asarray(x, dtype=np.float64), self.xs[0], self.xs[-1])
+        y = np.clip(np.asarray(y, dtype=np.float64), self.ys[0], self.ys[-1])
+        flat = self.cov.reshape(len(self.ys), len(self.xs), 4)
+        interp = RegularGridInterpolator((self.ys, self.xs), flat, method="linear")
+        return interp(np.stack([y, x], axis=-1)).reshape(*np.shape(x), 2, 2)
+
+    def save(self, path) -> None:
+        save_npz_atomic(
+            path,
+            format=np.array(PSF_MAP_FORMAT),
+            xs=self.xs,
+            ys=self.ys,
+            cov=self.cov,
+            offset_px=self.offset_px,
+            fitted=self.fitted,
+            projector_hw=np.array(self.projector_hw),
+        )
+
+    @classmethod
+    def load(cls, path) -> "PSFMap":
+        data = read_arrays(path, what="PSF map")
+        source = f"PSF map '{path}'"
+        if "format" not in data or str(data["format"]) != PSF_MAP_FORMAT:
+            raise EdofprojError(f"{source} is not a PSF map (make one with 'edofproj procams psf-map')")
+        missing = [k for k in ("xs", "ys", "cov", "offset_px", "fitted", "projector_hw") if k not in data]
+        if missing:
+            raise EdofprojError(f"{source} lacks {', '.join(missing)}")
+        xs, ys, cov = data["xs"], data["ys"], data["cov"]
+        if xs.ndim != 1 or ys.ndim != 1 or len(xs) < 2 or len(ys) < 2 or cov.shape != (len(ys), len(xs), 2, 2):
+            raise EdofprojError(f"{source} has a covariance of shape {cov.shape} for {len(ys)}x{len(xs)} grid points")
+        if not (np.all(np.isfinite(cov)) and np.all(np.diff(xs) > 0) and np.all(np.diff(ys) > 0)):
+            raise EdofprojError(f"{source} has non-finite covariances or unsorted grid points")
+        if np.any(np.linalg.det(cov) <= 0) or np.any(cov[..., 0, 0] <= 0):
+            raise EdofprojError(f"{source} has a covariance that is not positive definite")
+        hw = data["projector_hw"]
+        return cls(
+            xs=xs.astype(np.float64),
+            ys=ys.astype(np.float64),
+            cov=cov.astype(np.float64),
+            offset_px=data["offset_px"].astype(np.float64),
+            fitted=data["fitted"].astype(bool),
+            projector_hw=(int(hw[0]), int(hw[1])),
+        )
+
+
+def _samples_by_dot(
+    corr: CorrespondenceMap, grid: DotGrid, offset: np.ndarray, half_window: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Camera pixels within ``half_window`` (projector px, per axis) of a dot at ``d + offset``:
+    their flat camera indices sorted by dot, the dot index of each, and the split points."""
+    valid = corr.valid
+    flat = np.flatnonzero(valid)
+    px, py = corr.proj_x.ravel()[flat] - offset[0], corr.proj_y.ravel()[flat] - offset[1]
+    i = np.rint((px - grid.origin_px[1]) / grid.spacing_px[1]).astype(np.int64)
+    j = np.rint((py - grid.origin_px[0]) / grid.spacing_px[0]).astype(np.int64)
+    near = (
+        (i >= 0)
+        & (i < grid.cols)
+        & (j >= 0)
+        & (j < grid.rows)
+        & (np.abs(px - grid.xs[np.clip(i, 0, grid.cols - 1)]) <= half_window)
+        & (np.abs(py - grid.ys[np.clip(j, 0, grid.rows - 1)]) <= half_window)
+    )
+    flat, dot = flat[near], (j * grid.cols + i)[near]
+    order = np.argsort(dot, kind="stable")
+    flat, dot = flat[order], dot[order]
+    dots, starts = np.unique(dot, return_index=True)
+    return flat, dots, starts, np.r_[starts[1:], len(flat)]
+
+
+def fit_dots(
+    capture: np.ndarray,
+    high: np.ndarray,
+    low: np.ndarray,
+    corr: CorrespondenceMap,
+    grid: DotGrid,
+    offset: np.ndarray,
+    half_window: float,
+    top: float,
+    every: int = 1,
+) -> dict[int, DotFit]:
+    """:func:`fit_dot` for the grid's dots (every ``every``-th in both directions), by dot index
+    ``j cols + i``; centres are relative to the nominal dot positions (without ``offset``)."""
+    flat, dots, starts, ends = _samples_by_dot(corr, grid, offset, half_window)
+    values, hi, lo = capture.ravel(), high.ravel(), low.ravel()
+    px_all, py_all = corr.proj_x.ravel(), corr.proj_y.ravel()
+    fits: dict[int, DotFit] = {}
+    for dot, start, end in zip(dots, starts, ends):
+        j, i = divmod(int(dot), grid.cols)
+        if i % every or j % every:
+            continue
+        idx = flat[start:end]
+        fit = fit_dot(
+            px_all[idx] - grid.xs[i],
+            py_all[idx] - grid.ys[j],
+            values[idx],
+            hi[idx],
+            lo[idx],
+            (float(offset[0]), float(offset[1])),
+            top,
+        )
+        if fit is not None:
+            fits[int(dot)] = fit
+    return fits
+
+
+def estimate_offset(fits: dict[int, DotFit]) -> np.ndarray:
+    """``o``: the median over dots of the fitted centre minus the nominal dot position ``(x, y)``."""
+    if not fits:
+        raise EdofprojError("no dot could be fitted: is the dot capture registered with the decoded map?")
+    return np.median(np.stack([f.centre for f in fits.values()]), axis=0)
+
+
+def measure_psf_map(
+    capture: np.ndarray,
+    corr: CorrespondenceMap,
+    grid: DotGrid,
+    top: float = 1.0 - 0.5 / 255.0,
+    every: int = 1,
+    saturated: np.ndarray | None = None,
+    clipped: np.ndarray | None = None,
+) -> tuple[PSFMap, dict[int, DotFit]]:
+    """The PSF map from a grey dot capture ``(Hc, Wc)`` (image units) and the map of the same camera
+    pose. ``saturated``/``clipped``: the censored samples (default: at least ``top`` / at most 0)."""
+    if not corr.is_complete:
+        raise EdofprojError("a PSF map needs a decoded map with columns and rows")
+    capture = np.asarray(capture, dtype=np.float64)
+    if capture.shape != corr.camera_hw:
+        raise EdofprojError(f"the dot capture is {capture.shape[1]}x{capture.shape[0]}, the map's camera "
+                            f"{corr.camera_hw[1]}x{corr.camera_hw[0]}")  # fmt: skip
+    high = capture >= top if saturated is None else np.asarray(saturated, bool)
+    low = capture <= 0.5 / 255.0 if clipped is None else np.asarray(clipped, bool)
+    half = 0.5 * min(grid.spacing_px)
+    coarse = max(1, every * 3)
+    first = fit_dots(capture, high, low, corr, grid, np.zeros(2), half, top, every=coarse)
+    offset = estimate_offset(first)
+    fits = fit_dots(capture, high, low, corr, grid, offset, half, top, every=every)
+    if not fits:
+        raise EdofprojError("no dot could be fitted about the estimated offset")
+    offset = estimate_offset(fits)
+    cov = np.full((grid.rows, grid.cols, 2, 2), np.nan)
+    for dot, fit in fits.items():
+        j, i = divmod(dot, grid.cols)
+        cov[j, i] = fit.cov
+    fitted = np.isfinite(cov[..., 0, 0])
+    rows = np.flatnonzero(fitted.any(axis=1))
+    cols = np.flatnonzero(fitted.any(axis=0))
+    cov, fitted = (
+        cov[rows[0] : rows[-1] + 1 : every, cols[0] : cols[-1] + 1 : every],
+        fitted[rows[0] : rows[-1] + 1 : every, cols[0] : cols[-1] + 1 : every],
+    )
+    xs, ys = grid.xs[cols[0] : cols[-1] + 1 : every], grid.ys[rows[0] : rows[-1] + 1 : every]
+    if len(xs) < 2 or len(ys) < 2:
+        raise EdofprojError(f"dots were fitted on {len(ys)}x{len(xs)} grid points only: at least 2x2 needed")
+    smooth = np.empty_like(cov)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a 3x3 neighbourhood without any fitted dot
+        for a in range(2):
+            for b in range(2):
+                smooth[..., a, b] = ndimage.generic_filter(
+                    cov[..., a, b], np.nanmedian, size=3, mode="nearest", cval=np.nan
+                )
+    missing = ~np.isfinite(smooth[..., 0, 0])
+    if missing.any():
+        _, (ny, nx) = ndimage.distance_transform_edt(missing, return_indices=True)
+        smooth = smooth[ny, nx]
+    # the component-wise median of covariances need not be one: fall back to the raw fit there
+    bad = (np.linalg.det(smooth) <= 0) & fitted
+    smooth[bad] = cov[bad]
+    psf_map = PSFMap(xs=xs, ys=ys, cov=smooth, offset_px=offset, fitted=fitted, projector_hw=corr.projector_hw)
+    return psf_map, fits
+
+
+def plot_psf_map(psf_map: PSFMap, path) -> None:
+    """Draw ``sigma_x``, ``sigma_y`` and the major axis's angle over the projector image (PNG, atomic)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..fileio import atomic_path
+
+    extent = (psf_map.xs[0], psf_map.xs[-1], psf_map.ys[-1], psf_map.ys[0])
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.5))
+    panels = (
+        (psf_map.sigma_x, "sigma_x (px)"),
+        (psf_map.sigma_y, "sigma_y (px)"),
+        (psf_map.angle_deg, "major axis (deg)"),
+    )
+    for ax, (values, title) in zip(axes, panels):
+        shown = ax.imshow(values, extent=extent, cmap="viridis")
+        ax.set_title(title)
+        ax.set_xlabel("projector x (px)")
+        ax.set_ylabel("projector y (px)")
+        fig.colorbar(shown, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=80)
+    plt.close(fig)

@@ -1,0 +1,153 @@
+"""PSFs from single-pixel dot captures that saturate and clip to black, the PSF map, and the
+prediction of a capture from a map and a PSF map (on the virtual ProCams)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edofproj.errors import EdofprojError
+from edofproj.procams.prediction import blur, fit_exposure, gaussian_kernel, predict_capture
+from edofproj.procams.psf_map import DotGrid, PSFMap, covariance, measure_psf_map
+from edofproj.procams.structured_light import (
+    CorrespondenceMap,
+    decode_phase_shift,
+    gray_code_profiles,
+    phase_shift_profiles,
+    profiles_to_images,
+)
+from edofproj.procams.virtual import VirtualProCams
+
+SIGMAS = (1.2, 2.4)
+THETA = math.radians(70.0)
+
+
+def dot_scene(offset=(1.0, -0.6), top_fraction=0.35, black=-0.03, seed=0):
+    """A camera seeing a 60x72 projector at 2 camera px per projector px, a grid of dots every 12 px
+    blurred by one anisotropic Gaussian; the map it decodes is shifted by ``offset``; the capture
+    saturates at ``top_fraction`` of a dot's peak and is clipped to black below ``black``."""
+    H, W = 60, 72
+    Hc, Wc = 2 * H, 2 * W
+    v, u = np.mgrid[0:Hc, 0:Wc].astype(float)
+    tx, ty = (u - 0.5) / 2, (v - 0.5) / 2
+    inv = np.linalg.inv(covariance(SIGMAS[0], SIGMAS[1], THETA))
+    light = np.zeros((Hc, Wc))
+    for y0 in range(0, H, 12):
+        for x0 in range(0, W, 12):
+            dx, dy = tx - x0, ty - y0
+            light += np.exp(-0.5 * (inv[0, 0] * dx * dx + 2 * inv[0, 1] * dx * dy + inv[1, 1] * dy * dy))
+    rng = np.random.default_rng(seed)
+    capture = black + light + 0.003 * rng.standard_normal(light.shape)
+    top = top_fraction
+    capture = np.clip(capture, 0.0, top)
+    corr = CorrespondenceMap(tx + offset[0], ty + offset[1], (H, W))
+    return capture, corr, top, (H, W)
+
+
+def test_censored_fit_recovers_the_anisotropic_psf_and_the_offset() -> None:
+    capture, corr, top, hw = dot_scene()
+    saturated, clipped = capture >= top, capture <= 0
+    assert saturated.mean() > 0.005 and clipped.mean() > 0.3
+    psf_map, fits = measure_psf_map(capture, corr, DotGrid.covering(hw, (12, 12)), top=top,
+                                    saturated=saturated, clipped=clipped)  # fmt: skip
+    assert np.allclose(psf_map.offset_px, (1.0, -0.6), atol=0.05)
+    truth = covariance(SIGMAS[0], SIGMAS[1], THETA)
+    sx, sy = math.sqrt(truth[0, 0]), math.sqrt(truth[1, 1])
+    inner = psf_map.fitted
+    assert inner.sum() >= 20
+    assert np.allclose(np.median(psf_map.sigma_x[inner]), sx, rtol=0.05)
+    assert np.allclose(np.median(psf_map.sigma_y[inner]), sy, rtol=0.05)
+    assert abs(np.median(psf_map.angle_deg[inner]) + 20.0) < 3.0  # the major axis (sigma 2.4) at 70 + 90 deg
+    # the same samples fitted as values (no censoring): the flat, saturated tops widen the PSF
+    naive, _ = measure_psf_map(capture, corr, DotGrid.covering(hw, (12, 12)), top=top,
+                               saturated=np.zeros_like(saturated), clipped=np.zeros_like(clipped))  # fmt: skip
+    assert np.median(naive.sigma_x[naive.fitted]) > 1.15 * sx
+
+
+def test_psf_map_round_trips_and_interpolates_covariances(tmp_path) -> None:
+    capture, corr, top, hw = dot_scene()
+    psf_map, _ = measure_psf_map(capture, corr, DotGrid.covering(hw, (12, 12)), top=top)
+    psf_map.save(tmp_path / "p.npz")
+    loaded = PSFMap.load(tmp_path / "p.npz")
+    assert np.allclose(loaded.cov, psf_map.cov) and loaded.projector_hw == hw
+    mid = loaded.covariance_at(np.array(0.5 * (loaded.xs[0] + loaded.xs[1])), np.array(loaded.ys[0]))
+    assert np.allclose(mid, 0.5 * (loaded.cov[0, 0] + loaded.cov[0, 1]))
+    np.savez(tmp_path / "x.npz", format=np.array("edofproj-procams-psf-map"), xs=np.arange(2.0))
+    with pytest.raises(EdofprojError, match="lacks"):
+        PSFMap.load(tmp_path / "x.npz")
+
+
+def test_blur_is_the_gaussian_and_keeps_the_light() -> None:
+    cov = covariance(1.0, 2.0, 0.3)
+    psf_map = PSFMap(xs=np.array([0.0, 47.0]), ys=np.array([0.0, 39.0]), cov=np.broadcast_to(cov, (2, 2, 2, 2)).copy(),
+                     offset_px=np.zeros(2), fitted=np.ones((2, 2), bool), projector_hw=(40, 48))  # fmt: skip
+    image = np.zeros((40, 48))
+    image[20, 24] = 1.0
+    out = blur(image, psf_map, tile_px=8)
+    assert math.isclose(out.sum(), 1.0, rel_tol=1e-9)
+    kernel = gaussian_kernel(cov)
+    r = kernel.shape[0] // 2
+    assert np.allclose(out[20 - r : 20 + r + 1, 24 - r : 24 + r + 1], kernel, atol=1e-12)
+
+
+def test_exposure_fit_ignores_clipped_pixels() -> None:
+    rng = np.random.default_rng(0)
+    model = rng.uniform(0, 1, (50, 50))
+    capture = np.clip(1.6 * model - 0.2, 0, 1)  # the capture clips at both ends
+    gain, offset = fit_exposure(model, capture, np.ones_like(model, bool))
+    assert math.isclose(gain, 1.6, rel_tol=1e-6) and math.isclose(offset, -0.2, abs_tol=1e-6)
+
+
+# --------------------------------------------------------------------- the virtual ProCams
+PROJ_HW = (72, 96)
+
+
+def anisotropic_psf(sigma_x: float, sigma_y: float, size: int = 15) -> np.ndarray:
+    r = size // 2
+    y, x = np.mgrid[-r : r + 1, -r : r + 1].astype(float)
+    k = np.exp(-0.5 * ((x / sigma_x) ** 2 + (y / sigma_y) ** 2))
+    return np.repeat((k / k.sum())[None], 3, axis=0)
+
+
+def captures(rig, images, rng) -> np.ndarray:
+    return np.stack([rig.capture(np.repeat(im[..., None], 3, -1), rng).mean(-1) for im in images]).astype(float)
+
+
+def virtual_prediction(sigmas=(1.0, 2.0), seed: int = 0):
+    """Map (phase shift), PSF map (dots every 12 px), dark and bright levels (black and white fields)
+    and the prediction of the finest Gray-code plane (2-px stripes), captured with another exposure,
+    on a virtual ProCams."""
+    rig = VirtualProCams.example(PROJ_HW, anisotropic_psf(*sigmas), seed=seed, camera_scale=2.0, gamma=1.0,
+                                 radial_k1=0.0, noise_sigma=0.003, projector_black=0.0)  # fmt: skip
+    rng = np.random.default_rng(seed)
+    H, W = PROJ_HW
+    x = decode_phase_shift(captures(rig, profiles_to_images(phase_shift_profiles(W, [1, 4, 16], 4), PROJ_HW, "x"), rng),
+                           [1, 4, 16], 4, W)  # fmt: skip
+    y = decode_phase_shift(captures(rig, profiles_to_images(phase_shift_profiles(H, [1, 4, 12], 4), PROJ_HW, "y"), rng),
+                           [1, 4, 12], 4, H)  # fmt: skip
+    corr = CorrespondenceMap.from_decodings(x, y, PROJ_HW)
+    dots = np.zeros(PROJ_HW)
+    dots[::12, ::12] = 1.0
+    dot_capture = captures(rig, dots[None], rng)[0]
+    psf_map, _ = measure_psf_map(dot_capture, corr, DotGrid.covering(PROJ_HW, (12, 12)))
+    finest = profiles_to_images(gray_code_profiles(W), PROJ_HW, "x")[-1]
+    white, black, gray = captures(rig, np.stack([np.ones(PROJ_HW), np.zeros(PROJ_HW), finest]), rng)
+    capture = np.clip(0.8 * gray + 0.05, 0, 1)  # another exposure
+    with_psf = predict_capture(finest, capture, corr, black, white, psf_map)
+    without = predict_capture(finest, capture, corr, black, white, None, offset_px=tuple(psf_map.offset_px))
+    return psf_map, with_psf, without
+
+
+def test_prediction_on_the_virtual_procams_needs_the_psf() -> None:
+    psf_map, with_psf, without = virtual_prediction()
+    fitted = psf_map.fitted
+    # the rig's camera integrates over half a projector pixel: the measured widths include it
+    assert 0.9 < np.median(psf_map.sigma_x[fitted]) < 1.25
+    assert 1.85 < np.median(psf_map.sigma_y[fitted]) < 2.25
+    assert np.all(np.abs(psf_map.offset_px) < 0.2)  # this rig's phase origin is at pixel centre 0
+    assert with_psf.psnr_db > 33.0
+    assert with_psf.psnr_db > without.psnr_db + 5.0
+    assert with_psf.ssim > without.ssim
+    assert math.isclose(with_psf.gain, 0.8, rel_tol=0.05) and math.isclose(with_psf.offset, 0.05, abs_tol=0.01)
