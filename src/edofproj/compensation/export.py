@@ -15,14 +15,15 @@ and FFT sizes follow the frame size in Python, so the file is for *one* frame si
 
 * the FFTs are float32 matrix products (:mod:`edofproj.imaging.matrix_dft`), not ONNX ``DFT``
   nodes: ONNX Runtime's ``DFT`` runs lengths that are not powers of two by Bluestein's algorithm in
-  scalar code (it made ONNX Runtime 1.7-2.6x slower than PyTorch on one thread at 600x800), and in
-  float32 it left errors of 1e-3 after the demo's network (2e-6 in double, at the same cost). The
-  matrix products are as fast as PyTorch's FFTs and differ from PyTorch by at most 4e-6 after the
-  reference network (docs/experiments/2026-11-27-onnx-speed.md);
+  scalar code (with it ONNX Runtime took 1.7-3.0x PyTorch's time per 600x800 frame on one thread),
+  and in float32 it left errors of 1e-3 after the demo's network (2e-6 in double, at the same
+  cost). With the matrix products ONNX Runtime takes 0.7-1.0x PyTorch's time, and the files differ
+  from PyTorch by at most 4e-6 after the reference network (docs/experiments/2026-11-27-onnx-speed.md);
 * everything computed from the weights alone (a kernel's or a PSF's transfer function, the radial
   filter's gains on the frequency grid, the DFT matrices) is folded into constants (initializers)
   when the file is written (:func:`fold_weight_constants`): ONNX Runtime computes nothing per
-  frame, nor per session, that does not depend on the frame.
+  frame, nor per session, that does not depend on the frame. The file grows with the frame size
+  (the guarded reference network at 600x800: 32 MB).
 
 TorchScript (``torch.jit``) is deprecated in recent PyTorch releases in favour of
 ``torch.export``; it is kept because C++/LibTorch deployments still load it. Loading the

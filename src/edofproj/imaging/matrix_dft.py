@@ -3,9 +3,9 @@
 ONNX Runtime's ``DFT`` operator (CPU) runs every length that is not a power of two by Bluestein's
 algorithm (three power-of-two transforms of about twice the length) in scalar code: the FFT
 convolutions of the exported networks (the linear base filter, the radial Fourier filter, the
-display guard's projections) took 44-69 % of ONNX Runtime's time per frame at 600x800 in double
-precision (docs/experiments/2026-11-27-onnx-speed.md). Here the same transforms are float32
-matrix products, which ONNX Runtime runs with its GEMM kernels (``MatMul``).
+display guard's projections) took 44-69 % of ONNX Runtime's time per 600x800 frame
+(docs/experiments/2026-11-27-onnx-speed.md). Here the same transforms are float32 matrix products,
+which ONNX Runtime runs with its GEMM kernels (``MatMul``).
 
 **One axis, four steps (Cooley-Tukey).** For a length ``N = N1 N2`` (``N1`` the largest divisor
 ``<= sqrt(N)``, :func:`factor_length`), with ``n = N2 a + b`` and ``k = c + N1 d``
