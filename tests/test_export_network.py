@@ -147,7 +147,7 @@ def test_fourier_exports_are_float32_matrix_products_with_the_weights_folded(tmp
     multirate = MultirateCompensationNet([4, 8], filter_bins=8).eval()
     for name, net in (("prefiltered", prefiltered), ("safe", safe), ("guarded", guarded), ("multirate", multirate)):
         path = tmp_path / f"{name}.onnx"
-        assert export_network(net, path, "onnx", height=36, width=52) <= 1e-4
+        assert export_network(net, path, "onnx", height=37, width=50) <= 1e-4  # odd: padded blocks
         operators, weight_only, doubles, variable_matmuls = graph_facts(path)
         assert "DFT" not in operators and operators["MatMul"] >= 8, name
         assert weight_only == [], name
