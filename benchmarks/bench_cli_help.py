@@ -16,6 +16,8 @@ import subprocess
 import sys
 import time
 
+from edofproj.machine import instruction_sets
+
 
 def command_names() -> list[str]:
     from edofproj.cli import build_parser
@@ -32,6 +34,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=3, help="runs per command; the median is printed (3)")
     args = parser.parse_args()
+    print(f"CPU: {instruction_sets()}")
     print(f"{'command':<32} {'median s':>9} {'max s':>7} {'CPU s':>7}")
     worst = 0.0
     for command in [[]] + [[name] for name in command_names()]:

@@ -27,6 +27,7 @@ from edofproj.compensation.unet import CompensationUNet, width_preset
 from edofproj.evaluation import timing
 from edofproj.evaluation.timing import disk_psf
 from edofproj.fileio import write_text_atomic
+from edofproj.machine import instruction_sets
 
 PAPER_SIZES = [(256, 256), (600, 800), (768, 1024)]
 PAPER_TABLE_1 = """Paper, Table 1 (V100 GPU, ms per 3-channel frame):
@@ -77,7 +78,8 @@ def main() -> int:
             results += timing.time_cases(small, PAPER_SIZES[:1], args.repeats, args.warmup, progress)
 
     print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), PSF window {args.window}, "
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s) [{instruction_sets()}], "
+        f"PSF window {args.window}, "
         f"median of {args.repeats} frames (ms per 3-channel frame)"
     )
     print(timing.format_table(results))

@@ -45,6 +45,7 @@ from edofproj.config import load_config
 from edofproj.data import build_test_images
 from edofproj.doe import build_doe
 from edofproj.evaluation.timing import measure_ms, network_torch_case
+from edofproj.machine import instruction_sets
 from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.procams.devices.base import Camera
 from edofproj.procams.devices.cameras import VirtualCamera
@@ -77,7 +78,7 @@ class InstantCamera(Camera):
 def load_line() -> str:
     """The machine's load average (1, 5, 15 min) and its cores: the context of every wall time."""
     one, five, fifteen = os.getloadavg()
-    return f"load average {one:.2f}, {five:.2f}, {fifteen:.2f} on {os.cpu_count()} cores"
+    return f"load average {one:.2f}, {five:.2f}, {fifteen:.2f} on {os.cpu_count()} cores [{instruction_sets()}]"
 
 
 def print_summary(title: str, summary: LiveSummary) -> None:

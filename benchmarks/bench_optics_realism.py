@@ -31,6 +31,7 @@ from edofproj.config import load_config
 from edofproj.doe.factory import build_doe
 from edofproj.imaging import project
 from edofproj.imaging.field_varying import field_centres_px, hat_weights, project_field_varying
+from edofproj.machine import instruction_sets
 from edofproj.optics.aberrations import PupilAberration
 from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.optics.psf_bank import PSFSimulator
@@ -243,6 +244,7 @@ def main() -> None:
     doe = build_doe(cfg, args.doe)
     depths = np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, args.depths) * 1e-3
     print(f"design: {args.doe}; cpu preset geometry, window {cfg.psf.window}, {cfg.psf.pupil_samples} pupil samples")
+    print(f"1 thread [{instruction_sets()}]")
     if "spectral" not in args.skip:
         spectral(cfg, doe, depths)
     if "closed" not in args.skip:

@@ -26,6 +26,8 @@ import time
 import numpy as np
 import torch
 
+from edofproj.machine import instruction_sets
+
 DEPTHS_M = np.linspace(0.3, 0.8, 21)
 WAVELENGTHS_M = np.arange(400, 701, 30) * 1e-9
 
@@ -127,7 +129,7 @@ def main() -> None:
 
     print(
         f"PSF bank: 21 depths x {len(WAVELENGTHS_M)} wavelengths, {args.samples} pupil samples, window "
-        f"{args.window} px, {args.dtype}, {args.threads} threads, torch {torch.__version__}, "
+        f"{args.window} px, {args.dtype}, {args.threads} threads [{instruction_sets()}], torch {torch.__version__}, "
         f"fastest of {args.repeats} runs"
     )
     print(f"{'engine':<8} {'build s':>8} {'forward s':>10} {'fwd+bwd s':>10} {'peak MB':>8}")

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from edofproj.doe.mlp import RadialMLPDOE
+from edofproj.machine import instruction_sets
 from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.optics.radial_engine import RadialPSFEngine
 
@@ -66,6 +67,7 @@ def main() -> None:
             start = time.perf_counter()
             torch.matmul(fn(doe, DEPTHS_M), engine.pixel_weights).sum().backward()
             both[name].append(time.perf_counter() - start)
+    print(f"2 threads [{instruction_sets()}]")
     for name in methods:
         print(
             f"{name:<20} forward: min {min(forward[name]):.3f} s, median {np.median(forward[name]):.3f} s; "

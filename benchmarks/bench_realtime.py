@@ -27,6 +27,7 @@ from edofproj.compensation.registry import build_network
 from edofproj.config import load_config
 from edofproj.evaluation import timing
 from edofproj.evaluation.timing import disk_psf
+from edofproj.machine import instruction_sets
 from edofproj.runs import load_run
 
 
@@ -70,7 +71,7 @@ def main() -> int:
     }
     network = f"{label}/torch"
     print(
-        f"torch {torch.__version__}, {args.threads} thread(s), {args.rounds} interleaved rounds, "
+        f"torch {torch.__version__}, {args.threads} thread(s) [{instruction_sets()}], {args.rounds} interleaved rounds, "
         f"ms per 3-channel frame (median; P10-P90)"
     )
     for height, width in timing.parse_sizes(args.sizes):

@@ -18,6 +18,8 @@ import argparse
 import os
 import time
 
+from edofproj.machine import instruction_sets
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -51,7 +53,10 @@ def main() -> None:
     simulator = simulator_from_config(cfg)
     image = torch.rand(1, 3, height, width, generator=torch.Generator().manual_seed(0))
 
-    print(f"{height}x{width} px, {args.threads} threads, {cfg.imaging.depth_layers} depth layers, cpu preset optics")
+    print(
+        f"{height}x{width} px, {args.threads} threads [{instruction_sets()}], {cfg.imaging.depth_layers} depth layers, "
+        "cpu preset optics"
+    )
     print(
         f"{'scene':<12} {'faces':>7} "
         + " ".join(f"{'cast ' + e + ' s':>14}" for e in engines)

@@ -25,6 +25,7 @@ import torch
 
 from edofproj.config import load_config
 from edofproj.doe.factory import build_doe
+from edofproj.machine import instruction_sets
 from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.optics.psf_bank import PSFSimulator
 from edofproj.optics.radial_engine import RadialPSFEngine
@@ -62,7 +63,7 @@ def main() -> None:
     print(
         f"preset {args.preset}: window {cfg.psf.window}, {cfg.psf.pupil_samples} pupil samples, "
         f"{len(depths)} depths {cfg.psf.depth_min_mm:g}-{cfg.psf.depth_max_mm:g} mm, design {args.doe}; "
-        f"reference: {int(keep.sum())} wavelengths (1 nm)"
+        f"reference: {int(keep.sum())} wavelengths (1 nm); 1 thread [{instruction_sets()}]"
     )
     print(
         "| sampling | wavelengths | PSF L1 change R, G, B (worst depth) | peak ratio - 1 (worst) | one PSF bank (s) |"

@@ -25,6 +25,7 @@ from edofproj.compensation.photometric import photometric_compensation
 from edofproj.compensation.registry import build_network
 from edofproj.compensation.surface_net import SurfaceAwareNet
 from edofproj.config import load_config
+from edofproj.machine import instruction_sets
 
 
 def interleaved_median_ms(runs, warmup: int, repeats: int) -> list[float]:
@@ -53,7 +54,10 @@ def main() -> None:
     cfg = load_config(args.config)
     plain = build_network(cfg.net).eval()
     wrapped = SurfaceAwareNet(plain).eval()
-    print(f"config {args.config}, {args.threads} thread(s), median of {args.repeats} frames, interleaved (ms)")
+    print(
+        f"config {args.config}, {args.threads} thread(s) [{instruction_sets()}], median of {args.repeats} frames, "
+        "interleaved (ms)"
+    )
     print(f"{'size':>10} {'plain':>9} {'surface':>9} {'extra':>8} {'photometric':>12}")
     for size in args.sizes.split(","):
         height, width = (int(v) for v in size.split("x"))

@@ -4,6 +4,7 @@ with ``--stages``, the seconds of each stage of one step.
     .venv/bin/python benchmarks/bench_training.py                  # cpu (8 steps) and paper (2 steps)
     .venv/bin/python benchmarks/bench_training.py --presets cpu --steps 20 --threads 1
     .venv/bin/python benchmarks/bench_training.py --stages --presets cpu realtime --threads 1
+    .venv/bin/python benchmarks/bench_training.py --stages --presets cpu --threads 1 --precision float32
 
 ``--stages`` times each stage of a step of a training session (:class:`~edofproj.training.trainer`'s
 session, built as ``edofproj train`` builds it) on its own, forward and backward together, with the
@@ -13,6 +14,12 @@ gradient clipping with the optimizer step, and the checkpoint amortized over ``t
 steps; then whole steps. The median of ``--repeats`` runs is printed, as process CPU seconds with one
 thread (robust to other processes on a shared machine: a one-thread process is charged only while it
 runs) and as wall seconds otherwise. The stages add up to the step less Python and autograd overhead.
+
+``--precision`` sets the network's arithmetic: ``config`` (the preset's ``train.mixed_precision``;
+the ``cpu`` preset's ``auto`` is bfloat16 autocast where the CPU computes bfloat16 natively,
+AVX-512-BF16 or AMX, float32 elsewhere), ``float32`` (autocast off: what an AVX2-only CPU runs) or
+``bf16``. The header names the CPU's instruction sets (:mod:`edofproj.machine`) and each result the
+precision that ran.
 
 Each preset runs ``edofproj.training.trainer.train`` in its own subprocess (so the peak
 resident memory, ``ru_maxrss``, belongs to that preset alone) in a temporary run directory.
@@ -41,8 +48,20 @@ import time
 from pathlib import Path
 
 DEFAULT_STEPS = {"cpu": 8, "paper": 2}
+#: ``--precision`` -> config overrides (module docstring).
+PRECISION_OVERRIDES = {"config": [], "float32": ["train.mixed_precision=none"], "bf16": ["train.mixed_precision=bf16"]}
 #: The DOE a preset's absent fixed DOE file is replaced by (module docstring).
 SHIPPED_DOE = "builtin:cpu-doe-net"
+
+
+def precision_that_runs(cfg) -> str:
+    """``bf16`` (bfloat16 autocast) or ``float32``: the network's arithmetic of ``cfg`` on this machine."""
+    import torch
+
+    from edofproj.training.end_to_end import resolve_mixed_precision
+
+    device = torch.device("cuda" if cfg.train.device != "cpu" and torch.cuda.is_available() else "cpu")
+    return "bf16" if resolve_mixed_precision(cfg.train.mixed_precision, device) == "bf16" else "float32"
 
 
 def substitutions(preset: str, overrides: list[str]) -> tuple[list[str], list[str]]:
@@ -151,12 +170,13 @@ def stage_seconds(preset: str, threads: int, repeats: int, overrides: list[str])
         "preset": preset,
         "threads": torch.get_num_threads(),
         "clock": clock.__name__,
+        "precision": precision_that_runs(cfg),
         "stages": stages,
         "notes": notes,
     }
 
 
-def run_preset(preset: str, steps: int, threads: int) -> dict:
+def run_preset(preset: str, steps: int, threads: int, overrides: list[str]) -> dict:
     """Train ``steps`` steps of ``preset`` in this process; return timings and substitutions."""
     import numpy as np
     import torch
@@ -166,7 +186,7 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
     from edofproj.training import losses
     from edofproj.training.trainer import train
 
-    overrides = [f"train.steps={steps}", f"train.checkpoint_every={steps}", f"train.threads={threads}"]
+    overrides = overrides + [f"train.steps={steps}", f"train.checkpoint_every={steps}", f"train.threads={threads}"]
     extra, notes = substitutions(preset, overrides)
     cfg = load_config(preset, overrides + extra)
     if cfg.loss.perceptual == "dists" and cfg.loss.beta > 0:
@@ -206,6 +226,7 @@ def run_preset(preset: str, steps: int, threads: int) -> dict:
         "seconds_per_step": float(np.median(per_step)),
         "session_s": total,
         "peak_rss_mib": peak_mib,
+        "precision": precision_that_runs(cfg),
         "notes": notes,
     }
 
@@ -218,26 +239,35 @@ def main(argv=None) -> int:
     parser.add_argument("--stages", action="store_true", help="seconds of each stage of a step (module docstring)")
     parser.add_argument("--repeats", type=int, default=10, help="--stages: runs of each stage (median)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override (repeatable)")
+    parser.add_argument(
+        "--precision",
+        choices=tuple(PRECISION_OVERRIDES),
+        default="config",
+        help="the network's arithmetic: the preset's, float32 (bf16 autocast off) or bf16 (module docstring)",
+    )
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    args.set = args.set + PRECISION_OVERRIDES[args.precision]
     if args.worker:
         if args.stages:
             print(json.dumps(stage_seconds(args.worker, args.threads or 1, args.repeats, args.set)))
         else:
-            print(json.dumps(run_preset(args.worker, args.steps, args.threads)))
+            print(json.dumps(run_preset(args.worker, args.steps, args.threads, args.set)))
         return 0
+    from edofproj.machine import instruction_sets
+
+    print(f"CPU: {instruction_sets()}")
     if args.stages:
         return print_stages(args)
     print(
         f"{'preset':8s} {'crop':>5s} {'batch':>5s} {'threads':>7s} {'first step s':>12s} "
-        f"{'s/step':>8s} {'peak RSS MiB':>12s}"
+        f"{'s/step':>8s} {'peak RSS MiB':>12s}  precision"
     )
     for preset in args.presets:
         steps = args.steps or DEFAULT_STEPS.get(preset, 4)
+        command = [sys.executable, __file__, "--worker", preset, "--steps", str(steps), "--threads", str(args.threads)]
         done = subprocess.run(
-            [sys.executable, __file__, "--worker", preset, "--steps", str(steps), "--threads", str(args.threads)],
-            capture_output=True,
-            text=True,
+            command + [item for value in args.set for item in ("--set", value)], capture_output=True, text=True
         )
         if done.returncode != 0:
             print(f"{preset:8s} failed: {done.stderr.strip().splitlines()[-1] if done.stderr.strip() else '?'}")
@@ -245,7 +275,7 @@ def main(argv=None) -> int:
         r = json.loads(done.stdout.strip().splitlines()[-1])
         print(
             f"{r['preset']:8s} {r['crop']:5d} {r['batch']:5d} {r['threads']:7d} {r['first_step_s']:12.2f} "
-            f"{r['seconds_per_step']:8.2f} {r['peak_rss_mib']:12.0f}"
+            f"{r['seconds_per_step']:8.2f} {r['peak_rss_mib']:12.0f}  {r['precision']}"
         )
         for note in r["notes"]:
             print(f"{'':8s} note: {note}")
@@ -266,6 +296,7 @@ def print_stages(args) -> int:
     if not results:
         return 1
     print(f"ms per step ({results[0]['clock']}, {results[0]['threads']} thread(s), median of {args.repeats})")
+    print(f"{'precision':12s}" + "".join(f"{r['precision']:>12s}" for r in results))
     print(f"{'stage':12s}" + "".join(f"{r['preset']:>12s}" for r in results))
     for stage in results[0]["stages"]:
         print(f"{stage:12s}" + "".join(f"{1e3 * r['stages'][stage]:12.1f}" for r in results))

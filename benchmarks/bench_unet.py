@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from edofproj.compensation.unet import UNET_WIDTH_PRESETS, CompensationUNet
+from edofproj.machine import instruction_sets
 
 SIZES = ((256, 256), (600, 800), (768, 1024))
 
@@ -112,7 +113,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes.split(",")]
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
-    print(f"torch {torch.__version__}, {args.threads} thread(s), median of {args.repeats} frames")
+    print(
+        f"torch {torch.__version__}, {args.threads} thread(s) [{instruction_sets()}], median of {args.repeats} frames"
+    )
     header = "| method | widths | parameters | " + " | ".join(f"{h}×{w} ms" for h, w in sizes) + " |"
     print(header)
     print("|" + " --- |" * (3 + len(sizes)))

@@ -17,6 +17,7 @@ import torch
 
 from edofproj.commands._common import parse_number_list
 from edofproj.evaluation.pipeline import evaluate_run
+from edofproj.machine import instruction_sets
 from edofproj.reporting.writeup import write_documents
 
 
@@ -42,7 +43,7 @@ def main() -> None:
         validation="--validation" in sys.argv[5:],
     )
     write_documents(evaluation, title=f"lean evaluation of {evaluation.run.run_dir}")
-    print(f"{out}: {time.perf_counter() - clock:.0f} s")
+    print(f"{out}: {time.perf_counter() - clock:.0f} s, 1 thread [{instruction_sets()}]")
 
 
 if __name__ == "__main__":

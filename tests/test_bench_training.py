@@ -42,3 +42,19 @@ def test_a_demo_doe_present_is_used_and_presets_with_everything_are_left_alone(t
     assert bench.substitutions("cpu", []) == ([], [])
     extra, notes = bench.substitutions("paper", [])
     assert extra == ["data.source=dead-leaves", "data.folder=null"] and notes[0].startswith("data: dead-leaves")
+
+
+def test_precision_float32_turns_the_cpu_presets_bf16_autocast_off():
+    """``--precision float32`` times float32 on any CPU; the preset's own ``auto`` is bf16 only where the
+    CPU computes bfloat16 natively."""
+    import torch
+
+    from edofproj.training.end_to_end import native_bf16
+
+    bench = bench_module()
+    assert bench.precision_that_runs(load_config("cpu", bench.PRECISION_OVERRIDES["float32"])) == "float32"
+    assert bench.precision_that_runs(load_config("cpu", bench.PRECISION_OVERRIDES["bf16"])) == "bf16"
+    native = native_bf16(torch.device("cpu"))
+    assert bench.precision_that_runs(load_config("cpu", bench.PRECISION_OVERRIDES["config"])) == (
+        "bf16" if native else "float32"
+    )

@@ -60,7 +60,7 @@ def test_torchscript_matches_pytorch(tmp_path):
 
 @pytest.mark.filterwarnings("ignore:`torch.jit.load` is deprecated:DeprecationWarning")
 def test_fourier_filter_networks_export_to_torchscript_and_to_fixed_size_onnx(tmp_path):
-    """A radial Fourier filter goes to ONNX through torch.export (the FFTs as DFT nodes), for the
+    """A radial Fourier filter goes to ONNX through torch.export, for the
     export's frame size: ONNX Runtime's output matches PyTorch at that size, for the U-Net with a
     pre-filter and for the multi-rate network, and the file declares that size."""
     pytest.importorskip("onnxscript")
@@ -89,6 +89,72 @@ def test_fourier_filter_networks_export_to_torchscript_and_to_fixed_size_onnx(tm
             reference = net(target, captured)
         assert np.abs(exported - reference.numpy()).max() < 1e-4
         assert (reference - target).abs().max() > 1e-2  # the network does something
+
+
+def weight_only_nodes(model) -> list[str]:
+    """Nodes whose inputs are all constants (initializers, ``Constant`` nodes and what is computed from
+    them), other than the shape fills left unfolded (``UNFOLDED_OPERATORS``) and nodes on their outputs."""
+    from edofproj.compensation.export import UNFOLDED_OPERATORS
+
+    constant = {i.name for i in model.graph.initializer}
+    fills: set[str] = set()
+    found = []
+    for node in model.graph.node:
+        inputs = [name for name in node.input if name]
+        if node.op_type == "Constant" or all(name in constant for name in inputs):
+            constant.update(node.output)
+            if node.op_type in UNFOLDED_OPERATORS or any(name in fills for name in inputs):
+                fills.update(node.output)
+            elif node.op_type != "Constant":
+                found.append(f"{node.op_type} {node.name}")
+    return found
+
+
+def graph_facts(path):
+    """``(operator counts, weight-only nodes, double-precision tensors, MatMuls without a constant operand)``."""
+    import collections
+
+    import onnx
+
+    model = onnx.shape_inference.infer_shapes(onnx.load(str(path)))
+    double = onnx.TensorProto.DOUBLE
+    doubles = [i.name for i in model.graph.initializer if i.data_type == double]
+    doubles += [v.name for v in model.graph.value_info if v.type.tensor_type.elem_type == double]
+    doubles += [n.name for n in model.graph.node if n.op_type == "Cast" and n.attribute[0].i == double]
+    constants = {i.name for i in model.graph.initializer}
+    variable_matmuls = [n.name for n in model.graph.node if n.op_type == "MatMul" and not set(n.input) & constants]
+    operators = collections.Counter(n.op_type for n in model.graph.node)
+    return operators, weight_only_nodes(model), doubles, variable_matmuls
+
+
+def test_fourier_exports_are_float32_matrix_products_with_the_weights_folded(tmp_path):
+    """The FFTs of every fixed-size export (radial filter, linear base filter, display guard) are
+    float32 matrix products, not DFT nodes; nothing is computed from the weights alone (transfer
+    functions are constants); each matrix product applies a constant matrix to the frame. The guard's
+    linear filter is the network's, and its projections share one forward transform."""
+    pytest.importorskip("onnxscript")
+    from edofproj.compensation.multirate import MultirateCompensationNet
+    from edofproj.methods.guard import GuardedNetwork
+    from synthetic_psfs import gaussian_psfs
+
+    torch.manual_seed(4)
+    prefiltered = CompensationUNet([4, 8], prefilter_bins=8).eval()
+    torch.nn.init.normal_(prefiltered.prefilter.gain, std=0.1)
+    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
+    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
+    torch.nn.init.normal_(safe.head.weight, std=0.3)
+    guarded = GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    multirate = MultirateCompensationNet([4, 8], filter_bins=8).eval()
+    for name, net in (("prefiltered", prefiltered), ("safe", safe), ("guarded", guarded), ("multirate", multirate)):
+        path = tmp_path / f"{name}.onnx"
+        assert export_network(net, path, "onnx", height=37, width=50) <= 1e-4  # odd: padded blocks
+        operators, weight_only, doubles, variable_matmuls = graph_facts(path)
+        assert "DFT" not in operators and operators["MatMul"] >= 8, name
+        assert weight_only == [], name
+        assert doubles == [], name
+        assert variable_matmuls == [], name
+        if name == "guarded":  # 8 for the linear filter, 4 for the forward transform, 4 per guard depth
+            assert operators["MatMul"] == 8 + 4 + 4 * 3
 
 
 def test_fourier_filter_onnx_export_names_the_missing_package(tmp_path, monkeypatch):

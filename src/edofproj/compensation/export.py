@@ -7,12 +7,23 @@ trace. Before the file is moved into place, the export is run on two frame sizes
 requested one and a smaller odd one) and compared with PyTorch: a maximum absolute
 difference above 1e-4 is an error and nothing is written.
 
-Networks with a radial Fourier filter (``net.prefilter_bins > 0``: the real-time network) or a
-linear base filter (``net.linear_base: ensemble``, the ``cpu`` preset's) go through ``torch.export`` instead (``dynamo=True``, which writes the FFTs
-as ONNX ``DFT`` and needs the ``onnxscript`` package). Their padding and FFT sizes follow the
-frame size in Python, so the file is for *one* frame size (``--height``/``--width``, 1 x 3 x H x W)
-and is verified at that size only. Its FFTs run in double precision (ONNX Runtime's
-single-precision DFT left errors of 1e-3 after the demo's network at 600x800; in double, 2e-6).
+Networks with a radial Fourier filter (``net.prefilter_bins > 0``: the real-time network), a
+linear base filter (``net.linear_base: ensemble``, the ``cpu`` preset's) or a display guard go
+through ``torch.export`` instead (``dynamo=True``; needs the ``onnxscript`` package). Their padding
+and FFT sizes follow the frame size in Python, so the file is for *one* frame size
+(``--height``/``--width``, 1 x 3 x H x W) and is verified at that size only. In the file:
+
+* the FFTs are float32 matrix products (:mod:`edofproj.imaging.matrix_dft`), not ONNX ``DFT``
+  nodes: ONNX Runtime's ``DFT`` runs lengths that are not powers of two by Bluestein's algorithm in
+  scalar code (with it ONNX Runtime took 1.7-3.0x PyTorch's time per 600x800 frame on one thread),
+  and in float32 it left errors of 1e-3 after the demo's network (2e-6 in double, at the same
+  cost). With the matrix products ONNX Runtime takes 0.7-1.0x PyTorch's time, and the files differ
+  from PyTorch by at most 4e-6 after the reference network (docs/experiments/2026-11-27-onnx-speed.md);
+* everything computed from the weights alone (a kernel's or a PSF's transfer function, the radial
+  filter's gains on the frequency grid, the DFT matrices) is folded into constants (initializers)
+  when the file is written (:func:`fold_weight_constants`): ONNX Runtime computes nothing per
+  frame, nor per session, that does not depend on the frame. The file grows with the frame size
+  (the guarded reference network at 600x800: 32 MB).
 
 TorchScript (``torch.jit``) is deprecated in recent PyTorch releases in favour of
 ``torch.export``; it is kept because C++/LibTorch deployments still load it. Loading the
@@ -122,12 +133,54 @@ def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width:
             )
             if program is None:
                 raise EdofprojError("torch.onnx.export returned no ONNX program")
+            fold_weight_constants(program.model)
             program.save(str(path))
     except Exception as exc:  # noqa: BLE001 - the exporter's errors are many and long
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise EdofprojError(f"ONNX export through torch.export failed: {first}") from None
     finally:
         torch_logger.setLevel(level)
+
+
+#: Elements of the largest tensor folded into a constant (a transfer function of a 4k frame's grid fits).
+FOLD_SIZE_LIMIT = 1 << 26
+
+
+#: Operators left unfolded: they fill a tensor of a given shape (``torch.empty`` and broadcasts), whose
+#: value would only make the file larger.
+UNFOLDED_OPERATORS = ("ConstantOfShape", "Expand")
+
+
+def fold_weight_constants(model) -> None:
+    """Simplify the ONNX IR ``model`` (``onnx_ir.Model``, as ``torch.onnx.export`` returns it) in place.
+
+    Equal constants become one, and equal computations on the same inputs one (the guard's linear
+    filter of the target is the network's; the projections at the guard's depths share the
+    transform of their input). Then every node whose inputs are all constants is replaced by its
+    value (onnxscript's constant folding, with size limits raised to :data:`FOLD_SIZE_LIMIT`
+    elements so that whole transfer functions are folded), except tensors filled from a shape
+    (:data:`UNFOLDED_OPERATORS`)."""
+    import onnx_ir  # optional: the export extra (a dependency of onnxscript)
+    from onnx_ir.passes.common import (
+        CommonSubexpressionEliminationPass,
+        DeduplicateHashedInitializersPass,
+        RemoveUnusedNodesPass,
+    )
+    from onnxscript.optimizer import fold_constants
+
+    for value in model.graph.initializers.values():  # hashing needs C-ordered arrays (not channels-last weights)
+        array = value.const_value.numpy()
+        if not array.flags.c_contiguous:
+            value.const_value = onnx_ir.Tensor(np.ascontiguousarray(array), name=value.name)
+    DeduplicateHashedInitializersPass()(model)
+    CommonSubexpressionEliminationPass()(model)
+    fold_constants(
+        model,
+        input_size_limit=FOLD_SIZE_LIMIT,
+        output_size_limit=FOLD_SIZE_LIMIT,
+        should_fold=lambda node: False if node.op_type in UNFOLDED_OPERATORS else None,
+    )
+    RemoveUnusedNodesPass()(model)
 
 
 def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int) -> None:

@@ -97,9 +97,7 @@ class LinearBase(nn.Module):
                 f"net.linear_radius)"
             )
         padded = F.pad(image, (r, r, r, r), mode="reflect")
-        # in an ONNX export the FFTs become DFT nodes, computed in double (as the radial filter's)
-        work = padded.double() if torch.onnx.is_in_onnx_export() else padded
-        filtered = convolve_same(work, self.kernel.unsqueeze(0).to(work.dtype)).to(image.dtype)
+        filtered = convolve_same(padded, self.kernel.unsqueeze(0).to(padded.dtype))
         return filtered[..., r:-r, r:-r].clamp(0.0, 1.0)
 
 

@@ -280,17 +280,24 @@ class MultirateCompensationNet(nn.Module):
         planes = full_target.contiguous().view(b * c, 1, full_target.shape[-2], full_target.shape[-1])
         # U of every block and of a one-block border (pixels replicated), and P as channel s^2
         pixels = F.conv2d(F.pad(planes, (s, s, s, s), mode="replicate"), self.unshuffle_weight, stride=s)
-        # (B C, s^2 + 1, hb + 2, wb + 2), channels-last for the convolutions over blocks (one
-        # 17-channel convolution would do the same, but oneDNN runs it several times slower)
-        blocks = torch.empty(
-            (b * c, n + 1, hb + 2, wb + 2), dtype=pixels.dtype, device=pixels.device, memory_format=lowres
-        )
-        blocks[:, :n] = pixels
-        blocks[:, n:] = pixels.mean(dim=1, keepdim=True)
-        means = blocks[:, n, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
-        correction = (self.prefilter(means) - means).contiguous()  # D
-        # channel s^2 becomes P + D = H P (D replicated over the border blocks)
-        blocks[:, n].add_(_pad_one_block(correction).view(b * c, hb + 2, wb + 2))
+        exported = torch.onnx.is_in_onnx_export()  # in-place writes would become ONNX scatters
+        if exported:
+            mean = pixels.mean(dim=1, keepdim=True)
+            means = mean[:, 0, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
+            correction = self.prefilter(means) - means  # D
+            blocks = torch.cat([pixels, mean + _pad_one_block(correction).view(b * c, 1, hb + 2, wb + 2)], dim=1)
+        else:
+            # (B C, s^2 + 1, hb + 2, wb + 2), channels-last for the convolutions over blocks (one
+            # 17-channel convolution would do the same, but oneDNN runs it several times slower)
+            blocks = torch.empty(
+                (b * c, n + 1, hb + 2, wb + 2), dtype=pixels.dtype, device=pixels.device, memory_format=lowres
+            )
+            blocks[:, :n] = pixels
+            blocks[:, n:] = pixels.mean(dim=1, keepdim=True)
+            means = blocks[:, n, 1:-1, 1:-1].reshape(b, c, hb, wb)  # P
+            correction = (self.prefilter(means) - means).contiguous()  # D
+            # channel s^2 becomes P + D = H P (D replicated over the border blocks)
+            blocks[:, n].add_(_pad_one_block(correction).view(b * c, hb + 2, wb + 2))
 
         features = _full_resolution_conv(self.embed_target, full_target)
         features = (
@@ -300,14 +307,16 @@ class MultirateCompensationNet(nn.Module):
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
         shared = self.head(features)
         gain = self.linear_gain(features)
-        inference = not (torch.is_grad_enabled() or torch.jit.is_tracing())
+        inference = not (torch.is_grad_enabled() or torch.jit.is_tracing() or exported)
         per_colour = []
         colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
         for i in range(c):
             values = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
             values = torch.addcmul(shared[:, i * n : (i + 1) * n], values, 1 + gain[:, i : i + 1])  # one pass
             per_colour.append(values)
-        if not inference:
+        if exported:  # ONNX DepthToSpace
+            output = full_target + F.pixel_shuffle(torch.cat(per_colour, dim=1), s)
+        elif not inference:
             output = add_block_pixels(full_target, torch.stack(per_colour, dim=1).view(b, c * n, hb, wb), s)
         else:  # each colour plane written straight into the output (no stacked copy)
             output = torch.empty(full_target.shape, dtype=full_target.dtype, device=full_target.device)

@@ -36,6 +36,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
+from ..imaging import matrix_dft
 
 #: Largest radial frequency on a pixel grid: the corner (0.5, 0.5) cycles per pixel.
 RHO_MAX = math.sqrt(0.5)
@@ -97,7 +98,7 @@ class RadialFourierFilter(nn.Module):
 
         Without gradients (inference) it is kept per frame size and parameter version, so a video
         stream computes it once."""
-        reuse = not torch.is_grad_enabled() and not torch.jit.is_tracing()
+        reuse = not (torch.is_grad_enabled() or torch.jit.is_tracing() or torch.onnx.is_in_onnx_export())
         # Parameters created under torch.inference_mode have no version counter (and cannot be trained).
         version = -1 if self.gain.is_inference() else self.gain._version
         key = (height, width, self.gain.device, version)
@@ -115,11 +116,15 @@ class RadialFourierFilter(nn.Module):
         m = self.margin_px
         padded = F.pad(image, (m, m, m, m), mode="replicate") if m else image
         ph, pw = padded.shape[-2:]
-        # In an ONNX export the FFTs become DFT nodes, which ONNX Runtime rounds far worse than
-        # pocketfft in single precision (1e-3 after the demo's network at 600x800): they run in double.
+        if torch.onnx.is_in_onnx_export():
+            # the DFT as matrix products (ONNX Runtime's DFT operator is several times slower), in the
+            # transposed half layout (Gw, Gh // 2 + 1), where H is evaluated at rho(fx, fy) alike
+            spectrum = matrix_dft.rfft2(padded, (ph, pw))
+            transfer = self.transfer_function(pw, ph).to(padded.dtype).unsqueeze(-3)  # (C, 1, pw, ph // 2 + 1)
+            return matrix_dft.irfft2(spectrum * transfer, (ph, pw), rows=(m, m + height), cols=(m, m + width))
         # Under bf16/fp16 autocast the FFTs still run in float32 (cuFFT has no bf16 transform, and a
         # half-precision inverse filter would lose the small gains at high frequencies).
-        work = padded.double() if torch.onnx.is_in_onnx_export() else padded
+        work = padded
         if work.dtype in (torch.bfloat16, torch.float16):
             work = work.float()
         full_precision = torch.autocast(work.device.type, enabled=False) if _autocast_on(work) else nullcontext()

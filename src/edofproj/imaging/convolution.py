@@ -25,6 +25,12 @@ Everything that filters an image with a PSF in the Fourier domain goes through t
 :func:`convolve_same` is the three together; the projection (:mod:`.projection`), the Wiener
 filters and the constrained least-squares operator (:mod:`edofproj.compensation`) build on the
 same pieces. Everything is ``torch`` and differentiable in the image and the PSF.
+
+**In an ONNX export** (``torch.onnx.is_in_onnx_export()``) :class:`KernelConvolution` (and so
+:func:`convolve_same` and the projection) computes the same convolution on the same grid with the
+DFT written as matrix products (:mod:`.matrix_dft`), which ONNX Runtime runs several times faster
+than its ``DFT`` operator; its transfer function is then in :mod:`.matrix_dft`'s transposed half
+layout (:func:`matrix_transfer_function`).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import EdofprojError
+from . import matrix_dft
 
 
 def fast_fft_length(n: int) -> int:
@@ -51,6 +58,17 @@ def fft_shape(image_hw: tuple[int, int], kernel_hw: tuple[int, int]) -> tuple[in
     return (fast_fft_length(rows), fast_fft_length(cols))
 
 
+def centred_kernel(psf: torch.Tensor, grid_hw: tuple[int, int]) -> torch.Tensor:
+    """``psf (..., Kh, Kw)`` zero-padded to ``grid_hw`` and rolled by ``(-Kh//2, -Kw//2)``: its optical
+    axis at pixel ``(0, 0)``; ``(..., Gh, Gw)``."""
+    kh, kw = psf.shape[-2:]
+    gh, gw = int(grid_hw[0]), int(grid_hw[1])
+    if kh > gh or kw > gw:
+        raise EdofprojError(f"a {kh}x{kw} PSF does not fit in a {gh}x{gw} FFT grid")
+    kernel = F.pad(psf, (0, gw - kw, 0, gh - kh))
+    return torch.roll(kernel, shifts=(-(kh // 2), -(kw // 2)), dims=(-2, -1))
+
+
 def optical_transfer_function(psf: torch.Tensor, grid_hw: tuple[int, int], haze: bool = False) -> torch.Tensor:
     """``H = rfft2(p)`` of ``psf (..., Kh, Kw)`` on a ``grid_hw`` grid, optical axis at pixel ``(0, 0)``.
 
@@ -60,13 +78,7 @@ def optical_transfer_function(psf: torch.Tensor, grid_hw: tuple[int, int], haze:
     the DC gain the window lost (exact for a periodic frame). Returns complex ``(..., Gh, Gw//2 + 1)``;
     differentiable in ``psf`` (the DC bin does not depend on it when ``haze``).
     """
-    kh, kw = psf.shape[-2:]
-    gh, gw = int(grid_hw[0]), int(grid_hw[1])
-    if kh > gh or kw > gw:
-        raise EdofprojError(f"a {kh}x{kw} PSF does not fit in a {gh}x{gw} FFT grid")
-    kernel = F.pad(psf, (0, gw - kw, 0, gh - kh))
-    kernel = torch.roll(kernel, shifts=(-(kh // 2), -(kw // 2)), dims=(-2, -1))
-    otf = torch.fft.rfft2(kernel)
+    otf = torch.fft.rfft2(centred_kernel(psf, grid_hw))
     if haze:
         otf = otf.clone()
         otf[..., 0, 0] = 1.0
@@ -83,6 +95,21 @@ def apply_transfer_function(image: torch.Tensor, otf: torch.Tensor, grid_hw: tup
     grid = (int(grid_hw[0]), int(grid_hw[1]))
     spectrum = torch.fft.rfft2(image, s=grid) * otf
     return torch.fft.irfft2(spectrum, s=grid)[..., :height, :width]
+
+
+def matrix_transfer_function(psf: torch.Tensor, grid_hw: tuple[int, int]) -> torch.Tensor:
+    """:func:`optical_transfer_function` (without haze) in :mod:`.matrix_dft`'s transposed half layout,
+    computed with its matrix products: real ``(..., 2, Gw, Gh // 2 + 1)`` (real and imaginary parts)."""
+    return matrix_dft.rfft2(centred_kernel(psf, grid_hw), grid_hw)
+
+
+def apply_matrix_transfer_function(
+    image: torch.Tensor, transfer: torch.Tensor, grid_hw: tuple[int, int]
+) -> torch.Tensor:
+    """:func:`apply_transfer_function` with a :func:`matrix_transfer_function` (the export form)."""
+    height, width = image.shape[-2:]
+    spectrum = matrix_dft.complex_multiply(matrix_dft.rfft2(image, grid_hw), transfer)
+    return matrix_dft.irfft2(spectrum, grid_hw, rows=(0, height), cols=(0, width))
 
 
 class KernelConvolution:
@@ -117,10 +144,13 @@ class KernelConvolution:
         if not image.is_floating_point():
             raise EdofprojError(f"convolution needs a floating-point image, got {image.dtype}")
         grid = fft_shape((image.shape[-2], image.shape[-1]), (kernel.shape[-2], kernel.shape[-1]))
-        key = (grid, image.dtype, image.device)
+        exported = torch.onnx.is_in_onnx_export()  # the DFT as matrix products (module docstring)
+        key = (grid, image.dtype, image.device, exported)
         if key not in self._transfer:
-            self._transfer[key] = optical_transfer_function(kernel.to(dtype=image.dtype, device=image.device), grid)
-        return apply_transfer_function(image, self._transfer[key], grid)
+            transfer_function = matrix_transfer_function if exported else optical_transfer_function
+            self._transfer[key] = transfer_function(kernel.to(dtype=image.dtype, device=image.device), grid)
+        apply = apply_matrix_transfer_function if exported else apply_transfer_function
+        return apply(image, self._transfer[key], grid)
 
 
 def convolve_same(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
