@@ -85,5 +85,7 @@ def run(args) -> int:
         + " ".join(f"--set {o}" for o in chosen.overrides)
         + f"); configuration's: {current}"
     )
+    if sweep.chosen_at_edge:
+        print("note: the chosen candidate lies at an end of the swept parameter; extend --values beyond it")
     print(f"wrote {files['summary']}, {files['table']} and {files['figure']}")
     return 0
