@@ -272,3 +272,19 @@ def test_scene_mesh_files_stay_inside_the_scene_folder(tmp_path, name):
 def test_copying_the_pattern_fixture_keeps_it_valid(pattern_dir, tmp_path):
     shutil.copytree(pattern_dir, tmp_path / "copy")
     assert len(PatternManifest.load(tmp_path / "copy").entries) == 2 + 6 + 8
+
+
+def test_a_tagged_archive_of_another_format_or_missing_a_key_is_one_line(tmp_path):
+    """``fileio.read_tagged_arrays`` (PSF maps, correspondence maps): the tag and the keys are checked."""
+    from edofproj.fileio import read_tagged_arrays
+    from edofproj.procams.psf_map import PSFMap
+    from edofproj.procams.structured_light import CorrespondenceMap
+
+    np.savez(tmp_path / "other.npz", format=np.array("something-else"), xs=np.zeros(2))
+    for load, what in ((PSFMap.load, "is not a PSF map"), (CorrespondenceMap.load, "is not a correspondence map")):
+        with pytest.raises(EdofprojError, match=what):
+            load(tmp_path / "other.npz")
+    np.savez(tmp_path / "partial.npz", format=np.array("fmt"), a=np.zeros(1))
+    with pytest.raises(EdofprojError, match="lacks b, c"):
+        read_tagged_arrays(tmp_path / "partial.npz", "thing", "fmt", ("a", "b", "c"), "make one")
+    assert set(read_tagged_arrays(tmp_path / "partial.npz", "thing", "fmt", ("a",), "make one")) == {"format", "a"}

@@ -159,6 +159,21 @@ def read_arrays(path: str | os.PathLike, what: str = "file") -> dict[str, np.nda
         raise EdofprojError(f"{what} '{path}' is truncated or damaged") from None
 
 
+def read_tagged_arrays(
+    path: str | os.PathLike, what: str, format_name: str, keys: Iterable[str], make: str
+) -> dict[str, np.ndarray]:
+    """:func:`read_arrays` of an archive written with ``format=format_name``: one line when the
+    tag is missing or another (``make`` says how to make one) or when one of ``keys`` is missing."""
+    data = read_arrays(path, what=what)
+    source = f"{what} '{path}'"
+    if "format" not in data or str(data["format"]) != format_name:
+        raise EdofprojError(f"{source} is not a {what} ({make})")
+    missing = [key for key in keys if key not in data]
+    if missing:
+        raise EdofprojError(f"{source} lacks {', '.join(missing)}")
+    return data
+
+
 def _header(handle, what: str, path: Path, member: str = "") -> tuple[tuple[int, ...], np.dtype]:
     """The shape and dtype a ``.npy`` header at ``handle`` declares (nothing else is read)."""
     where = f"{what} '{path}'" + (f" (array '{member}')" if member else "")

@@ -40,7 +40,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.optimize import least_squares
 
 from ..errors import EdofprojError
-from ..fileio import read_arrays, save_npz_atomic
+from ..fileio import read_tagged_arrays, save_npz_atomic
 from .structured_light import CorrespondenceMap
 
 PSF_MAP_FORMAT = "edofproj-procams-psf-map"
@@ -201,13 +201,9 @@ class PSFMap:
 
     @classmethod
     def load(cls, path) -> "PSFMap":
-        data = read_arrays(path, what="PSF map")
+        keys = ("xs", "ys", "cov", "offset_px", "fitted", "projector_hw")
+        data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, keys, "make one with 'edofproj procams psf-map'")
         source = f"PSF map '{path}'"
-        if "format" not in data or str(data["format"]) != PSF_MAP_FORMAT:
-            raise EdofprojError(f"{source} is not a PSF map (make one with 'edofproj procams psf-map')")
-        missing = [k for k in ("xs", "ys", "cov", "offset_px", "fitted", "projector_hw") if k not in data]
-        if missing:
-            raise EdofprojError(f"{source} lacks {', '.join(missing)}")
         xs, ys, cov = data["xs"], data["ys"], data["cov"]
         if xs.ndim != 1 or ys.ndim != 1 or len(xs) < 2 or len(ys) < 2 or cov.shape != (len(ys), len(xs), 2, 2):
             raise EdofprojError(f"{source} has a covariance of shape {cov.shape} for {len(ys)}x{len(xs)} grid points")

@@ -383,15 +383,12 @@ class CorrespondenceMap:
     @classmethod
     def load(cls, path) -> "CorrespondenceMap":
         """Read and check a map written by :meth:`save`."""
-        from ..fileio import read_arrays
+        from ..fileio import read_tagged_arrays
 
-        data = read_arrays(path, what="correspondence map")
+        keys = ("proj_x", "proj_y", "projector_hw")
+        make = "make one with 'edofproj procams decode'"
+        data = read_tagged_arrays(path, "correspondence map", CORRESPONDENCE_FORMAT, keys, make)
         source = f"correspondence map '{path}'"
-        if "format" not in data or str(data["format"]) != CORRESPONDENCE_FORMAT:
-            raise EdofprojError(f"{source} is not a correspondence map (make one with 'edofproj procams decode')")
-        for key in ("proj_x", "proj_y", "projector_hw"):
-            if key not in data:
-                raise EdofprojError(f"{source} lacks '{key}'")
         proj_x, proj_y, hw = data["proj_x"], data["proj_y"], data["projector_hw"]
         if proj_x.ndim != 2 or proj_x.shape != proj_y.shape or proj_x.dtype.kind != "f" or proj_y.dtype.kind != "f":
             raise EdofprojError(f"{source} has maps of shapes {proj_x.shape} and {proj_y.shape}, not two (Hc, Wc)")
