@@ -31,6 +31,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from .. import machine
 from ..compensation.closed_loop import ForwardModel, LoopImages, closed_loop, flat_screen
 from ..compensation.photometric import photometric_compensation
 from ..imaging.depth_layers import render_depth_map
@@ -39,11 +40,13 @@ from .camera import camera_capture
 
 def native_bf16(device: torch.device) -> bool:
     """Whether ``device`` computes bfloat16 natively: a CUDA GPU with bf16 support, or a CPU with
-    AVX512-BF16 or AMX instructions (elsewhere oneDNN emulates bf16, slower than float32)."""
+    AVX512-BF16 or AMX instructions that the environment does not forbid
+    (:func:`edofproj.machine.usable_flags`; elsewhere oneDNN emulates bf16, slower than float32)."""
     if device.type == "cuda":
         return bool(torch.cuda.is_bf16_supported())
     if device.type == "cpu":
-        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+        hardware = bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+        return hardware and (not machine.isa_limits() or machine.native_bf16())
     return False
 
 
