@@ -52,7 +52,7 @@ def cpu_flags(cpuinfo: str | None = None) -> set[str]:
 #: The instruction-set limits read from the environment: ``(variable, value, cpuinfo flags it forbids)``; a
 #: value not listed forbids nothing. ``avx512*`` covers every AVX-512 extension.
 _AVX512 = ("avx512*", "amx_bf16")
-ISA_LIMITS = {
+ISA_LIMITS: dict[str, dict[str, tuple[str, ...]]] = {
     "ATEN_CPU_CAPABILITY": {"avx2": _AVX512, "default": ("avx2", "fma", *_AVX512)},
     "ONEDNN_MAX_CPU_ISA": {
         "avx2": _AVX512,
