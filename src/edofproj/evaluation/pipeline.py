@@ -23,8 +23,9 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
+import numpy as np
 import torch
 
 from ..builtin_runs import require_output_outside
@@ -34,15 +35,16 @@ from ..data.validation import validation_images
 from ..errors import EdofprojError
 from ..methods.builder import MethodBuilder, PreparedMethod, require_trained_run
 from ..methods.catalogue import select_methods
-from ..methods.compensators import score_range_mm
-from ..methods.designs import OpticalDesign
-from ..methods.guard import guard_notes
+from ..methods.compensators import ensemble_depths_m, score_range_mm
+from ..methods.designs import DEPTH_KEY_RESOLUTION_M, OpticalDesign
+from ..methods.guard import guard_depths_m, guard_notes
 from ..optics.geometry import check_screen_depths_mm
 from ..progress import StageProgress
 from ..runs import TrainedRun, load_run
 from .results import MetricsTable
 from .sweep import (
     PERCEPTUAL_COLUMNS,
+    TiltedScreen,
     depth_notes,
     example_displays,
     flat_screen_sweep,
@@ -129,6 +131,31 @@ class OpenedRun:
             explicit=explicit,
             device=device,
         )
+
+
+def design_depths_m(cfg, compensations: Iterable[str], depths_mm: Sequence[float] | None = None) -> np.ndarray:
+    """The distinct depths (m, ascending; equal to :data:`~edofproj.methods.designs.DEPTH_KEY_RESOLUTION_M`)
+    at which :func:`evaluate_run` simulates the PSFs of one design whose methods use ``compensations``
+    (:attr:`~edofproj.methods.catalogue.MethodSpec.compensation`): the flat-screen sweep (``depths_mm``,
+    default ``evaluation.depths_mm``), the in-focus depth (timing), the tilted screen's layers and centre,
+    and the compensations' own: the Wiener NSR tuning depths (``wiener``, ``ensemble``), the depth-ensemble
+    filter's depths (``ensemble``) and a guarded network's (``net``, with ``evaluation.display_guard``).
+    What the 2-D engine costs an evaluation is this count times its seconds per depth."""
+    compensations = set(compensations)
+    near_mm, far_mm = score_range_mm(cfg)
+    sweep_mm = depths_mm if depths_mm is not None else cfg.evaluation.depths_mm
+    tilted = TiltedScreen(cfg, 2, 2)
+    parts = [np.asarray(sweep_mm, dtype=float) * 1e-3, [cfg.optics.focus_m, tilted.centre_m], tilted.layers_m]
+    if compensations & {"wiener", "ensemble"}:
+        parts.append(np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3)
+    if "ensemble" in compensations:
+        parts.append(ensemble_depths_m(cfg))
+    if "net" in compensations and cfg.evaluation.display_guard:
+        parts.append(guard_depths_m(near_mm * 1e-3, far_mm * 1e-3))
+    keys = np.unique(
+        np.round(np.concatenate([np.atleast_1d(np.asarray(p, dtype=float)) for p in parts]) / DEPTH_KEY_RESOLUTION_M)
+    )
+    return keys * DEPTH_KEY_RESOLUTION_M
 
 
 def open_run(run_dir: str | Path, out_dir: str | Path | None, overrides: Sequence[str] = ()) -> OpenedRun:
