@@ -11,7 +11,8 @@ from edofproj.application import demo
 from edofproj.application.durations import FULL_BUDGET_MIN, FULL_DURATION, QUICK_DURATION
 from edofproj.cli import build_parser
 from edofproj.config import load_config
-from edofproj.runs import load_run
+from edofproj.methods.builder import require_trained_run
+from edofproj.runs import load_run, saved_config
 
 
 def _jobs(tmp_path, **kwargs):
@@ -50,6 +51,20 @@ def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, m
     assert "doe+net" not in jobs
     assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {demo.OURS_DEMO_STEPS}
     assert jobs["lens+onlineprodeb"].steps == load_config("cpu").train.steps
+    # the preset's tuned elements, which the pretrained (learned-DOE) run never reads: its baselines train with
+    # them, and the copy that stands for doe+net builds its classic linear baselines with them
+    preset = load_config("cpu").doe
+    trained_with = load_config(
+        str(require_trained_run("builtin:cpu-doe-net") / "config.yaml"), jobs["cubic+net"].overrides
+    )
+    copied = saved_config(tmp_path / "d" / demo.OURS_RUN_DIR)
+    for doe in (trained_with.doe, copied.doe):
+        assert (doe.cubic_waves, doe.axicon_near_mm, doe.axicon_far_mm) == (
+            preset.cubic_waves,
+            preset.axicon_near_mm,
+            preset.axicon_far_mm,
+        )
+    assert copied.doe.kind == "mlp" and copied.net == saved_config(require_trained_run("builtin:cpu-doe-net")).net
 
 
 def test_a_user_step_count_applies_to_every_run(tmp_path):

@@ -100,5 +100,10 @@ def test_a_classic_baseline_run_of_the_configured_element_shares_its_design():
         assert not same_classic_element(other_cfg, cfg, "cubic"), other
         own = builder.baseline_design(method_spec("cubic+net"), types.SimpleNamespace(cfg=other_cfg, doe=run.doe))
         assert own is not shared and own.key == "cubic_net"
+    # a plate of other parameters is named in the notes (the cubic methods then compare two plates); another
+    # pupil sampling of the same plate is not
+    assert builder.notes[0].startswith("cubic+net: its run's cubic is not the one the evaluated configuration")
+    assert "(doe.cubic_waves=20.0 (the configuration: 5.0))" in builder.notes[0]
+    assert len(builder.notes) == 3 and not any("pupil_samples" in note for note in builder.notes)
     axicon = load_config("cpu", ["doe.kind=axicon", "doe.cubic_waves=20"])  # an axicon does not read the plate's key
     assert same_classic_element(axicon, cfg, "axicon") and not same_classic_element(axicon, cfg, "cubic")

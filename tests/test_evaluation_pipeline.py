@@ -165,6 +165,21 @@ def test_evaluate_refuses_to_change_the_trained_config(runs, capsys):
     assert "evaluation" in capsys.readouterr().err
 
 
+def test_evaluate_may_set_the_classic_elements_a_run_does_not_read():
+    """A learned DOE's run never reads ``doe.cubic_waves``: ``--set`` chooses the plate of ``cubic+wiener``;
+    a cubic run was trained with its plate, which stays."""
+    from edofproj.errors import EdofprojError
+    from edofproj.evaluation.pipeline import evaluation_config
+
+    learned = load_config("cpu")
+    assert evaluation_config(learned, ["doe.cubic_waves=7", "doe.axicon_far_mm=600"]).doe.cubic_waves == 7.0
+    cubic = load_config("cpu", ["doe.kind=cubic"])
+    assert evaluation_config(cubic, ["doe.axicon_near_mm=400"]).doe.axicon_near_mm == 400.0
+    for key in ("doe.cubic_waves=7", "doe.kind=axicon", "doe.levels=8"):
+        with pytest.raises(EdofprojError, match="doe.kind=cubic run does not read"):
+            evaluation_config(cubic, [key])
+
+
 def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
     write_image(tmp_path / "target.png", torch.rand(3, 40, 50))
     write_image(tmp_path / "capture.png", torch.rand(3, 38, 50))

@@ -185,7 +185,7 @@ def test_each_design_is_drawn_with_its_best_blind_and_non_blind_method(monkeypat
     assert best[0].mean == pytest.approx(0.70) and best[3].mean == pytest.approx(0.905)
     caption = designs_caption(best, (300.0, 800.0))
     assert "bare lens: `lens+net` (blind, 0.700), `lens+wiener` (non-blind, 0.810)" in caption
-    assert "cubic phase plate: `cubic+ensemble` (blind, 0.765); no non-blind method evaluated" in caption
+    assert "cubic phase plate: `cubic+ensemble` (blind, 0.765), no non-blind method evaluated" in caption
     assert "axicon" not in caption and "300-800 mm" in caption
 
     kept = saved_figures(monkeypatch)

@@ -45,7 +45,7 @@ from ..builtin_runs import BUILTIN_RUNS, PREFIX
 from ..config import STATEMENT_KEYS, apply_overrides, load_config, to_dict, unread_doe_keys
 from ..errors import EdofprojError
 from ..evaluation import timing
-from ..evaluation.pipeline import EVALUATION_OVERRIDE_PREFIXES, Evaluation, design_depths_m, evaluate_run
+from ..evaluation.pipeline import Evaluation, design_depths_m, evaluate_run, is_evaluation_key
 from ..evaluation.scenes import evaluate_scenes
 from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
@@ -450,6 +450,14 @@ def timing_section(results, threads: int, evaluated_hw: tuple[int, int] | None =
     ]
 
 
+def preset_elements(preset, run_config: str | Path) -> list[str]:
+    """``doe.KEY=VALUE`` overrides that give the configuration ``run_config`` (a trained run's) the classic
+    elements of ``preset`` (tuned for its projector and range), for the keys its DOE never reads
+    (:func:`~edofproj.config.unread_doe_keys`): its baselines and their linear filters then use them."""
+    kind = load_config(str(run_config)).doe.kind
+    return [f"doe.{key}={getattr(preset.doe, key)}" for key in unread_doe_keys(kind)]
+
+
 @dataclass(frozen=True)
 class PretrainedOurs:
     """A trained run that stands for ``doe+net`` in a demo: where it came from and its steps."""
@@ -460,13 +468,15 @@ class PretrainedOurs:
 
 def copy_pretrained(source: str | Path, run_dir: Path, overrides: Sequence[str]) -> PretrainedOurs:
     """Copy the trained run ``source`` (a directory or ``builtin:NAME``) to ``run_dir``, applying the
-    evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``) to its
-    configuration; the rest of the configuration is what the run was trained with (written in the
+    evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``, and the
+    classic elements' keys its DOE never reads: :func:`~edofproj.evaluation.pipeline.is_evaluation_key`) to
+    its configuration; the rest of the configuration is what the run was trained with (written in the
     current format: a configuration of an older one is converted once, here)."""
     source_dir = require_trained_run(source)
     shutil.copytree(source_dir, run_dir, ignore=shutil.ignore_patterns(".*"))
-    evaluation_keys = [o for o in overrides if o.split("=", 1)[0].strip().startswith(EVALUATION_OVERRIDE_PREFIXES)]
-    write_run_config(run_dir, apply_overrides(saved_config(source_dir), evaluation_keys))
+    trained = saved_config(source_dir)
+    evaluation_keys = [o for o in overrides if is_evaluation_key(o.split("=", 1)[0], trained)]
+    write_run_config(run_dir, apply_overrides(trained, evaluation_keys))
     return PretrainedOurs(str(source), int(load_run(run_dir).step))
 
 
@@ -526,9 +536,10 @@ def run_demo(
     user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in overrides)
     if pretrained is not None:
         # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
-        # train with its configuration, for the preset's steps (those of EQUAL_STEP_BASELINES: ours_steps)
+        # train with its configuration, for the preset's steps (those of EQUAL_STEP_BASELINES: ours_steps),
+        # with the preset's classic elements where the pretrained run's DOE does not read them
         training_config = str(require_trained_run(pretrained) / "config.yaml")
-        overrides = [f"train.steps={cfg.train.steps}", *overrides]
+        overrides = [f"train.steps={cfg.train.steps}", *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(
         out,

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from ..builtin_runs import require_output_outside
-from ..config import Config, apply_overrides
+from ..config import Config, apply_overrides, unread_doe_keys
 from ..data import evaluation_images
 from ..data.validation import validation_images
 from ..errors import EdofprojError
@@ -58,8 +58,18 @@ from .timing import time_methods
 
 METRICS_NAME = "metrics.csv"
 TILTED_METRICS_NAME = "tilted_metrics.csv"
-#: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained).
+#: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained), with the
+#: classic elements' keys that the run's DOE never reads (:func:`is_evaluation_key`).
 EVALUATION_OVERRIDE_PREFIXES = ("evaluation.", "imaging.", "data.max_test_images")
+
+
+def is_evaluation_key(key: str, cfg) -> bool:
+    """True when ``evaluate --set KEY=...`` may change ``key`` of a run trained with ``cfg``: an evaluation key
+    (:data:`EVALUATION_OVERRIDE_PREFIXES`), or a classic element's ``doe`` key that the run's DOE never reads
+    (:func:`~edofproj.config.unread_doe_keys`: it sets the element of the ``X``, ``X+wiener``, ``X+ensemble``
+    baselines, e.g. ``doe.cubic_waves`` for a learned DOE's run)."""
+    key = key.strip()
+    return key.startswith(EVALUATION_OVERRIDE_PREFIXES) or key in {f"doe.{k}" for k in unread_doe_keys(cfg.doe.kind)}
 
 
 @dataclass
@@ -98,13 +108,14 @@ class Evaluation:
 
 
 def evaluation_config(cfg, overrides: Sequence[str] = ()):
-    """The run's config with ``--set`` overrides of the evaluation keys only."""
+    """The run's config with ``--set`` overrides of the evaluation keys only (:func:`is_evaluation_key`)."""
     for item in overrides or ():
         key = item.split("=", 1)[0].strip()
-        if not key.startswith(EVALUATION_OVERRIDE_PREFIXES):
+        if not is_evaluation_key(key, cfg):
             raise EdofprojError(
-                f"--set {key}: evaluate only changes evaluation.*, imaging.* and data.max_test_images "
-                "(the rest is the run's trained configuration)"
+                f"--set {key}: evaluate only changes evaluation.*, imaging.*, data.max_test_images and the classic "
+                f"elements' doe keys that a doe.kind={cfg.doe.kind} run does not read (the rest is the run's "
+                "trained configuration)"
             )
     return apply_overrides(cfg, overrides) if overrides else cfg
 

@@ -54,19 +54,25 @@ SHARED_SECTIONS = ("optics", "spectrum")
 ELEMENT_DOE_KEYS = ("levels", "quantize", "design_wavelength_nm", "material")
 
 
-def same_classic_element(baseline_cfg, cfg, kind: str) -> bool:
-    """True when the DOE of a baseline run trained with ``baseline_cfg`` is the classic element ``kind``
+def classic_element_difference(baseline_cfg, cfg, kind: str) -> str | None:
+    """None when the DOE of a baseline run trained with ``baseline_cfg`` is the classic element ``kind``
     that ``cfg`` builds: the same kind and parameters, no design rules applied, and its fabricated file
     (``doe.npz``) sampled as ``cfg`` samples the pupil -- then both have the same PSFs (sampled on the
-    same pupil grid, the tabulated heights are the analytic ones)."""
-    a, b = baseline_cfg.doe, cfg.doe
-    keys = ELEMENT_DOE_KEYS + CLASSIC_DOE_KEYS[kind]
-    return (
-        a.kind == kind
-        and a.min_feature_um == 0
-        and baseline_cfg.psf.pupil_samples == cfg.psf.pupil_samples
-        and all(getattr(a, key) == getattr(b, key) for key in keys)
-    )
+    same pupil grid, the tabulated heights are the analytic ones). Else the first difference, as
+    ``key=run's value (the configuration: value)``."""
+    pairs = [("doe.kind", baseline_cfg.doe.kind, kind), ("doe.min_feature_um", baseline_cfg.doe.min_feature_um, 0)]
+    pairs += [(f"doe.{k}", getattr(baseline_cfg.doe, k), getattr(cfg.doe, k)) for k in ELEMENT_DOE_KEYS]
+    pairs += [(f"doe.{k}", getattr(baseline_cfg.doe, k), getattr(cfg.doe, k)) for k in CLASSIC_DOE_KEYS[kind]]
+    pairs.append(("psf.pupil_samples", baseline_cfg.psf.pupil_samples, cfg.psf.pupil_samples))
+    for key, run_value, value in pairs:
+        if run_value != value:
+            return f"{key}={run_value} (the configuration: {value})"
+    return None
+
+
+def same_classic_element(baseline_cfg, cfg, kind: str) -> bool:
+    """True when :func:`classic_element_difference` finds none."""
+    return classic_element_difference(baseline_cfg, cfg, kind) is None
 
 
 @dataclass
@@ -198,8 +204,15 @@ class MethodBuilder:
         with the evaluated configuration's parameters (:func:`same_classic_element`: one design, each PSF
         simulated once for all of the element's methods), else its own DOE."""
         kind = baseline.cfg.doe.kind
-        if kind in CLASSIC_ELEMENTS and same_classic_element(baseline.cfg, self.cfg, kind):
-            return self.classic_design(kind)
+        if kind in CLASSIC_ELEMENTS:
+            difference = classic_element_difference(baseline.cfg, self.cfg, kind)
+            if difference is None:
+                return self.classic_design(kind)
+            if not difference.startswith("psf."):  # a different element, not just sampled otherwise
+                self.notes.append(
+                    f"{spec.name}: its run's {kind} is not the one the evaluated configuration builds for the "
+                    f"{kind}'s linear baselines ({difference}); `evaluate --set doe.KEY=VALUE` sets theirs"
+                )
         if spec.run_dir is None:
             raise EdofprojError(f"method {spec.name} has no separate run")
         return self.design(spec.run_dir, spec.design, baseline.doe)

@@ -74,7 +74,7 @@ def designs_caption(best: list[DesignBest], range_mm: tuple[float, float], metri
         named = ", ".join(f"`{b.method}` ({b.kind}, {b.mean:.3f})" for b in chosen)
         missing = [k for k in KINDS if k not in {b.kind for b in chosen}]
         if missing:
-            named += f"; no {missing[0]} method evaluated"
+            named += f", no {missing[0]} method evaluated"
         parts.append(f"{DESIGN_LABELS[design]}: {named}")
     return (
         f"{metric} against screen depth of every optical design with its best blind (solid) and its best "
