@@ -19,8 +19,9 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 3. **timing** -- milliseconds per compensated frame (:mod:`edofproj.evaluation.timing`), and one scene,
    :data:`DEMO_SCENE` (a sphere in front of a wall: a depth edge), scored on the first held-out
    image at the panel size (:mod:`edofproj.evaluation.scenes`; the quick demo scores only
-   ``lens``, ``doe`` and ``doe+net`` there, the full one every method but the classic linear baselines), and one textured surface, :data:`DEMO_SURFACE`, with the
-   photometric variants of the blind methods (:mod:`edofproj.evaluation.surfaces`);
+   ``lens``, ``doe`` and ``doe+net`` there, the full one every method but the classic linear
+   baselines), and one textured surface, :data:`DEMO_SURFACE`, with the photometric variants of the
+   blind methods (:mod:`edofproj.evaluation.surfaces`);
 4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
    ``metrics.csv``, with the paper's claims (:mod:`edofproj.reporting.claims`) measured on the held-out images.
 
@@ -341,9 +342,9 @@ RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "tr
 
 
 def recipe_difference(shipped, expected) -> str | None:
-    """The first config key (outside :data:`RECIPE_IGNORED`, and but for the classic elements' keys that
-    neither run's DOE reads: :func:`~edofproj.config.unread_doe_keys`) where the shipped run's configuration
-    differs from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
+    """The first config key (outside :data:`RECIPE_IGNORED` and the classic elements' keys that neither
+    run's DOE reads, :func:`~edofproj.config.unread_doe_keys`) where the shipped run's configuration differs
+    from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
     a, b = flatten_keys(to_dict(shipped)), flatten_keys(to_dict(expected))
     unread = {f"doe.{key}" for key in unread_doe_keys(shipped.doe.kind)} & {
         f"doe.{key}" for key in unread_doe_keys(expected.doe.kind)
