@@ -12,7 +12,7 @@ from edofproj.cli import main
 from edofproj.config import Config, apply_overrides
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.classic_optics import current_candidate, parse_candidates
-from edofproj.methods.catalogue import METHOD_NAMES, select_methods
+from edofproj.methods.catalogue import METHOD_NAMES, method_spec, select_methods
 from tiny_configs import TINY_EVALUATION
 
 
@@ -43,11 +43,13 @@ def test_bad_candidates_are_one_line(kind, text, message):
         parse_candidates(kind, text)
 
 
-def test_the_classic_linear_baselines_are_named_but_not_scored_by_default():
+def test_the_classic_compensated_linear_baselines_are_scored_by_default_the_bare_elements_by_name():
+    default = {spec.name for spec in select_methods(None)}
     for kind in ("cubic", "axicon", "multifocal"):
         assert {kind, f"{kind}+wiener", f"{kind}+ensemble"} <= set(METHOD_NAMES)
-    default = {spec.name for spec in select_methods(None)}
-    assert "doe+net" in default and "cubic+ensemble" not in default
+        assert {f"{kind}+wiener", f"{kind}+ensemble"} <= default and kind not in default
+        assert method_spec(f"{kind}+ensemble").blind and not method_spec(f"{kind}+wiener").blind
+    assert "doe+net" in default
     assert current_candidate(Config(), "axicon") == "300-800 mm"
 
 

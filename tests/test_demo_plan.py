@@ -11,7 +11,8 @@ from edofproj.application import demo
 from edofproj.application.durations import FULL_BUDGET_MIN, FULL_DURATION, QUICK_DURATION
 from edofproj.cli import build_parser
 from edofproj.config import load_config
-from edofproj.runs import load_run
+from edofproj.methods.builder import require_trained_run
+from edofproj.runs import load_run, saved_config
 
 
 def _jobs(tmp_path, **kwargs):
@@ -19,16 +20,51 @@ def _jobs(tmp_path, **kwargs):
     return demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [], **kwargs)
 
 
-def test_ours_trains_the_demo_steps_and_the_baselines_the_preset_steps(tmp_path):
+def test_ours_and_every_u_net_baseline_train_the_same_steps_onlineprodeb_the_preset_steps(tmp_path):
     jobs = {job.method: job for job in _jobs(tmp_path)}
-    assert (
-        jobs["doe+net"].steps == demo.OURS_DEMO_STEPS
-        and f"train.steps={demo.OURS_DEMO_STEPS}" in jobs["doe+net"].overrides
-    )
+    for method in ("doe+net", "lens+net", "axicon+net", "cubic+net"):  # the same network: equal training
+        job = jobs[method]
+        assert job.steps == demo.OURS_DEMO_STEPS and f"train.steps={demo.OURS_DEMO_STEPS}" in job.overrides, method
     preset_steps = load_config("cpu").train.steps
-    for method in ("lens+net", "axicon+net", "cubic+net", "lens+onlineprodeb"):
-        assert jobs[method].steps == preset_steps
+    assert preset_steps != demo.OURS_DEMO_STEPS
+    onlineprodeb = jobs["lens+onlineprodeb"]  # another architecture at 8.5x the cost per step
+    assert onlineprodeb.steps == preset_steps and not any(o.startswith("train.steps") for o in onlineprodeb.overrides)
     assert [m for m, j in jobs.items() if j.required] == ["doe+net", "lens+net"]
+    assert demo.steps_sentence(list(jobs.values())) == (
+        "2400 training steps for doe+net, lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb"
+    )
+
+
+def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, monkeypatch):
+    """With ``--pretrained`` the baselines train with the pretrained run's configuration, for the steps of
+    a demo without it (so that the shipped runs still stand for them)."""
+    seen = {}
+
+    def plan(self):
+        seen["jobs"] = {job.method: job for job in self.jobs}
+        raise KeyboardInterrupt  # only the plan is under test
+
+    monkeypatch.setattr(demo.ParallelTrainer, "plan", plan)
+    with pytest.raises(KeyboardInterrupt):
+        demo.run_demo(tmp_path / "d", pretrained="builtin:cpu-doe-net")
+    jobs = seen["jobs"]
+    assert "doe+net" not in jobs
+    assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {demo.OURS_DEMO_STEPS}
+    assert jobs["lens+onlineprodeb"].steps == load_config("cpu").train.steps
+    # the preset's tuned elements, which the pretrained (learned-DOE) run never reads: its baselines train with
+    # them, and the copy that stands for doe+net builds its classic linear baselines with them
+    preset = load_config("cpu").doe
+    trained_with = load_config(
+        str(require_trained_run("builtin:cpu-doe-net") / "config.yaml"), jobs["cubic+net"].overrides
+    )
+    copied = saved_config(tmp_path / "d" / demo.OURS_RUN_DIR)
+    for doe in (trained_with.doe, copied.doe):
+        assert (doe.cubic_waves, doe.axicon_near_mm, doe.axicon_far_mm) == (
+            preset.cubic_waves,
+            preset.axicon_near_mm,
+            preset.axicon_far_mm,
+        )
+    assert copied.doe.kind == "mlp" and copied.net == saved_config(require_trained_run("builtin:cpu-doe-net")).net
 
 
 def test_a_user_step_count_applies_to_every_run(tmp_path):
@@ -41,19 +77,31 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
     assert all(job.required for job in _jobs(tmp_path, retrain_baselines=True))
 
 
-def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path):
+#: The shipped runs of the cubic plate and the axicon predate the tuned elements of the preset and the
+#: demo's equal steps: until they are retrained with them, the demo does not use them.
+PENDING_RETRAINING = pytest.mark.xfail(
+    strict=True, reason="builtin:demo-cubic-net and demo-axicon-net are to be retrained (tuned element, 2400 steps)"
+)
+
+
+@pytest.mark.parametrize(
+    "method",
+    [
+        pytest.param("axicon+net", marks=PENDING_RETRAINING),
+        pytest.param("cubic+net", marks=PENDING_RETRAINING),
+        "lens+onlineprodeb",
+    ],
+)
+def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path, method):
     jobs = _jobs(tmp_path)
-    by_method = {job.method: job for job in jobs}
-    for method in ("axicon+net", "cubic+net", "lens+onlineprodeb"):
-        by_method[method].status = "skipped"
-        by_method[method].note = "not trained: predicted 5:00 (min:s) would end after the time budget"
+    job = next(job for job in jobs if job.method == method)
+    job.status = "skipped"
+    job.note = "not trained: predicted 5:00 (min:s) would end after the time budget"
     demo.use_builtin_baselines(jobs, ["evaluation.depths_mm=[300,800]"], "cpu")
-    for method in ("axicon+net", "cubic+net", "lens+onlineprodeb"):  # shipped, trained with the preset as it is
-        job = by_method[method]
-        assert job.status == "built-in", job.note
-        assert f"builtin:{demo.BUILTIN_BASELINES[method]}" in job.note and "--retrain-baselines" in job.note
-        assert load_run(job.run_dir).step == load_config("cpu").train.steps
-        assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
+    assert job.status == "built-in", job.note  # shipped, trained with the preset as it is
+    assert f"builtin:{demo.BUILTIN_BASELINES[method]}" in job.note and "--retrain-baselines" in job.note
+    assert load_run(job.run_dir).step == job.steps
+    assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
 
 
 def test_a_shipped_run_of_another_recipe_is_not_used(tmp_path, monkeypatch):
@@ -65,6 +113,28 @@ def test_a_shipped_run_of_another_recipe_is_not_used(tmp_path, monkeypatch):
     assert cubic.status == "skipped"
     assert "its shipped run builtin:cpu-doe-net was trained with another recipe: " in cubic.note
     assert not Path(cubic.run_dir).exists()
+
+
+def test_recipe_difference_ignores_the_classic_keys_that_neither_runs_doe_reads():
+    old_elements = ["doe.cubic_waves=20", "doe.axicon_near_mm=300", "doe.axicon_far_mm=800"]
+    for kind in ("lens", "mlp", "multifocal"):  # never read the cubic plate's or the axicon's keys
+        shipped = load_config("cpu", [f"doe.kind={kind}", *old_elements])
+        assert demo.recipe_difference(shipped, load_config("cpu", [f"doe.kind={kind}"])) is None, kind
+    cubic = load_config("cpu", ["doe.kind=cubic", *old_elements])  # a cubic run reads its strength
+    assert demo.recipe_difference(cubic, load_config("cpu", ["doe.kind=cubic"])) == (
+        "doe.cubic_waves=20.0 (the demo: 5.0)"
+    )
+    axicon = load_config("cpu", ["doe.kind=axicon", "doe.cubic_waves=20"])  # ... an axicon its focal line only
+    assert demo.recipe_difference(axicon, load_config("cpu", ["doe.kind=axicon"])) is None
+    assert demo.recipe_difference(
+        load_config("cpu", ["doe.kind=axicon", *old_elements]), load_config("cpu", ["doe.kind=axicon"])
+    ) == ("doe.axicon_far_mm=800.0 (the demo: 530.0)")
+    multifocal = load_config("cpu", ["doe.kind=multifocal", "doe.multifocal_foci_mm=[300,800]"])
+    assert demo.recipe_difference(multifocal, load_config("cpu", ["doe.kind=multifocal"])).startswith(
+        "doe.multifocal_foci_mm="
+    )
+    lens = load_config("cpu", ["doe.kind=lens"])  # another kind: the kind itself differs
+    assert demo.recipe_difference(lens, load_config("cpu", ["doe.kind=cubic"])) == "doe.kind='lens' (the demo: 'cubic')"
 
 
 def test_recipe_difference_ignores_bookkeeping_and_names_the_first_real_difference():

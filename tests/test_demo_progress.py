@@ -11,7 +11,9 @@ from pathlib import Path
 from edofproj.application import demo
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.config import load_config
+from edofproj.methods.builder import require_trained_run
 from edofproj.progress import StageProgress, format_duration
+from edofproj.runs import saved_config
 
 SRC = Path(__file__).parents[1] / "src" / "edofproj"
 
@@ -37,7 +39,7 @@ def full_demo_trainer(tmp_path, stream, workers=2) -> ParallelTrainer:
     """The full demo's jobs and budget on the development machine's predicted rate (0.1 s/step)."""
     cfg = load_config("cpu", list(demo.FULL.overrides))
     jobs = demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [])
-    later = demo.FULL.evaluation_estimate_s + demo.TIMING_ESTIMATE_S["full"]
+    later = demo.evaluation_seconds(demo.FULL, cfg, demo.demo_methods(demo.FULL, None)) + demo.TIMING_ESTIMATE_S["full"]
     deadline = time.perf_counter() + demo.FULL.budget_s - later - demo.REPORT_MARGIN_S
     progress = StageProgress("demo", stream=stream)
     return ParallelTrainer(jobs, "cpu", tmp_path / "logs", workers, deadline, progress, later_s=later)
@@ -54,7 +56,7 @@ def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_
         assert f"{job.method}: not trained: predicted " in printed
     assert [job.status for job in trainer.jobs[:2]] == ["pending", "pending"]
     line = demo.plan_line(trainer.jobs)
-    assert line.startswith("plan: trains doe+net (2400 steps), lens+net (1800 steps)")
+    assert line.startswith("plan: trains doe+net (2400 steps), lens+net (2400 steps)")
     assert "leaves out axicon+net, cubic+net, lens+onlineprodeb" in line
     # once planned, the loop skips no more at the predicted rate: the job each free slot takes is a planned one
     assert trainer.next_job() is trainer.jobs[0]
@@ -64,7 +66,10 @@ def test_a_baseline_that_fits_is_planned_and_trained(tmp_path):
     trainer = full_demo_trainer(tmp_path, io.StringIO())
     trainer.deadline += 3600.0  # an hour more: every baseline fits
     assert trainer.plan() == []
-    assert demo.plan_line(trainer.jobs).startswith("plan: trains doe+net (2400 steps), lens+net (1800 steps), axicon")
+    assert demo.plan_line(trainer.jobs).startswith(
+        "plan: trains doe+net (2400 steps), lens+net (2400 steps), axicon+net (2400 steps), cubic+net (2400 steps), "
+        "lens+onlineprodeb (1800 steps)"
+    )
 
 
 def write_log(run_dir: Path, steps: int, seconds_per_step: float = 0.1) -> None:
@@ -108,6 +113,19 @@ def test_the_demo_prints_its_plan_before_training(tmp_path, monkeypatch):
     except KeyboardInterrupt:
         pass
     printed = seen["printed"]
-    assert "demo | plan: trains doe+net (2400 steps), lens+net (1800 steps)" in printed
+    assert "demo | plan: trains doe+net (2400 steps), lens+net (2400 steps)" in printed
     assert printed.index("plan:") < printed.index("stage 1/4 training")
-    assert "takes axicon+net, cubic+net, lens+onlineprodeb from the shipped runs" in printed
+    # each baseline not trained comes from its shipped run when that has the demo's recipe, else is left out
+    cfg = load_config("cpu", list(demo.FULL.overrides))
+    jobs = {job.method: job for job in demo.demo_jobs(tmp_path / "plan", demo.FULL, cfg, None, [])}
+    shipped = [
+        method
+        for method in ("axicon+net", "cubic+net", "lens+onlineprodeb")
+        if demo.recipe_difference(
+            saved_config(require_trained_run(f"builtin:{demo.BUILTIN_BASELINES[method]}")),
+            load_config("cpu", jobs[method].overrides),
+        )
+        is None
+    ]
+    assert "lens+onlineprodeb" in shipped  # its shipped run has the recipe (lens: the classic keys are not read)
+    assert f"takes {', '.join(shipped)} from the shipped runs" in printed

@@ -77,3 +77,33 @@ def test_time_methods_times_every_method_as_evaluated():
     assert list(times) == ["doe", "lens+cls", "doe+net"] and all(t >= 0 for t in times.values())
     assert times["lens+cls"] > times["doe"]
     assert len(calls) == 4 and calls[0] == (1, 3, 64, 64)  # one untimed call, then 3 timed
+
+
+def test_a_classic_baseline_run_of_the_configured_element_shares_its_design():
+    """``cubic+net``'s run holds the cubic plate of the evaluated configuration: one design for every cubic
+    method (its 2-D PSFs simulated once); a plate of another strength or sampling keeps its own design."""
+    from pathlib import Path
+
+    from edofproj.config import load_config
+    from edofproj.doe import build_doe
+    from edofproj.methods.builder import MethodBuilder, same_classic_element
+
+    cfg = load_config("cpu")
+    builder = MethodBuilder(None, cfg, Path("."), explicit=True)
+    shared = builder.classic_design("cubic")
+    same = load_config("cpu", ["doe.kind=cubic", "train.steps=5"])  # the element is what matters, not training
+    run = types.SimpleNamespace(cfg=same, doe=build_doe(same))
+    assert same_classic_element(same, cfg, "cubic")
+    assert builder.baseline_design(method_spec("cubic+net"), run) is shared
+    for other in (["doe.cubic_waves=20"], ["psf.pupil_samples=2048"], ["doe.levels=8"], ["doe.min_feature_um=2"]):
+        other_cfg = load_config("cpu", ["doe.kind=cubic", *other])
+        assert not same_classic_element(other_cfg, cfg, "cubic"), other
+        own = builder.baseline_design(method_spec("cubic+net"), types.SimpleNamespace(cfg=other_cfg, doe=run.doe))
+        assert own is not shared and own.key == "cubic_net"
+    # a plate of other parameters is named in the notes (the cubic methods then compare two plates); another
+    # pupil sampling of the same plate is not
+    assert builder.notes[0].startswith("cubic+net: its run's cubic is not the one the evaluated configuration")
+    assert "(doe.cubic_waves=20.0 (the configuration: 5.0))" in builder.notes[0]
+    assert len(builder.notes) == 3 and not any("pupil_samples" in note for note in builder.notes)
+    axicon = load_config("cpu", ["doe.kind=axicon", "doe.cubic_waves=20"])  # an axicon does not read the plate's key
+    assert same_classic_element(axicon, cfg, "axicon") and not same_classic_element(axicon, cfg, "cubic")

@@ -128,10 +128,20 @@ def test_summary_mentions_skipped_and_unavailable(runs, tmp_path):
 def test_missing_baseline_is_a_note_unless_requested(runs, tmp_path, capsys):
     out = tmp_path / "ev"
     assert main(["evaluate", str(runs / "doe_net"), "--out", str(out), "--quiet", "--depths-mm", "500"]) == 0
-    assert "axicon+net skipped" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "axicon+net skipped" in err
+    # a classic element its pupil sampling cannot resolve is a note too (the tiny run's 384 samples)
+    assert "cubic+wiener skipped: pupil_samples=384 cannot resolve the cubic phase" in err
+    evaluated = {row["method"] for row in read_rows(out / "metrics.csv")[1]}
+    assert "cubic+wiener" not in evaluated and {"lens", "doe+net"} <= evaluated
     code = main(["evaluate", str(runs / "doe_net"), "--methods", "axicon+net", "--quiet"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "axicon_net" in err
+    code = main(
+        ["evaluate", str(runs / "doe_net"), "--methods", "cubic+wiener", "--quiet", "--out", str(tmp_path / "c")]
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "pupil_samples=384 cannot resolve" in err  # asked by name
 
 
 def test_unknown_method_is_one_line_listing_the_known_ones(runs, capsys):
@@ -153,6 +163,21 @@ def test_run_without_checkpoint_is_one_line(tmp_path, capsys):
 def test_evaluate_refuses_to_change_the_trained_config(runs, capsys):
     assert main(["evaluate", str(runs / "doe_net"), "--set", "net.widths=[8,16]"]) == 2
     assert "evaluation" in capsys.readouterr().err
+
+
+def test_evaluate_may_set_the_classic_elements_a_run_does_not_read():
+    """A learned DOE's run never reads ``doe.cubic_waves``: ``--set`` chooses the plate of ``cubic+wiener``;
+    a cubic run was trained with its plate, which stays."""
+    from edofproj.errors import EdofprojError
+    from edofproj.evaluation.pipeline import evaluation_config
+
+    learned = load_config("cpu")
+    assert evaluation_config(learned, ["doe.cubic_waves=7", "doe.axicon_far_mm=600"]).doe.cubic_waves == 7.0
+    cubic = load_config("cpu", ["doe.kind=cubic"])
+    assert evaluation_config(cubic, ["doe.axicon_near_mm=400"]).doe.axicon_near_mm == 400.0
+    for key in ("doe.cubic_waves=7", "doe.kind=axicon", "doe.levels=8"):
+        with pytest.raises(EdofprojError, match="doe.kind=cubic run does not read"):
+            evaluation_config(cubic, [key])
 
 
 def test_compensate_size_mismatch_names_both_sizes(runs, tmp_path, capsys):
@@ -289,3 +314,41 @@ def test_depths_outside_the_score_range_are_stated_never_a_table_of_na(runs, tmp
             assert "depths 1500, 3000 mm lie outside the score range 300-800 mm" in err
             assert "depths 1500, 3000 mm lie outside the range the run was trained on, 300-800 mm" in err
             assert "outside the score range" in summary
+
+
+def test_the_report_draws_each_design_with_its_best_blind_and_non_blind_method(evaluated):
+    assert (evaluated / "figures" / "eval_designs_vs_depth.png").stat().st_size > 1000
+    cfg = load_config(None, TINY)
+    lo, hi = cfg.psf.depth_min_mm, cfg.psf.depth_max_mm  # the score range: the training range here
+    _, rows = read_rows(evaluated / "metrics.csv")
+
+    def mean_ssim(method):
+        depths = sorted({float(r["depth_mm"]) for r in rows if lo <= float(r["depth_mm"]) <= hi})
+        per_depth = [
+            np.mean([float(r["ssim"]) for r in rows if r["method"] == method and float(r["depth_mm"]) == z])
+            for z in depths
+        ]
+        return float(np.mean(per_depth))
+
+    report = " ".join((evaluated / "report.md").read_text().split())
+    assert "Each optical design at its best" in report and "](figures/eval_designs_vs_depth.png)" in report
+    for design, kind, candidates in (
+        ("bare lens", "blind", ("lens", "lens+net")),
+        ("bare lens", "non-blind", ("lens+wiener", "lens+cls")),
+        ("learned DOE", "blind", ("doe", "doe+ensemble", "doe+net")),
+        ("learned DOE", "non-blind", ("doe+wiener",)),
+    ):
+        best = max(candidates, key=mean_ssim)
+        assert f"`{best}` ({kind}, {mean_ssim(best):.3f})" in report, (design, kind, best)
+
+
+def test_an_evaluation_simulates_each_design_at_the_depths_its_cost_is_counted_for(runs, tmp_path):
+    """:func:`design_depths_m` (what the demo's time predictor counts for the cubic plate) is the set of
+    depths at which the evaluation simulates a design, compensation by compensation."""
+    from edofproj.evaluation.pipeline import design_depths_m, evaluate_run
+
+    ev = evaluate_run(runs / "doe_net", out_dir=tmp_path, methods=["lens", "lens+wiener", "doe", "doe+ensemble"])
+    for key, compensations in (("lens", {"none", "wiener"}), ("run", {"none", "ensemble"})):
+        simulated = sorted(ev.designs[key]._cache)
+        counted = [int(k) for k in np.round(design_depths_m(ev.cfg, compensations) * 1e6)]
+        assert simulated == counted, key

@@ -10,7 +10,14 @@ import pytest
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.errors import EdofprojError
 from edofproj.evaluation.results import MetricsTable
-from edofproj.methods.catalogue import BASELINE_RUN_DIRS, METHOD_NAMES, METHODS, method_spec, select_methods
+from edofproj.methods.catalogue import (
+    BASELINE_RUN_DIRS,
+    CLASSIC_ELEMENTS,
+    METHOD_NAMES,
+    METHODS,
+    method_spec,
+    select_methods,
+)
 from edofproj.progress import StageProgress, format_duration
 from edofproj.reporting.claims import ssim_claims, wall_time_claim
 from edofproj.reporting.document import Figure, Heading, Paragraph, Report, Table
@@ -129,7 +136,17 @@ def test_method_registry():
         "axicon+net",
         *(f"{kind}{suffix}" for kind in ("cubic", "axicon", "multifocal") for suffix in ("", "+wiener", "+ensemble")),
     )
-    assert [s.name for s in select_methods(None)] == list(METHOD_NAMES[:11])  # scored by default
+    default = [
+        *METHOD_NAMES[:11],
+        *(f"{kind}{suffix}" for kind in CLASSIC_ELEMENTS for suffix in ("+wiener", "+ensemble")),
+    ]
+    assert [s.name for s in select_methods(None)] == default  # scored by default
+    assert [method_spec(name).design for name in ("lens+onlineprodeb", "doe+ensemble", "cubic+net", "axicon")] == [
+        "lens",
+        "doe",
+        "cubic",
+        "axicon",
+    ]
     assert set(BASELINE_RUN_DIRS) == {"lens+net", "lens+onlineprodeb", "cubic+net", "axicon+net"}
     assert [s.name for s in select_methods(["doe+net", "lens"])] == ["lens", "doe+net"]  # canonical order
     with pytest.raises(EdofprojError, match="known: lens, lens\\+wiener"):

@@ -149,3 +149,56 @@ def test_the_psf_caption_names_the_depths_its_figure_shows():
     caption = psf_caption(SimpleNamespace(cfg=cfg, range_mm=(300.0, 800.0)))
     assert f"{shown_mm[0]:.0f}" in caption and f"{shown_mm[-1]:.0f} mm" in caption
     assert caption.startswith("RGB PSFs at 275, ") and "the scores cover 300-800 mm" in caption
+
+
+def _design_table() -> MetricsTable:
+    """SSIM of methods of three designs at 250 (outside the scored range), 300 and 800 mm, one image."""
+    ssim = {
+        "lens": (0.99, 0.50, 0.60),
+        "lens+net": (0.20, 0.70, 0.70),  # best blind lens method in range, worst at 250 mm (outside it)
+        "lens+wiener": (0.90, 0.80, 0.82),
+        "lens+cls": (0.95, 0.79, 0.81),
+        "doe+ensemble": (0.60, 0.85, 0.86),
+        "doe+net": (0.60, 0.88, 0.88),
+        "doe+wiener": (0.60, 0.90, 0.91),
+        "cubic+ensemble": (0.60, 0.75, 0.78),  # cubic: no non-blind method scored
+    }
+    table = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    for method, values in ssim.items():
+        for depth, value in zip((250.0, 300.0, 800.0), values):
+            table.add(method=method, depth_mm=depth, image="a", ssim=value)
+    return table
+
+
+def test_each_design_is_drawn_with_its_best_blind_and_non_blind_method(monkeypatch, tmp_path):
+    from edofproj.reporting.designs import best_compensations, designs_caption
+
+    table = _design_table()
+    best = best_compensations(table, (300.0, 800.0))
+    assert [(b.design, b.kind, b.method) for b in best] == [
+        ("lens", "blind", "lens+net"),  # the mean over 300-800 mm decides, not 250 mm
+        ("lens", "non-blind", "lens+wiener"),
+        ("doe", "blind", "doe+net"),
+        ("doe", "non-blind", "doe+wiener"),
+        ("cubic", "blind", "cubic+ensemble"),
+    ]
+    assert best[0].mean == pytest.approx(0.70) and best[3].mean == pytest.approx(0.905)
+    caption = designs_caption(best, (300.0, 800.0))
+    assert "bare lens: `lens+net` (blind, 0.700), `lens+wiener` (non-blind, 0.810)" in caption
+    assert "cubic phase plate: `cubic+ensemble` (blind, 0.765), no non-blind method evaluated" in caption
+    assert "axicon" not in caption and "300-800 mm" in caption
+
+    kept = saved_figures(monkeypatch)
+    figures.plot_designs_vs_depth(table, best, tmp_path / "designs.png", (300.0, 800.0))
+    lines = {line.get_label(): line for line in kept[0].axes[0].get_lines()}
+    assert set(lines) == {
+        f"{label}: {b.method}"
+        for b, label in zip(best, ["bare lens"] * 2 + ["learned DOE"] * 2 + ["cubic phase plate"])
+    }
+    styles = {
+        label.split(": ")[1]: (mcolors.to_hex(line.get_color()), line.get_linestyle()) for label, line in lines.items()
+    }
+    assert styles["lens+net"][1] == "-" and styles["lens+wiener"][1] == "--"  # solid blind, dashed non-blind
+    assert styles["lens+net"][0] == styles["lens+wiener"][0]  # one colour per design
+    assert len({styles[m][0] for m in ("lens+net", "doe+net", "cubic+ensemble")}) == 3
+    assert list(lines["bare lens: lens+net"].get_xdata()) == [250.0, 300.0, 800.0]  # every scored depth drawn

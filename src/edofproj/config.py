@@ -173,6 +173,17 @@ class SpectrumConfig:
 
 
 DOE_KINDS = ("lens", "mlp", "free", "cubic", "axicon", "multifocal", "file")
+#: The ``doe`` keys that only the classic element of one kind reads: a DOE of another kind never does.
+CLASSIC_DOE_KEYS = {
+    "cubic": ("cubic_waves",),
+    "axicon": ("axicon_near_mm", "axicon_far_mm"),
+    "multifocal": ("multifocal_foci_mm",),
+}
+
+
+def unread_doe_keys(kind: str) -> tuple[str, ...]:
+    """The classic elements' ``doe`` keys (:data:`CLASSIC_DOE_KEYS`) that a DOE of ``kind`` never reads."""
+    return tuple(key for element, keys in CLASSIC_DOE_KEYS.items() if element != kind for key in keys)
 
 
 @dataclass

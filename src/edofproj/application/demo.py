@@ -5,18 +5,23 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
    (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
    :attr:`DemoSettings.ours_steps` steps) and ``lens_net`` (the same U-Net without a DOE) always;
-   ``axicon_net``, ``cubic_net`` and ``lens_onlineprodeb`` when they are predicted to fit the time
-   budget (planned before any training, :meth:`~.schedule.ParallelTrainer.plan`, and printed in one
-   line, :func:`plan_line`). A baseline that does not fit is taken from the run the package ships for it
+   ``axicon_net``, ``cubic_net`` (the same U-Net with the classic elements of the preset) and
+   ``lens_onlineprodeb`` when they are predicted to fit the time budget (planned before any training,
+   :meth:`~.schedule.ParallelTrainer.plan`, and printed in one line, :func:`plan_line`). The U-Net's
+   baselines train for as many steps as ``doe_net`` (:data:`EQUAL_STEP_BASELINES`), ``lens_onlineprodeb``
+   for the preset's. A baseline that does not fit is taken from the run the package ships for it
    (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
    which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
-   others as baselines, on the held-out built-in photographs;
+   others as baselines, on the held-out built-in photographs: the evaluation's default methods
+   (:func:`demo_methods`), the classic elements' linear baselines (``X+wiener``, ``X+ensemble``) among them,
+   their cost predicted with the rest before any training (:func:`evaluation_seconds`);
 3. **timing** -- milliseconds per compensated frame (:mod:`edofproj.evaluation.timing`), and one scene,
    :data:`DEMO_SCENE` (a sphere in front of a wall: a depth edge), scored on the first held-out
    image at the panel size (:mod:`edofproj.evaluation.scenes`; the quick demo scores only
-   ``lens``, ``doe`` and ``doe+net`` there), and one textured surface, :data:`DEMO_SURFACE`, with the
-   photometric variants of the blind methods (:mod:`edofproj.evaluation.surfaces`);
+   ``lens``, ``doe`` and ``doe+net`` there, the full one every method but the classic linear
+   baselines), and one textured surface, :data:`DEMO_SURFACE`, with the photometric variants of the
+   blind methods (:mod:`edofproj.evaluation.surfaces`);
 4. **report** -- ``report.html`` (self-contained), ``report.md`` + ``figures/``, ``summary.md``,
    ``metrics.csv``, with the paper's claims (:mod:`edofproj.reporting.claims`) measured on the held-out images.
 
@@ -38,22 +43,23 @@ import numpy as np
 import torch
 
 from ..builtin_runs import BUILTIN_RUNS, PREFIX
-from ..config import STATEMENT_KEYS, apply_overrides, load_config, to_dict
+from ..config import STATEMENT_KEYS, apply_overrides, load_config, to_dict, unread_doe_keys
 from ..errors import EdofprojError
 from ..evaluation import timing
-from ..evaluation.pipeline import EVALUATION_OVERRIDE_PREFIXES, Evaluation, evaluate_run
+from ..evaluation.pipeline import Evaluation, design_depths_m, evaluate_run, is_evaluation_key
 from ..evaluation.scenes import evaluate_scenes
 from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
 from ..methods.builder import require_trained_run
-from ..methods.catalogue import METHOD_NAMES, OURS, method_spec
+from ..methods.catalogue import CLASSIC_ELEMENTS, OURS, method_spec, select_methods
+from ..methods.designs import DEPTH_KEY_RESOLUTION_M
 from ..progress import StageProgress, format_duration
 from ..reporting.claims import Claim, ssim_claims, wall_time_claim
 from ..reporting.document import Figure, Heading, Paragraph, Table
 from ..reporting.scenes import scene_summary_table, write_scene_report
 from ..reporting.surfaces import surface_summary_table, write_surface_report
 from ..reporting.tables import format_text_table, range_table
-from ..reporting.writeup import claims_section, write_documents
+from ..reporting.writeup import claims_section, psf_figure_depths_m, write_documents
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
 from ..runs.directory import flatten_keys
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
@@ -81,23 +87,43 @@ class DemoSettings:
     timing_sizes: tuple[tuple[int, int], ...]
     timing_repeats: int
     cubic_table_depths: int
-    #: training steps of ``doe+net`` (None: the preset's ``train.steps``, as every baseline)
+    #: training steps of ``doe+net`` and of the baselines of :data:`EQUAL_STEP_BASELINES` (None: the
+    #: preset's ``train.steps``, as every other baseline)
     ours_steps: int | None = None
+    #: evaluation seconds of each classic linear baseline (``X+wiener``, ``X+ensemble``) beyond
+    #: ``evaluation_estimate_s``, their cubic PSFs apart (:func:`evaluation_seconds`)
+    linear_method_s: float = 0.0
+    #: methods of the default set that this demo does not evaluate
+    left_out: tuple[str, ...] = ()
 
 
-#: Steps the full demo trains ``doe+net`` for: the time the faster step saves goes to our method
-#: (the baselines keep the preset's steps; docs/experiments/2026-11-25-training-speed.md).
+#: Seconds of the full demo's evaluation of the methods scored by default before the classic elements'
+#: linear baselines joined them, a shipped ``cubic+net`` and its 2-D PSFs included (2-core machine).
+EVALUATION_ESTIMATE_S = 200.0
+#: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
+#: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
+#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine).
+LINEAR_METHOD_SECONDS = 8.0
+
+#: Steps the full demo trains ``doe+net`` for, and every baseline of :data:`EQUAL_STEP_BASELINES`
+#: (docs/experiments/2026-11-25-training-speed.md).
 OURS_DEMO_STEPS = 2400
+#: The baselines that are ``doe+net``'s U-Net and recipe with other optics (:attr:`MethodSpec.train_overrides`
+#: change ``doe.kind`` only): they train for the same steps as ``doe+net``, so that the comparison
+#: measures the optics. ``lens+onlineprodeb``, another architecture at 8.5 times the cost per step
+#: (:data:`JOB_COSTS`), keeps the preset's steps.
+EQUAL_STEP_BASELINES = ("lens+net", "axicon+net", "cubic+net")
 
 FULL = DemoSettings(
     name="full",
     budget_s=FULL_BUDGET_MIN * 60,
     overrides=("train.checkpoint_every=100",),
-    evaluation_estimate_s=200.0,
+    evaluation_estimate_s=EVALUATION_ESTIMATE_S,
     timing_sizes=((256, 256), (600, 800)),
     timing_repeats=3,
     cubic_table_depths=24,
     ours_steps=OURS_DEMO_STEPS,
+    linear_method_s=LINEAR_METHOD_SECONDS,
 )
 QUICK = DemoSettings(
     name="quick",
@@ -120,6 +146,11 @@ QUICK = DemoSettings(
     timing_sizes=((128, 128),),
     timing_repeats=2,
     cubic_table_depths=8,
+    # measured: the four linear baselines of the axicon and the multifocal zones added 7.5 s of CPU time
+    # to a quick-sized evaluate of builtin:cpu-doe-net (one thread; 14 s of wall time, loaded machine)
+    linear_method_s=2.0,
+    # the depth-ensemble filter alone needs the cubic plate at 32 depths of the slow 2-D engine (over a minute)
+    left_out=("cubic+wiener", "cubic+ensemble"),
 )
 
 #: Training cost per step relative to ``lens+net`` (a U-Net with a precomputed PSF table), and
@@ -149,11 +180,38 @@ TIMING_ESTIMATE_S = {"full": 40.0, "quick": 5.0}
 REPORT_MARGIN_S = 15.0
 
 
-def cubic_evaluation_depths(cfg) -> int:
-    """Depths at which the evaluation simulates the cubic plate (2-D engine): sweep, comparison,
-    tilted-screen layers and its centre."""
-    depths = set(cfg.evaluation.depths_mm) | set(cfg.evaluation.comparison_depths_mm)
-    return len(depths) + cfg.imaging.depth_layers + 1
+def cubic_evaluation_depths(cfg, methods: Sequence[str]) -> int:
+    """Depths at which the evaluation of ``methods`` and its report simulate the cubic plate (the slow 2-D
+    engine): the cubic methods share one design (:class:`~edofproj.methods.builder.MethodBuilder`), simulated
+    at the union of their depths (:func:`~edofproj.evaluation.pipeline.design_depths_m`) and the PSF
+    figure's (:func:`~edofproj.reporting.writeup.psf_figure_depths_m`); 0 without a cubic method."""
+    compensations = {method_spec(m).compensation for m in methods if method_spec(m).design == "cubic"}
+    if not compensations:
+        return 0
+    depths_m = np.concatenate([design_depths_m(cfg, compensations), psf_figure_depths_m(cfg)])
+    return len(np.unique(np.round(depths_m / DEPTH_KEY_RESOLUTION_M)))
+
+
+def evaluation_seconds(settings: DemoSettings, cfg, methods: Sequence[str]) -> float:
+    """Predicted seconds of the demo's evaluation of ``methods``: :attr:`DemoSettings.evaluation_estimate_s`
+    (with ``cubic+net``'s 2-D PSFs), :attr:`DemoSettings.linear_method_s` for each classic linear baseline,
+    and :data:`CUBIC_SECONDS_PER_DEPTH` for each depth at which the cubic plate's linear baselines
+    simulate it beyond those of ``cubic+net`` (:func:`cubic_evaluation_depths`)."""
+    linear = [m for m in methods if method_spec(m).optics in CLASSIC_ELEMENTS]
+    seconds = settings.evaluation_estimate_s + settings.linear_method_s * len(linear)
+    if any(method_spec(m).design == "cubic" for m in linear):
+        extra = cubic_evaluation_depths(cfg, [*linear, "cubic+net"]) - cubic_evaluation_depths(cfg, ["cubic+net"])
+        seconds += CUBIC_SECONDS_PER_DEPTH * extra
+    return seconds
+
+
+def demo_methods(settings: DemoSettings, methods: Sequence[str] | None) -> list[str]:
+    """The methods a demo evaluates (those of a separate run only when it is trained or shipped):
+    ``methods``, or the evaluation's default set (:func:`~edofproj.methods.catalogue.select_methods`) less
+    :attr:`DemoSettings.left_out`."""
+    if methods:
+        return list(methods)
+    return [spec.name for spec in select_methods(None) if spec.name not in settings.left_out]
 
 
 def demo_jobs(
@@ -164,14 +222,19 @@ def demo_jobs(
     user_overrides: Sequence[str],
     train_ours: bool = True,
     retrain_baselines: bool = False,
+    user_steps: bool | None = None,
 ) -> list[TrainingJob]:
     """The training runs of a demo: ours (unless ``train_ours`` is false: a pretrained run stands for
-    it; :attr:`DemoSettings.ours_steps` steps unless the user sets ``train.steps``) and lens+net
-    required, the others optional (or required when named in ``methods`` or with
-    ``retrain_baselines``). The cubic plate's cost includes its PSF table and the 2-D PSFs its
-    evaluation will need."""
+    it) and lens+net required, the others optional (or required when named in ``methods`` or with
+    ``retrain_baselines``). Ours and the baselines of :data:`EQUAL_STEP_BASELINES` train
+    :attr:`DemoSettings.ours_steps` steps, the others ``cfg.train.steps``, unless the user sets
+    ``train.steps`` (``user_steps``; None: found in ``user_overrides``): then every run trains that many.
+    The cubic plate's cost includes its PSF table (its evaluation's 2-D PSFs are the evaluation's,
+    :func:`evaluation_seconds`)."""
     steps = cfg.train.steps
-    user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in user_overrides)
+    if user_steps is None:
+        user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in user_overrides)
+    ours_steps = settings.ours_steps if settings.ours_steps and not user_steps else steps
     common = list(settings.overrides) + list(user_overrides)
     wanted = set(methods) if methods else None
     jobs = []
@@ -184,7 +247,7 @@ def demo_jobs(
         jobs.append(TrainingJob(method, out / run_dir, common + extra, n, required, cost, setup + setup_extra))
 
     if train_ours:
-        add(OURS, OURS_RUN_DIR, [], True, n=settings.ours_steps if settings.ours_steps and not user_steps else steps)
+        add(OURS, OURS_RUN_DIR, [], True, n=ours_steps)
     baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
     for method in baseline_methods:
         spec = method_spec(method)
@@ -195,11 +258,31 @@ def demo_jobs(
         setup_extra = 0.0
         if method == "cubic+net":
             extra.append(f"train.psf_table_depths={settings.cubic_table_depths}")
-            setup_extra = CUBIC_SECONDS_PER_DEPTH * (settings.cubic_table_depths + cubic_evaluation_depths(cfg))
+            setup_extra = CUBIC_SECONDS_PER_DEPTH * settings.cubic_table_depths
         if spec.run_dir is None:
             raise EdofprojError(f"method {method} has no separate run to train")
-        add(method, spec.run_dir, extra, required, setup_extra)
+        add(
+            method,
+            spec.run_dir,
+            extra,
+            required,
+            setup_extra,
+            n=ours_steps if method in EQUAL_STEP_BASELINES else steps,
+        )
     return jobs
+
+
+def steps_sentence(jobs: Sequence[TrainingJob]) -> str:
+    """The training steps of the demo's runs, grouped by count in the jobs' order: ``2400 training steps for
+    doe+net, lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb``."""
+    groups: dict[int, list[str]] = {}
+    for job in jobs:
+        groups.setdefault(job.steps, []).append(job.method)
+    parts = [
+        f"{steps}{' training steps' if index == 0 else ''} for {', '.join(names)}"
+        for index, (steps, names) in enumerate(groups.items())
+    ]
+    return "; ".join(parts)
 
 
 def plan_line(jobs: Sequence[TrainingJob]) -> str:
@@ -259,11 +342,15 @@ RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "tr
 
 
 def recipe_difference(shipped, expected) -> str | None:
-    """The first config key (outside :data:`RECIPE_IGNORED`) where the shipped run's configuration differs
+    """The first config key (outside :data:`RECIPE_IGNORED` and the classic elements' keys that neither
+    run's DOE reads, :func:`~edofproj.config.unread_doe_keys`) where the shipped run's configuration differs
     from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
     a, b = flatten_keys(to_dict(shipped)), flatten_keys(to_dict(expected))
+    unread = {f"doe.{key}" for key in unread_doe_keys(shipped.doe.kind)} & {
+        f"doe.{key}" for key in unread_doe_keys(expected.doe.kind)
+    }
     for key in sorted(set(a) | set(b)):
-        if key.startswith(RECIPE_IGNORED) or a.get(key) == b.get(key):
+        if key.startswith(RECIPE_IGNORED) or key in unread or a.get(key) == b.get(key):
             continue
         return f"{key}={a.get(key)!r} (the demo: {b.get(key)!r})"
     return None
@@ -364,6 +451,14 @@ def timing_section(results, threads: int, evaluated_hw: tuple[int, int] | None =
     ]
 
 
+def preset_elements(preset, run_config: str | Path) -> list[str]:
+    """``doe.KEY=VALUE`` overrides that give the configuration ``run_config`` (a trained run's) the classic
+    elements of ``preset`` (tuned for its projector and range), for the keys its DOE never reads
+    (:func:`~edofproj.config.unread_doe_keys`): its baselines and their linear filters then use them."""
+    kind = load_config(str(run_config)).doe.kind
+    return [f"doe.{key}={getattr(preset.doe, key)}" for key in unread_doe_keys(kind)]
+
+
 @dataclass(frozen=True)
 class PretrainedOurs:
     """A trained run that stands for ``doe+net`` in a demo: where it came from and its steps."""
@@ -374,13 +469,15 @@ class PretrainedOurs:
 
 def copy_pretrained(source: str | Path, run_dir: Path, overrides: Sequence[str]) -> PretrainedOurs:
     """Copy the trained run ``source`` (a directory or ``builtin:NAME``) to ``run_dir``, applying the
-    evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``) to its
-    configuration; the rest of the configuration is what the run was trained with (written in the
+    evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``, and the
+    classic elements' keys its DOE never reads: :func:`~edofproj.evaluation.pipeline.is_evaluation_key`) to
+    its configuration; the rest of the configuration is what the run was trained with (written in the
     current format: a configuration of an older one is converted once, here)."""
     source_dir = require_trained_run(source)
     shutil.copytree(source_dir, run_dir, ignore=shutil.ignore_patterns(".*"))
-    evaluation_keys = [o for o in overrides if o.split("=", 1)[0].strip().startswith(EVALUATION_OVERRIDE_PREFIXES)]
-    write_run_config(run_dir, apply_overrides(saved_config(source_dir), evaluation_keys))
+    trained = saved_config(source_dir)
+    evaluation_keys = [o for o in overrides if is_evaluation_key(o.split("=", 1)[0], trained)]
+    write_run_config(run_dir, apply_overrides(trained, evaluation_keys))
     return PretrainedOurs(str(source), int(load_run(run_dir).step))
 
 
@@ -418,7 +515,7 @@ def run_demo(
 
     ``pretrained``: a trained run (directory or ``builtin:NAME``) copied to ``doe_net/`` instead of
     training ``doe+net``; the baselines train with its configuration (its projector: optics, spectrum,
-    PSF sampling) for the preset's steps. ``retrain_baselines``: train every
+    PSF sampling) for the steps of :func:`demo_jobs`. ``retrain_baselines``: train every
     baseline whatever the budget (else those predicted not to fit come from the shipped runs)."""
     clock = time.perf_counter()
     settings = QUICK if quick else FULL
@@ -437,16 +534,26 @@ def run_demo(
     if pretrained is not None:
         require_trained_run(pretrained)  # fails before anything is written
     training_config = config
+    user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in overrides)
     if pretrained is not None:
         # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
-        # train with its configuration, for the preset's steps
+        # train with its configuration, for the preset's steps (those of EQUAL_STEP_BASELINES: ours_steps),
+        # with the preset's classic elements where the pretrained run's DOE does not read them
         training_config = str(require_trained_run(pretrained) / "config.yaml")
-        overrides = [f"train.steps={cfg.train.steps}", *overrides]
+        overrides = [f"train.steps={cfg.train.steps}", *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(
-        out, settings, cfg, methods, overrides, train_ours=pretrained is None, retrain_baselines=retrain_baselines
+        out,
+        settings,
+        cfg,
+        methods,
+        overrides,
+        train_ours=pretrained is None,
+        retrain_baselines=retrain_baselines,
+        user_steps=user_steps,
     )
-    later = settings.evaluation_estimate_s + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
+    planned = demo_methods(settings, methods)
+    later = evaluation_seconds(settings, cfg, planned) + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
     deadline = clock + budget - later - REPORT_MARGIN_S
     out.mkdir(parents=True, exist_ok=True)
     ours = None
@@ -464,7 +571,7 @@ def run_demo(
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     progress.note("stage 2/4 evaluation")
     trained = {j.method for j in jobs if j.status in ("done", "built-in")}
-    eval_methods = [m for m in (methods or METHOD_NAMES) if not method_spec(m).needs_separate_run or m in trained]
+    eval_methods = [m for m in planned if not method_spec(m).needs_separate_run or m in trained]
     evaluation = evaluate_run(
         out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out, progress=progress
     )
@@ -490,12 +597,8 @@ def run_demo(
         Heading("Demo"),
         Paragraph(
             f"`edofproj demo{' --quick' if quick else ''}{' --pretrained' if ours else ''}`: preset '{config}', "
-            + (
-                f"{OURS} the trained run {ours.source} ({ours.steps} steps, trained beforehand), the other runs "
-                f"{cfg.train.steps} training steps each"
-                if ours
-                else f"{jobs[0].steps} training steps for {OURS}, {cfg.train.steps} for each baseline"
-            )
+            + (f"{OURS} the trained run {ours.source} ({ours.steps} steps, trained beforehand), " if ours else "")
+            + steps_sentence(jobs)
             + f", built-in photographs only. Wall time {format_duration(wall_s, unit=True)} "
             f"up to the report, budget {format_duration(budget, unit=True)}."
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")
@@ -518,7 +621,12 @@ def run_demo(
 
 def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: StageProgress) -> list:
     """Score the methods on :data:`DEMO_SCENE` (first held-out image) and return the report's blocks."""
-    chosen = [m for m in methods if m in QUICK_SCENE_METHODS] if quick else list(methods)
+    # the classic elements' linear baselines are scored on flat screens only: each would tune its filter again
+    chosen = (
+        [m for m in methods if m in QUICK_SCENE_METHODS]
+        if quick
+        else [m for m in methods if method_spec(m).optics not in CLASSIC_ELEMENTS]
+    )
     progress.note(f"scene {DEMO_SCENE}")
     try:
         scenes = evaluate_scenes(

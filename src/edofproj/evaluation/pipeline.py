@@ -23,26 +23,28 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
+import numpy as np
 import torch
 
 from ..builtin_runs import require_output_outside
-from ..config import Config, apply_overrides
+from ..config import Config, apply_overrides, unread_doe_keys
 from ..data import evaluation_images
 from ..data.validation import validation_images
 from ..errors import EdofprojError
 from ..methods.builder import MethodBuilder, PreparedMethod, require_trained_run
 from ..methods.catalogue import select_methods
-from ..methods.compensators import score_range_mm
-from ..methods.designs import OpticalDesign
-from ..methods.guard import guard_notes
+from ..methods.compensators import ensemble_depths_m, score_range_mm
+from ..methods.designs import DEPTH_KEY_RESOLUTION_M, OpticalDesign
+from ..methods.guard import guard_depths_m, guard_notes
 from ..optics.geometry import check_screen_depths_mm
 from ..progress import StageProgress
 from ..runs import TrainedRun, load_run
 from .results import MetricsTable
 from .sweep import (
     PERCEPTUAL_COLUMNS,
+    TiltedScreen,
     depth_notes,
     example_displays,
     flat_screen_sweep,
@@ -56,8 +58,18 @@ from .timing import time_methods
 
 METRICS_NAME = "metrics.csv"
 TILTED_METRICS_NAME = "tilted_metrics.csv"
-#: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained).
+#: Config keys ``evaluate --set`` may change (the run's training configuration stays as trained), with the
+#: classic elements' keys that the run's DOE never reads (:func:`is_evaluation_key`).
 EVALUATION_OVERRIDE_PREFIXES = ("evaluation.", "imaging.", "data.max_test_images")
+
+
+def is_evaluation_key(key: str, cfg) -> bool:
+    """True when ``evaluate --set KEY=...`` may change ``key`` of a run trained with ``cfg``: an evaluation key
+    (:data:`EVALUATION_OVERRIDE_PREFIXES`), or a classic element's ``doe`` key that the run's DOE never reads
+    (:func:`~edofproj.config.unread_doe_keys`: it sets the element of the ``X``, ``X+wiener``, ``X+ensemble``
+    baselines, e.g. ``doe.cubic_waves`` for a learned DOE's run)."""
+    key = key.strip()
+    return key.startswith(EVALUATION_OVERRIDE_PREFIXES) or key in {f"doe.{k}" for k in unread_doe_keys(cfg.doe.kind)}
 
 
 @dataclass
@@ -96,13 +108,14 @@ class Evaluation:
 
 
 def evaluation_config(cfg, overrides: Sequence[str] = ()):
-    """The run's config with ``--set`` overrides of the evaluation keys only."""
+    """The run's config with ``--set`` overrides of the evaluation keys only (:func:`is_evaluation_key`)."""
     for item in overrides or ():
         key = item.split("=", 1)[0].strip()
-        if not key.startswith(EVALUATION_OVERRIDE_PREFIXES):
+        if not is_evaluation_key(key, cfg):
             raise EdofprojError(
-                f"--set {key}: evaluate only changes evaluation.*, imaging.* and data.max_test_images "
-                "(the rest is the run's trained configuration)"
+                f"--set {key}: evaluate only changes evaluation.*, imaging.*, data.max_test_images and the classic "
+                f"elements' doe keys that a doe.kind={cfg.doe.kind} run does not read (the rest is the run's "
+                "trained configuration)"
             )
     return apply_overrides(cfg, overrides) if overrides else cfg
 
@@ -129,6 +142,31 @@ class OpenedRun:
             explicit=explicit,
             device=device,
         )
+
+
+def design_depths_m(cfg, compensations: Iterable[str], depths_mm: Sequence[float] | None = None) -> np.ndarray:
+    """The distinct depths (m, ascending; equal to :data:`~edofproj.methods.designs.DEPTH_KEY_RESOLUTION_M`)
+    at which :func:`evaluate_run` simulates the PSFs of one design whose methods use ``compensations``
+    (:attr:`~edofproj.methods.catalogue.MethodSpec.compensation`): the flat-screen sweep (``depths_mm``,
+    default ``evaluation.depths_mm``), the in-focus depth (timing), the tilted screen's layers and centre,
+    and the compensations' own: the Wiener NSR tuning depths (``wiener``, ``ensemble``), the depth-ensemble
+    filter's depths (``ensemble``) and a guarded network's (``net``, with ``evaluation.display_guard``).
+    What the 2-D engine costs an evaluation is this count times its seconds per depth."""
+    compensations = set(compensations)
+    near_mm, far_mm = score_range_mm(cfg)
+    sweep_mm = depths_mm if depths_mm is not None else cfg.evaluation.depths_mm
+    tilted = TiltedScreen(cfg, 2, 2)
+    parts = [np.asarray(sweep_mm, dtype=float) * 1e-3, [cfg.optics.focus_m, tilted.centre_m], tilted.layers_m]
+    if compensations & {"wiener", "ensemble"}:
+        parts.append(np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3)
+    if "ensemble" in compensations:
+        parts.append(ensemble_depths_m(cfg))
+    if "net" in compensations and cfg.evaluation.display_guard:
+        parts.append(guard_depths_m(near_mm * 1e-3, far_mm * 1e-3))
+    keys = np.unique(
+        np.round(np.concatenate([np.atleast_1d(np.asarray(p, dtype=float)) for p in parts]) / DEPTH_KEY_RESOLUTION_M)
+    )
+    return keys * DEPTH_KEY_RESOLUTION_M
 
 
 def open_run(run_dir: str | Path, out_dir: str | Path | None, overrides: Sequence[str] = ()) -> OpenedRun:

@@ -25,7 +25,7 @@ import torch
 
 from ..builtin_runs import resolve_run_dir
 from ..compensation.registry import describe_network
-from ..config import Config, to_dict, without_statements
+from ..config import CLASSIC_DOE_KEYS, Config, to_dict, without_statements
 from ..doe import build_doe
 from ..errors import EdofprojError
 from ..progress import StageProgress
@@ -50,6 +50,29 @@ from .guard import GuardedNetworkCompensation, guard_depths_m, network_filter
 
 #: Config sections a baseline run must share with the evaluated run (same projector, same light).
 SHARED_SECTIONS = ("optics", "spectrum")
+#: The ``doe`` keys every element reads (with its own, :data:`~edofproj.config.CLASSIC_DOE_KEYS`).
+ELEMENT_DOE_KEYS = ("levels", "quantize", "design_wavelength_nm", "material")
+
+
+def classic_element_difference(baseline_cfg, cfg, kind: str) -> str | None:
+    """None when the DOE of a baseline run trained with ``baseline_cfg`` is the classic element ``kind``
+    that ``cfg`` builds: the same kind and parameters, no design rules applied, and its fabricated file
+    (``doe.npz``) sampled as ``cfg`` samples the pupil -- then both have the same PSFs (sampled on the
+    same pupil grid, the tabulated heights are the analytic ones). Else the first difference, as
+    ``key=run's value (the configuration: value)``."""
+    pairs = [("doe.kind", baseline_cfg.doe.kind, kind), ("doe.min_feature_um", baseline_cfg.doe.min_feature_um, 0)]
+    pairs += [(f"doe.{k}", getattr(baseline_cfg.doe, k), getattr(cfg.doe, k)) for k in ELEMENT_DOE_KEYS]
+    pairs += [(f"doe.{k}", getattr(baseline_cfg.doe, k), getattr(cfg.doe, k)) for k in CLASSIC_DOE_KEYS[kind]]
+    pairs.append(("psf.pupil_samples", baseline_cfg.psf.pupil_samples, cfg.psf.pupil_samples))
+    for key, run_value, value in pairs:
+        if run_value != value:
+            return f"{key}={run_value} (the configuration: {value})"
+    return None
+
+
+def same_classic_element(baseline_cfg, cfg, kind: str) -> bool:
+    """True when :func:`classic_element_difference` finds none."""
+    return classic_element_difference(baseline_cfg, cfg, kind) is None
 
 
 @dataclass
@@ -172,6 +195,28 @@ class MethodBuilder:
     def run_design(self) -> OpticalDesign:
         return self.design("run", "doe", self._require_run().doe)
 
+    def classic_design(self, kind: str) -> OpticalDesign:
+        """The classic element ``kind`` built from the evaluated configuration (``X``, ``X+wiener``, ...)."""
+        return self.design(kind, kind, self._build_doe(self.cfg, kind))
+
+    def baseline_design(self, spec: MethodSpec, baseline: TrainedRun) -> OpticalDesign:
+        """The optics of the baseline run of ``spec``: :meth:`classic_design` when its DOE is that element
+        with the evaluated configuration's parameters (:func:`same_classic_element`: one design, each PSF
+        simulated once for all of the element's methods), else its own DOE."""
+        kind = baseline.cfg.doe.kind
+        if kind in CLASSIC_ELEMENTS:
+            difference = classic_element_difference(baseline.cfg, self.cfg, kind)
+            if difference is None:
+                return self.classic_design(kind)
+            if not difference.startswith("psf."):  # a different element, not just sampled otherwise
+                self.notes.append(
+                    f"{spec.name}: its run's {kind} is not the one the evaluated configuration builds for the "
+                    f"{kind}'s linear baselines ({difference}); `evaluate --set doe.KEY=VALUE` sets theirs"
+                )
+        if spec.run_dir is None:
+            raise EdofprojError(f"method {spec.name} has no separate run")
+        return self.design(spec.run_dir, spec.design, baseline.doe)
+
     def _require_run(self) -> TrainedRun:
         if self.run is None:
             raise EdofprojError("this method needs a trained run (its DOE or its network); none was given")
@@ -234,6 +279,19 @@ class MethodBuilder:
         return prepared
 
     def build(self, spec: MethodSpec) -> PreparedMethod | None:
+        """The method ``spec``, or None (with a note) when its separate run is missing or unsuitable, or when
+        a classic element that was not asked for by name cannot be simulated with the run's optics (e.g. a
+        pupil sampled too coarsely for its phase): then its design is dropped too."""
+        if spec.optics not in CLASSIC_ELEMENTS or self.explicit:
+            return self._build(spec)
+        try:
+            return self._build(spec)
+        except EdofprojError as exc:
+            self.designs.pop(spec.optics, None)
+            self.notes.append(f"{spec.name} skipped: {exc}")
+            return None
+
+    def _build(self, spec: MethodSpec) -> PreparedMethod | None:
         baseline = self.baseline(spec) if spec.needs_separate_run else None
         if spec.needs_separate_run and baseline is None:
             return None
@@ -242,11 +300,11 @@ class MethodBuilder:
         elif spec.optics == "run":
             design = self.run_design()
         elif spec.optics in CLASSIC_ELEMENTS:
-            design = self.design(spec.optics, spec.optics, self._build_doe(self.cfg, spec.optics))
+            design = self.classic_design(spec.optics)
         else:
-            if baseline is None or spec.run_dir is None:
+            if baseline is None:
                 raise EdofprojError(f"method {spec.name}: optics '{spec.optics}' needs a separate run")
-            design = self.design(spec.run_dir, spec.name.split("+")[0], baseline.doe)
+            design = self.baseline_design(spec, baseline)
         detail = ""
         if spec.compensation == "none":
             compensate = no_compensation

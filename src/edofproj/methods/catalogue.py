@@ -36,14 +36,16 @@ name                 optics            compensation
 ``X+ensemble``       classic element X the design's depth-ensemble Wiener filter (blind)
 ==================== ================= =====================================================
 
-The classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) are scored when asked
-for by name (``--methods``; :attr:`MethodSpec.default` is False): their parameters are those of the
-evaluated run's configuration, which ``edofproj tune-classic`` chooses for a projector and a range.
+The classic elements' linear baselines ``X+wiener`` (non-blind) and ``X+ensemble`` (blind) are scored by
+default, ``X`` alone when asked for by name (``--methods``; :attr:`MethodSpec.default` is False): their
+parameters are those of the evaluated run's configuration, which ``edofproj tune-classic`` chooses for a
+projector and a range (the presets hold the chosen values). Where the separate run of ``X+net`` has the same
+element, all of ``X``'s methods share one design (:class:`~edofproj.methods.builder.MethodBuilder`).
 
 **Blind and non-blind.** A *blind* method knows nothing of the screen's depth or PSF at run
 time: no compensation, the networks (they see ``I`` and the simulated capture ``I*``, their
-second input as in training, never the PSF) and ``doe+ensemble`` (one fixed filter for the
-whole depth range). A *non-blind* method is given the exact PSF ``p_z`` of the depth it
+second input as in training, never the PSF) and the depth-ensemble filters (``doe+ensemble``,
+``X+ensemble``: one fixed filter for the whole depth range). A *non-blind* method is given the exact PSF ``p_z`` of the depth it
 compensates: Wiener (``*+wiener``) and constrained least squares (``*+cls``). A projector that
 does not measure the screen's depth can only run a blind method; the non-blind ones are an
 upper reference, not a competitor on equal terms (:attr:`MethodSpec.blind`).
@@ -86,6 +88,13 @@ class MethodSpec:
         return self.run_dir is not None
 
     @property
+    def design(self) -> str:
+        """The optical design the method compensates, as the figures group methods: ``lens``, ``doe``
+        (the run's learned DOE) or a classic element (``cubic``, ``axicon``, ``multifocal``) -- the part of
+        the name before the first ``+``."""
+        return self.name.split("+", 1)[0]
+
+    @property
     def blind(self) -> bool:
         """True when the method runs without knowing the screen's depth or PSF (module docstring)."""
         return self.compensation not in NON_BLIND_COMPENSATIONS
@@ -97,17 +106,17 @@ CLASSIC_LABELS = {"cubic": "cubic phase plate", "axicon": "axicon", "multifocal"
 
 
 def classic_linear_methods(kind: str) -> tuple[MethodSpec, ...]:
-    """``X``, ``X+wiener`` and ``X+ensemble`` of the classic element ``kind`` (not scored by default)."""
+    """``X``, ``X+wiener`` and ``X+ensemble`` of the classic element ``kind``; the two compensated ones
+    are scored by default, ``X`` alone only by name."""
     label = CLASSIC_LABELS[kind]
     return (
         MethodSpec(kind, kind, "none", f"{label}, no compensation", default=False),
-        MethodSpec(f"{kind}+wiener", kind, "wiener", f"{label} + non-blind Wiener deconvolution", default=False),
+        MethodSpec(f"{kind}+wiener", kind, "wiener", f"{label} + non-blind Wiener deconvolution"),
         MethodSpec(
             f"{kind}+ensemble",
             kind,
             "ensemble",
             f"{label} + its depth-ensemble Wiener filter for every depth (blind linear baseline)",
-            default=False,
         ),
     )
 

@@ -2,6 +2,8 @@
 
 * :func:`plot_metric_vs_depth` -- a metric against the screen depth, one line per method,
   the training depth range shaded;
+* :func:`plot_designs_vs_depth` -- the same for every optical design with its best blind (solid) and
+  non-blind (dashed) compensation (:mod:`.designs`), one colour per design;
 * :func:`plot_comparison` -- the side-by-side grid of the paper's Fig. 6: rows = depths,
   columns = the target and each method, PSNR / SSIM (and LPIPS when available) on each tile,
   the best value of each row in bold red;
@@ -30,7 +32,8 @@ import numpy as np  # noqa: E402
 
 from ..evaluation.results import METRIC_LABELS, MetricsTable, better  # noqa: E402
 from ..fileio import atomic_path  # noqa: E402
-from ..methods.catalogue import METHOD_NAMES, METHODS, OURS  # noqa: E402
+from ..methods.catalogue import CLASSIC_ELEMENTS, METHOD_NAMES, METHODS, OURS  # noqa: E402
+from .designs import DESIGN_LABELS, DesignBest  # noqa: E402
 
 #: Metrics written on the tiles of the comparison figures, with their short labels (paper Fig. 6).
 TILE_METRICS = (("psnr", "P", "{:.2f}"), ("ssim", "S", "{:.3f}"), ("lpips", "L", "{:.3f}"))
@@ -69,10 +72,10 @@ VARIANT_SUFFIXES = ("+photometric",)
 
 def method_colour(name: str) -> tuple | str:
     """The colour of method ``name`` in every figure: ours (``doe+net``) black; each other method of
-    :data:`~edofproj.methods.catalogue.METHOD_NAMES` the dark shade of its own pair of matplotlib's
-    ``tab20`` map, in their order (the 10 methods scored by default, 10 pairs: no two alike); the
-    methods scored only by name (the classic elements' linear baselines) each their own colour of
-    ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
+    :data:`~edofproj.methods.catalogue.METHOD_NAMES` but the classic elements' linear baselines the dark
+    shade of its own pair of matplotlib's ``tab20`` map, in their order (10 methods, 10 pairs: no two
+    alike); the classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) each their own
+    colour of ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
     (ours' variant grey); any other name a colour of ``tab20b`` fixed by its letters."""
     for suffix in VARIANT_SUFFIXES:
         if name.endswith(suffix):
@@ -85,15 +88,16 @@ def method_colour(name: str) -> tuple | str:
         return "black"
     if name in _PAIRED:
         return plt.cm.tab20(2 * _PAIRED.index(name))
-    if name in _BY_NAME_ONLY:
-        return plt.cm.tab20b(_BY_NAME_ONLY.index(name) % 20)
+    if name in _CLASSIC_LINEAR:
+        return plt.cm.tab20b(_CLASSIC_LINEAR.index(name) % 20)
     return plt.cm.tab20b(sum(name.encode()) % 20)
 
 
-#: The methods scored by default other than ours (a ``tab20`` pair each), and those scored only by name.
-_PAIRED = [m.name for m in METHODS if m.default and m.name != OURS]
-_BY_NAME_ONLY = [m.name for m in METHODS if not m.default]
-assert len(_PAIRED) <= 10 and set(_PAIRED) | set(_BY_NAME_ONLY) | {OURS} == set(METHOD_NAMES)
+#: The classic elements' linear baselines (a ``tab20b`` colour each), and the other methods but ours (a
+#: ``tab20`` pair each).
+_CLASSIC_LINEAR = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS]
+_PAIRED = [m.name for m in METHODS if m.name != OURS and m.name not in _CLASSIC_LINEAR]
+assert len(_PAIRED) <= 10 and set(_PAIRED) | set(_CLASSIC_LINEAR) | {OURS} == set(METHOD_NAMES)
 
 
 def _method_style(index: int, name: str) -> dict:
@@ -156,6 +160,55 @@ def plot_metric_vs_depth(
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2, loc="best")
     ax.set_title(title or default_title, fontsize=10)
+    _save(fig, path)
+
+
+#: The colour of each optical design in :func:`plot_designs_vs_depth` (the learned DOE black, as ours).
+DESIGN_COLOURS = {
+    "lens": "tab:blue",
+    "doe": "black",
+    "cubic": "tab:orange",
+    "axicon": "tab:green",
+    "multifocal": "tab:purple",
+}
+
+
+def plot_designs_vs_depth(
+    table: MetricsTable,
+    best: Sequence[DesignBest],
+    path: str | Path,
+    scored_range_mm: tuple[float, float] | None = None,
+    metric: str = "ssim",
+) -> None:
+    """Mean ``metric`` over the images against depth of each method of ``best``
+    (:func:`~edofproj.reporting.designs.best_compensations`): the colour of its design
+    (:data:`DESIGN_COLOURS`), solid when blind, dashed when non-blind; the scored range shaded."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    if scored_range_mm is not None:
+        ax.axvspan(*scored_range_mm, color="0.92", zorder=0, label="scored range")
+    for choice in best:
+        means = table.per_depth_means(choice.method, metric)
+        depths = sorted(means)
+        blind = choice.kind == "blind"
+        ax.plot(
+            depths,
+            [means[z] for z in depths],
+            color=DESIGN_COLOURS.get(choice.design, "0.5"),
+            ls="-" if blind else "--",
+            lw=2.0 if blind else 1.4,
+            marker="o" if blind else ".",
+            ms=4,
+            label=f"{DESIGN_LABELS.get(choice.design, choice.design)}: {choice.method}",
+        )
+    ax.set_xlabel("screen depth z (mm)")
+    ax.set_ylabel(METRIC_LABELS.get(metric, metric))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc="best")
+    ax.set_title(
+        f"Each design with its best blind (solid) and non-blind (dashed) compensation: "
+        f"{METRIC_LABELS.get(metric, metric)}",
+        fontsize=10,
+    )
     _save(fig, path)
 
 

@@ -25,8 +25,9 @@ from ..runs import FIGURES_DIR
 from ..runs.figures import plot_doe_profile
 from ..runs.log import read_log
 from .claims import Claim
+from .designs import best_compensations, designs_caption
 from .document import Bullets, Figure, Heading, Paragraph, Report, Table
-from .figures import plot_comparison, plot_metric_vs_depth, plot_tilted, plot_training_curves
+from .figures import plot_comparison, plot_designs_vs_depth, plot_metric_vs_depth, plot_tilted, plot_training_curves
 from .image_checks import behind_linear_filter_blocks, channel_imbalance_blocks
 from .psf_plots import plot_psf_comparison
 from .tables import depth_table, image_spread_table, range_table, tilted_table
@@ -200,6 +201,11 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
             f"test images (scored depth range shaded).",
         )
     report.extend(results_tables(ev)[2:])
+    if "designs_vs_depth" in figures:
+        report.add(Heading("Each optical design at its best"))
+        report.add(
+            Figure(figures["designs_vs_depth"], designs_caption(best_compensations(ev.table, ev.range_mm), ev.range_mm))
+        )
     report.add(Heading("Side-by-side comparison (paper Fig. 6)"))
     _add_figure(
         report,
@@ -260,6 +266,11 @@ def write_figures(ev) -> None:
         path = figures / f"eval_{metric}_vs_depth.png"
         plot_metric_vs_depth(ev.table, metric, path, ev.range_mm)
         ev.figures[f"{metric}_vs_depth"] = path
+    if "ssim" in ev.table.metrics:
+        best = best_compensations(ev.table, ev.range_mm)
+        if best:
+            ev.figures["designs_vs_depth"] = figures / "eval_designs_vs_depth.png"
+            plot_designs_vs_depth(ev.table, best, ev.figures["designs_vs_depth"], ev.range_mm)
 
     methods = [m.name for m in ev.methods]
     name, image = ev.images[0]
