@@ -190,3 +190,35 @@ def test_decode_edges_psf_map_code_and_predict_commands(tmp_path, capsys, scene)
     code, _, err = cli("decode", *lab, "--x", "phase", "--edges", "--out", str(tmp_path / "bad.npz"))
     assert code == 2 and "not a Gray code" in err and "Traceback" not in err
     assert not (tmp_path / "bad.npz").exists()
+
+
+def test_a_moved_camera_gets_its_map_from_its_own_stripe_edges() -> None:
+    """The virtual ProCams, its camera turned and shifted after a phase-decoded session: the first 4
+    Gray-code planes (8-px stripes) of the new pose give its columns more closely than the old map
+    carried over and anchored to the same planes."""
+    from edofproj.procams.camera_motion import carry_map
+    from edofproj.procams.structured_light import decode_phase_shift
+    from edofproj.procams.virtual import VirtualProCams
+    from test_procams_structured_light import PERIODS_X, PERIODS_Y, gray_frames, inside, make_rig, phase_frames, truth
+
+    before = make_rig()
+    hw = before.projector_hw
+    angle = math.radians(1.5)
+    motion = np.array([[math.cos(angle), -math.sin(angle), 6.0], [math.sin(angle), math.cos(angle), -4.0], [0, 0, 1]])
+    after = VirtualProCams(projector_hw=hw, camera_hw=before.camera_hw, psf=before.psf,
+                           homography=motion @ before.homography, radial_k1=0.0, gamma=1.0,
+                           projector_black=0.0, noise_sigma=0.003)  # fmt: skip
+    x = decode_phase_shift(phase_frames(before, "x", PERIODS_X), PERIODS_X, 4, hw[1])
+    y = decode_phase_shift(phase_frames(before, "y", PERIODS_Y), PERIODS_Y, 4, hw[0])
+    frames = gray_frames(after)[:4]
+    coarse = decode_gray_code(frames, hw[1])
+    carried, _ = carry_map(
+        CorrespondenceMap.from_decodings(x, y, hw), 0.5 * (x.bright + y.bright), coarse, "x", coarse.bright
+    )
+    edges = decode_gray_code_edges(frames, hw[1], hw)
+    tx, ty = truth(after)
+    ok = edges.decoding.valid & inside(tx, ty) & carried.valid
+    assert ok.sum() > 0.7 * inside(tx, ty).sum()
+    from_edges = np.median(np.abs(edges.decoding.coordinate - tx)[ok])
+    from_carry = np.median(np.abs(carried.proj_x - tx)[ok])
+    assert from_edges < 0.1 and from_edges < 0.5 * from_carry
