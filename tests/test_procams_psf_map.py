@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from edofproj.errors import EdofprojError
-from edofproj.procams.prediction import blur, fit_exposure, gaussian_kernel, predict_capture
+from edofproj.procams.prediction import (
+    blur,
+    fit_exposure,
+    gaussian_kernel,
+    predict_capture,
+    sampling_kernel_covariance,
+)
 from edofproj.procams.psf_map import DotGrid, PSFMap, covariance, measure_psf_map
 from edofproj.procams.structured_light import (
     CorrespondenceMap,
@@ -87,9 +93,15 @@ def test_blur_is_the_gaussian_and_keeps_the_light() -> None:
     image[20, 24] = 1.0
     out = blur(image, psf_map, tile_px=8)
     assert math.isclose(out.sum(), 1.0, rel_tol=1e-9)
-    kernel = gaussian_kernel(cov)
+    kernel = gaussian_kernel(sampling_kernel_covariance(cov))
     r = kernel.shape[0] // 2
     assert np.allclose(out[20 - r : 20 + r + 1, 24 - r : 24 + r + 1], kernel, atol=1e-12)
+    # sampled bilinearly (a tent of variance 1/6 around each sample), the light spreads by the PSF's S
+    for axis, centre in ((0, 24), (1, 20)):
+        marginal = out.sum(axis=axis)
+        k = np.arange(len(marginal))
+        variance = float(np.sum(marginal * (k - centre) ** 2)) + 1 / 6
+        assert math.isclose(variance, cov[axis, axis], rel_tol=0.01)
 
 
 def test_exposure_fit_ignores_clipped_pixels() -> None:
@@ -147,7 +159,16 @@ def test_prediction_on_the_virtual_procams_needs_the_psf() -> None:
     assert 0.9 < np.median(psf_map.sigma_x[fitted]) < 1.25
     assert 1.85 < np.median(psf_map.sigma_y[fitted]) < 2.25
     assert np.all(np.abs(psf_map.offset_px) < 0.2)  # this rig's phase origin is at pixel centre 0
-    assert with_psf.psnr_db > 33.0
+    assert with_psf.psnr_db > 38.0
     assert with_psf.psnr_db > without.psnr_db + 5.0
     assert with_psf.ssim > without.ssim
-    assert math.isclose(with_psf.gain, 0.8, rel_tol=0.05) and math.isclose(with_psf.offset, 0.05, abs_tol=0.01)
+    # the finest plane keeps about a quarter of its contrast and its dark and bright levels are nearly
+    # uniform: the gain trades off against the model's contrast, and is known to about 10 % only
+    assert math.isclose(with_psf.gain, 0.8, rel_tol=0.15) and math.isclose(with_psf.offset, 0.05, abs_tol=0.05)
+
+
+def test_a_psf_as_small_as_the_camera_pixels_still_helps() -> None:
+    # the measured widths contain the camera's integration; blur and bilinear sampling must not add
+    # the interpolation's own spread on top of them
+    psf_map, with_psf, without = virtual_prediction((0.6, 0.6))
+    assert with_psf.psnr_db > without.psnr_db + 0.8

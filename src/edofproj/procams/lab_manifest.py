@@ -226,6 +226,18 @@ def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None)
         frames = [first] + [manifest.read_grey(f) for f in files[1:]]
         _same_size(frames, name)
         return decode_phase_shift(frames, seq.periods, seq.steps, length)
+    frames, inverse = read_gray_code(manifest, name, planes)
+    return decode_gray_code(frames, length, inverse_frames=inverse)
+
+
+def read_gray_code(
+    manifest: LabManifest, name: str, planes: int | None = None
+) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+    """The grey captures of Gray-code sequence ``name``'s first ``planes`` planes (default all), and
+    their inverses' (None without inverse patterns)."""
+    seq = manifest.sequence(name)
+    if seq.kind != "gray-code":
+        raise EdofprojError(f"sequence '{name}' is of kind '{seq.kind}', not a Gray code")
     use = seq.planes if planes is None else int(planes)
     if not 2 <= use <= seq.planes:
         raise EdofprojError(f"--planes {use} must be 2..{seq.planes} (the planes of '{name}')")
@@ -233,7 +245,7 @@ def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None)
     frames = [manifest.read_grey(seq.files[step * b]) for b in range(use)]
     inverse = [manifest.read_grey(seq.files[step * b + 1]) for b in range(use)] if seq.inverse else None
     _same_size(frames + (inverse or []), name)
-    return decode_gray_code(frames, length, inverse_frames=inverse)
+    return frames, inverse
 
 
 def _same_size(frames: list[np.ndarray], name: str) -> None:

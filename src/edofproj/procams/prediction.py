@@ -9,7 +9,11 @@ The model of one capture ``C`` of projector image ``u`` (grey, ``(H, W)`` in ``[
   (``sum_t w_t = 1``), and ``K * u = sum_t K_t * (w_t u)`` with ``K_t`` the Gaussian at tile ``t``'s
   centre -- light leaving projector pixel ``x`` spreads with the PSF at ``x``;
 * ``P(q) - o``: the projector point camera pixel ``q`` sees (:mod:`.structured_light`, with the
-  offset the PSF map estimated), sampled bilinearly (:func:`cv2.remap`);
+  offset the PSF map estimated), sampled bilinearly (:func:`cv2.remap`). Bilinear interpolation
+  between pixel centres is itself a blur, by a tent whose variance is ``f (1 - f)`` at a fractional
+  position ``f``, ``1/6`` px^2 on average along each axis; ``K_t`` is therefore the Gaussian of
+  covariance ``S_t - I / 6`` (eigenvalues kept at least ``MIN_KERNEL_VARIANCE``), so that blur and
+  sampling together spread the light by the measured ``S_t`` and not by ``S_t + I / 6``;
 * ``D``, ``B``: what the camera sees at ``q`` with the projector off and fully on (ambient light,
   reflectance, vignetting), from the decoding's dark and bright levels, median-filtered over
   ``flat_filter_px`` camera pixels: a Gray code's per-pixel min and max are partial values where a
@@ -35,6 +39,19 @@ from ..errors import EdofprojError
 from .psf_map import PSFMap
 from .structured_light import CLIPPED_BLACK, SATURATED, CorrespondenceMap
 
+INTERPOLATION_VARIANCE_PX2 = 1.0 / 6.0
+"""Mean variance (projector px^2, per axis) of bilinear interpolation between pixel centres."""
+MIN_KERNEL_VARIANCE_PX2 = 0.01
+"""Smallest eigenvalue (px^2) of a blur kernel's covariance after the interpolation's share is removed."""
+
+
+def sampling_kernel_covariance(cov: np.ndarray) -> np.ndarray:
+    """``S - I / 6`` with its eigenvalues kept at least ``MIN_KERNEL_VARIANCE_PX2``: the Gaussian blur
+    that, followed by bilinear sampling, spreads light by ``S`` (module docstring)."""
+    values, vectors = np.linalg.eigh(np.asarray(cov, dtype=np.float64))
+    values = np.maximum(values - INTERPOLATION_VARIANCE_PX2, MIN_KERNEL_VARIANCE_PX2)
+    return (vectors * values) @ vectors.T
+
 
 def gaussian_kernel(cov: np.ndarray) -> np.ndarray:
     """``(2r + 1, 2r + 1)`` samples of the Gaussian of covariance ``cov`` (px^2) at integer offsets,
@@ -47,7 +64,8 @@ def gaussian_kernel(cov: np.ndarray) -> np.ndarray:
 
 
 def blur(image: np.ndarray, psf_map: PSFMap, tile_px: int = 24) -> np.ndarray:
-    """``K * u`` for a grey projector image ``(H, W)`` (module docstring)."""
+    """``K * u`` for a grey projector image ``(H, W)``, to be sampled bilinearly (module docstring: the
+    tiles' kernels are :func:`sampling_kernel_covariance` of the PSF map's covariances)."""
     image = np.asarray(image, dtype=np.float64)
     H, W = image.shape
     if (H, W) != tuple(psf_map.projector_hw):
@@ -65,7 +83,7 @@ def blur(image: np.ndarray, psf_map: PSFMap, tile_px: int = 24) -> np.ndarray:
         for b, cx in enumerate(centres_x):
             wx = _tent(xs, centres_x, b)
             cols = np.flatnonzero(wx > 0)
-            kernel = gaussian_kernel(psf_map.covariance_at(np.array(cx), np.array(cy)))
+            kernel = gaussian_kernel(sampling_kernel_covariance(psf_map.covariance_at(np.array(cx), np.array(cy))))
             r = kernel.shape[0] // 2
             r0, r1 = rows[0], rows[-1] + 1
             c0, c1 = cols[0], cols[-1] + 1

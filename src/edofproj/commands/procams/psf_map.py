@@ -1,10 +1,15 @@
 """``edofproj procams psf-map``: the PSF across the surface from a captured grid of single-pixel dots.
 
     edofproj procams psf-map --lab lab.json --dots SEQ --map map.npz --out psf_map.npz [--figure psf_map.png]
+    edofproj procams psf-map --lab lab.json --code GRAY --planes N --map map.npz [--like psf_map.npz] --out psf_b.npz
 
 Fits an anisotropic Gaussian (projector pixels) to every dot, saturated and black-clipped
 samples censored, estimates the decoded map's offset, and writes the map of covariances
 (:mod:`edofproj.procams.psf_map`). The map must be of the same camera pose as the dot capture.
+``--code``: the PSF's width along a Gray code's axis, measured from the first ``N`` planes' captures
+themselves through a sub-pixel map (``procams decode --edges``), per cell of projector points; the
+other components from the ``--like`` PSF map, else an isotropic Gaussian
+(:mod:`edofproj.procams.code_blur`).
 """
 
 from __future__ import annotations
@@ -20,7 +25,11 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("psf-map", help="PSF map (anisotropic Gaussians, projector px) from single-pixel dots")
     p.add_argument("--lab", required=True, help="lab manifest (lab.json)")
     p.add_argument("--root", default=None, help="folder the manifest's files are in (default: the manifest's folder)")
-    p.add_argument("--dots", required=True, metavar="SEQ", help="the dot-grid sequence")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--dots", metavar="SEQ", help="the dot-grid sequence")
+    source.add_argument("--code", metavar="SEQ", help="a Gray-code sequence: the width along its axis")
+    p.add_argument("--planes", type=int, default=None, metavar="N", help="--code: use the first N planes (all)")
+    p.add_argument("--like", default=None, metavar="PSF_MAP", help="--code: the components it does not measure")
     p.add_argument("--index", type=int, default=0, help="which of the sequence's captures (0: the first)")
     p.add_argument("--map", required=True, help="camera->projector map of the same camera pose ('procams decode')")
     p.add_argument("--every", type=int, default=1, metavar="N", help="fit every N-th dot in each direction (1)")
@@ -36,9 +45,13 @@ def run(args) -> int:
 
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
-    inputs = [("--lab", args.lab), ("--root", args.root), ("--map", args.map)]
+    inputs = [("--lab", args.lab), ("--root", args.root), ("--map", args.map), ("--like", args.like)]
     for option, output in (("--out", args.out), ("--figure", args.figure)):
         refuse_output_over(output, option, inputs, file_output=True)
+    if args.code is not None:
+        return _from_code(args)
+    if args.like is not None or args.planes is not None:
+        raise EdofprojError("--like and --planes go with --code")
     if args.every < 1:
         raise EdofprojError(f"--every {args.every} must be >= 1")
     lab = LabManifest.load(args.lab, args.root)
@@ -62,6 +75,42 @@ def run(args) -> int:
         f"o = ({psf_map.offset_px[0]:+.2f}, {psf_map.offset_px[1]:+.2f}) projector px; median sigma_x "
         f"{np.median(psf_map.sigma_x[fitted]):.2f} px, sigma_y {np.median(psf_map.sigma_y[fitted]):.2f} px, "
         f"major axis at {np.median(psf_map.angle_deg[fitted]):.0f} deg"
+    )
+    if args.figure:
+        from ...procams.psf_map import plot_psf_map
+
+        plot_psf_map(psf_map, args.figure)
+        print(f"wrote {args.figure}")
+    return 0
+
+
+def _from_code(args) -> int:
+    from ...fileio import read_arrays
+    from ...procams.code_blur import blur_psf_map, measure_code_blur
+    from ...procams.lab_manifest import LabManifest, read_gray_code
+    from ...procams.psf_map import PSFMap
+    from ...procams.structured_light import CorrespondenceMap
+
+    lab = LabManifest.load(args.lab, args.root)
+    seq = lab.sequence(args.code)
+    frames, _ = read_gray_code(lab, args.code, args.planes)
+    corr = CorrespondenceMap.load(args.map)
+    stored = read_arrays(args.map, what="correspondence map")
+    if any(stored.get(key) is None or stored[key].shape != corr.camera_hw for key in ("dark", "bright")):
+        raise EdofprojError(f"'{args.map}' has no dark and bright levels: make it with 'edofproj procams decode'")
+    if tuple(corr.projector_hw) != tuple(lab.projector_hw):
+        raise EdofprojError(f"the map's projector {corr.projector_hw} is not the manifest's {lab.projector_hw}")
+    reference = PSFMap.load(args.like) if args.like else None
+    axis = str(seq.axis)
+    fit = measure_code_blur(np.stack(frames), corr, axis, stored["dark"], stored["bright"])
+    psf_map = blur_psf_map(fit, axis, lab.projector_hw, reference)
+    psf_map.save(args.out)
+    fitted = fit.cell_sigma_px[fit.fitted]
+    others = f"the other components from '{args.like}'" if reference is not None else "isotropic"
+    print(
+        f"wrote {args.out}: blur along {axis} from {len(frames)} planes of '{args.code}': {fit.sigma_px:.2f} px "
+        f"over the surface; per cell (projector {fit.xs[1] - fit.xs[0]:.0f} px) {np.percentile(fitted, 10):.2f} "
+        f"to {np.percentile(fitted, 90):.2f} px (10-90 %), {others}"
     )
     if args.figure:
         from ...procams.psf_map import plot_psf_map
