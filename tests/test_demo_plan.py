@@ -77,21 +77,7 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
     assert all(job.required for job in _jobs(tmp_path, retrain_baselines=True))
 
 
-#: The shipped runs of the cubic plate and the axicon predate the tuned elements of the preset and the
-#: demo's equal steps: until they are retrained with them, the demo does not use them.
-PENDING_RETRAINING = pytest.mark.xfail(
-    strict=True, reason="builtin:demo-cubic-net and demo-axicon-net are to be retrained (tuned element, 2400 steps)"
-)
-
-
-@pytest.mark.parametrize(
-    "method",
-    [
-        pytest.param("axicon+net", marks=PENDING_RETRAINING),
-        pytest.param("cubic+net", marks=PENDING_RETRAINING),
-        "lens+onlineprodeb",
-    ],
-)
+@pytest.mark.parametrize("method", ["axicon+net", "cubic+net", "lens+onlineprodeb"])
 def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path, method):
     jobs = _jobs(tmp_path)
     job = next(job for job in jobs if job.method == method)
