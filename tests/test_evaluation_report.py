@@ -134,6 +134,7 @@ def test_method_registry():
         "doe+net",
         "cubic+net",
         "axicon+net",
+        "multifocal+net",
         *(f"{kind}{suffix}" for kind in ("cubic", "axicon", "multifocal") for suffix in ("", "+wiener", "+ensemble")),
     )
     default = [

@@ -170,6 +170,15 @@ METHODS: tuple[MethodSpec, ...] = (
         run_dir="axicon_net",
         train_overrides=("doe.kind=axicon",),
     ),
+    MethodSpec(
+        "multifocal+net",
+        "baseline",
+        "net",
+        "multifocal zones + the same U-Net trained with them (separate run; not in the demo)",
+        run_dir="multifocal_net",
+        train_overrides=("doe.kind=multifocal",),
+        default=False,
+    ),
     *(spec for kind in CLASSIC_ELEMENTS for spec in classic_linear_methods(kind)),
 )
 

@@ -95,9 +95,11 @@ def method_colour(name: str) -> tuple | str:
 
 #: The classic elements' linear baselines (a ``tab20b`` colour each), and the other methods but ours (a
 #: ``tab20`` pair each).
-_CLASSIC_LINEAR = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS]
-_PAIRED = [m.name for m in METHODS if m.name != OURS and m.name not in _CLASSIC_LINEAR]
-assert len(_PAIRED) <= 10 and set(_PAIRED) | set(_CLASSIC_LINEAR) | {OURS} == set(METHOD_NAMES)
+_OTHERS = [m.name for m in METHODS if m.name != OURS and m.optics not in CLASSIC_ELEMENTS]
+#: (``tab20`` has 10 pairs: methods past the tenth, such as ``multifocal+net``, take a ``tab20b`` colour.)
+_PAIRED = _OTHERS[:10]
+_CLASSIC_LINEAR = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS] + _OTHERS[10:]
+assert len(set(_CLASSIC_LINEAR)) <= 20 and set(_PAIRED) | set(_CLASSIC_LINEAR) | {OURS} == set(METHOD_NAMES)
 
 
 def _method_style(index: int, name: str) -> dict:
