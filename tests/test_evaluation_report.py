@@ -148,7 +148,7 @@ def test_method_registry():
         "cubic",
         "axicon",
     ]
-    assert set(BASELINE_RUN_DIRS) == {"lens+net", "lens+onlineprodeb", "cubic+net", "axicon+net"}
+    assert set(BASELINE_RUN_DIRS) == {"lens+net", "lens+onlineprodeb", "cubic+net", "axicon+net", "multifocal+net"}
     assert [s.name for s in select_methods(["doe+net", "lens"])] == ["lens", "doe+net"]  # canonical order
     with pytest.raises(EdofprojError, match="known: lens, lens\\+wiener"):
         method_spec("wiener")
