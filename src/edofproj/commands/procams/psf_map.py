@@ -76,12 +76,7 @@ def run(args) -> int:
         f"{np.median(psf_map.sigma_x[fitted]):.2f} px, sigma_y {np.median(psf_map.sigma_y[fitted]):.2f} px, "
         f"major axis at {np.median(psf_map.angle_deg[fitted]):.0f} deg"
     )
-    if args.figure:
-        from ...procams.psf_map import plot_psf_map
-
-        plot_psf_map(psf_map, args.figure)
-        print(f"wrote {args.figure}")
-    return 0
+    return _write_figure(psf_map, args.figure)
 
 
 def _from_code(args) -> int:
@@ -112,9 +107,14 @@ def _from_code(args) -> int:
         f"over the surface; per cell (projector {fit.xs[1] - fit.xs[0]:.0f} px) {np.percentile(fitted, 10):.2f} "
         f"to {np.percentile(fitted, 90):.2f} px (10-90 %), {others}"
     )
-    if args.figure:
+    return _write_figure(psf_map, args.figure)
+
+
+def _write_figure(psf_map, path) -> int:
+    """Draw ``psf_map`` to ``path`` when one was asked for (``--figure``); the command's exit code."""
+    if path:
         from ...procams.psf_map import plot_psf_map
 
-        plot_psf_map(psf_map, args.figure)
-        print(f"wrote {args.figure}")
+        plot_psf_map(psf_map, path)
+        print(f"wrote {path}")
     return 0
