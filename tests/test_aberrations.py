@@ -156,3 +156,21 @@ def test_a_measured_wavefront_map_of_astigmatism_matches_its_zernike(tmp_path):
     assert float((from_map - reference).abs().sum() / reference.sum()) < 2e-3
     with pytest.raises(EdofprojError, match="engine 2d"):
         _radial(aberration=measured).psf(None, [0.5])
+
+
+def test_a_wavefront_or_reflectance_file_holds_one_numeric_array(tmp_path):
+    """Both readers take their file's one numeric array through ``fileio.read_single_numeric_array``: two
+    arrays or a non-numeric one are one-line errors naming the file; one array comes back unchanged."""
+    from edofproj.imaging.surfaces import read_reflectance
+    from edofproj.optics.aberrations import load_wavefront_map_um
+
+    np.savez(tmp_path / "two.npz", a=np.zeros((4, 4)), b=np.zeros((4, 4)))
+    np.save(tmp_path / "text.npy", np.array([["a", "b"], ["c", "d"]]))
+    np.save(tmp_path / "ok.npy", np.arange(16.0).reshape(4, 4))
+    with pytest.raises(EdofprojError, match="holds 2 arrays; it must hold one square 2-D array"):
+        load_wavefront_map_um(tmp_path / "two.npz")
+    with pytest.raises(EdofprojError, match="is not a numeric array"):
+        load_wavefront_map_um(tmp_path / "text.npy")
+    with pytest.raises(EdofprojError, match="holds 2 arrays; a reflectance file holds one"):
+        read_reflectance(tmp_path / "two.npz", (4, 4))
+    assert np.array_equal(load_wavefront_map_um(tmp_path / "ok.npy"), np.arange(16.0).reshape(4, 4))

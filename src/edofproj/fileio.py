@@ -174,6 +174,19 @@ def read_tagged_arrays(
     return data
 
 
+def read_single_numeric_array(path: str | os.PathLike, what: str, label: str, holds: str) -> np.ndarray:
+    """The one numeric array of ``path`` (a ``.npy``, or an ``.npz`` of one member): one line, naming the
+    file as ``label``, when it holds another count of arrays (``holds`` says what it should hold) or a
+    non-numeric one. Its shape is the caller's to check."""
+    arrays = read_arrays(path, what=what)
+    if len(arrays) != 1:
+        raise EdofprojError(f"{label} holds {len(arrays)} arrays; {holds}")
+    values = next(iter(arrays.values()))
+    if values.dtype.kind not in "fiu":
+        raise EdofprojError(f"{label} is not a numeric array ({values.dtype})")
+    return values
+
+
 def _header(handle, what: str, path: Path, member: str = "") -> tuple[tuple[int, ...], np.dtype]:
     """The shape and dtype a ``.npy`` header at ``handle`` declares (nothing else is read)."""
     where = f"{what} '{path}'" + (f" (array '{member}')" if member else "")

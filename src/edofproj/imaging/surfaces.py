@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..fileio import read_arrays
+from ..fileio import read_single_numeric_array
 from .image_io import read_image
 
 #: Extensions of float reflectance arrays (everything else is read as an image file).
@@ -197,11 +197,6 @@ def read_reflectance(path: str | os.PathLike, height_width: tuple[int, int]) -> 
     path = Path(path)
     what = f"texture '{path}'"
     if path.suffix.lower() in ARRAY_EXTENSIONS:
-        arrays = read_arrays(path, what="texture")
-        if len(arrays) != 1:
-            raise EdofprojError(f"{what} holds {len(arrays)} arrays; a reflectance file holds one (H, W, 3)")
-        values = next(iter(arrays.values()))
-        if values.dtype.kind not in "fiu":
-            raise EdofprojError(f"{what} is not a numeric array ({values.dtype})")
+        values = read_single_numeric_array(path, "texture", what, "a reflectance file holds one (H, W, 3)")
         return check_reflectance(values.astype(np.float32), height_width, what)
     return check_reflectance(read_image(path), height_width, what)

@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError, SamplingError
-from ..fileio import read_arrays
+from ..fileio import read_single_numeric_array
 
 
 def noll_to_nm(j: int) -> tuple[int, int]:
@@ -249,12 +249,7 @@ class FieldAberrations:
 
 def load_wavefront_map_um(path: str | Path) -> np.ndarray:
     """A measured wavefront map (``.npy``, micrometres of OPD, square, spanning the aperture)."""
-    arrays = read_arrays(path, what="wavefront map")
-    if len(arrays) != 1:
-        raise EdofprojError(f"wavefront map '{path}' holds {len(arrays)} arrays; it must hold one square 2-D array")
-    w = next(iter(arrays.values()))
-    if w.dtype.kind not in "fiu":
-        raise EdofprojError(f"wavefront map '{path}' is not a numeric array ({w.dtype})")
+    w = read_single_numeric_array(path, "wavefront map", f"wavefront map '{path}'", "it must hold one square 2-D array")
     if w.ndim != 2 or w.shape[0] != w.shape[1] or w.shape[0] < 2:
         raise EdofprojError(f"wavefront map '{path}' must be a square 2-D array, got shape {w.shape}")
     if np.all(np.isnan(w)) or np.any(np.isinf(w)):
