@@ -74,8 +74,8 @@ def method_colour(name: str) -> tuple | str:
     """The colour of method ``name`` in every figure: ours (``doe+net``) black; each other method of
     :data:`~edofproj.methods.catalogue.METHOD_NAMES` but the classic elements' linear baselines the dark
     shade of its own pair of matplotlib's ``tab20`` map, in their order (10 methods, 10 pairs: no two
-    alike); the classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) each their own
-    colour of ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
+    alike); the classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) and the methods
+    past those ten (``multifocal+net``) each their own colour of ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
     (ours' variant grey); any other name a colour of ``tab20b`` fixed by its letters."""
     for suffix in VARIANT_SUFFIXES:
         if name.endswith(suffix):
@@ -88,8 +88,8 @@ def method_colour(name: str) -> tuple | str:
         return "black"
     if name in _PAIRED:
         return plt.cm.tab20(2 * _PAIRED.index(name))
-    if name in _CLASSIC_LINEAR:
-        return plt.cm.tab20b(_CLASSIC_LINEAR.index(name) % 20)
+    if name in _SINGLE_SHADE:
+        return plt.cm.tab20b(_SINGLE_SHADE.index(name) % 20)
     return plt.cm.tab20b(sum(name.encode()) % 20)
 
 
@@ -98,8 +98,8 @@ def method_colour(name: str) -> tuple | str:
 _OTHERS = [m.name for m in METHODS if m.name != OURS and m.optics not in CLASSIC_ELEMENTS]
 #: (``tab20`` has 10 pairs: methods past the tenth, such as ``multifocal+net``, take a ``tab20b`` colour.)
 _PAIRED = _OTHERS[:10]
-_CLASSIC_LINEAR = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS] + _OTHERS[10:]
-assert len(set(_CLASSIC_LINEAR)) <= 20 and set(_PAIRED) | set(_CLASSIC_LINEAR) | {OURS} == set(METHOD_NAMES)
+_SINGLE_SHADE = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS] + _OTHERS[10:]
+assert len(set(_SINGLE_SHADE)) <= 20 and set(_PAIRED) | set(_SINGLE_SHADE) | {OURS} == set(METHOD_NAMES)
 
 
 def _method_style(index: int, name: str) -> dict:
