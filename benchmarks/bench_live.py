@@ -26,7 +26,11 @@ frame on screen, median and 99th percentile); and the throughput the three threa
 allow with a core each. PyTorch and OpenCV run one thread each (``--threads``), so that each
 stage's work stays in the thread that times it.
 
-    PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 60] [--virtual-frames 8]
+With ``--device cuda`` the network runs on the GPU inside the same CPU loop: ``compensate`` then
+includes copying the two images to the GPU and the result back (the copy back waits for the GPU),
+and the network alone is timed on the GPU as ``edofproj bench --device cuda`` times it.
+
+    PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 60] [--virtual-frames 8] [--device cuda]
 """
 
 from __future__ import annotations
@@ -73,6 +77,20 @@ class InstantCamera(Camera):
 
     def grab_native(self) -> np.ndarray:
         return self.frame
+
+
+class NetworkOnDevice(torch.nn.Module):
+    """``net`` on ``device`` behind the loop's CPU tensors: ``net(I, I*)`` with both images copied to
+    the device and the compensated image copied back ((1, 3, H, W) in and out)."""
+
+    def __init__(self, net: torch.nn.Module, device: torch.device) -> None:
+        super().__init__()
+        self.net, self.device = net.to(device), device
+        self.channels_last_inputs = getattr(net, "channels_last_inputs", True)
+
+    def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+        on_device = self.net(target.to(self.device, non_blocking=True), captured.to(self.device, non_blocking=True))
+        return on_device.cpu()
 
 
 def load_line() -> str:
@@ -152,12 +170,20 @@ def main() -> int:
     parser.add_argument("--camera-scale", type=float, default=1.5, help="camera px per projector px (1.5)")
     parser.add_argument("--supersampling", type=int, default=2, help="sub-samples per camera pixel (2)")
     parser.add_argument("--threads", type=int, default=1, help="PyTorch and OpenCV threads (1)")
+    parser.add_argument("--device", default="cpu", help="where the network runs: cpu or cuda (cpu)")
+    parser.add_argument("--skip-virtual", action="store_true", help="skip part 2 (the simulated captures)")
     args = parser.parse_args()
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: PyTorch sees no CUDA GPU here")
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
     height, width = (int(v) for v in args.size.lower().split("x"))
     cfg = load_run(args.run).cfg if args.run else load_config(args.config)
     net = load_run(args.run).net if args.run else build_network(cfg.net).eval()
+    bare_net = net
+    if device.type != "cpu":
+        net = NetworkOnDevice(net, device)
     psf = simulator_from_config(cfg, window=args.window).bank(build_doe(cfg, "lens"), [args.depth_mm * 1e-3]).psf
     rig = VirtualProCams.example(
         (height, width), psf[0].double().numpy(), camera_scale=args.camera_scale, supersampling=args.supersampling
@@ -171,7 +197,8 @@ def main() -> int:
         f"live loop, {width}x{height} projector, camera {rig.camera_hw[1]}x{rig.camera_hw[0]} "
         f"(x{args.supersampling} sub-samples), {torch.get_num_threads()} PyTorch thread(s), network "
         f"'{args.run or args.config}'; calibration tables built in {setup_s:.2f} s "
-        f"(inverse response: {type(calibration.inverse_table).__name__})"
+        f"(inverse response: {type(calibration.inverse_table).__name__}); network on {device}"
+        + (f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "")
     )
 
     # 0. each stage alone: the per-call computations the loop used before against its tables
@@ -185,10 +212,14 @@ def main() -> int:
     run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3)
     instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames)
     print_summary("instant camera, in-memory display", instant)
-    bench_frame = network_torch_case(net, "net").build(height, width)
+    bench_frame = network_torch_case(bare_net, "net", device=str(device)).build(height, width)
+    sync = torch.cuda.synchronize if device.type == "cuda" else None
+    if sync is not None:  # the first calls on a GPU pick kernels
+        measure_ms(bench_frame, repeats=1, warmup=3, synchronize=sync)
     cpu_start = time.thread_time()
-    bench_ms = float(np.median(measure_ms(bench_frame, repeats=max(10, args.frames // 2), warmup=0)))
-    bench_cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(10, args.frames // 2)
+    repeats = max(10, args.frames // 2)
+    bench_ms = float(np.median(measure_ms(bench_frame, repeats=repeats, warmup=0, synchronize=sync)))
+    bench_cpu_ms = 1e3 * (time.thread_time() - cpu_start) / repeats
     live_ms, live_cpu_ms = instant.stage_ms()["compensate"][0], instant.stage_cpu_ms()["compensate"]
     print(
         f"  network alone as 'edofproj bench' times it: {bench_ms:.2f} ms median (CPU {bench_cpu_ms:.2f} ms mean); "
@@ -197,6 +228,8 @@ def main() -> int:
     )
 
     # 2. the virtual ProCams: every capture simulated
+    if args.skip_virtual:
+        return 0
     display = MemoryDisplay()
     camera = VirtualCamera(rig, display)
     run_live(net, calibration, display, camera, [("warm-up", target)])

@@ -76,7 +76,10 @@ def test_psf_gradient_wrt_the_doe_agrees_with_the_cpu():
         (psf * weights).sum().backward()  # a functional that depends on the PSF's shape
         grads[device] = torch.cat([p.grad.reshape(-1) for p in doe.parameters() if p.grad is not None])
     assert float(grads["cpu"].abs().max()) > 0
-    assert _relative(grads["cuda"], grads["cpu"]) < 1e-8
+    # the PSF is float64, the MLP's weights and their gradients float32 (a few float32 roundings,
+    # 1.7e-7 on an H100): the float64 PSFs' 1e-10 does not carry over to the MLP's backward pass
+    assert all(p.dtype == torch.float32 for p in doe.parameters())
+    assert _relative(grads["cuda"], grads["cpu"]) < 1e-6
 
 
 # ----------------------------------------------------------------------------- image formation
@@ -299,5 +302,7 @@ def test_evaluation_on_cuda_scores_as_on_the_cpu(tmp_path, float32_matmul):
     for a, b in zip(gpu.table.rows + gpu.tilted.rows, cpu.table.rows + cpu.tilted.rows):
         assert (a["method"], a["image"]) == (b["method"], b["image"])
         assert abs(a["psnr"] - b["psnr"]) < 1e-3
-        assert abs(a["ssim"] - b["ssim"]) < 1e-5
+        # float32 images: SSIM's local variances E[x^2] - E[x]^2 cancel, so rounding that moves
+        # PSNR by < 1e-3 dB moves SSIM by ~1e-5 (1.2e-5 seen on an H100)
+        assert abs(a["ssim"] - b["ssim"]) < 1e-4
     assert cpu.nsr == pytest.approx(gpu.nsr)

@@ -14,9 +14,14 @@
 # suite      the rest of the test suite (not part of `all`: CI runs it on the CPU)
 # bench      `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
 #            and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
+# live       benchmarks/bench_live.py --device cuda: the live loop at 600x800 with an in-memory display
+#            and an instant camera, the reference network (builtin:cpu-doe-net) and the real-time network on the GPU
 # paper      benchmarks/gpu/paper_scale.py: s/step and peak memory at the paper's sizes, fp32 vs bf16
 # scored     trains the `paper` preset for SCORED_STEPS steps and evaluates it and the reference
 #            model (REFERENCE_RUN, default the built-in run builtin:cpu-doe-net) on the GPU
+#
+# Knobs for a short loan (environment): BENCH_REPEATS (300), PAPER_STEPS (40), TESTS_TIMEOUT (420 s),
+# STEP_TIMEOUT (the cap of bench, live, paper and scored each, 600 s).
 #
 # setup and placement always run first. Results go to $OUT (default /tmp/edofproj-gpu): logs, CSV
 # tables and results.tar.gz.
@@ -38,9 +43,13 @@ SCORED_CROP=${SCORED_CROP:-256}
 SCORED_BATCH=${SCORED_BATCH:-4}
 SCORED_PRECISION=${SCORED_PRECISION:-bf16}
 REFERENCE_RUN=${REFERENCE_RUN:-builtin:cpu-doe-net}
+BENCH_REPEATS=${BENCH_REPEATS:-300}
+PAPER_STEPS=${PAPER_STEPS:-40}
+TESTS_TIMEOUT=${TESTS_TIMEOUT:-420}
+STEP_TIMEOUT=${STEP_TIMEOUT:-600}
 mkdir -p "$OUT" "$WORK"
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/src:${PYTHONPATH:-}"
-CLI="python3 -m edofproj.cli"
+CLI="timeout $STEP_TIMEOUT python3 -m edofproj.cli"
 
 setup() {
     nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
@@ -69,7 +78,7 @@ placement() {
 tests() {
     local xdist=""
     python3 -c "import xdist" 2>/dev/null && xdist="-n 8"
-    timeout 420 python3 -m pytest tests -k cuda -q -rs $xdist -p no:cacheprovider --junitxml="$OUT/junit_cuda.xml" 2>&1 \
+    timeout "$TESTS_TIMEOUT" python3 -m pytest tests -k cuda -q -rs $xdist -p no:cacheprovider --junitxml="$OUT/junit_cuda.xml" 2>&1 \
         | tee "$OUT/pytest_cuda.log" | tail -25
     python3 - "$OUT/junit_cuda.xml" <<'PY'
 import sys, xml.etree.ElementTree as ET
@@ -95,7 +104,7 @@ suite() {
 }
 
 bench() {
-    local common="--device cuda --repeats 300 --warmup 20 --no-onnx --methods wiener,unet --sizes 256x256,600x800,768x1024"
+    local common="--device cuda --repeats $BENCH_REPEATS --warmup 20 --no-onnx --methods wiener,unet --sizes 256x256,600x800,768x1024"
     local status=0
     $CLI bench $common --widths 16,32,64,128 --prefilter-bins 48 --csv "$OUT/bench_default.csv" \
         2>>"$OUT/bench.log" || status=1
@@ -106,9 +115,18 @@ bench() {
     return $status
 }
 
+live() {
+    local status=0
+    timeout "$STEP_TIMEOUT" python3 benchmarks/bench_live.py --device cuda --frames 300 --skip-virtual \
+        --run builtin:cpu-doe-net 2>&1 | tee "$OUT/live_cpu_doe_net.log" | tail -14 || status=1
+    timeout "$STEP_TIMEOUT" python3 benchmarks/bench_live.py --device cuda --frames 300 --skip-virtual \
+        --config realtime 2>&1 | tee "$OUT/live_realtime.log" | tail -14 || status=1
+    return $status
+}
+
 paper() {
-    timeout 200 python3 benchmarks/gpu/paper_scale.py --out "$WORK/paper_scale" --steps 40 --crop 1024 2>&1 \
-        | grep -v Warning | tail -8
+    timeout "$STEP_TIMEOUT" python3 benchmarks/gpu/paper_scale.py --out "$WORK/paper_scale" --steps "$PAPER_STEPS" \
+        --crop 1024 2>&1 | grep -v Warning | tee "$OUT/paper_scale.log" | tail -8
 }
 
 scored() {
@@ -130,13 +148,13 @@ scored() {
 steps=()
 for step in "$@"; do
     case "$step" in
-    all) steps+=(tests bench paper scored) ;;
+    all) steps+=(tests bench live paper scored) ;;
     setup | placement) ;;  # always run first
-    tests | suite | bench | paper | scored) steps+=("$step") ;;
-    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, paper, scored, all)" >&2; exit 2 ;;
+    tests | suite | bench | live | paper | scored) steps+=("$step") ;;
+    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, live, paper, scored, all)" >&2; exit 2 ;;
     esac
 done
-[ $# -eq 0 ] && steps=(tests bench paper scored)
+[ $# -eq 0 ] && steps=(tests bench live paper scored)
 steps=(setup placement "${steps[@]}")
 status=0
 for step in "${steps[@]}"; do
