@@ -281,3 +281,83 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     before = [p.clone() for p in unet.parameters()]
     start_from_wiener(cfg, unet, table)
     assert all(torch.equal(a, b) for a, b in zip(before, unet.parameters()))
+
+
+# ----------------------------------------------------------------------------- the safe form
+
+
+def linear_path_only(net: MultirateCompensationNet, target, captured) -> torch.Tensor:
+    """``I + S(L U + B D)``: the network with its non-linear part (head and depth gain) set to zero."""
+    head_w, head_b = net.head.weight.clone(), net.head.bias.clone()
+    gain_w, gain_b = net.linear_gain.weight.clone(), net.linear_gain.bias.clone()
+    with torch.no_grad():
+        for p in (net.head.weight, net.head.bias, net.linear_gain.weight, net.linear_gain.bias):
+            p.zero_()
+        out = net(target, captured)
+        net.head.weight.copy_(head_w), net.head.bias.copy_(head_b)
+        net.linear_gain.weight.copy_(gain_w), net.linear_gain.bias.copy_(gain_b)
+    return out
+
+
+@pytest.mark.parametrize("highpass_px", [0.0, 8.0])
+def test_safe_form_stays_within_its_bound_of_its_own_linear_path(highpass_px):
+    """Whatever the weights (here large random ones that move the output by far more than the
+    bound), ``|x - (I + S(L U + B D))| <= b`` at every pixel, and the bound is reached closely."""
+    bound = 0.1
+    net = trained_looking(MultirateCompensationNet(SMALL, correction_bound=bound, correction_highpass_px=highpass_px))
+    with torch.no_grad():
+        net.head.weight.mul_(20.0)
+        net.head.bias.mul_(20.0)
+    target, captured = images(48, 64, batch=2)
+    with torch.no_grad():
+        out = net(target, captured)
+    deviation = (out - linear_path_only(net, target, captured)).abs()
+    assert float(deviation.max()) <= bound + 1e-6
+    assert float(deviation.max()) > 0.5 * bound  # the non-linear part is active, not switched off
+
+
+def test_safe_form_with_highpass_keeps_the_linear_level_over_a_flat_area():
+    """Over a flat target (and capture) the high-passed correction has almost no level of its own:
+    with a head that adds a large constant to every pixel, each block's mean stays within 1 % of
+    the bound of the linear path's away from the border (the U-Net's own border effects leave
+    ~1e-4), where the bound alone would let it move by the whole bound; what remains is a zero-mean
+    pattern inside the blocks, bounded by b."""
+    target = torch.full((1, 3, 96, 96), 0.4)
+    level = {}
+    for highpass_px in (0.0, 4.0):
+        net = trained_looking(MultirateCompensationNet(SMALL, correction_bound=0.2, correction_highpass_px=highpass_px))
+        with torch.no_grad():
+            net.head.bias.fill_(5.0)  # an unbounded network would add 5 to every pixel
+            out = net(target, target.clone())
+        deviation = out - linear_path_only(net, target, target.clone())
+        assert float(deviation.abs().max()) <= 0.2 + 1e-6
+        level[highpass_px] = float(F.avg_pool2d(deviation, 4)[..., 4:-4, 4:-4].abs().max())  # 16 px from the border
+    assert level[4.0] < 0.002 and level[0.0] > 0.1
+
+
+def test_safe_form_untrained_is_the_identity_and_unbounded_form_is_unchanged():
+    """An untrained safe network is the identity (its correction is ``HP(0) = 0``); the default
+    (``correction_bound = 0``) is the unbounded form, output for output."""
+    target, captured = images(37, 53, batch=2)
+    safe = MultirateCompensationNet(SMALL, correction_bound=0.2, correction_highpass_px=8.0).eval()
+    with torch.no_grad():
+        torch.testing.assert_close(safe(target, captured), target, rtol=0, atol=2e-6)
+    torch.manual_seed(0)
+    plain = trained_looking(MultirateCompensationNet(SMALL))
+    torch.manual_seed(0)
+    default = trained_looking(MultirateCompensationNet(SMALL, correction_bound=0.0, correction_highpass_px=8.0))
+    with torch.no_grad():
+        torch.testing.assert_close(default(target, captured), plain(target, captured), rtol=0, atol=0)
+
+
+def test_safe_form_trains_and_its_config_keys_build_it():
+    cfg = Config()
+    cfg.net = MultirateConfig(widths=[4, 8], correction_bound=0.15, correction_highpass_px=8.0)
+    net = build_network(cfg.net)
+    assert net.correction_bound == 0.15 and net.correction_highpass_blocks == 2.0
+    trained_looking(net).train()
+    target, captured = images(32, 32)
+    net(target, captured).square().mean().backward()
+    assert float(net.head.weight.grad.abs().max()) > 0 and float(net.linear_gain.weight.grad.abs().max()) > 0
+    with pytest.raises(EdofprojError, match="correction_bound"):
+        MultirateCompensationNet(SMALL, correction_bound=-0.1)

@@ -293,6 +293,9 @@ class MultirateConfig(UNetBodyConfig):
     When it is trained for a fixed DOE, its local filter starts as the depth-ensemble Wiener filter of
     the DOE's training PSFs with the NSR ``init_nsr``
     (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`; 0 starts it at zero).
+    ``correction_bound > 0`` gives it the safe form: the non-linear part (the depth gain and the
+    U-Net's values) is a bounded correction of its own linear path, high-passed by
+    ``correction_highpass_px`` (:func:`edofproj.compensation.multirate.bounded_block_correction`).
     """
 
     architecture: ClassVar[str] = "multirate"
@@ -302,6 +305,18 @@ class MultirateConfig(UNetBodyConfig):
     init_nsr: float = option(
         0.01,
         "NSR of the depth-ensemble Wiener filter its local filter starts as, for a fixed DOE (0: starts at zero)",
+        range=Range(0.0),
+    )
+    correction_bound: float = option(
+        0.0,
+        "the largest |x - (I + S(LU + BD))| anywhere, the non-linear part's bound around its own linear path "
+        "(projector input units; 0: unbounded)",
+        range=Range(0.0),
+    )
+    correction_highpass_px: float = option(
+        0.0,
+        "with correction_bound > 0, the non-linear part carries no local mean beyond a Gaussian of this sigma (0: off)",
+        unit="px",
         range=Range(0.0),
     )
 

@@ -37,6 +37,18 @@ every full-resolution layer of a 3-channel image is memory-bound. This network w
 * ``S_s``: places each block's ``s^2 C`` values at full resolution (a pixel shuffle, fused with
   the sum so that the full-resolution image is written once).
 
+**Safe form** (``correction_bound = b > 0``): the linear path alone is the base and the non-linear
+part a bounded correction of it,
+
+    projector_input = I + S_s( L U + B D + c ),     c = HP( b_t tanh( HP(g (L U + B D) + W f) / b_t ) )
+
+with ``HP(v) = v - G * mean_s2(v)``: each block's values less a Gaussian blur (sigma
+``correction_highpass_px / s`` blocks, replicate border) of the block means, computed at ``1/s``
+resolution, and ``b_t = b / 2`` (``b`` without the high-pass). So ``|projector_input - (I + S_s(L U +
+B D))| <= b`` at every pixel for any weights, and over flat areas wider than a few ``sigma`` the
+emitted level is the linear path's (as :mod:`edofproj.compensation.linear_base` does around the
+full-resolution depth-ensemble filter, at ``1/s`` of its cost).
+
 ``L`` (stored divided by :data:`LOCAL_GAIN_SCALE`), ``g``, ``W`` and ``H - 1`` start at zero, so
 an untrained network is the identity ``projector_input = I`` (up to FFT round-off). For a fixed
 DOE, training starts ``L`` instead as the depth-ensemble Wiener filter of its PSFs
@@ -59,6 +71,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
+from .linear_base import gaussian_blur
 from .radial_filter import RadialFourierFilter
 from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, unet_body, unet_layers
 
@@ -135,6 +148,22 @@ def polyphase_taps(kernel: torch.Tensor, block: int) -> torch.Tensor:
     return taps.reshape(s * s, s * s, 3, 3)
 
 
+def bounded_block_correction(values: torch.Tensor, bound: float, highpass_blocks: float) -> torch.Tensor:
+    """``c = HP(b_t tanh(HP(v) / b_t))`` of per-block pixel values ``v`` ``(B, s^2, hb, wb)`` (one
+    colour; module docstring), in float32: ``|c| <= bound`` everywhere. ``HP(v) = v - G * mean(v)``
+    subtracts from every pixel of a block the Gaussian blur (sigma ``highpass_blocks`` blocks) of the
+    block means, so a constant added to ``v`` changes nothing; ``b_t = bound / 2`` (``|HP(u)| <= 2
+    max|u|``). ``highpass_blocks = 0``: ``c = bound tanh(v / bound)``."""
+    with torch.autocast(values.device.type, enabled=False):
+        values = values.float()
+        if highpass_blocks <= 0:
+            return bound * torch.tanh(values / bound)
+        half = 0.5 * bound
+        centred = values - gaussian_blur(values.mean(dim=1, keepdim=True), highpass_blocks)
+        limited = half * torch.tanh(centred / half)
+        return limited - gaussian_blur(limited.mean(dim=1, keepdim=True), highpass_blocks)
+
+
 class MultirateCompensationNet(nn.Module):
     """``projector_input = I + S_s((1 + g)(L U + B D) + W f)`` (module docstring).
 
@@ -146,6 +175,8 @@ class MultirateCompensationNet(nn.Module):
         leaky_slope, downsampling, upsampling: as in
             :class:`~edofproj.compensation.unet.CompensationUNet`.
         channels: colour channels ``C`` of target and capture (3).
+        correction_bound: ``b > 0``: the safe form (module docstring); 0: unbounded.
+        correction_highpass_px: the high-pass's Gaussian sigma in pixels in the safe form (0: none).
     """
 
     #: Full-resolution inputs are read by strided convolutions and the final sum, which are
@@ -164,8 +195,17 @@ class MultirateCompensationNet(nn.Module):
         downsampling: str = "conv",
         upsampling: str = "transpose",
         channels: int = 3,
+        correction_bound: float = 0.0,
+        correction_highpass_px: float = 0.0,
     ) -> None:
         super().__init__()
+        if not (correction_bound >= 0 and correction_highpass_px >= 0):
+            raise EdofprojError(
+                f"multirate network correction_bound={correction_bound} and correction_highpass_px="
+                f"{correction_highpass_px} must be >= 0 (net.correction_bound, net.correction_highpass_px)"
+            )
+        self.correction_bound = float(correction_bound)
+        self.correction_highpass_blocks = float(correction_highpass_px) / int(block)
         if int(block) != block or block < 2:
             raise EdofprojError(f"multirate network block={block} must be an integer >= 2 (net.block_px)")
         if int(filter_bins) != filter_bins or filter_bins < 2:
@@ -238,6 +278,8 @@ class MultirateCompensationNet(nn.Module):
             leaky_slope=net_cfg.leaky_slope,
             downsampling=net_cfg.downsampling,
             upsampling=net_cfg.upsampling,
+            correction_bound=net_cfg.correction_bound,
+            correction_highpass_px=net_cfg.correction_highpass_px,
         )
 
     def initialize_linear_path(self, kernels) -> None:
@@ -261,7 +303,8 @@ class MultirateCompensationNet(nn.Module):
                 weight.copy_((taps / LOCAL_GAIN_SCALE).to(weight.dtype))
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
-        """``I + S_s((1 + g)(L U + B D) + W f)``, same size as ``target`` ``(B, C, H, W)``, unclamped."""
+        """``I + S_s((1 + g)(L U + B D) + W f)`` (safe form: ``I + S_s(L U + B D + c)``), same size as
+        ``target`` ``(B, C, H, W)``, unclamped."""
         if not torch.jit.is_tracing() and (
             target.dim() != 4 or captured.shape != target.shape or target.shape[1] != self.channels
         ):
@@ -311,8 +354,13 @@ class MultirateCompensationNet(nn.Module):
         per_colour = []
         colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
         for i in range(c):
-            values = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
-            values = torch.addcmul(shared[:, i * n : (i + 1) * n], values, 1 + gain[:, i : i + 1])  # one pass
+            linear = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
+            if self.correction_bound > 0:  # safe form: L U + B D + c, |c| <= b
+                raw = torch.addcmul(shared[:, i * n : (i + 1) * n], linear, gain[:, i : i + 1])
+                bounded = bounded_block_correction(raw, self.correction_bound, self.correction_highpass_blocks)
+                values = linear + bounded.to(linear.dtype)
+            else:
+                values = torch.addcmul(shared[:, i * n : (i + 1) * n], linear, 1 + gain[:, i : i + 1])  # one pass
             per_colour.append(values)
         if exported:  # ONNX DepthToSpace
             output = full_target + F.pixel_shuffle(torch.cat(per_colour, dim=1), s)
