@@ -307,6 +307,12 @@ class MultirateConfig(UNetBodyConfig):
         "NSR of the depth-ensemble Wiener filter its local filter starts as, for a fixed DOE (0: starts at zero)",
         range=Range(0.0),
     )
+    linear_path: str = option(
+        "trained",
+        "trained: the linear path L U + B D learns with the rest; fixed: for a fixed DOE it stays the "
+        "depth-ensemble Wiener filter it starts as (init_nsr > 0), and only the non-linear part trains",
+        choices=("trained", "fixed"),
+    )
     correction_bound: float = option(
         0.0,
         "the largest |x - (I + S(LU + BD))| anywhere, the non-linear part's bound around its own linear path "
@@ -319,6 +325,13 @@ class MultirateConfig(UNetBodyConfig):
         unit="px",
         range=Range(0.0),
     )
+
+    def check_together(self) -> None:
+        if self.linear_path == "fixed" and self.init_nsr <= 0:
+            raise ConfigError(
+                "net.linear_path=fixed keeps the depth-ensemble Wiener filter the linear path starts as: "
+                "it needs net.init_nsr > 0"
+            )
 
 
 @dataclass
