@@ -361,3 +361,25 @@ def test_safe_form_trains_and_its_config_keys_build_it():
     assert float(net.head.weight.grad.abs().max()) > 0 and float(net.linear_gain.weight.grad.abs().max()) > 0
     with pytest.raises(EdofprojError, match="correction_bound"):
         MultirateCompensationNet(SMALL, correction_bound=-0.1)
+
+
+def test_a_fixed_linear_path_is_frozen_at_the_wiener_start_and_the_rest_trains():
+    """``net.linear_path: fixed``: after ``start_from_wiener`` the linear path (L, B, the block-mean
+    filter) no longer takes gradients and still holds the Wiener start; the non-linear part does."""
+    from edofproj.training.psf_table import DepthPSFTable
+    from edofproj.training.trainer import start_from_wiener
+
+    r2 = (torch.arange(9.0) - 4)[:, None] ** 2 + (torch.arange(9.0) - 4)[None] ** 2
+    psf = torch.stack([torch.exp(-r2 / (2 * s**2)) / torch.exp(-r2 / (2 * s**2)).sum() for s in (0.6, 0.9, 1.2)])
+    table = DepthPSFTable(psf[:, None].expand(3, 3, 9, 9).contiguous(), 1 / np.linspace(1 / 0.8, 1 / 0.3, 3))
+    cfg = Config()
+    cfg.net = MultirateConfig(widths=SMALL, filter_bins=8, linear_path="fixed", correction_bound=0.2)
+    net = build_network(cfg.net)
+    start_from_wiener(cfg, net, table)
+    linear = [*net.local_filter.parameters(), *net.correction_to_pixels.parameters(), *net.prefilter.parameters()]
+    assert linear and not any(p.requires_grad for p in linear)
+    assert max(float(local.weight.abs().max()) for local in net.local_filter) > 0  # the Wiener start
+    trainable = [p for p in net.parameters() if p.requires_grad]
+    assert net.head.weight.requires_grad and net.linear_gain.weight.requires_grad and trainable
+    with pytest.raises(ConfigError, match="init_nsr"):
+        MultirateConfig(linear_path="fixed", init_nsr=0.0).check_together()
