@@ -71,14 +71,22 @@ def test_fourier_filter_networks_export_to_torchscript_and_to_fixed_size_onnx(tm
     torch.nn.init.normal_(unet.prefilter.gain, std=0.1)
     torch.nn.init.normal_(unet.head.weight, std=0.3)
     assert export_network(unet, tmp_path / "net.pt", "torchscript", height=32, width=40) < 1e-4
-    multirate = MultirateCompensationNet([4, 8], filter_bins=8).eval()
-    with torch.no_grad():
-        multirate.prefilter.gain.normal_(0, 0.1)
-        multirate.head.weight.normal_(0, 0.3)
-        multirate.linear_gain.weight.normal_(0, 0.3)
-        for local in multirate.local_filter:
-            local.weight.normal_(0, 0.02)
-    for name, net, (height, width) in (("unet", unet, (32, 40)), ("multirate", multirate, (36, 52))):
+    multirates = []
+    for bound in (0.0, 0.2):  # the unbounded form and the safe form (the realtime preset's)
+        multirate = MultirateCompensationNet([4, 8], filter_bins=8, correction_bound=bound, correction_highpass_px=8.0)
+        with torch.no_grad():
+            multirate.prefilter.gain.normal_(0, 0.1)
+            multirate.head.weight.normal_(0, 0.3)
+            multirate.linear_gain.weight.normal_(0, 0.3)
+            for local in multirate.local_filter:
+                local.weight.normal_(0, 0.02)
+        multirates.append(multirate.eval())
+    cases = (
+        ("unet", unet, (32, 40)),
+        ("multirate", multirates[0], (36, 52)),
+        ("safe_multirate", multirates[1], (36, 52)),
+    )
+    for name, net, (height, width) in cases:
         path = tmp_path / f"{name}.onnx"
         assert export_network(net, path, "onnx", height=height, width=width) <= 1e-4
         session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
