@@ -152,8 +152,8 @@ def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> Non
     )
     initialize_linear_path(kernels)
     if options.linear_path == "fixed":  # only the non-linear part trains (bounded around it in the safe form)
-        for part in (net.local_filter, net.correction_to_pixels, net.prefilter):
-            for p in part.parameters():
+        for part in ("local_filter", "correction_to_pixels", "prefilter"):
+            for p in net.get_submodule(part).parameters():
                 p.requires_grad_(False)
 
 
