@@ -43,26 +43,35 @@ def raise_killed(signum, frame):
 
 
 def test_sigterm_ends_the_loop_with_the_summary_of_the_frames_done():
-    """The camera sends SIGTERM to this process on its third grab; the targets never end, so only
-    the signal can end the loop. Without its handling, the test's own handler raises ``Killed``."""
+    """The camera sends SIGTERM to this process on its first grab after a frame is on screen (the
+    loop's ``on_frame``: waiting for that state, not for a number of grabs, which a loaded machine
+    can reach before any frame is done); the targets never end, so only the signal can end the
+    loop. Without its handling, the test's own handler raises ``Killed``."""
     rig = straight_rig((24, 32), delta_psf())
     calibration, display = exact_calibration(rig), MemoryDisplay()
     virtual = VirtualCamera(rig, display)
 
+    shown = threading.Event()
+
     class Terminating(Camera):
         spec = "terminating"
-        grabs = 0
+        sent = False
 
         def grab(self):
-            self.grabs += 1
-            if self.grabs == 3:
+            if shown.is_set() and not self.sent:
+                self.sent = True
                 os.kill(os.getpid(), signal.SIGTERM)
             return virtual.grab()
 
     previous = signal.signal(signal.SIGTERM, raise_killed)
     try:
         summary = run_live(
-            identity_net, calibration, display, Terminating(), itertools.repeat(("t", np.full((24, 32, 3), 0.5)))
+            identity_net,
+            calibration,
+            display,
+            Terminating(),
+            itertools.repeat(("t", np.full((24, 32, 3), 0.5))),
+            on_frame=lambda frame: shown.set(),
         )
         assert signal.getsignal(signal.SIGTERM) is raise_killed  # restored
     finally:
