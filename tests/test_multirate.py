@@ -383,3 +383,5 @@ def test_a_fixed_linear_path_is_frozen_at_the_wiener_start_and_the_rest_trains()
     assert net.head.weight.requires_grad and net.linear_gain.weight.requires_grad and trainable
     with pytest.raises(ConfigError, match="init_nsr"):
         MultirateConfig(linear_path="fixed", init_nsr=0.0).check_together()
+    with pytest.raises(EdofprojError, match="trains its DOE"):  # no PSF table: the DOE is being trained
+        start_from_wiener(cfg, build_network(cfg.net), torch.nn.Identity())

@@ -131,14 +131,19 @@ def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> Non
     """A network with a linear path (``initialize_linear_path``, the multirate network) trained for
     a *fixed* DOE starts that path as the depth-ensemble Wiener filter of the DOE's PSF table
     (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans (``s = net.block_px``);
-    with ``net.linear_path: fixed`` that path is then frozen. A resumed run then loads its checkpoint
-    over this start.
-
-    (Fitting ``L``, ``B`` and the block-mean filter to the full depth-ensemble filter of radius 33 px
-    instead, by 400 Adam steps on training crops, did not bring them closer than this start: 7-8 %
-    relative RMS error of the correction on the reference model's DOE either way.)"""
+    with ``net.linear_path: fixed`` that path is then frozen (a DOE being trained refuses it). A
+    resumed run then loads its checkpoint over this start."""
     initialize_linear_path = getattr(net, "initialize_linear_path", None)
     options = cfg.net
+    if (
+        isinstance(options, MultirateConfig)
+        and options.linear_path == "fixed"
+        and not isinstance(psf_source, DepthPSFTable)
+    ):
+        raise EdofprojError(
+            "net.linear_path=fixed keeps the Wiener filter of a fixed DOE, but this run trains its DOE: "
+            "use a fixed design (doe.kind=file, lens, cubic, ...) or train.train_doe=false, or net.linear_path=trained"
+        )
     if (
         not isinstance(options, MultirateConfig)
         or options.init_nsr <= 0
