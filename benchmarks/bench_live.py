@@ -208,7 +208,7 @@ def main() -> int:
     print_stages_alone(calibration, frame, target, args.frames)
 
     # 1. instant camera: one virtual capture of the target, returned at once
-    camera = InstantCamera(frame)
+    camera: Camera = InstantCamera(frame)
     run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3)
     instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames)
     print_summary("instant camera, in-memory display", instant)
