@@ -38,6 +38,7 @@ helps; :mod:`edofproj.training.validation` checks that it does, image by image.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import torch
@@ -118,11 +119,21 @@ def bounded_correction(residual: torch.Tensor, bound: float, highpass_px: float)
     """``c = HP_s(b_t tanh(HP_s(r) / b_t))`` (module docstring) of ``residual`` ``r`` ``(B, C, H, W)``,
     in float32: ``|c| <= bound`` at every pixel; with ``highpass_px = s > 0``, no local mean beyond a
     Gaussian of ``s`` pixels and independent of any constant added to ``r``."""
+    local_mean = (lambda v: gaussian_blur(v, highpass_px)) if highpass_px > 0 else None
+    return bound_around_local_mean(residual, bound, local_mean)
+
+
+def bound_around_local_mean(
+    residual: torch.Tensor, bound: float, local_mean: Callable[[torch.Tensor], torch.Tensor] | None
+) -> torch.Tensor:
+    """``c = HP(b_t tanh(HP(r) / b_t))`` with ``HP(v) = v - local_mean(v)``, in float32 whatever the
+    autocast: ``|c| <= bound`` at every element, since ``b_t = bound / 2`` and a local mean (a
+    normalized average, broadcast back to ``v``'s shape) of values within ``b_t`` is within ``b_t``.
+    Without ``local_mean``: ``c = bound tanh(r / bound)``."""
     with torch.autocast(residual.device.type, enabled=False):
         residual = residual.float()
-        if highpass_px <= 0:
+        if local_mean is None:
             return bound * torch.tanh(residual / bound)
         half = 0.5 * bound
-        centred = residual - gaussian_blur(residual, highpass_px)
-        limited = half * torch.tanh(centred / half)
-        return limited - gaussian_blur(limited, highpass_px)
+        limited = half * torch.tanh((residual - local_mean(residual)) / half)
+        return limited - local_mean(limited)

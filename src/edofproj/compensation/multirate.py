@@ -71,7 +71,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..errors import EdofprojError
-from .linear_base import gaussian_blur
+from .linear_base import bound_around_local_mean, gaussian_blur
 from .radial_filter import RadialFourierFilter
 from .unet import DOWNSAMPLING_MODES, UPSAMPLING_MODES, unet_body, unet_layers
 
@@ -150,18 +150,16 @@ def polyphase_taps(kernel: torch.Tensor, block: int) -> torch.Tensor:
 
 def bounded_block_correction(values: torch.Tensor, bound: float, highpass_blocks: float) -> torch.Tensor:
     """``c = HP(b_t tanh(HP(v) / b_t))`` of per-block pixel values ``v`` ``(B, s^2, hb, wb)`` (one
-    colour; module docstring), in float32: ``|c| <= bound`` everywhere. ``HP(v) = v - G * mean(v)``
+    colour; module docstring), in float32: ``|c| <= bound`` everywhere
+    (:func:`~edofproj.compensation.linear_base.bound_around_local_mean`). ``HP(v) = v - G * mean(v)``
     subtracts from every pixel of a block the Gaussian blur (sigma ``highpass_blocks`` blocks) of the
-    block means, so a constant added to ``v`` changes nothing; ``b_t = bound / 2`` (``|HP(u)| <= 2
-    max|u|``). ``highpass_blocks = 0``: ``c = bound tanh(v / bound)``."""
-    with torch.autocast(values.device.type, enabled=False):
-        values = values.float()
-        if highpass_blocks <= 0:
-            return bound * torch.tanh(values / bound)
-        half = 0.5 * bound
-        centred = values - gaussian_blur(values.mean(dim=1, keepdim=True), highpass_blocks)
-        limited = half * torch.tanh(centred / half)
-        return limited - gaussian_blur(limited.mean(dim=1, keepdim=True), highpass_blocks)
+    block means, so a constant added to ``v`` changes nothing. ``highpass_blocks = 0``:
+    ``c = bound tanh(v / bound)``."""
+
+    def block_mean(v: torch.Tensor) -> torch.Tensor:
+        return gaussian_blur(v.mean(dim=1, keepdim=True), highpass_blocks)
+
+    return bound_around_local_mean(values, bound, block_mean if highpass_blocks > 0 else None)
 
 
 class MultirateCompensationNet(nn.Module):
