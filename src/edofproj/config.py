@@ -445,6 +445,11 @@ class TrainConfig:
     from the current DOE. ``validate_every`` (0: never): every that many steps (and at the end) the
     network and the linear filter of the current DOE are scored on ``validation_images`` held-back
     validation images (:mod:`edofproj.training.validation`; ``validation_log.csv``).
+    ``teacher`` (empty: none): a trained run (a directory or ``builtin:NAME``) whose network the
+    network imitates, for a fixed DOE that must be the teacher's: the loss gains
+    ``teacher_weight * mean|clamp(x, 0, 1) - clamp(x_T, 0, 1)|``, the mean absolute difference
+    between the projector images the two networks emit for the same target and capture
+    (:mod:`edofproj.training.distillation`).
     """
 
     steps: int = 400
@@ -471,8 +476,12 @@ class TrainConfig:
     linear_every: int = 10
     validate_every: int = 0
     validation_images: int = 5
+    teacher: str = ""
+    teacher_weight: float = 1.0
 
     def validate(self) -> None:
+        if self.teacher_weight < 0:
+            raise ConfigError(f"train.teacher_weight={self.teacher_weight} must be >= 0")
         if self.linear_every < 1 or self.validate_every < 0 or self.validation_images < 1:
             raise ConfigError(
                 "train.linear_every and train.validation_images must be >= 1, train.validate_every >= 0 (0: never)"

@@ -44,6 +44,7 @@ PATH_KEYS = (
     "loss.weights_dir",
     "data.folder",
     "data.test_folder",
+    "train.teacher",
 )
 
 

@@ -76,6 +76,7 @@ from ..runs.checkpoint import (
 )
 from ..runs.figures import plot_doe_profile, plot_loss_curve, plot_psfs_across_depth
 from ..runs.log import TrainingLog, read_log
+from .distillation import distillation_term, load_teacher
 from .distributed import (
     ProcessGroup,
     average_across_processes,
@@ -226,14 +227,11 @@ class _Session:
         layers_m = None
         if cfg.train.screens == "varying":
             layers_m = layer_depths_m(cfg.psf.depth_min_m, cfg.psf.depth_max_m, max(2, cfg.imaging.depth_layers))
+        mixed_precision = resolve_mixed_precision(cfg.train.mixed_precision, device)
         self.model = EndToEndProjector(
-            psf_source,
-            self.net,
-            cfg.train.noise_sigma,
-            cfg.train.quantize_capture,
-            resolve_mixed_precision(cfg.train.mixed_precision, device),
-            layers_m,
+            psf_source, self.net, cfg.train.noise_sigma, cfg.train.quantize_capture, mixed_precision, layers_m
         )
+        self.teacher = load_teacher(cfg, self.doe, self.doe_trained, device, mixed_precision)
 
         self.doe_params = [p for p in self.doe.parameters() if p.requires_grad]
         self.net_params = [p for p in self.net.parameters() if p.requires_grad]
@@ -360,6 +358,9 @@ class _Session:
             warnings.simplefilter("ignore", BlurExceedsWindowWarning)  # warned once at the start
             out = self.wrapped(images, depths, noise, *surface)
         loss, mse, perceptual = loss_terms(self.loss_fn, cfg, out.projected, images)
+        if self.teacher is not None:  # train.teacher: imitate its projector image (distillation.py)
+            taught = self.teacher(images, out.captured)
+            loss = loss + cfg.train.teacher_weight * distillation_term(out.compensated, taught)
         logged = average_across_processes(torch.stack([loss.detach(), mse, perceptual]).float().cpu(), self.group)
         if not math.isfinite(float(logged[0])):
             self._stop_non_finite(step, "loss", float(logged[0]))
