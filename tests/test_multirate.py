@@ -383,5 +383,50 @@ def test_a_fixed_linear_path_is_frozen_at_the_wiener_start_and_the_rest_trains()
     assert net.head.weight.requires_grad and net.linear_gain.weight.requires_grad and trainable
     with pytest.raises(ConfigError, match="init_nsr"):
         MultirateConfig(linear_path="fixed", init_nsr=0.0).check_together()
-    with pytest.raises(EdofprojError, match="trains its DOE"):  # no PSF table: the DOE is being trained
-        start_from_wiener(cfg, build_network(cfg.net), torch.nn.Identity())
+
+
+def test_a_fixed_linear_path_follows_a_doe_being_trained():
+    """For a DOE being trained (PSFs simulated at each call, no table) the fixed linear path is frozen
+    and ``refresh_linear_base`` sets it to the depth-ensemble Wiener filter of the PSFs the source
+    gives *now*: the untrained network then equals that filter's full-resolution convolution, and
+    it changes when the PSFs change."""
+    from edofproj.compensation.wiener import depth_ensemble_wiener_kernel
+    from edofproj.training.linear_filter import refresh_linear_base
+    from edofproj.training.trainer import start_from_wiener
+
+    r2 = (torch.arange(9.0) - 4)[:, None] ** 2 + (torch.arange(9.0) - 4)[None] ** 2
+
+    class Blur(torch.nn.Module):  # a "DOE being trained": PSFs of any depth, growing with 1/z
+        def __init__(self, scale):
+            super().__init__()
+            self.scale = scale
+
+        def forward(self, depths_m):
+            sigma = torch.as_tensor(self.scale / np.asarray(depths_m), dtype=torch.float32)
+            psf = torch.exp(-r2 / (2 * sigma[:, None, None] ** 2))
+            return (psf / psf.sum(dim=(-2, -1), keepdim=True))[:, None].expand(-1, 3, 9, 9)
+
+    cfg = Config()
+    cfg.evaluation.score_range_mm = [300.0, 800.0]
+    cfg.net = MultirateConfig(widths=SMALL, filter_bins=8, linear_path="fixed", correction_bound=0.2)
+    net = build_network(cfg.net).eval()
+    source = Blur(0.3)
+    start_from_wiener(cfg, net, source)
+    assert not any(p.requires_grad for p in net.local_filter.parameters())
+    assert all(float(local.weight.abs().max()) == 0 for local in net.local_filter)  # set by the refresh
+    refresh_linear_base(cfg, net, source)
+    from edofproj.compensation.linear_base import ensemble_depths_m
+
+    psfs = source(ensemble_depths_m(0.3, 0.8)).numpy()
+    kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psfs, cfg.net.init_nsr, radius=4))
+    target, captured = images(24, 32)
+    with torch.no_grad():
+        out = net(target, captured).double()
+    reference = F.conv2d(
+        F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
+    )
+    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
+    before = net.local_filter[0].weight.clone()
+    source.scale = 0.4  # the DOE moved: the path follows at the next refresh
+    refresh_linear_base(cfg, net, source)
+    assert float((net.local_filter[0].weight - before).abs().max()) > 1e-3

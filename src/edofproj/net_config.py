@@ -292,7 +292,8 @@ class MultirateConfig(UNetBodyConfig):
     ``1/block_px`` resolution and a radial Fourier filter of the block means (``filter_bins`` nodes).
     When it is trained for a fixed DOE, its local filter starts as the depth-ensemble Wiener filter of
     the DOE's training PSFs with the NSR ``init_nsr``
-    (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`; 0 starts it at zero).
+    (:func:`edofproj.compensation.wiener.depth_ensemble_wiener_kernel`; 0 starts it at zero); with
+    ``linear_path: fixed`` it stays that filter, and follows a DOE being trained.
     ``correction_bound > 0`` gives it the safe form: the non-linear part (the depth gain and the
     U-Net's values) is a bounded correction of its own linear path, high-passed by
     ``correction_highpass_px`` (:func:`edofproj.compensation.multirate.bounded_block_correction`).
@@ -309,8 +310,9 @@ class MultirateConfig(UNetBodyConfig):
     )
     linear_path: str = option(
         "trained",
-        "trained: the linear path L U + B D learns with the rest; fixed: for a fixed DOE it stays the "
-        "depth-ensemble Wiener filter it starts as (init_nsr > 0), and only the non-linear part trains",
+        "trained: the linear path L U + B D learns with the rest; fixed: it is the depth-ensemble Wiener "
+        "filter of the DOE cut to its taps (init_nsr; set once for a fixed DOE, every train.linear_every steps "
+        "for a DOE being trained), and only the non-linear part trains",
         choices=("trained", "fixed"),
     )
     correction_bound: float = option(

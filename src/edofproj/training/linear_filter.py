@@ -5,7 +5,8 @@ of the *current* DOE's PSFs at :data:`~edofproj.compensation.linear_base.ENSEMBL
 uniform in ``1/z`` over the scored range (``evaluation.score_range_mm``, else the PSF range): the
 blind linear compensation ``doe+ensemble`` of the evaluation, with the NSR ``net.linear_nsr``.
 
-For a jointly trained DOE the filter follows the DOE: :func:`refresh_linear_base` recomputes it
+For a jointly trained DOE the filter (and a multi-rate network's fixed linear path, cut to its
+local filter's taps) follows the DOE: :func:`refresh_linear_base` recomputes it
 (detached: no gradient flows through the filter into the DOE) before the first step and after
 every ``train.linear_every`` steps and the last one. Simulating 32 depths and building the
 kernel takes about 0.2 s on one CPU core with the ``cpu`` preset (about one training step), so
@@ -20,8 +21,11 @@ import torch
 from torch import nn
 
 from ..compensation.linear_base import LinearBase, ensemble_depths_m
+from ..compensation.wiener import depth_ensemble_wiener_kernel
 from ..config import M_PER_MM, Config
 from ..errors import BlurExceedsWindowWarning
+from ..net_config import MultirateConfig
+from .psf_table import DepthPSFTable
 
 
 def scored_range_m(cfg: Config) -> tuple[float, float]:
@@ -45,10 +49,25 @@ def current_linear_filter(cfg: Config, psf_source: nn.Module, into: LinearBase |
 
 
 def refresh_linear_base(cfg: Config, net: nn.Module, psf_source: nn.Module) -> None:
-    """Set a safe network's base filter to the current DOE's depth-ensemble filter (no-op otherwise)."""
+    """Set a safe network's base filter to the current DOE's depth-ensemble filter, and a multi-rate
+    network's fixed linear path (``net.linear_path: fixed``) for a DOE being trained to that filter
+    cut to its ``(2 s + 1)^2`` taps (NSR ``net.init_nsr``); a no-op otherwise (a fixed DOE's multi-rate
+    path is set once from its PSF table, :func:`~edofproj.training.trainer.start_from_wiener`)."""
     linear = getattr(net, "linear_base", None)
     if isinstance(linear, LinearBase):
         current_linear_filter(cfg, psf_source, into=linear)
+    options = cfg.net
+    if (
+        isinstance(options, MultirateConfig)
+        and options.linear_path == "fixed"
+        and not isinstance(psf_source, DepthPSFTable)
+    ):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
+            psfs = psf_source(ensemble_depths_m(*scored_range_m(cfg))).detach().cpu().numpy()
+        getattr(net, "initialize_linear_path")(
+            depth_ensemble_wiener_kernel(psfs, options.init_nsr, radius=options.block_px)
+        )
 
 
 def refresh_due(cfg: Config, step: int) -> bool:

@@ -131,32 +131,20 @@ def build_psf_source(cfg: Config, doe: nn.Module, trained: bool, device) -> nn.M
 def start_from_wiener(cfg: Config, net: nn.Module, psf_source: nn.Module) -> None:
     """A network with a linear path (``initialize_linear_path``, the multirate network) trained for
     a *fixed* DOE starts that path as the depth-ensemble Wiener filter of the DOE's PSF table
-    (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans (``s = net.block_px``);
-    with ``net.linear_path: fixed`` that path is then frozen (a DOE being trained refuses it). A
-    resumed run then loads its checkpoint over this start."""
+    (``net.init_nsr`` > 0), cut to the ``(2s + 1)^2`` taps its local filter spans (``s = net.block_px``).
+    With ``net.linear_path: fixed`` that path is then frozen: for a DOE being trained it is set, and
+    then kept, to the current DOE's filter by :func:`~.linear_filter.refresh_linear_base` (before the
+    first step and every ``train.linear_every`` steps). A resumed run then loads its checkpoint over
+    this start."""
     initialize_linear_path = getattr(net, "initialize_linear_path", None)
     options = cfg.net
-    if (
-        isinstance(options, MultirateConfig)
-        and options.linear_path == "fixed"
-        and not isinstance(psf_source, DepthPSFTable)
-    ):
-        raise EdofprojError(
-            "net.linear_path=fixed keeps the Wiener filter of a fixed DOE, but this run trains its DOE: "
-            "use a fixed design (doe.kind=file, lens, cubic, ...) or train.train_doe=false, or net.linear_path=trained"
-        )
-    if (
-        not isinstance(options, MultirateConfig)
-        or options.init_nsr <= 0
-        or not isinstance(psf_source, DepthPSFTable)
-        or initialize_linear_path is None
-    ):
+    if not isinstance(options, MultirateConfig) or initialize_linear_path is None:
         return
-
-    kernels = depth_ensemble_wiener_kernel(
-        psf_source.psf.detach().cpu().numpy(), options.init_nsr, radius=options.block_px
-    )
-    initialize_linear_path(kernels)
+    if options.init_nsr > 0 and isinstance(psf_source, DepthPSFTable):
+        kernels = depth_ensemble_wiener_kernel(
+            psf_source.psf.detach().cpu().numpy(), options.init_nsr, radius=options.block_px
+        )
+        initialize_linear_path(kernels)
     if options.linear_path == "fixed":  # only the non-linear part trains (bounded around it in the safe form)
         for part in ("local_filter", "correction_to_pixels", "prefilter"):
             for p in net.get_submodule(part).parameters():
