@@ -152,9 +152,14 @@ def test_any_size_equals_explicit_padding_then_crop(size):
     torch.testing.assert_close(out, reference, rtol=0, atol=1e-6)
 
 
-def test_inference_path_equals_the_differentiable_path():
-    """Without gradients each colour plane is written straight into the output; same numbers."""
-    net = trained_looking(MultirateCompensationNet(SMALL))
+@pytest.mark.parametrize("bound", [0.0, 0.2])
+def test_inference_path_equals_the_differentiable_path(bound):
+    """Without gradients each colour plane is written straight into the output, and the safe form's
+    bounded correction runs in place from a head scaled by 2/b (one blur for the three colours);
+    same numbers."""
+    net = trained_looking(MultirateCompensationNet(SMALL, correction_bound=bound, correction_highpass_px=8.0))
+    with torch.no_grad():
+        net.head.weight.mul_(5)  # corrections beyond the bound: tanh saturates
     target, captured = images(37, 53, batch=2)
     with torch.no_grad():
         fast = net(target, captured)

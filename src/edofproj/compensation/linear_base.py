@@ -37,6 +37,7 @@ helps; :mod:`edofproj.training.validation` checks that it does, image by image.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable
 
@@ -102,17 +103,51 @@ class LinearBase(nn.Module):
         return filtered[..., r:-r, r:-r].clamp(0.0, 1.0)
 
 
-def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
-    """Separable normalized Gaussian blur (radius ``ceil(3 sigma)``, replicate border) of ``(B, C, H, W)``."""
+#: Longest side (px) up to which :func:`gaussian_blur` multiplies by blur matrices; beyond it the
+#: matrices' ``H + W`` products per pixel cost more than the separable convolution's taps.
+MATRIX_BLUR_MAX_PX = 1024
+
+
+def gaussian_window(sigma_px: float) -> torch.Tensor:
+    """The normalized Gaussian taps ``w_k ~ exp(-k^2 / (2 sigma^2))``, ``|k| <= ceil(3 sigma)``, float64."""
     radius = max(1, math.ceil(3 * sigma_px))
-    x = torch.arange(-radius, radius + 1, dtype=image.dtype, device=image.device)
+    x = torch.arange(-radius, radius + 1, dtype=torch.float64)
     window = torch.exp(-0.5 * (x / sigma_px) ** 2)
-    window = window / window.sum()
+    return window / window.sum()
+
+
+@functools.lru_cache(maxsize=32)
+def gaussian_blur_matrix(size: int, sigma_px: float, dtype: torch.dtype, device: str) -> torch.Tensor:
+    """``(size, size)`` matrix ``M`` of the 1-D blur with :func:`gaussian_window` and a replicate
+    border: ``(M v)_i = sum_k w_k v_clamp(i + k, 0, size - 1)`` (the border taps fold onto the
+    first and last samples), so each row sums to 1."""
+    window = gaussian_window(sigma_px)
+    radius = (len(window) - 1) // 2
+    source = (torch.arange(size)[:, None] + torch.arange(-radius, radius + 1)[None]).clamp(0, size - 1)
+    matrix = torch.zeros(size, size, dtype=torch.float64)
+    matrix.scatter_add_(1, source, window.expand(size, -1).contiguous())
+    return matrix.to(device=device, dtype=dtype)
+
+
+def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Separable normalized Gaussian blur (:func:`gaussian_window`, replicate border) of ``(B, C, H, W)``:
+    ``M_H I M_W^T`` with the blur matrices of :func:`gaussian_blur_matrix` (two matrix products,
+    far faster on CPUs than a 1-channel convolution) up to :data:`MATRIX_BLUR_MAX_PX`, and the same
+    blur as two 1-D convolutions of the replicate-padded image beyond it and while tracing or
+    exporting (where a matrix would fix the image size)."""
+    height, width = image.shape[-2], image.shape[-1]
+    if max(height, width) <= MATRIX_BLUR_MAX_PX and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+        device = str(image.device)
+        rows = gaussian_blur_matrix(int(height), float(sigma_px), image.dtype, device)
+        cols = gaussian_blur_matrix(int(width), float(sigma_px), image.dtype, device)
+        return torch.matmul(rows, torch.matmul(image, cols.T))
+    window = gaussian_window(sigma_px).to(device=image.device, dtype=image.dtype)
+    radius = (len(window) - 1) // 2
     channels = image.shape[1]
     padded = F.pad(image, (radius, radius, radius, radius), mode="replicate")
-    rows = window.view(1, 1, 1, -1).expand(channels, 1, 1, -1)
-    cols = window.view(1, 1, -1, 1).expand(channels, 1, -1, 1)
-    return F.conv2d(F.conv2d(padded, rows, groups=channels), cols, groups=channels)
+    row_taps = window.view(1, 1, 1, -1).expand(channels, 1, 1, -1)
+    col_taps = window.view(1, 1, -1, 1).expand(channels, 1, -1, 1)
+    return F.conv2d(F.conv2d(padded, row_taps, groups=channels), col_taps, groups=channels)
 
 
 def bounded_correction(residual: torch.Tensor, bound: float, highpass_px: float) -> torch.Tensor:

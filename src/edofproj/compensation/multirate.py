@@ -346,14 +346,29 @@ class MultirateCompensationNet(nn.Module):
         )
         features = self.activation(features)
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
-        shared = self.head(features)
-        gain = self.linear_gain(features)
         inference = not (torch.is_grad_enabled() or torch.jit.is_tracing() or exported)
+        # the safe form with its high-pass, at inference in float32: c = h HP(tanh(HP(r / h))) with
+        # h = b/2 (HP is linear), r / h from the head and gain scaled by 1/h, each pass in place
+        fused_safe = (
+            inference
+            and self.correction_bound > 0
+            and self.correction_highpass_blocks > 0
+            and features.dtype == torch.float32
+        )
+        scale = 2.0 / self.correction_bound if fused_safe else 1.0
+        shared = F.conv2d(features, self.head.weight * scale, cast(torch.Tensor, self.head.bias) * scale)
+        gain = self.linear_gain(features) * scale if fused_safe else self.linear_gain(features)
         per_colour = []
         colour_blocks = blocks.view(b, c, n + 1, hb + 2, wb + 2)
-        for i in range(c):
-            linear = F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres))
-            if self.correction_bound > 0:  # safe form: L U + B D + c, |c| <= b
+        linears = [
+            F.conv2d(colour_blocks[:, i], self._linear_weight(i).contiguous(memory_format=lowres)) for i in range(c)
+        ]
+        if fused_safe:
+            linears = self._safe_values_in_place(linears, shared, gain)
+        for i, linear in enumerate(linears):
+            if fused_safe:
+                values = linear
+            elif self.correction_bound > 0:  # safe form: L U + B D + c, |c| <= b
                 raw = torch.addcmul(shared[:, i * n : (i + 1) * n], linear, gain[:, i : i + 1])
                 bounded = bounded_block_correction(raw, self.correction_bound, self.correction_highpass_blocks)
                 values = linear + bounded.to(linear.dtype)
@@ -369,6 +384,28 @@ class MultirateCompensationNet(nn.Module):
             for i, values in enumerate(per_colour):
                 add_block_pixels(full_target[:, i : i + 1], values, s, out=output[:, i : i + 1])
         return output[..., :height, :width]
+
+    def _safe_values_in_place(
+        self, linears: list[torch.Tensor], scaled_shared: torch.Tensor, scaled_gain: torch.Tensor
+    ) -> list[torch.Tensor]:
+        """The safe form's block values ``L U + B D + h HP(tanh(HP(r / h)))`` of every colour at
+        inference (the arithmetic of :func:`bounded_block_correction`, ``h = b / 2``), from the linear
+        path's values and the head and gain already scaled by ``1 / h``: ``r / h = W f / h + (L U + B D)
+        g / h``. Each pass runs in place, and one blur serves the three colours' block means."""
+        n = self.block * self.block
+        residuals = [
+            torch.addcmul(scaled_shared[:, i * n : (i + 1) * n], linear, scaled_gain[:, i : i + 1])
+            for i, linear in enumerate(linears)
+        ]
+        for outer in (False, True):  # HP, tanh, then HP again
+            means = torch.cat([r.mean(dim=1, keepdim=True) for r in residuals], dim=1)
+            local_means = gaussian_blur(means, self.correction_highpass_blocks)
+            for i, residual in enumerate(residuals):
+                residual.sub_(local_means[:, i : i + 1])
+                if not outer:
+                    residual.tanh_()
+        half = 0.5 * self.correction_bound
+        return [linear.add_(residual, alpha=half) for linear, residual in zip(linears, residuals)]
 
     def _linear_weight(self, colour: int) -> torch.Tensor:
         """``(s^2, s^2 + 1, 3, 3)``: ``L U + B D`` as one convolution of the ``s^2`` pixels and ``H P``
