@@ -249,12 +249,26 @@ def test_config_builds_the_network_and_refuses_bad_values():
         MultirateCompensationNet(SMALL)(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 9))
 
 
+def assert_network_is_the_ensemble_filter(net, psfs, nsr: float) -> None:
+    """The network (non-linear part untrained, 4x4 blocks) equals the full-resolution convolution with
+    the depth-ensemble Wiener kernel of ``psfs`` cut to radius 4, replicate border."""
+    from edofproj.compensation.wiener import depth_ensemble_wiener_kernel
+
+    kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psfs, nsr, radius=4))
+    target, captured = images(24, 32)
+    with torch.no_grad():
+        out = net(target, captured).double()
+    reference = F.conv2d(
+        F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
+    )
+    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
+
+
 def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     """``start_from_wiener`` loads the cut ensemble Wiener kernel of a PSF table into L (the
     untrained network then equals that convolution), and leaves the network alone for a DOE
     being trained (no table), for ``init_nsr = 0`` and for networks without a linear path."""
     from edofproj.compensation.unet import CompensationUNet
-    from edofproj.compensation.wiener import depth_ensemble_wiener_kernel
     from edofproj.training.psf_table import DepthPSFTable
     from edofproj.training.trainer import start_from_wiener
 
@@ -267,14 +281,7 @@ def test_a_fixed_doe_run_starts_from_the_depth_ensemble_wiener_filter():
     cfg.net = MultirateConfig(widths=SMALL, block_px=4, filter_bins=8, init_nsr=0.01)
     net = build_network(cfg.net).eval()
     start_from_wiener(cfg, net, table)
-    kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psf.numpy(), 0.01, radius=4))
-    target, captured = images(24, 32)
-    with torch.no_grad():
-        out = net(target, captured).double()
-    reference = F.conv2d(
-        F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
-    )
-    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
+    assert_network_is_the_ensemble_filter(net, psf.numpy(), 0.01)
 
     for untouched_cfg, source in ((cfg, torch.nn.Identity()), (Config(), table)):
         if source is table:
@@ -395,7 +402,6 @@ def test_a_fixed_linear_path_follows_a_doe_being_trained():
     and ``refresh_linear_base`` sets it to the depth-ensemble Wiener filter of the PSFs the source
     gives *now*: the untrained network then equals that filter's full-resolution convolution, and
     it changes when the PSFs change."""
-    from edofproj.compensation.wiener import depth_ensemble_wiener_kernel
     from edofproj.training.linear_filter import refresh_linear_base
     from edofproj.training.trainer import start_from_wiener
 
@@ -422,15 +428,7 @@ def test_a_fixed_linear_path_follows_a_doe_being_trained():
     refresh_linear_base(cfg, net, source)
     from edofproj.compensation.linear_base import ensemble_depths_m
 
-    psfs = source(ensemble_depths_m(0.3, 0.8)).numpy()
-    kernels = torch.from_numpy(depth_ensemble_wiener_kernel(psfs, cfg.net.init_nsr, radius=4))
-    target, captured = images(24, 32)
-    with torch.no_grad():
-        out = net(target, captured).double()
-    reference = F.conv2d(
-        F.pad(target.double(), (4, 4, 4, 4), mode="replicate"), kernels.flip(-2, -1)[:, None], groups=3
-    )
-    torch.testing.assert_close(out, reference, rtol=0, atol=2e-5)
+    assert_network_is_the_ensemble_filter(net, source(ensemble_depths_m(0.3, 0.8)).numpy(), cfg.net.init_nsr)
     before = net.local_filter[0].weight.clone()
     source.scale = 0.4  # the DOE moved: the path follows at the next refresh
     refresh_linear_base(cfg, net, source)
