@@ -137,9 +137,10 @@ def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
     exporting (where a matrix would fix the image size)."""
     height, width = image.shape[-2], image.shape[-1]
     if max(height, width) <= MATRIX_BLUR_MAX_PX and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
-        device = str(image.device)
-        rows = gaussian_blur_matrix(int(height), float(sigma_px), image.dtype, device)
-        cols = gaussian_blur_matrix(int(width), float(sigma_px), image.dtype, device)
+        # kept per device and dtype; a meta tensor holds no data worth keeping
+        matrix = gaussian_blur_matrix.__wrapped__ if image.device.type == "meta" else gaussian_blur_matrix
+        rows = matrix(int(height), float(sigma_px), image.dtype, str(image.device))
+        cols = matrix(int(width), float(sigma_px), image.dtype, str(image.device))
         return torch.matmul(rows, torch.matmul(image, cols.T))
     window = gaussian_window(sigma_px).to(device=image.device, dtype=image.dtype)
     radius = (len(window) - 1) // 2
