@@ -433,31 +433,3 @@ def test_a_fixed_linear_path_follows_a_doe_being_trained():
     source.scale = 0.4  # the DOE moved: the path follows at the next refresh
     refresh_linear_base(cfg, net, source)
     assert float((net.local_filter[0].weight - before).abs().max()) > 1e-3
-
-
-def test_clipping_input_sees_only_where_the_linear_path_leaves_the_projector_range():
-    """``clipping_input``: the U-Net's extra input is ``v - clamp(v, 0, 1)`` of the linear path's
-    projector input ``v``: zero (so its weights change nothing) for a target whose compensation stays
-    in range, non-zero where a sharpening filter overshoots at a black-white edge; and the untrained
-    network is still the identity."""
-    net = trained_looking(MultirateCompensationNet(SMALL, clipping_input=True))
-    with torch.no_grad():
-        for local in net.local_filter:
-            local.weight.zero_()  # linear path: identity, v = I (with H = 1 below, D = 0)
-        net.prefilter.gain.zero_()
-    target, captured = images(24, 32)
-    mid = 0.3 + 0.4 * target  # v = I stays in [0.3, 0.7]
-    with torch.no_grad():
-        before = net(mid, captured)
-        net.embed_clipping.weight.normal_(0, 1.0)
-        torch.testing.assert_close(net(mid, captured), before, rtol=0, atol=0)
-        untrained = MultirateCompensationNet(SMALL, clipping_input=True)
-        torch.testing.assert_close(untrained(target, captured), target, rtol=0, atol=1e-5)
-        edge = torch.zeros(1, 3, 24, 32)
-        edge[..., 16:] = 1.0
-        sharpen = torch.tensor([[0, -0.5, 0], [-0.5, 3, -0.5], [0, -0.5, 0]]).expand(3, 3, 3)
-        blank = trained_looking(MultirateCompensationNet(SMALL, clipping_input=True))
-        blank.initialize_linear_path(sharpen)  # v overshoots to 1.5 and -0.5 at the edge
-        reference = blank(edge, edge)
-        blank.embed_clipping.weight.normal_(0, 1.0)
-        assert float((blank(edge, edge) - reference).abs().max()) > 1e-3  # the overshoot reaches the U-Net

@@ -328,12 +328,6 @@ class MultirateConfig(UNetBodyConfig):
         range=Range(0.0),
     )
 
-    clipping_input: bool = option(
-        False,
-        "the U-Net also sees, per pixel, how far the linear path's projector input lies outside [0, 1] "
-        "(where the projector will clip)",
-    )
-
     def check_together(self) -> None:
         if self.linear_path == "fixed" and self.init_nsr <= 0:
             raise ConfigError(

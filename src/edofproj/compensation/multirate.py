@@ -175,9 +175,6 @@ class MultirateCompensationNet(nn.Module):
         channels: colour channels ``C`` of target and capture (3).
         correction_bound: ``b > 0``: the safe form (module docstring); 0: unbounded.
         correction_highpass_px: the high-pass's Gaussian sigma in pixels in the safe form (0: none).
-        clipping_input: the U-Net also sees, for every pixel, how far the linear path's projector
-            input ``I + S(L U + B D)`` lies outside ``[0, 1]`` (a 1x1 embedding of those ``C s^2``
-            values per block): where the projector will clip, at full-resolution precision.
     """
 
     #: Full-resolution inputs are read by strided convolutions and the final sum, which are
@@ -198,7 +195,6 @@ class MultirateCompensationNet(nn.Module):
         channels: int = 3,
         correction_bound: float = 0.0,
         correction_highpass_px: float = 0.0,
-        clipping_input: bool = False,
     ) -> None:
         super().__init__()
         if not (correction_bound >= 0 and correction_highpass_px >= 0):
@@ -248,7 +244,6 @@ class MultirateCompensationNet(nn.Module):
         self.embed_target = nn.Conv2d(c, widths[0], s, stride=s)
         self.embed_captured = nn.Conv2d(c, widths[0], s, stride=s, bias=False)
         self.embed_correction = nn.Conv2d(c, widths[0], 1, bias=False)
-        self.embed_clipping = nn.Conv2d(c * s * s, widths[0], 1, bias=False) if clipping_input else None
         self.activation = nn.LeakyReLU(leaky_slope)
         # The finest scale (1/s) has no 3x3 convolutions: its features are the embeddings, and the
         # decoder fuses them with the upsampled coarser features by a 1x1 convolution. (3x3 blocks
@@ -283,7 +278,6 @@ class MultirateCompensationNet(nn.Module):
             upsampling=net_cfg.upsampling,
             correction_bound=net_cfg.correction_bound,
             correction_highpass_px=net_cfg.correction_highpass_px,
-            clipping_input=net_cfg.clipping_input,
         )
 
     def initialize_linear_path(self, kernels) -> None:
@@ -354,9 +348,6 @@ class MultirateCompensationNet(nn.Module):
         features = (
             features + _full_resolution_conv(self.embed_captured, full_captured) + self.embed_correction(correction)
         )
-        if self.embed_clipping is not None:  # how far I + S(L U + B D) leaves [0, 1], per pixel
-            emitted = torch.cat([colour_blocks[:, i, :n, 1:-1, 1:-1] + linears[i] for i in range(c)], dim=1)
-            features = features + self.embed_clipping(emitted - emitted.clamp(0.0, 1.0))
         features = self.activation(features)
         features = self._unet(features.contiguous(memory_format=lowres)).contiguous(memory_format=lowres)
         inference = not (torch.is_grad_enabled() or torch.jit.is_tracing() or exported)
