@@ -2,7 +2,7 @@
 
 The safe form (``net.correction_bound > 0``, ``net.correction_highpass_px``) bounds and high-passes
 the non-linear part around the network's own linear path. This script times the multi-rate network
-at two widths, unbounded and in the safe form (bound 0.2, high-pass 8 px), *interleaved*
+at two widths, unbounded and in the safe form (bound 0.2, high-pass 8 px), and in the safe form on 2x2 blocks, *interleaved*
 (:func:`bench_realtime.interleaved_ms`), with the inputs in the contiguous or the channels-last
 layout, and prints each median and the median per-round ratio to the unbounded 8-16 network (the
 ``realtime`` preset's widths). The weights are randomized slightly: the cost does not depend on them.
@@ -26,11 +26,13 @@ from edofproj.machine import instruction_sets
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_realtime import interleaved_ms  # noqa: E402
 
+#: name: (widths, block size, correction bound)
 VARIANTS = {
-    "8-16": ([8, 16], 0.0),
-    "8-16 safe": ([8, 16], 0.2),
-    "32-16": ([32, 16], 0.0),
-    "32-16 safe": ([32, 16], 0.2),
+    "8-16": ([8, 16], 4, 0.0),
+    "8-16 safe": ([8, 16], 4, 0.2),
+    "32-16": ([32, 16], 4, 0.0),
+    "32-16 safe": ([32, 16], 4, 0.2),
+    "16-16 safe, 2x2 blocks": ([16, 16], 2, 0.2),
 }
 
 
@@ -53,8 +55,8 @@ def main() -> int:
         target = torch.rand(1, 3, height, width, generator=generator).contiguous(memory_format=layout)
         captured = (0.8 * target + 0.1).contiguous(memory_format=layout)
         frames = {}
-        for name, (widths, bound) in VARIANTS.items():
-            net = MultirateCompensationNet(widths, correction_bound=bound, correction_highpass_px=8.0)
+        for name, (widths, block, bound) in VARIANTS.items():
+            net = MultirateCompensationNet(widths, block=block, correction_bound=bound, correction_highpass_px=8.0)
             with torch.no_grad():
                 for p in net.parameters():
                     p.add_(0.01 * torch.randn(p.shape, generator=generator))
