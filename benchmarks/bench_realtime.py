@@ -47,6 +47,13 @@ def interleaved_ms(frames: dict, rounds: int, warmup: int) -> dict[str, list[flo
     return times
 
 
+def print_ratio_rows(times: dict[str, list[float]], reference: str, label: str) -> None:
+    """One markdown row per method: ``| name | label | median ms | median per-round ratio to reference |``."""
+    for name, values in times.items():
+        ratio = statistics.median(v / r for v, r in zip(values, times[reference]))
+        print(f"| {name} | {label} | {statistics.median(values):.1f} | {ratio:.2f} |", flush=True)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--run", default=None, help="a trained run directory (default: untrained realtime preset)")

@@ -13,7 +13,6 @@ layout, and prints each median and the median per-round ratio to the unbounded 8
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 from pathlib import Path
 
@@ -24,7 +23,7 @@ from edofproj.evaluation import timing
 from edofproj.machine import instruction_sets
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_realtime import interleaved_ms  # noqa: E402
+from bench_realtime import interleaved_ms, print_ratio_rows  # noqa: E402
 
 #: name: (widths, block size, correction bound)
 VARIANTS = {
@@ -68,11 +67,7 @@ def main() -> int:
 
             frames[name] = frame
         times = interleaved_ms(frames, args.rounds, warmup=3)
-        base = times["8-16"]
-        label = "channels-last" if layout == torch.channels_last else "contiguous"
-        for name, values in times.items():
-            ratio = statistics.median(v / b for v, b in zip(values, base))
-            print(f"| {name} | {label} | {statistics.median(values):.1f} | {ratio:.2f} |", flush=True)
+        print_ratio_rows(times, "8-16", "channels-last" if layout == torch.channels_last else "contiguous")
     return 0
 
 

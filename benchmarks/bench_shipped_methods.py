@@ -18,7 +18,6 @@ FFT Wiener, and the CPU's instruction sets.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 
 import torch
@@ -31,7 +30,7 @@ from edofproj.machine import instruction_sets
 from edofproj.methods.builder import build_method
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from bench_realtime import interleaved_ms  # noqa: E402  (the same interleaving as the real-time benchmark)
+from bench_realtime import interleaved_ms, print_ratio_rows  # noqa: E402  (the same interleaving as the real-time benchmark)
 
 
 def frame_function(compensate, height: int, width: int):
@@ -84,10 +83,7 @@ def main() -> int:
             "real-time network (multirate, no guard)": frame_function(realtime, height, width),
         }
         times = interleaved_ms(frames, args.rounds, args.warmup)
-        reference = times["FFT Wiener (PyTorch, cached filter)"]
-        for name, values in times.items():
-            ratio = statistics.median(v / r for v, r in zip(values, reference))
-            print(f"| {name} | {height}x{width} | {statistics.median(values):.1f} | {ratio:.2f} |", flush=True)
+        print_ratio_rows(times, "FFT Wiener (PyTorch, cached filter)", f"{height}x{width}")
     return 0
 
 
