@@ -100,11 +100,16 @@ class GuardedNetwork(torch.nn.Module):
 
     @property
     def channels_last_inputs(self) -> bool:
-        """Whether the network takes channels-last frames (``live`` lays its frames out so)."""
-        return bool(getattr(self.net, "channels_last_inputs", True))
+        """False: ``compensate`` and ``live`` lay the frames out as the evaluation does (contiguous).
+        The guard compares two scores that can tie to the last float bit (a barely trained
+        correction); the FFTs of another layout differ in those bits and could flip the choice, so
+        only the evaluation's layout ships exactly what was scored."""
+        return False
 
     def _screens_for(self, image: torch.Tensor) -> list:
-        psfs: torch.Tensor = self.psfs  # type: ignore[assignment]  # a registered buffer
+        # contiguous whatever layout the module was moved to: the transfer functions, and with them the
+        # choice, are then the evaluation's to the last bit
+        psfs: torch.Tensor = self.psfs.contiguous()  # type: ignore[operator]  # a registered buffer
         if torch.jit.is_tracing() or torch.compiler.is_compiling():  # exported: the projections are in the graph
             return [lambda v, psf=psf: project(v, psf[None].to(v.dtype)) for psf in psfs]
         key = (tuple(image.shape[-2:]), image.device, image.dtype)
