@@ -1,7 +1,8 @@
 """The safe forms' Gaussian blur: blur matrices against the separable convolutions, per call.
 
 ``edofproj.compensation.linear_base.gaussian_blur`` multiplies by two blur matrices up to
-``MATRIX_BLUR_MAX_PX`` and convolves beyond it. This script times both forms, interleaved, on the
+``MATRIX_BLUR_MAX_PX`` and convolves beyond it. This script times both forms
+(``blur_by_matrices``, ``blur_by_convolutions``), interleaved, on the
 shapes the networks blur: the multi-rate network's block means (one colour and three, 150x200, sigma
 2 blocks), the ``cpu`` U-Net's correction at 600x800 (sigma 8 px) and a training batch of it
 (4 x 3 x 128 x 128), and prints the median milliseconds of each and their largest difference.
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from edofproj.compensation import linear_base
+from edofproj.compensation.linear_base import blur_by_convolutions, blur_by_matrices
 from edofproj.machine import instruction_sets
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -31,16 +32,6 @@ CASES = [
     ("cpu U-Net correction, 600x800", (1, 3, 600, 800), 8.0),
     ("cpu U-Net correction, training batch", (4, 3, 128, 128), 8.0),
 ]
-
-
-def convolved(image: torch.Tensor, sigma: float) -> torch.Tensor:
-    """The convolution form (what ``gaussian_blur`` does beyond ``MATRIX_BLUR_MAX_PX``)."""
-    limit = linear_base.MATRIX_BLUR_MAX_PX
-    linear_base.MATRIX_BLUR_MAX_PX = 0
-    try:
-        return linear_base.gaussian_blur(image, sigma)
-    finally:
-        linear_base.MATRIX_BLUR_MAX_PX = limit
 
 
 def main() -> int:
@@ -56,11 +47,11 @@ def main() -> int:
     for what, shape, sigma in CASES:
         image = torch.rand(shape, generator=generator)
         with torch.inference_mode():
-            difference = float((linear_base.gaussian_blur(image, sigma) - convolved(image, sigma)).abs().max())
+            difference = float((blur_by_matrices(image, sigma) - blur_by_convolutions(image, sigma)).abs().max())
             times = interleaved_ms(
                 {
-                    "matrices": lambda: linear_base.gaussian_blur(image, sigma),
-                    "convolutions": lambda: convolved(image, sigma),
+                    "matrices": lambda: blur_by_matrices(image, sigma),
+                    "convolutions": lambda: blur_by_convolutions(image, sigma),
                 },
                 args.rounds,
                 warmup=3,

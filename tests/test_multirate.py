@@ -402,6 +402,7 @@ def test_a_fixed_linear_path_follows_a_doe_being_trained():
     and ``refresh_linear_base`` sets it to the depth-ensemble Wiener filter of the PSFs the source
     gives *now*: the untrained network then equals that filter's full-resolution convolution, and
     it changes when the PSFs change."""
+    from edofproj.compensation.linear_base import ensemble_depths_m
     from edofproj.training.linear_filter import refresh_linear_base
     from edofproj.training.trainer import start_from_wiener
 
@@ -426,8 +427,6 @@ def test_a_fixed_linear_path_follows_a_doe_being_trained():
     assert not any(p.requires_grad for p in net.local_filter.parameters())
     assert all(float(local.weight.abs().max()) == 0 for local in net.local_filter)  # set by the refresh
     refresh_linear_base(cfg, net, source)
-    from edofproj.compensation.linear_base import ensemble_depths_m
-
     assert_network_is_the_ensemble_filter(net, source(ensemble_depths_m(0.3, 0.8)).numpy(), cfg.net.init_nsr)
     before = net.local_filter[0].weight.clone()
     source.scale = 0.4  # the DOE moved: the path follows at the next refresh

@@ -292,8 +292,8 @@ def compensate_frames(
     def flush() -> None:
         target = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).contiguous()
         with torch.inference_mode():
-            # the capture from the contiguous target, as the evaluation computes it: the FFTs of a
-            # channels-last one differ in the last bits, which bfloat16 networks can carry to ~1e-4
+            # the capture from the contiguous target, as the evaluation computes it (the FFTs of a
+            # channels-last one differ in the last bits)
             captured = forward(target).contiguous(memory_format=memory_format)
             target = target.contiguous(memory_format=memory_format)
             tic = time.perf_counter()

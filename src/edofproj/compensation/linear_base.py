@@ -131,17 +131,26 @@ def gaussian_blur_matrix(size: int, sigma_px: float, dtype: torch.dtype, device:
 
 def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """Separable normalized Gaussian blur (:func:`gaussian_window`, replicate border) of ``(B, C, H, W)``:
-    ``M_H I M_W^T`` with the blur matrices of :func:`gaussian_blur_matrix` (two matrix products,
-    far faster on CPUs than a 1-channel convolution) up to :data:`MATRIX_BLUR_MAX_PX`, and the same
-    blur as two 1-D convolutions of the replicate-padded image beyond it and while tracing or
-    exporting (where a matrix would fix the image size)."""
-    height, width = image.shape[-2], image.shape[-1]
-    if max(height, width) <= MATRIX_BLUR_MAX_PX and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
-        # kept per device and dtype; a meta tensor holds no data worth keeping
-        matrix = gaussian_blur_matrix.__wrapped__ if image.device.type == "meta" else gaussian_blur_matrix
-        rows = matrix(int(height), float(sigma_px), image.dtype, str(image.device))
-        cols = matrix(int(width), float(sigma_px), image.dtype, str(image.device))
-        return torch.matmul(rows, torch.matmul(image, cols.T))
+    :func:`blur_by_matrices` (far faster on CPUs than a 1-channel convolution) up to
+    :data:`MATRIX_BLUR_MAX_PX`, :func:`blur_by_convolutions` beyond it and while tracing or exporting
+    (where a matrix would fix the image size). The two agree to float rounding."""
+    if max(image.shape[-2:]) <= MATRIX_BLUR_MAX_PX and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+        return blur_by_matrices(image, sigma_px)
+    return blur_by_convolutions(image, sigma_px)
+
+
+def blur_by_matrices(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """``M_H I M_W^T`` with the blur matrices of :func:`gaussian_blur_matrix`, ``(B, C, H, W)``."""
+    height, width = int(image.shape[-2]), int(image.shape[-1])
+    # kept per device and dtype; a meta tensor holds no data worth keeping
+    matrix = gaussian_blur_matrix.__wrapped__ if image.device.type == "meta" else gaussian_blur_matrix
+    rows = matrix(height, float(sigma_px), image.dtype, str(image.device))
+    cols = matrix(width, float(sigma_px), image.dtype, str(image.device))
+    return torch.matmul(rows, torch.matmul(image, cols.T))
+
+
+def blur_by_convolutions(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Two 1-D convolutions of the replicate-padded image with :func:`gaussian_window`, ``(B, C, H, W)``."""
     window = gaussian_window(sigma_px).to(device=image.device, dtype=image.dtype)
     radius = (len(window) - 1) // 2
     channels = image.shape[1]

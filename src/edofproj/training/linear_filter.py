@@ -37,12 +37,18 @@ def scored_range_m(cfg: Config) -> tuple[float, float]:
 
 
 @torch.no_grad()
+def ensemble_psfs(cfg: Config, psf_source: nn.Module) -> torch.Tensor:
+    """The current DOE's PSFs ``(N, C, K, K)`` at the ensemble depths of the scored range."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BlurExceedsWindowWarning)
+        return psf_source(ensemble_depths_m(*scored_range_m(cfg)))
+
+
+@torch.no_grad()
 def current_linear_filter(cfg: Config, psf_source: nn.Module, into: LinearBase | None = None) -> LinearBase:
     """The depth-ensemble filter of the PSF source's current DOE, set into ``into`` (or a new
     :class:`LinearBase` of radius ``net.linear_radius``)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", BlurExceedsWindowWarning)
-        psfs = psf_source(ensemble_depths_m(*scored_range_m(cfg)))
+    psfs = ensemble_psfs(cfg, psf_source)
     linear = into if into is not None else LinearBase(psfs.shape[1], cfg.net.linear_radius)
     linear.set_from_psfs(psfs, cfg.net.linear_nsr)
     return linear
@@ -62,9 +68,7 @@ def refresh_linear_base(cfg: Config, net: nn.Module, psf_source: nn.Module) -> N
         and options.linear_path == "fixed"
         and not isinstance(psf_source, DepthPSFTable)
     ):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", BlurExceedsWindowWarning)
-            psfs = psf_source(ensemble_depths_m(*scored_range_m(cfg))).detach().cpu().numpy()
+        psfs = ensemble_psfs(cfg, psf_source).cpu().numpy()
         getattr(net, "initialize_linear_path")(
             depth_ensemble_wiener_kernel(psfs, options.init_nsr, radius=options.block_px)
         )
