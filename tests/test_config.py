@@ -53,3 +53,44 @@ def test_cli_typed_list_of_the_wrong_type_is_one_line(tmp_path, capsys):
     argv = ["train", "--config", "cpu", "--steps", "2", "--set", "evaluation.depths_mm=[a,b]", "--out", str(run)]
     assert main(argv) == 2
     assert "evaluation.depths_mm[0]='a' must be a number" in capsys.readouterr().err and not run.exists()
+
+
+def test_a_config_on_a_base_is_the_base_with_its_keys_set(tmp_path):
+    """``base: PRESET`` plus keys = the preset with those keys ``--set`` (the network switched first)."""
+    from edofproj.config import to_dict
+
+    file = tmp_path / "mine.yaml"
+    file.write_text(
+        "base: cpu\nname: mine\nnet:\n  widths: [8, 4]\n  architecture: multirate\ntrain:\n  steps: 7\n",
+        encoding="utf-8",
+    )
+    expected = load_config("cpu", ["name=mine", "net.architecture=multirate", "net.widths=[8, 4]", "train.steps=7"])
+    assert to_dict(load_config(str(file))) == to_dict(expected)
+    cpu = load_config("cpu")
+    assert load_config(str(file)).doe == cpu.doe and load_config(str(file)).net.correction_bound == 0.2
+
+
+def test_a_base_is_found_beside_its_config_and_a_loop_is_refused(tmp_path):
+    (tmp_path / "a.yaml").write_text("base: b.yaml\ntrain:\n  steps: 3\n", encoding="utf-8")
+    (tmp_path / "b.yaml").write_text("base: cpu\ntrain:\n  batch_size: 2\n", encoding="utf-8")
+    cfg = load_config(str(tmp_path / "a.yaml"))
+    assert (cfg.train.steps, cfg.train.batch_size, cfg.name) == (3, 2, "cpu")
+    (tmp_path / "b.yaml").write_text("base: a.yaml\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="loop"):
+        load_config(str(tmp_path / "a.yaml"))
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("base: cpu\ntrain:\n  stepz: 3\n", "train.stepz.*did you mean 'train.steps'"),
+        ("base: cpu\nnet:\n  block_px: 2\n", "unet network has no such option"),
+        ("base: cpu\ntrain: 3\n", "'train' must be a section"),
+        ("base: 5\n", "base must name a preset"),
+    ],
+)
+def test_a_bad_key_on_a_base_is_one_config_error(tmp_path, text, message):
+    file = tmp_path / "bad.yaml"
+    file.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=message):
+        load_config(str(file))

@@ -129,3 +129,36 @@ def test_the_demo_prints_its_plan_before_training(tmp_path, monkeypatch):
     ]
     assert "lens+onlineprodeb" in shipped  # its shipped run has the recipe (lens: the classic keys are not read)
     assert f"takes {', '.join(shipped)} from the shipped runs" in printed
+
+
+def test_job_costs_follow_the_network_and_its_arithmetic():
+    """The plan's cost of each run is the measured step of its network in the arithmetic it trains in:
+    OnlineProDeb's relative cost is the ratio of the two measured steps, the classic elements' networks
+    cost as much as lens+net, and the plan's rate before any step is logged is lens+net's."""
+    for preset, architecture in (("cpu", "unet"), ("cpu-realtime", "multirate")):
+        for precision in ("bf16", "none"):
+            cfg = load_config(preset, [f"train.mixed_precision={precision}"])
+            costs = demo.job_costs(cfg)
+            lens = demo.LENS_NET_STEP_S[(architecture, precision)]
+            assert demo.reference_rate_s(cfg) == lens
+            assert costs["lens+onlineprodeb"][0] == demo.ONLINEPRODEB_STEP_S[precision] / lens
+            assert costs["doe+net"][0] == demo.DOE_NET_RELATIVE_COST[architecture] > 1.0
+            assert {costs[m][0] for m in ("lens+net", "axicon+net", "cubic+net")} == {1.0}
+    float32 = demo.job_costs(load_config("cpu-realtime", ["train.mixed_precision=none"]))
+    bf16 = demo.job_costs(load_config("cpu-realtime", ["train.mixed_precision=bf16"]))
+    assert float32["lens+onlineprodeb"][0] > 3 * bf16["lens+onlineprodeb"][0]  # emulated bf16 is not the cost
+
+
+def test_a_demo_predicted_to_overrun_says_so_and_names_the_faster_preset_where_it_helps(tmp_path):
+    trainer = full_demo_trainer(tmp_path, io.StringIO())
+    trainer.plan()
+    # the two required runs in parallel: the longer one ends last
+    assert trainer.planned_seconds == max(trainer.predicted_seconds(job) for job in trainer.jobs[:2])
+    unet_float32 = load_config("cpu", ["train.mixed_precision=none"])
+    assert demo.overrun_note(599.0, 600.0, unet_float32) is None
+    note = demo.overrun_note(1100.0, 600.0, unet_float32)
+    assert note is not None and note.startswith("predicted 18:20 (min:s) in all, beyond the 10:00 (min:s) budget")
+    assert f"--config {demo.REALTIME_PRESET}" in note and "float32" in note
+    assert "--config" not in demo.overrun_note(1100.0, 600.0, load_config("cpu", ["train.mixed_precision=bf16"]))
+    realtime = load_config(demo.REALTIME_PRESET, ["train.mixed_precision=none"])
+    assert "--config" not in demo.overrun_note(1100.0, 600.0, realtime)

@@ -27,7 +27,12 @@ def test_the_wheel_ships_the_presets_and_runs_the_quick_demo_from_any_directory(
     assert build.returncode == 0, build.stderr[-2000:]
     (wheel,) = wheels.glob("edofproj-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert {"edofproj/presets/cpu.yaml", "edofproj/presets/paper.yaml", "edofproj/presets/realtime.yaml"} <= set(names)
+    assert {
+        "edofproj/presets/cpu.yaml",
+        "edofproj/presets/paper.yaml",
+        "edofproj/presets/realtime.yaml",
+        "edofproj/presets/cpu-realtime.yaml",
+    } <= set(names)
     for run in ("cpu-doe-net", "demo-axicon-net", "demo-cubic-net", "demo-lens-onlineprodeb"):
         shipped = f"edofproj/builtin_runs/{run}/"
         files = ["config.yaml", "train_log.csv", "MODEL.md", "checkpoints/last.pt"]

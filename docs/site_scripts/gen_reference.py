@@ -240,7 +240,7 @@ def config_reference() -> str:
         "# Configuration reference",
         "",
         "Generated from `edofproj.config.Config` when the site is built. A configuration is read from",
-        "YAML (`--config cpu|paper|realtime|FILE.yaml`); `--set section.key=value` overrides one key.",
+        "YAML (`--config cpu|cpu-realtime|paper|realtime|FILE.yaml`); `--set section.key=value` overrides one key.",
         "The unit follows from the key's name. *Rule* is what the validator says when it is given an",
         "invalid value (one of -1, 0, 0.5, 1e12, NaN, an unknown name or an empty list, whichever it",
         "refuses first); an empty rule means no value of the right type is refused.",

@@ -807,25 +807,44 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
         dotted, raw = item.split("=", 1)
         if not raw.strip():
             raise ConfigError(f"override '{item}' has no value: give one, e.g. {dotted.strip()}=VALUE (null for none)")
-        keys = dotted.strip().split(".")
-        if len(keys) == 2 and keys[0] == "net":  # the keys of the chosen architecture (net_config.override_net)
-            data["net"] = override_net(data["net"], keys[1], _parse_override_value(raw))
-            continue
-        node = data
-        for depth, key in enumerate(keys[:-1]):
-            if not isinstance(node, dict) or key not in node:
-                known = list(node) if isinstance(node, dict) else []
-                hint = difflib.get_close_matches(key, known, n=1)
-                did_you_mean = f"; did you mean '{hint[0]}'?" if hint else ""
-                raise ConfigError(f"unknown config key '{'.'.join(keys[: depth + 1])}'{did_you_mean}")
-            node = node[key]
-        if not isinstance(node, dict) or keys[-1] not in node:
-            known = list(node) if isinstance(node, dict) else []
-            hint = difflib.get_close_matches(keys[-1], known, n=1)
-            did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
-            raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
-        node[keys[-1]] = _parse_override_value(raw)
+        set_key(data, dotted.strip(), _parse_override_value(raw))
     return from_dict(Config, data).validate()
+
+
+def set_key(data: dict, dotted: str, value: Any) -> None:
+    """Set ``section.key`` of a config mapping (:func:`to_dict`'s form) to ``value``, in place; a key
+    of the ``net`` section is one of the chosen architecture's (:func:`~edofproj.net_config.override_net`:
+    ``net.architecture`` switches the network). An unknown key raises with a suggestion."""
+    keys = dotted.split(".")
+    if len(keys) == 2 and keys[0] == "net":
+        data["net"] = override_net(data["net"], keys[1], value)
+        return
+    node = data
+    for depth, key in enumerate(keys[:-1]):
+        if not isinstance(node, dict) or key not in node:
+            known = list(node) if isinstance(node, dict) else []
+            hint = difflib.get_close_matches(key, known, n=1)
+            did_you_mean = f"; did you mean '{hint[0]}'?" if hint else ""
+            raise ConfigError(f"unknown config key '{'.'.join(keys[: depth + 1])}'{did_you_mean}")
+        node = node[key]
+    if not isinstance(node, dict) or keys[-1] not in node:
+        known = list(node) if isinstance(node, dict) else []
+        hint = difflib.get_close_matches(keys[-1], known, n=1)
+        did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
+        raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
+    node[keys[-1]] = value
+
+
+def base_statements(data: dict) -> list[tuple[str, Any]]:
+    """The ``(section.key, value)`` pairs of a config mapping that names a ``base``, in file order, with
+    ``net.architecture`` before the other ``net`` keys (switching the network first)."""
+    pairs: list[tuple[str, Any]] = []
+    for section, values in data.items():
+        if not isinstance(values, dict):
+            raise ConfigError(f"'{section}' must be a section (a mapping of keys), got {values!r}")
+        keys = sorted(values, key=lambda k: section != "net" or k != "architecture")
+        pairs += [(f"{section}.{key}", values[key]) for key in keys]
+    return pairs
 
 
 def _parse_override_value(raw: str) -> Any:
@@ -868,7 +887,7 @@ PRESET_DIR = Path(__file__).resolve().parent / "presets"
 
 
 def preset_names() -> list[str]:
-    """The names of the shipped presets (``cpu``, ``paper``, ``realtime``)."""
+    """The names of the shipped presets (``cpu``, ``cpu-realtime``, ``paper``, ``realtime``)."""
     return sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
 
 
@@ -884,8 +903,12 @@ def resolve_config_path(name_or_path: str) -> Path:
     raise ConfigError(f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})")
 
 
-def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -> Config:
-    """Load a YAML config (or the defaults when ``path`` is None) and apply overrides."""
+def load_config(path: str | None = None, overrides: typing.Sequence[str] = (), _chain: tuple[Path, ...] = ()) -> Config:
+    """Load a YAML config (or the defaults when ``path`` is None) and apply overrides.
+
+    A config that names ``base: PRESET_OR_FILE`` is that config with its own keys set on top, as
+    ``--set`` would set them (:func:`set_key`; ``name`` too): a preset that differs from another in a
+    few keys states only those. A run directory's ``config.yaml`` is always written whole."""
     if path is None:
         cfg = Config()
     else:
@@ -896,12 +919,33 @@ def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -
             raise ConfigError(f"cannot read config '{file}': {exc}") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
-        if isinstance(data, dict) and "net" in data:
-            data["net"], note = convert_flat_net(data["net"])
-            if note:  # once per file and process (Python's default warning filter)
-                warnings.warn(f"{file}: {note}", ConfigConversionWarning, stacklevel=2)
-        cfg = from_dict(Config, data)
+        if isinstance(data, dict) and "base" in data:
+            cfg = _load_on_base(file, data, _chain)
+        else:
+            if isinstance(data, dict) and "net" in data:
+                data["net"], note = convert_flat_net(data["net"])
+                if note:  # once per file and process (Python's default warning filter)
+                    warnings.warn(f"{file}: {note}", ConfigConversionWarning, stacklevel=2)
+            cfg = from_dict(Config, data)
     return apply_overrides(cfg, overrides)
+
+
+def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
+    """The config of ``file`` (its mapping ``data``) set on top of the config its ``base`` names."""
+    base = data.pop("base")
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"config '{file}': base must name a preset or a config file, got {base!r}")
+    here = file.resolve()
+    if here in chain:
+        raise ConfigError(f"config '{file}': its bases form a loop ({' -> '.join(p.name for p in (*chain, here))})")
+    beside = file.parent / base  # a file named relative to the config that names it, else a preset or a path
+    merged = to_dict(load_config(str(beside) if beside.is_file() else base, (), (*chain, here)))
+    name = data.pop("name", None)
+    if name is not None:
+        merged["name"] = name
+    for dotted, value in base_statements(data):
+        set_key(merged, dotted, value)
+    return from_dict(Config, merged).validate()
 
 
 def dump_config(cfg: Config) -> str:

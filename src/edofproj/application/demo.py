@@ -4,10 +4,11 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 
 1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
    (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
-   :attr:`DemoSettings.ours_steps` steps) and ``lens_net`` (the same U-Net without a DOE) always;
-   ``axicon_net``, ``cubic_net`` (the same U-Net with the classic elements of the preset) and
+   :attr:`DemoSettings.ours_steps` steps; ``cpu-realtime``: the real-time multi-rate network instead)
+   and ``lens_net`` (the same network without a DOE) always; ``axicon_net``, ``cubic_net`` (the same
+   network with the classic elements of the preset) and
    ``lens_onlineprodeb`` when they are predicted to fit the time budget (planned before any training,
-   :meth:`~.schedule.ParallelTrainer.plan`, and printed in one line, :func:`plan_line`). The U-Net's
+   :meth:`~.schedule.ParallelTrainer.plan`, and printed in one line, :func:`plan_line`). The network's
    baselines train for as many steps as ``doe_net`` (:data:`EQUAL_STEP_BASELINES`), ``lens_onlineprodeb``
    for the preset's. A baseline that does not fit is taken from the run the package ships for it
    (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
@@ -62,6 +63,7 @@ from ..reporting.tables import format_text_table, range_table
 from ..reporting.writeup import claims_section, psf_figure_depths_m, write_documents
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
 from ..runs.directory import flatten_keys
+from ..training.end_to_end import resolve_mixed_precision
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
@@ -108,10 +110,10 @@ LINEAR_METHOD_SECONDS = 8.0
 #: Steps the full demo trains ``doe+net`` for, and every baseline of :data:`EQUAL_STEP_BASELINES`
 #: (docs/experiments/2026-11-25-training-speed.md).
 OURS_DEMO_STEPS = 2400
-#: The baselines that are ``doe+net``'s U-Net and recipe with other optics (:attr:`MethodSpec.train_overrides`
+#: The baselines that are ``doe+net``'s network and recipe with other optics (:attr:`MethodSpec.train_overrides`
 #: change ``doe.kind`` only): they train for the same steps as ``doe+net``, so that the comparison
-#: measures the optics. ``lens+onlineprodeb``, another architecture at 8.5 times the cost per step
-#: (:data:`JOB_COSTS`), keeps the preset's steps.
+#: measures the optics. ``lens+onlineprodeb``, another architecture at 9 to 53 times the cost per step
+#: (:func:`job_costs`), keeps the preset's steps.
 EQUAL_STEP_BASELINES = ("lens+net", "axicon+net", "cubic+net")
 
 FULL = DemoSettings(
@@ -153,18 +155,48 @@ QUICK = DemoSettings(
     left_out=("cubic+wiener", "cubic+ensemble"),
 )
 
-#: Training cost per step relative to ``lens+net`` (a U-Net with a precomputed PSF table), and
-#: one-off start-up seconds, measured with the cpu preset on the 2-core machine (one thread each,
-#: ``benchmarks/bench_training.py --stages``): lens+net about 0.095 s/step; doe+net 0.105 s/step (the
-#: DOE's PSFs are simulated every step); OnlineProDeb 0.81 s/step; the cubic plate needs the 2-D
-#: engine, about 2.3 s per simulated depth.
-JOB_COSTS = {
-    "doe+net": (1.1, 15.0),
-    "lens+net": (1.0, 15.0),
-    "axicon+net": (1.0, 15.0),
-    "cubic+net": (1.0, 15.0),
-    "lens+onlineprodeb": (8.5, 15.0),
+#: Seconds per training step of ``lens+net`` (the network alone: its PSFs come from a precomputed table),
+#: by the network the runs train (``net.architecture``) and the arithmetic it trains in (``bf16``: autocast
+#: where the CPU computes bfloat16 natively; ``none``: float32), and of OnlineProDeb, by arithmetic; one
+#: thread of the 2-core development machine (``benchmarks/bench_training.py --stages --threads 1``,
+#: float32 with the AVX2 limits). The plan uses them before any run has logged a step; then the measured
+#: ``lens+net`` rate replaces them (:mod:`.schedule`).
+LENS_NET_STEP_S = {
+    ("unet", "bf16"): 0.095,
+    ("unet", "none"): 0.28,
+    ("multirate", "bf16"): 0.058,
+    ("multirate", "none"): 0.063,
 }
+ONLINEPRODEB_STEP_S = {"bf16": 0.83, "none": 3.36}
+#: ``doe+net``'s step relative to ``lens+net``'s (its DOE's PSFs are simulated every step: about 10 ms of
+#: the U-Net's 0.1 s, 30 of the multi-rate network's 0.06 s); the classic elements' ``X+net`` cost as much as
+#: ``lens+net``. One-off start-up seconds of every run (process start, PSF tables); the cubic plate needs
+#: the 2-D engine for its table, about 2.3 s per simulated depth (:data:`CUBIC_SECONDS_PER_DEPTH`).
+DOE_NET_RELATIVE_COST = {"unet": 1.1, "multirate": 1.5}
+SETUP_S = 15.0
+
+
+def job_costs(cfg) -> dict[str, tuple[float, float]]:
+    """Each trained method's cost per step relative to ``lens+net`` and its start-up seconds, for the
+    network and arithmetic of ``cfg`` (a network not listed: the U-Net's figures)."""
+    architecture, precision = _cost_key(cfg)
+    onlineprodeb = ONLINEPRODEB_STEP_S[precision] / LENS_NET_STEP_S[(architecture, precision)]
+    costs = {"doe+net": DOE_NET_RELATIVE_COST[architecture], "lens+onlineprodeb": onlineprodeb}
+    costs.update({method: 1.0 for method in ("lens+net", "axicon+net", "cubic+net")})
+    return {method: (cost, SETUP_S) for method, cost in costs.items()}
+
+
+def reference_rate_s(cfg) -> float:
+    """Seconds per ``lens+net`` step the plan assumes before measuring (:data:`LENS_NET_STEP_S`)."""
+    return LENS_NET_STEP_S[_cost_key(cfg)]
+
+
+def _cost_key(cfg) -> tuple[str, str]:
+    architecture = cfg.net.architecture if cfg.net.architecture in DOE_NET_RELATIVE_COST else "unet"
+    precision = resolve_mixed_precision(cfg.train.mixed_precision, torch.device("cpu"))
+    return architecture, "bf16" if precision == "bf16" else "none"
+
+
 #: The run the package ships for a baseline (``builtin:NAME``), trained beforehand with the ``cpu``
 #: preset and the demo's settings; the demo uses it when training the baseline would overrun the
 #: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
@@ -236,13 +268,14 @@ def demo_jobs(
         user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in user_overrides)
     ours_steps = settings.ours_steps if settings.ours_steps and not user_steps else steps
     common = list(settings.overrides) + list(user_overrides)
+    costs = job_costs(cfg)
     wanted = set(methods) if methods else None
     jobs = []
 
     def add(
         method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0, n: int = steps
     ) -> None:
-        cost, setup = JOB_COSTS[method]
+        cost, setup = costs[method]
         extra = list(extra) + ([f"train.steps={n}"] if n != steps else [])
         jobs.append(TrainingJob(method, out / run_dir, common + extra, n, required, cost, setup + setup_extra))
 
@@ -297,6 +330,32 @@ def plan_line(jobs: Sequence[TrainingJob]) -> str:
     if left_out:
         parts.append(f"leaves out {', '.join(left_out)} (predicted not to fit, no shipped run of its recipe)")
     return "; ".join(parts)
+
+
+#: The preset of the demo that fits its budget on a CPU without native bfloat16: the ``cpu`` preset with the
+#: real-time multi-rate network (``edofproj/presets/cpu-realtime.yaml``).
+REALTIME_PRESET = "cpu-realtime"
+
+
+def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
+    """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction,
+    the arithmetic the network trains in on this CPU and, for a U-Net in float32, the preset of the real-time
+    network, whose step costs about a third of the U-Net's there (:data:`REALTIME_PRESET`; with native
+    bfloat16 the two cost about the same)."""
+    if predicted_s <= budget_s:
+        return None
+    architecture, precision = _cost_key(cfg)
+    arithmetic = "bfloat16" if precision == "bf16" else "float32 (no native bfloat16 here)"
+    note = (
+        f"predicted {format_duration(predicted_s, unit=True)} in all, beyond the "
+        f"{format_duration(budget_s, unit=True)} budget: the network trains in {arithmetic}"
+    )
+    if architecture == "unet" and precision != "bf16":
+        note += (
+            f"; --config {REALTIME_PRESET} trains the real-time multi-rate network instead, at about a third of "
+            "the U-Net's step cost here (it scores lower: the documentation's Results page)"
+        )
+    return note
 
 
 def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" = None) -> Table:
@@ -559,10 +618,15 @@ def run_demo(
     ours = None
     if pretrained is not None:
         ours = copy_pretrained(pretrained, out / OURS_RUN_DIR, list(settings.overrides) + list(overrides))
-    trainer = ParallelTrainer(jobs, training_config, out / LOG_DIR, workers, deadline, progress, later_s=later)
+    trainer = ParallelTrainer(
+        jobs, training_config, out / LOG_DIR, workers, deadline, progress, reference_rate_s(cfg), later_s=later
+    )
     trainer.plan()  # before any training: the baselines predicted not to fit are named now
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.note(plan_line(jobs))
+    overrun = overrun_note(time.perf_counter() - clock + trainer.planned_seconds + later + REPORT_MARGIN_S, budget, cfg)
+    if overrun:
+        progress.note(overrun)
     progress.start("stage 1/4 training", trainer.total_work(), later_s=later)
     trainer.run()
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)

@@ -10,8 +10,8 @@ is predicted to end before ``deadline``:
     now + setup_s + steps * rate * relative_cost  <=  deadline
 
 where ``rate`` is the measured seconds per step of a reference job (the first required job
-with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_rate``, 0.1 s: the
-``cpu`` preset's ``lens+net`` step on the 2-core development machine), and
+with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_rate_s``: the demo
+gives the ``lens+net`` step of its network on the 2-core development machine), and
 ``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
 and its one-off start-up cost (process start, PSF tables). A job that cannot fit is skipped
 with a note.
@@ -118,6 +118,8 @@ class ParallelTrainer:
         self.progress = progress
         self.default_rate_s = default_rate_s
         self.later_s = later_s
+        #: predicted seconds from the last :meth:`plan` until the last job it keeps ends
+        self.planned_seconds = 0.0
 
     # -- cost model ------------------------------------------------------------------------
     def reference_rate_s(self) -> float:
@@ -218,7 +220,8 @@ class ParallelTrainer:
         """Decide which pending optional jobs fit before ``deadline``, before they are due to start:
         each pending job starts when the first worker slot frees (in order), and an optional one that
         would then end after the deadline is skipped with a note (shown at once). Returns the skipped
-        jobs. :meth:`run` calls it first; calling it again re-plans with the current estimates."""
+        jobs and keeps the predicted seconds until the last planned job ends, :attr:`planned_seconds`.
+        :meth:`run` calls it first; calling it again re-plans with the current estimates."""
         now = time.perf_counter()
         slots = self._slots_after_running()
         skipped = []
@@ -232,6 +235,7 @@ class ParallelTrainer:
                 continue
             self.skip(job, predicted)
             skipped.append(job)
+        self.planned_seconds = max(slots)
         return skipped
 
     def skip(self, job: TrainingJob, predicted: float) -> None:

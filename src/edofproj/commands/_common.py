@@ -14,7 +14,9 @@ from ..errors import EdofprojError
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
     """``--config FILE|PRESET`` and repeatable ``--set section.key=value``."""
-    parser.add_argument("--config", default=None, help="YAML config file or preset name (cpu, paper, realtime)")
+    parser.add_argument(
+        "--config", default=None, help="YAML config file or preset name (cpu, cpu-realtime, paper, realtime)"
+    )
     add_set_option(parser)
 
 
