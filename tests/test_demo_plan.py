@@ -15,8 +15,8 @@ from edofproj.methods.builder import require_trained_run
 from edofproj.runs import load_run, saved_config
 
 
-def _jobs(tmp_path, **kwargs):
-    cfg = load_config("cpu", list(demo.FULL.overrides))
+def _jobs(tmp_path, preset="cpu", **kwargs):
+    cfg = load_config(preset, list(demo.FULL.overrides))
     return demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [], **kwargs)
 
 
@@ -77,21 +77,31 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
     assert all(job.required for job in _jobs(tmp_path, retrain_baselines=True))
 
 
-@pytest.mark.parametrize("method", ["axicon+net", "cubic+net", "lens+onlineprodeb"])
-def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path, method):
-    jobs = _jobs(tmp_path)
+@pytest.mark.parametrize(
+    "preset, method, shipped",
+    [
+        ("cpu", "axicon+net", "demo-axicon-net"),
+        ("cpu", "cubic+net", "demo-cubic-net"),
+        ("cpu", "lens+onlineprodeb", "demo-lens-onlineprodeb"),
+        ("cpu-realtime", "axicon+net", "demo-realtime-axicon-net"),
+        ("cpu-realtime", "cubic+net", "demo-realtime-cubic-net"),
+        ("cpu-realtime", "lens+onlineprodeb", "demo-lens-onlineprodeb"),  # OnlineProDeb: the same recipe
+    ],
+)
+def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path, preset, method, shipped):
+    jobs = _jobs(tmp_path, preset)
     job = next(job for job in jobs if job.method == method)
     job.status = "skipped"
     job.note = "not trained: predicted 5:00 (min:s) would end after the time budget"
-    demo.use_builtin_baselines(jobs, ["evaluation.depths_mm=[300,800]"], "cpu")
+    demo.use_builtin_baselines(jobs, ["evaluation.depths_mm=[300,800]"], preset)
     assert job.status == "built-in", job.note  # shipped, trained with the preset as it is
-    assert f"builtin:{demo.BUILTIN_BASELINES[method]}" in job.note and "--retrain-baselines" in job.note
+    assert f"shipped run builtin:{shipped} (" in job.note and "--retrain-baselines" in job.note
     assert load_run(job.run_dir).step == job.steps
     assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
 
 
 def test_a_shipped_run_of_another_recipe_is_not_used(tmp_path, monkeypatch):
-    monkeypatch.setitem(demo.BUILTIN_BASELINES, "cubic+net", "cpu-doe-net")  # a doe+net run, not a cubic one
+    monkeypatch.setitem(demo.BUILTIN_BASELINES, "cubic+net", ("cpu-doe-net",))  # a doe+net run, not a cubic one
     jobs = _jobs(tmp_path)
     cubic = next(job for job in jobs if job.method == "cubic+net")
     cubic.status, cubic.note = "skipped", "not trained: predicted 5:00 (min:s) would end after the time budget"

@@ -102,6 +102,11 @@ class DemoSettings:
 #: Seconds of the full demo's evaluation of the methods scored by default before the classic elements'
 #: linear baselines joined them, a shipped ``cubic+net`` and its 2-D PSFs included (2-core machine).
 EVALUATION_ESTIMATE_S = 200.0
+#: The evaluation's cost with the networks of ``net.architecture`` relative to the U-Net's (whose demo
+#: :data:`EVALUATION_ESTIMATE_S` is): the multi-rate networks' demo (``--config cpu-realtime``) evaluated,
+#: timed and reported in 181 s against the U-Net demo's 246 s, both on 2 idle cores limited to AVX2 in
+#: float32 (docs/experiments/2026-11-28-joint-realtime-network.md).
+EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 0.7}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
 #: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine).
@@ -197,13 +202,14 @@ def _cost_key(cfg) -> tuple[str, str]:
     return architecture, "bf16" if precision == "bf16" else "none"
 
 
-#: The run the package ships for a baseline (``builtin:NAME``), trained beforehand with the ``cpu``
-#: preset and the demo's settings; the demo uses it when training the baseline would overrun the
+#: The runs the package ships for a baseline (``builtin:NAME``), trained beforehand with the demo's
+#: settings and a preset's recipe (the ``cpu`` preset's U-Net, the ``cpu-realtime`` preset's multi-rate
+#: network); the demo uses the one whose recipe is its own when training the baseline would overrun the
 #: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
-BUILTIN_BASELINES = {
-    "axicon+net": "demo-axicon-net",
-    "cubic+net": "demo-cubic-net",
-    "lens+onlineprodeb": "demo-lens-onlineprodeb",
+BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
+    "axicon+net": ("demo-axicon-net", "demo-realtime-axicon-net"),
+    "cubic+net": ("demo-cubic-net", "demo-realtime-cubic-net"),
+    "lens+onlineprodeb": ("demo-lens-onlineprodeb",),
 }
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
@@ -226,11 +232,13 @@ def cubic_evaluation_depths(cfg, methods: Sequence[str]) -> int:
 
 def evaluation_seconds(settings: DemoSettings, cfg, methods: Sequence[str]) -> float:
     """Predicted seconds of the demo's evaluation of ``methods``: :attr:`DemoSettings.evaluation_estimate_s`
-    (with ``cubic+net``'s 2-D PSFs), :attr:`DemoSettings.linear_method_s` for each classic linear baseline,
+    (with ``cubic+net``'s 2-D PSFs) scaled for the network ``cfg`` trains (:data:`EVALUATION_COST_BY_NETWORK`),
+    :attr:`DemoSettings.linear_method_s` for each classic linear baseline,
     and :data:`CUBIC_SECONDS_PER_DEPTH` for each depth at which the cubic plate's linear baselines
     simulate it beyond those of ``cubic+net`` (:func:`cubic_evaluation_depths`)."""
     linear = [m for m in methods if method_spec(m).optics in CLASSIC_ELEMENTS]
-    seconds = settings.evaluation_estimate_s + settings.linear_method_s * len(linear)
+    networks = EVALUATION_COST_BY_NETWORK.get(cfg.net.architecture, 1.0)
+    seconds = settings.evaluation_estimate_s * networks + settings.linear_method_s * len(linear)
     if any(method_spec(m).design == "cubic" for m in linear):
         extra = cubic_evaluation_depths(cfg, [*linear, "cubic+net"]) - cubic_evaluation_depths(cfg, ["cubic+net"])
         seconds += CUBIC_SECONDS_PER_DEPTH * extra
@@ -416,20 +424,27 @@ def recipe_difference(shipped, expected) -> str | None:
 
 
 def use_builtin_baselines(jobs: Sequence[TrainingJob], overrides: Sequence[str], training_config: str) -> None:
-    """Put the shipped run of each skipped baseline (:data:`BUILTIN_BASELINES`) in its run directory,
-    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in`` -- if it was trained
-    with exactly the recipe the demo would train it with (``training_config`` with the job's overrides;
-    :func:`recipe_difference`). Otherwise the job stays skipped and its note names the first difference."""
+    """Put a shipped run of each skipped baseline (:data:`BUILTIN_BASELINES`) in its run directory,
+    with the evaluation keys of ``overrides`` applied, and mark the job ``built-in`` -- the first one
+    trained with exactly the recipe the demo would train it with (``training_config`` with the job's
+    overrides; :func:`recipe_difference`). Otherwise the job stays skipped and its note names the first
+    difference of each shipped run."""
     for job in jobs:
-        name = BUILTIN_BASELINES.get(job.method)
-        if job.status != "skipped" or name is None or name not in BUILTIN_RUNS:
+        names = [name for name in BUILTIN_BASELINES.get(job.method, ()) if name in BUILTIN_RUNS]
+        if job.status != "skipped" or not names:
             continue
-        shipped_dir = require_trained_run(PREFIX + name)
-        difference = recipe_difference(saved_config(shipped_dir), load_config(training_config, job.overrides))
-        if difference:
-            job.note += f"; its shipped run {PREFIX}{name} was trained with another recipe: {difference}"
+        expected = load_config(training_config, job.overrides)
+        differences = {
+            name: recipe_difference(saved_config(require_trained_run(PREFIX + name)), expected) for name in names
+        }
+        same = [name for name in names if differences[name] is None]
+        if not same:
+            job.note += "".join(
+                f"; its shipped run {PREFIX}{name} was trained with another recipe: {difference}"
+                for name, difference in differences.items()
+            )
             continue
-        shipped = copy_pretrained(PREFIX + name, job.run_dir, overrides)
+        shipped = copy_pretrained(PREFIX + same[0], job.run_dir, overrides)
         job.status = "built-in"
         job.note = (
             f"{job.note.replace('not trained: ', 'not trained here: ')}; shipped run {shipped.source} "
