@@ -903,31 +903,31 @@ def resolve_config_path(name_or_path: str) -> Path:
     raise ConfigError(f"config file '{name_or_path}' not found (presets: {', '.join(presets) or 'none'})")
 
 
-def load_config(path: str | None = None, overrides: typing.Sequence[str] = (), _chain: tuple[Path, ...] = ()) -> Config:
+def load_config(path: str | None = None, overrides: typing.Sequence[str] = ()) -> Config:
     """Load a YAML config (or the defaults when ``path`` is None) and apply overrides.
 
     A config that names ``base: PRESET_OR_FILE`` is that config with its own keys set on top, as
     ``--set`` would set them (:func:`set_key`; ``name`` too): a preset that differs from another in a
     few keys states only those. A run directory's ``config.yaml`` is always written whole."""
-    if path is None:
-        cfg = Config()
-    else:
-        file = resolve_config_path(path)
-        try:
-            data = safe_load_yaml(file.read_text(encoding="utf-8")) or {}
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"cannot read config '{file}': {exc}") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
-        if isinstance(data, dict) and "base" in data:
-            cfg = _load_on_base(file, data, _chain)
-        else:
-            if isinstance(data, dict) and "net" in data:
-                data["net"], note = convert_flat_net(data["net"])
-                if note:  # once per file and process (Python's default warning filter)
-                    warnings.warn(f"{file}: {note}", ConfigConversionWarning, stacklevel=2)
-            cfg = from_dict(Config, data)
+    cfg = Config() if path is None else _load_file(resolve_config_path(path), ())
     return apply_overrides(cfg, overrides)
+
+
+def _load_file(file: Path, chain: tuple[Path, ...]) -> Config:
+    """The config of the YAML ``file``; ``chain``: the files whose ``base`` led here (to refuse a loop)."""
+    try:
+        data = safe_load_yaml(file.read_text(encoding="utf-8")) or {}
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read config '{file}': {exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
+    if isinstance(data, dict) and "base" in data:
+        return _load_on_base(file, data, chain)
+    if isinstance(data, dict) and "net" in data:
+        data["net"], note = convert_flat_net(data["net"])
+        if note:  # once per file and process (Python's default warning filter)
+            warnings.warn(f"{file}: {note}", ConfigConversionWarning, stacklevel=3)
+    return from_dict(Config, data)
 
 
 def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
@@ -939,7 +939,7 @@ def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
     if here in chain:
         raise ConfigError(f"config '{file}': its bases form a loop ({' -> '.join(p.name for p in (*chain, here))})")
     beside = file.parent / base  # a file named relative to the config that names it, else a preset or a path
-    merged = to_dict(load_config(str(beside) if beside.is_file() else base, (), (*chain, here)))
+    merged = to_dict(_load_file(beside if beside.is_file() else resolve_config_path(base), (*chain, here)))
     name = data.pop("name", None)
     if name is not None:
         merged["name"] = name
