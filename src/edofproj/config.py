@@ -835,7 +835,7 @@ def set_key(data: dict, dotted: str, value: Any) -> None:
     node[keys[-1]] = value
 
 
-def base_statements(data: dict) -> list[tuple[str, Any]]:
+def _base_statements(data: dict) -> list[tuple[str, Any]]:
     """The ``(section.key, value)`` pairs of a config mapping that names a ``base``, in file order, with
     ``net.architecture`` before the other ``net`` keys (switching the network first)."""
     pairs: list[tuple[str, Any]] = []
@@ -943,7 +943,7 @@ def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
     name = data.pop("name", None)
     if name is not None:
         merged["name"] = name
-    for dotted, value in base_statements(data):
+    for dotted, value in _base_statements(data):
         set_key(merged, dotted, value)
     return from_dict(Config, merged).validate()
 

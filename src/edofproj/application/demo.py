@@ -103,9 +103,9 @@ class DemoSettings:
 #: linear baselines joined them, a shipped ``cubic+net`` and its 2-D PSFs included (2-core machine).
 EVALUATION_ESTIMATE_S = 200.0
 #: The evaluation's cost with the networks of ``net.architecture`` relative to the U-Net's (whose demo
-#: :data:`EVALUATION_ESTIMATE_S` is): the multi-rate networks' demo (``--config cpu-realtime``) evaluated,
-#: timed and reported in 181 s against the U-Net demo's 246 s, both on 2 idle cores limited to AVX2 in
-#: float32 (docs/experiments/2026-11-28-joint-realtime-network.md).
+#: :data:`EVALUATION_ESTIMATE_S` is): the multi-rate networks' demo (``--config cpu-realtime``, every method)
+#: evaluated and timed in 176 s against the U-Net demo's 246 s (0.72), both on 2 idle cores limited to AVX2
+#: in float32 (docs/experiments/2026-11-28-joint-realtime-network.md).
 EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 0.7}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
