@@ -26,9 +26,13 @@ frame on screen, median and 99th percentile); and the throughput the three threa
 allow with a core each. PyTorch and OpenCV run one thread each (``--threads``), so that each
 stage's work stays in the thread that times it.
 
-With ``--device cuda`` the network runs on the GPU inside the same CPU loop: ``compensate`` then
-includes copying the two images to the GPU and the result back (the copy back waits for the GPU),
-and the network alone is timed on the GPU as ``edofproj bench --device cuda`` times it.
+With ``--device cuda`` part 1 runs twice: first with the network alone on the GPU inside the CPU
+loop (``compensate`` then includes copying the two images to the GPU and the result back), then as
+``edofproj live --device cuda`` runs it, with the frame maps on the GPU too
+(:class:`edofproj.procams.device_frame_maps.DeviceFrameMaps`: the camera frame goes to the GPU in
+its 8-bit counts, is rectified, compensated and turned into projector input there, and only the
+projector input comes back; each stage waits for the GPU at its end). The network alone is timed
+on the GPU as ``edofproj bench --device cuda`` times it.
 
     PYTHONPATH=src python benchmarks/bench_live.py [--size 600x800] [--frames 60] [--virtual-frames 8] [--device cuda]
 """
@@ -211,7 +215,16 @@ def main() -> int:
     camera: Camera = InstantCamera(frame)
     run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3)
     instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames)
-    print_summary("instant camera, in-memory display", instant)
+    print_summary(
+        "instant camera, in-memory display" + (", the network alone on the GPU" if device.type != "cpu" else ""),
+        instant,
+    )
+    if device.type != "cpu":  # as `edofproj live --device cuda`: every per-frame stage on the GPU
+        run_live(bare_net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3, device=device)
+        on_device = run_live(
+            bare_net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames, device=device
+        )
+        print_summary("instant camera, in-memory display, rectify + compensate + to_input on the GPU", on_device)
     bench_frame = network_torch_case(bare_net, "net", device=str(device)).build(height, width)
     sync = torch.cuda.synchronize if device.type == "cuda" else None
     if sync is not None:  # the first calls on a GPU pick kernels

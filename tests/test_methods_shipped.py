@@ -190,7 +190,7 @@ def test_live_runs_the_method_object(runs, tmp_path, monkeypatch):
     seen = {}
 
     def spy(net, *args, **kwargs):
-        seen["net"] = net
+        seen["net"], seen["device"] = net, kwargs.get("device")
         return live_module.LiveSummary()
 
     class NoCamera:
@@ -219,6 +219,14 @@ def test_live_runs_the_method_object(runs, tmp_path, monkeypatch):
     with torch.inference_mode():
         torch.testing.assert_close(seen["net"](target, captured), shipped.compensate(target, captured, None))
     assert main(argv + ["--camera", "none", "--display", "memory", "--method", "doe+wiener"]) == 2
+    assert seen["device"] is None  # the CPU's tables by default
+    # --device cuda: the module and the frame maps on the GPU, or one line where there is none
+    on_gpu = main(argv + ["--camera", "none", "--display", "memory", "--device", "cuda"])
+    if torch.cuda.is_available():
+        assert on_gpu == 0 and seen["device"].type == "cuda"
+        assert all(p.is_cuda for p in seen["net"].parameters())
+    else:
+        assert on_gpu == 2 and seen["device"] is None
 
 
 def test_bench_times_the_shipped_method_and_its_bare_network(runs, capsys):

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The CUDA checks and measurements of edofproj in one go, on a machine with an NVIDIA GPU.
 #
-#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|paper|scored|all]...   (default: all)
+#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|live|compile|paper|scored|all]...   (default: all)
 #
 # setup      installs what the GPU image lacks from .whl/ (nothing can be fetched there; download
 #            the wheels beforehand, see below) and makes the package importable without a build
@@ -15,7 +15,10 @@
 # bench      `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
 #            and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
 # live       benchmarks/bench_live.py --device cuda: the live loop at 600x800 with an in-memory display
-#            and an instant camera, the reference network (builtin:cpu-doe-net) and the real-time network on the GPU
+#            and an instant camera, the reference network (builtin:cpu-doe-net) and the real-time network
+#            on the GPU: the network alone there, then every per-frame stage there (live --device cuda)
+# compile    `edofproj bench --compile` on CUDA at COMPILE_SIZES (600x800): the reference model (guarded
+#            and bare) and the real-time network, eager, compiled by torch.compile, and each as a CUDA graph
 # paper      benchmarks/gpu/paper_scale.py: s/step and peak memory at the paper's sizes, fp32 vs bf16
 # scored     trains the `paper` preset for SCORED_STEPS steps and evaluates it and the reference
 #            model (REFERENCE_RUN, default the built-in run builtin:cpu-doe-net) on the GPU
@@ -44,6 +47,7 @@ SCORED_BATCH=${SCORED_BATCH:-4}
 SCORED_PRECISION=${SCORED_PRECISION:-bf16}
 REFERENCE_RUN=${REFERENCE_RUN:-builtin:cpu-doe-net}
 BENCH_REPEATS=${BENCH_REPEATS:-300}
+COMPILE_SIZES=${COMPILE_SIZES:-600x800}
 PAPER_STEPS=${PAPER_STEPS:-40}
 TESTS_TIMEOUT=${TESTS_TIMEOUT:-420}
 STEP_TIMEOUT=${STEP_TIMEOUT:-600}
@@ -118,9 +122,19 @@ bench() {
 live() {
     local status=0
     timeout "$STEP_TIMEOUT" python3 benchmarks/bench_live.py --device cuda --frames 300 --skip-virtual \
-        --run builtin:cpu-doe-net 2>&1 | tee "$OUT/live_cpu_doe_net.log" | tail -14 || status=1
+        --run builtin:cpu-doe-net 2>&1 | tee "$OUT/live_cpu_doe_net.log" | tail -30 || status=1
     timeout "$STEP_TIMEOUT" python3 benchmarks/bench_live.py --device cuda --frames 300 --skip-virtual \
-        --config realtime 2>&1 | tee "$OUT/live_realtime.log" | tail -14 || status=1
+        --config realtime 2>&1 | tee "$OUT/live_realtime.log" | tail -30 || status=1
+    return $status
+}
+
+compile() {
+    local common="--device cuda --repeats $BENCH_REPEATS --warmup 10 --no-onnx --methods unet --compile --sizes $COMPILE_SIZES"
+    local status=0
+    $CLI bench $common --run "$REFERENCE_RUN" --csv "$OUT/compile_reference.csv" 2>>"$OUT/compile.log" || status=1
+    $CLI bench $common --widths 8,16 --architecture multirate --space-to-depth 4 --prefilter-bins 48 \
+        --csv "$OUT/compile_realtime.csv" 2>>"$OUT/compile.log" || status=1
+    [ $status -eq 0 ] || tail -5 "$OUT/compile.log"
     return $status
 }
 
@@ -148,13 +162,13 @@ scored() {
 steps=()
 for step in "$@"; do
     case "$step" in
-    all) steps+=(tests bench live paper scored) ;;
+    all) steps+=(tests bench live compile paper scored) ;;
     setup | placement) ;;  # always run first
-    tests | suite | bench | live | paper | scored) steps+=("$step") ;;
-    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, live, paper, scored, all)" >&2; exit 2 ;;
+    tests | suite | bench | live | compile | paper | scored) steps+=("$step") ;;
+    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, live, compile, paper, scored, all)" >&2; exit 2 ;;
     esac
 done
-[ $# -eq 0 ] && steps=(tests bench live paper scored)
+[ $# -eq 0 ] && steps=(tests bench live compile paper scored)
 steps=(setup placement "${steps[@]}")
 status=0
 for step in "${steps[@]}"; do

@@ -45,6 +45,13 @@ On a coloured, textured object whose surface the calibration holds, ``surface``
 is the photometric correction ``f^-1(D)`` of the goal ``g`` (the target scaled into what the
 surface can show), the network is given the absolute capture and the surface (or runs after the
 photometric correction), and the captures are scored against ``g`` as absolute light.
+
+With ``device`` (a GPU), steps 3-5 run there (:class:`~edofproj.procams.device_frame_maps.DeviceFrameMaps`:
+the same maps as tensors): the camera frame is copied to the device in its own dtype through
+page-locked memory, rectified, compensated and turned into projector input there, and only the
+projector input ``(H, W, 3)`` comes back (the rectified capture too with ``measure`` or
+``keep_images``). The network must already be on ``device``; the stage times wait for the device
+at the end of each stage, so that each stage is charged its own device time.
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ from ..errors import EdofprojError
 from ..imaging.image_io import IMAGE_EXTENSIONS, open_video, read_image_array, to_unit_float
 from ..metrics import ssim
 from ..procams.calibration import ProCamsCalibration
+from ..procams.device_frame_maps import DeviceFrameMaps
 from ..procams.devices import Camera, Display, GrabSettings, grab_frame
 from .surface_frames import SurfaceLoop
 
@@ -359,7 +367,8 @@ class _Job:
 
 @dataclass
 class _Slot:
-    """Buffers of one frame in flight: the rectified capture and the projector input."""
+    """Buffers of one frame in flight: the rectified capture and the projector input (and, for a
+    loop on a GPU, page-locked copies of the camera frame per dtype, made on first use)."""
 
     rectified: np.ndarray
     captured: torch.Tensor
@@ -367,16 +376,27 @@ class _Slot:
     captured_planes: list[np.ndarray]
     projector_input: np.ndarray
     projector_input_t: torch.Tensor
+    staging: dict[Any, torch.Tensor] = field(default_factory=dict)
+
+    def staging_for(self, frame: np.ndarray) -> torch.Tensor | None:
+        """A page-locked host tensor for ``frame`` (pinned memory when the loop runs on a GPU)."""
+        if not self.projector_input_t.is_pinned():
+            return None
+        key = (frame.shape, frame.dtype.str)
+        if key not in self.staging:
+            self.staging[key] = torch.from_numpy(np.ascontiguousarray(frame)).clone().pin_memory()
+        return self.staging[key]
 
 
-def _slot(height_width: tuple[int, int], memory_format: torch.memory_format) -> _Slot:
+def _slot(height_width: tuple[int, int], memory_format: torch.memory_format, pinned: bool = False) -> _Slot:
     rectified = np.empty(height_width + (3,), np.float32)
     hwc_view = torch.from_numpy(rectified).permute(2, 0, 1)[None]  # channels_last (1, 3, H, W)
     contiguous = memory_format != torch.channels_last
     captured = torch.empty((1, 3) + height_width) if contiguous else hwc_view
-    projector_input = np.empty(height_width + (3,), np.float32)
+    # pinned: the device's result is copied straight into the buffer the display reads
+    projector_input_t = torch.empty(height_width + (3,), pin_memory=pinned)
     planes = [captured[0, channel].numpy() for channel in range(3)] if contiguous else []
-    return _Slot(rectified, captured, contiguous, planes, projector_input, torch.from_numpy(projector_input))
+    return _Slot(rectified, captured, contiguous, planes, projector_input_t.numpy(), projector_input_t)
 
 
 class _Devices:
@@ -396,13 +416,15 @@ class _Devices:
         memory_format: torch.memory_format,
         report: Callable[[str], None],
         surface: SurfaceLoop | None = None,
+        device: torch.device | None = None,
     ) -> None:
-        self.surface = surface
+        self.surface, self.device = surface, device
         self.calibration, self.display, self.camera = calibration, display, camera
         self.targets, self.frames, self.measure, self.keep_images = targets, frames, measure, keep_images
         self.stall_timeout_s, self.memory_format, self.report = stall_timeout_s, memory_format, report
         H, W = calibration.projector_hw
-        self.slots = [_slot((H, W), memory_format) for _ in range(PIPELINE_SLOTS)]
+        pinned = device is not None and device.type == "cuda"
+        self.slots = [_slot((H, W), memory_format, pinned) for _ in range(PIPELINE_SLOTS)]
         self.free: queue.Queue = queue.Queue()
         for index in range(PIPELINE_SLOTS):
             self.free.put(index)
@@ -430,6 +452,8 @@ class _Devices:
             light, first = self.surface.prepare(light, what=f"target '{name}'")
             hwc = np.ascontiguousarray(first[0].permute(1, 2, 0).numpy(), dtype=np.float32)
         light = light.contiguous(memory_format=self.memory_format)
+        if self.device is not None:
+            light = light.to(self.device)
         shown = self.calibration.inverse_table.apply(torch.from_numpy(hwc)).numpy()
         self._cache[key] = (target, light, shown)
         while len(self._cache) > TARGET_CACHE_SIZE:
@@ -531,6 +555,39 @@ class _Devices:
             self.ended.set()
 
 
+def _compute_on_device(
+    job: _Job,
+    slot: _Slot,
+    net: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    maps: DeviceFrameMaps,
+    memory_format: torch.memory_format,
+    keep_rectified: bool,
+    wait: Callable[[], None] | None,
+) -> None:
+    """Steps 3-5 on ``maps.device`` (module docstring), the projector input into ``slot``."""
+    with torch.inference_mode():
+        job.stages.start()
+        frame = maps.upload(job.frame, slot.staging_for(job.frame))
+        job.frame = np.empty(0)  # used up
+        captured = maps.rectify(frame).contiguous(memory_format=memory_format)
+        if keep_rectified:  # the rectified capture, for the scores and the kept images
+            torch.from_numpy(slot.rectified).copy_(captured[0].permute(1, 2, 0))
+        if wait is not None:
+            wait()
+        job.stages.stop("rectify")
+        job.stages.start()
+        compensated = net(job.light, captured)
+        if wait is not None:
+            wait()
+        job.stages.stop("compensate")
+        job.stages.start()
+        projector_input, finite = maps.to_input(compensated)
+        slot.projector_input_t.copy_(projector_input)  # waits for the device
+        if not bool(finite.cpu()):
+            raise EdofprojError("the projector output light holds NaN or infinite values")
+        job.stages.stop("to_input")
+
+
 def run_live(
     net: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     calibration: ProCamsCalibration,
@@ -545,13 +602,15 @@ def run_live(
     report: Callable[[str], None] | None = None,
     keep_images: bool = False,
     surface: SurfaceLoop | None = None,
+    device: torch.device | str | None = None,
 ) -> LiveSummary:
     """Run the loop (module docstring) over ``targets`` until ``frames`` frames, their end or Ctrl-C.
 
     ``on_frame`` receives each frame once it is on screen (with its rectified capture and
     projector input when ``keep_images`` or ``measure``); ``report`` the one-line device messages
     (a stalled camera; default: a ``RuntimeWarning``); ``surface``: compensate on the calibration's
-    surface (module docstring).
+    surface (module docstring); ``device``: rectify, compensate and invert the response there (the
+    network already on it; module docstring), None: on the CPU with OpenCV's tables.
     """
     if not (np.isfinite(stall_timeout_s) and stall_timeout_s > 0):
         raise EdofprojError(f"--stall-timeout-s {stall_timeout_s} must be > 0")
@@ -564,6 +623,12 @@ def run_live(
     report = report or (lambda line: warnings.warn(line, RuntimeWarning, stacklevel=2))
     memory_format = network_memory_format(net)
     rectify, inverse = calibration.rectifier, calibration.inverse_table  # built before the clock starts
+    on_device = torch.device(device) if device is not None else None
+    if on_device is not None and surface is not None:
+        raise EdofprojError("the live loop on a surface runs on the CPU: leave out --device (or use --device cpu)")
+    maps = DeviceFrameMaps(rectify, inverse, on_device) if on_device is not None else None
+    wait = (lambda: torch.cuda.synchronize(on_device)) if on_device is not None and on_device.type == "cuda" else None
+    keep_rectified = keep_images or measure
     summary = LiveSummary()
     worker = CameraWorker(camera, grab)
     devices = _Devices(
@@ -578,6 +643,7 @@ def run_live(
         memory_format,
         report,
         surface,
+        on_device,
     )
     clock = time.perf_counter
     started = clock()
@@ -627,23 +693,26 @@ def run_live(
                 break
             job.slot = _wait_get(devices.free, devices.ended)
             slot = devices.slots[job.slot]
-            job.stages.start()
-            rectify(job.frame, out=slot.rectified)
-            if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images: one split
-                cv2.split(slot.rectified, slot.captured_planes)
-            job.frame = np.empty(0)  # used up
-            job.stages.stop("rectify")
-            job.stages.start()
-            with torch.inference_mode():
-                if surface is None:
-                    compensated = net(job.light, slot.captured)
-                else:
-                    compensated = surface.compensate(net, job.light, slot.captured)
-            job.stages.stop("compensate")
-            job.stages.start()
-            with torch.inference_mode():  # clamps to [0, 1]
-                inverse.apply(compensated.permute(0, 2, 3, 1)[0], out=slot.projector_input_t)
-            job.stages.stop("to_input")
+            if maps is not None:
+                _compute_on_device(job, slot, net, maps, memory_format, keep_rectified, wait)
+            else:
+                job.stages.start()
+                rectify(job.frame, out=slot.rectified)
+                if slot.copy_captured:  # a network that takes contiguous (B, 3, H, W) images: one split
+                    cv2.split(slot.rectified, slot.captured_planes)
+                job.frame = np.empty(0)  # used up
+                job.stages.stop("rectify")
+                job.stages.start()
+                with torch.inference_mode():
+                    if surface is None:
+                        compensated = net(job.light, slot.captured)
+                    else:
+                        compensated = surface.compensate(net, job.light, slot.captured)
+                job.stages.stop("compensate")
+                job.stages.start()
+                with torch.inference_mode():  # clamps to [0, 1]
+                    inverse.apply(compensated.permute(0, 2, 3, 1)[0], out=slot.projector_input_t)
+                job.stages.stop("to_input")
             _wait_put(devices.compensated, job, devices.stop)
             running = drain(block=False)
         _wait_put(devices.compensated, None, devices.stop)

@@ -93,6 +93,12 @@ def register(subparsers) -> None:
         action="store_true",
         help="on CUDA, do not also time each PyTorch case replayed as a CUDA graph (torch+graph)",
     )
+    p.add_argument(
+        "--compile",
+        action="store_true",
+        help="also time each network compiled by torch.compile (torch+compile; compiled once per frame size "
+        "during warm-up; on the CPU it needs a C++ compiler)",
+    )
     p.add_argument("--csv", default=None, help="also write the timings as CSV")
     p.set_defaults(func=run)
 
@@ -118,6 +124,8 @@ def run(args) -> int:
         )
     if args.repeats < 1 or args.warmup < 0:
         raise EdofprojError("--repeats must be >= 1 and --warmup >= 0")
+    if args.compile and args.warmup < 1:
+        raise EdofprojError("--compile needs --warmup >= 1 (the first call compiles)")
     if args.threads is not None:
         if args.threads < 1:
             raise EdofprojError("--threads must be >= 1")
@@ -172,6 +180,8 @@ def run(args) -> int:
                 cases.append(timing.wiener_torch_case(psf, args.nsr, device))
             for index, (label, network) in enumerate(networks):
                 cases.append(timing.network_torch_case(network, label, device))
+                if args.compile:
+                    cases.append(timing.network_torch_case(network, label, device, compile_network=True))
                 if args.no_onnx:
                     continue
                 if not timing.onnx_available(device):
@@ -206,7 +216,7 @@ def run(args) -> int:
             cases += [
                 timing.cuda_graph_case(case)
                 for case in cases
-                if case.device.startswith("cuda") and case.backend == "torch"
+                if case.device.startswith("cuda") and case.backend in ("torch", "torch+compile")
             ]
 
         def progress(t: timing.Timing) -> None:

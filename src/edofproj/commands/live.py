@@ -13,7 +13,8 @@ and 99th percentile. A camera that returns no frame for ``--stall-timeout-s`` is
 line while the last compensated frame stays on screen. ``--frames N`` stops after N frames;
 Ctrl-C or SIGTERM stops cleanly ("interrupted", the summary of the frames done, exit code 0).
 ``--camera virtual:CAPTURES --display memory`` runs it headless through the virtual ProCams of a
-'procams simulate' folder.
+'procams simulate' folder. ``--device cuda`` rectifies, compensates and inverts the response on the
+GPU (the camera frame goes there, the projector input comes back); the default runs them on the CPU.
 
 On a coloured, textured object whose surface the calibration holds (``procams calibrate
 --surface-captures``), a run trained with ``net.surface_input`` compensates for it (a calibration
@@ -62,6 +63,13 @@ def register(subparsers) -> None:
         "(on a surface: against the goal)",
     )
     p.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="cpu",
+        help="where each frame is rectified, compensated and turned into projector input: the CPU (default) "
+        "or a CUDA GPU (auto: the GPU when available; not with a surface)",
+    )
+    p.add_argument(
         "--surface-from-calib",
         action="store_true",
         help="compensate for the surface measured in the calibration, after its photometric correction "
@@ -74,12 +82,14 @@ def run(args) -> int:
     import sys
 
     import numpy as np
+    import torch
 
     from ..application.live import frame_source, run_live
     from ..application.surface_frames import SurfaceLoop
     from ..compensation.surface_net import SurfaceAwareNet
     from ..methods.builder import build_method
     from ..procams.calibration import ProCamsCalibration
+    from ..training.distributed import choose_device
     from .procams.devices import open_devices
 
     if args.frames is not None and args.frames < 1:
@@ -89,6 +99,7 @@ def run(args) -> int:
         raise EdofprojError(
             f"--method {method.name} is not blind: it needs the screen's PSF, which the live loop does not know"
         )
+    device = choose_device(args.device, option="--device")
     calibration = ProCamsCalibration.load(args.calib)
     surface = None
     # a surface-aware network is given the surface (doe+surface-net); any other method runs after the
@@ -99,12 +110,18 @@ def run(args) -> int:
         what = (
             "--surface-from-calib" if args.surface_from_calib else "the run's surface-aware network (net.surface_input)"
         )
+        if device.type != "cpu":
+            raise EdofprojError(
+                f"the live loop on a surface ({what}) runs on the CPU: leave out --device {args.device}"
+            )
         surface = SurfaceLoop(calibration, net, what)
     elif calibration.has_surface:
         print(
             f"note: the surface measured in {args.calib} is not used (--surface-from-calib compensates for it)",
             file=sys.stderr,
         )
+    if isinstance(net, torch.nn.Module):
+        net = net.to(device)
     targets = frame_source(calibration.projector_hw, image=args.image, images=args.images, video=args.video)
     display, camera, grab = open_devices(args)
 
@@ -117,8 +134,10 @@ def run(args) -> int:
     with display, camera:
         H, W = calibration.projector_hw
         print(
-            f"live: {H}x{W} (height x width) projector, method {method.name}, camera '{camera.spec}', display '{display.spec}' "
-            "(Ctrl-C stops)"
+            f"live: {H}x{W} (height x width) projector, method {method.name}, camera '{camera.spec}', display '{display.spec}', "
+            f"on {device}"
+            + (f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "")
+            + " (Ctrl-C stops)"
         )
         summary = run_live(
             net,
@@ -133,6 +152,7 @@ def run(args) -> int:
             stall_timeout_s=args.stall_timeout_s,
             report=lambda line: print(f"live: {line}", flush=True),
             surface=surface,
+            device=device if device.type != "cpu" else None,
         )
     if summary.interrupted:
         print("interrupted")

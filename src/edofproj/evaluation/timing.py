@@ -11,7 +11,9 @@ complete), so launch overhead counts but no host synchronization does.
 
 On CUDA a case can also be replayed as a CUDA graph (:func:`cuda_graph_case`, backend
 ``<backend>+graph``): the frame's kernels are captured once after warm-up and each frame is one
-``graph.replay()``, which removes the per-kernel launch cost of the host.
+``graph.replay()``, which removes the per-kernel launch cost of the host. A network can also be
+compiled by :func:`torch.compile` (TorchInductor, backend ``torch+compile``: fused kernels, one
+compilation per frame size, made during warm-up and not timed).
 
 Inputs are random images: the cost of these methods does not depend on the content.
 """
@@ -180,14 +182,21 @@ def cls_torch_case(psf, iterations: int = 100, device: str = "cpu") -> Case:
     return Case("cls", "torch", device, build)
 
 
-def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu", channels_last: bool = True) -> Case:
+def network_torch_case(
+    net: torch.nn.Module, method: str, device: str = "cpu", channels_last: bool = True, compile_network: bool = False
+) -> Case:
     """``net(target, captured)`` in ``torch.inference_mode`` (``channels_last`` memory format for the
-    weights, and for the images unless the network says ``channels_last_inputs = False``)."""
+    weights, and for the images unless the network says ``channels_last_inputs = False``);
+    ``compile_network``: through :func:`torch.compile` (static shapes: compiled at the first call of
+    each frame size)."""
     net = net.eval().to(device)
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
     net = net.to(memory_format=memory_format)  # type: ignore[call-overload]  # documented; missing from torch's stubs
     if not getattr(net, "channels_last_inputs", True):
         memory_format = torch.contiguous_format
+    run: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] = (
+        torch.compile(net, dynamic=False) if compile_network else net
+    )
 
     def build(height: int, width: int) -> FrameFunction:
         target = _random_frame(height, width, device, 0).contiguous(memory_format=memory_format)
@@ -195,18 +204,18 @@ def network_torch_case(net: torch.nn.Module, method: str, device: str = "cpu", c
 
         def frame():
             with torch.inference_mode():
-                return net(target, captured)
+                return run(target, captured)
 
         return frame
 
-    return Case(method, "torch", device, build)
+    return Case(method, "torch+compile" if compile_network else "torch", device, build)
 
 
 def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
     """``case`` replayed as a CUDA graph: its frame function is run ``warmup`` times on a side stream
     (filling caches such as the Wiener filter), captured once, and each frame is a replay writing
     the same output buffer. Only for torch cases on CUDA whose frame has no host synchronization."""
-    if not case.device.startswith("cuda") or case.backend != "torch":
+    if not case.device.startswith("cuda") or not case.backend.startswith("torch"):
         raise EdofprojError(f"a CUDA graph needs a torch case on CUDA, not {case.backend} on {case.device}")
 
     def build(height: int, width: int) -> FrameFunction:
