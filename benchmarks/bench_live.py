@@ -3,7 +3,8 @@
 The loop of ``edofproj live`` (:func:`edofproj.application.live.run_live`): show the target
 through the inverse projector response, capture it, rectify it into projector space, compensate
 with the network, invert the response, show the result -- display, camera and compute in their
-own threads. The network is that of ``--run``, or an untrained network of ``--config`` (the
+own threads. The network is the method ``edofproj live`` ships for ``--run`` (its network behind
+its display guard where the run has one), or an untrained network of ``--config`` (the
 ``realtime`` preset; its cost does not depend on its weights). The rig is
 ``VirtualProCams.example`` at the projector size (camera ``--camera-scale`` px per projector px,
 ``--supersampling`` sub-samples per camera pixel, lens PSF at ``--depth-mm``), calibrated
@@ -54,13 +55,13 @@ from edofproj.data import build_test_images
 from edofproj.doe import build_doe
 from edofproj.evaluation.timing import measure_ms, network_torch_case
 from edofproj.machine import instruction_sets
+from edofproj.methods.builder import build_method
 from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.procams.devices.base import Camera
 from edofproj.procams.devices.cameras import VirtualCamera
 from edofproj.procams.devices.displays import MemoryDisplay
 from edofproj.procams.frame_maps import TrilinearInverseTable
 from edofproj.procams.virtual import VirtualProCams
-from edofproj.runs import load_run
 
 OUTSIDE_NETWORK = ("rectify", "to_input")
 """The per-frame work of the compute thread besides the network (the display's and camera's own
@@ -183,8 +184,14 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
     height, width = (int(v) for v in args.size.lower().split("x"))
-    cfg = load_run(args.run).cfg if args.run else load_config(args.config)
-    net = load_run(args.run).net if args.run else build_network(cfg.net).eval()
+    if args.run:  # what `edofproj live RUN` runs: the shipped method's module
+        method = build_method(args.run)
+        if method.module is None:
+            parser.error(f"--run {args.run}: its method {method.name} has no network")
+        cfg, net = method.design.cfg, method.module.eval()
+    else:
+        cfg = load_config(args.config)
+        net = build_network(cfg.net).eval()
     bare_net = net
     if device.type != "cpu":
         net = NetworkOnDevice(net, device)

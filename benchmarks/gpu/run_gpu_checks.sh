@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The CUDA checks and measurements of edofproj in one go, on a machine with an NVIDIA GPU.
 #
-#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|live|compile|paper|scored|all]...   (default: all)
+#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|shipped|live|compile|paper|scored|all]...   (default: all)
 #
 # setup      installs what the GPU image lacks from .whl/ (nothing can be fetched there; download
 #            the wheels beforehand, see below) and makes the package importable without a build
@@ -14,6 +14,8 @@
 # suite      the rest of the test suite (not part of `all`: CI runs it on the CPU)
 # bench      `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
 #            and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
+# shipped    `edofproj bench --run REFERENCE_RUN` on CUDA: the method `live` and `compensate` ship (the
+#            network behind its display guard) and its bare network against FFT Wiener, the three sizes
 # live       benchmarks/bench_live.py --device cuda: the live loop at 600x800 with an in-memory display
 #            and an instant camera, the reference network (builtin:cpu-doe-net) and the real-time network
 #            on the GPU: the network alone there, then every per-frame stage there (live --device cuda)
@@ -119,6 +121,12 @@ bench() {
     return $status
 }
 
+shipped() {
+    $CLI bench --device cuda --repeats "$BENCH_REPEATS" --warmup 20 --no-onnx --methods wiener,unet \
+        --sizes 256x256,600x800,768x1024 --run "$REFERENCE_RUN" --csv "$OUT/bench_shipped.csv" 2>>"$OUT/bench.log" \
+        || { tail -5 "$OUT/bench.log"; return 1; }
+}
+
 live() {
     local status=0
     timeout "$STEP_TIMEOUT" python3 benchmarks/bench_live.py --device cuda --frames 300 --skip-virtual \
@@ -162,13 +170,13 @@ scored() {
 steps=()
 for step in "$@"; do
     case "$step" in
-    all) steps+=(tests bench live compile paper scored) ;;
+    all) steps+=(tests bench shipped live compile paper scored) ;;
     setup | placement) ;;  # always run first
-    tests | suite | bench | live | compile | paper | scored) steps+=("$step") ;;
-    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, live, compile, paper, scored, all)" >&2; exit 2 ;;
+    tests | suite | bench | shipped | live | compile | paper | scored) steps+=("$step") ;;
+    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, shipped, live, compile, paper, scored, all)" >&2; exit 2 ;;
     esac
 done
-[ $# -eq 0 ] && steps=(tests bench live compile paper scored)
+[ $# -eq 0 ] && steps=(tests bench shipped live compile paper scored)
 steps=(setup placement "${steps[@]}")
 status=0
 for step in "${steps[@]}"; do

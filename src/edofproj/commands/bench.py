@@ -97,7 +97,7 @@ def register(subparsers) -> None:
         "--compile",
         action="store_true",
         help="also time each network compiled by torch.compile (torch+compile; compiled once per frame size "
-        "during warm-up; on the CPU it needs a C++ compiler)",
+        "during warm-up, not replayed as a CUDA graph; on the CPU it needs a C++ compiler)",
     )
     p.add_argument("--csv", default=None, help="also write the timings as CSV")
     p.set_defaults(func=run)
@@ -216,7 +216,7 @@ def run(args) -> int:
             cases += [
                 timing.cuda_graph_case(case)
                 for case in cases
-                if case.device.startswith("cuda") and case.backend in ("torch", "torch+compile")
+                if case.device.startswith("cuda") and case.backend == "torch"
             ]
 
         def progress(t: timing.Timing) -> None:
