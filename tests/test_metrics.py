@@ -157,3 +157,36 @@ def test_ssim_against_a_fixed_reference_equals_ssim_for_every_repeat_of_its_batc
     torch.testing.assert_close(reference.ssim(target), torch.ones(2), atol=1e-6, rtol=0)
     with pytest.raises(EdofprojError, match="same shape"):
         reference.ssim(pred[:3])
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 61, 83), (2, 3, 24, 30), (1, 1, 40, 40)])
+def test_ssim_scores_without_gradients_are_the_differentiable_ones_to_the_last_bit(shape):
+    """Scores (no autograd) take the in-place path, training the differentiable one: the same
+    maps, bit for bit, for ssim, ms_ssim, ssim_map and a reference scoring a repeated batch (a
+    display guard's choice must not depend on which path scored it)."""
+    from edofproj.metrics import SSIMReference, ms_ssim, ssim_map
+
+    generator = torch.Generator().manual_seed(7)
+    target = torch.rand(*shape, generator=generator)
+    pred = torch.rand(shape[0] * 2, *shape[1:], generator=generator)
+    differentiable = pred.clone().requires_grad_(True)
+    repeated = target.repeat(2, 1, 1, 1)
+    for score in (ssim, ssim_map):
+        with torch.inference_mode():
+            in_place = score(pred, repeated)
+        slow = score(differentiable, repeated).detach()
+        torch.testing.assert_close(in_place, slow, atol=0, rtol=0, equal_nan=True, msg=score.__name__)
+    reference = SSIMReference(target)
+    with torch.no_grad():
+        fast = reference.maps(pred)
+    slow = reference.maps(differentiable)
+    assert all(torch.equal(a, b.detach()) for a, b in zip(fast, slow))
+    if min(shape[-2:]) >= 22:  # two scales of MS-SSIM
+        with torch.inference_mode():
+            fast_ms = ms_ssim(pred, repeated)
+        assert torch.equal(fast_ms, ms_ssim(differentiable, repeated).detach())
+    # the in-place path leaves its inputs as they were
+    before = pred.clone()
+    with torch.inference_mode():
+        reference.ssim(pred)
+    assert torch.equal(pred, before)

@@ -15,7 +15,8 @@
 # bench      `edofproj bench` on CUDA: FFT Wiener against the demo's network, the real-time network
 #            and the paper's U-Net at 256x256, 600x800, 768x1024 (CUDA events, eager and CUDA graph)
 # shipped    `edofproj bench --run REFERENCE_RUN` on CUDA: the method `live` and `compensate` ship (the
-#            network behind its display guard) and its bare network against FFT Wiener, the three sizes
+#            network behind its display guard) and its bare network against FFT Wiener, the three sizes;
+#            benchmarks/guard_cost.py: the guard's stages at 600x800
 # live       benchmarks/bench_live.py --device cuda: the live loop at 600x800 with an in-memory display
 #            and an instant camera, the reference network (builtin:cpu-doe-net) and the real-time network
 #            on the GPU: the network alone there, then every per-frame stage there (live --device cuda)
@@ -125,6 +126,8 @@ shipped() {
     $CLI bench --device cuda --repeats "$BENCH_REPEATS" --warmup 20 --no-onnx --methods wiener,unet \
         --sizes 256x256,600x800,768x1024 --run "$REFERENCE_RUN" --csv "$OUT/bench_shipped.csv" 2>>"$OUT/bench.log" \
         || { tail -5 "$OUT/bench.log"; return 1; }
+    timeout "$STEP_TIMEOUT" python3 benchmarks/guard_cost.py --device cuda --repeats 50 --run "$REFERENCE_RUN" 2>&1 \
+        | grep -v Warning | tee "$OUT/guard_cost.log" | tail -10
 }
 
 live() {

@@ -91,12 +91,17 @@ def gaussian_window(
     return window / window.sum()
 
 
-def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
-    """Separable Gaussian filter of every channel, only where the window fits ("valid").
+def _filter_layout(device: torch.device) -> torch.memory_format:
+    """The layout the Gaussian filter runs in: channels-last on the CPU (oneDNN's depthwise kernels
+    are written for it: about 12x faster at 600x800), contiguous elsewhere (on a CUDA GPU the
+    contiguous depthwise convolution is about 3x faster; measured on an H200)."""
+    return torch.channels_last if device.type == "cpu" else torch.contiguous_format
 
-    The depthwise convolutions run on channels-last images (the same values, about 3x faster on a
-    CPU: oneDNN's depthwise kernels are written for that layout); the result is contiguous."""
-    images = images.contiguous(memory_format=torch.channels_last)
+
+def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+    """Separable Gaussian filter of every channel, only where the window fits ("valid"), in the
+    layout of :func:`_filter_layout` (a copy when ``images`` is in another); the result is contiguous."""
+    images = images.contiguous(memory_format=_filter_layout(images.device))
     channels = images.shape[1]
     size = window.numel()
     rows = window.view(1, 1, 1, size).expand(channels, 1, 1, size)
@@ -137,7 +142,10 @@ class SSIMReference:
         )
 
     def maps(self, pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Local SSIM and contrast-structure maps of ``pred`` (as :func:`_ssim_maps`)."""
+        """Local SSIM and contrast-structure maps of ``pred`` (as :func:`_ssim_maps`).
+
+        Without gradients (scores: the evaluation, a display guard) the same arithmetic runs in
+        place, in buffers of its own (:meth:`_maps_in_place`: the same values to the last bit)."""
         batch = self.target.shape[0]
         repeats = pred.shape[0] // batch
         if pred.shape[1:] != self.target.shape[1:] or repeats * batch != pred.shape[0]:
@@ -145,6 +153,8 @@ class SSIMReference:
                 f"ssim needs two (B, C, H, W) batches of the same shape, got {tuple(pred.shape)} and "
                 f"{tuple(self.target.shape)}"
             )
+        if not (torch.is_grad_enabled() and (pred.requires_grad or self.target.requires_grad)):
+            return self._maps_in_place(pred, repeats)
         channels = pred.shape[1]
         # (k, B, C, H, W) against the target's (B, C, H, W): broadcast, never copied k times
         cross = (pred.view(repeats, batch, *pred.shape[1:]) * self.target).view(pred.shape)
@@ -159,6 +169,36 @@ class SSIMReference:
         luminance = (2 * mu_xy + c1) / (mu_x2 + mu_y2 + c1)
         shape = (pred.shape[0], channels, *filtered.shape[-2:])
         return (luminance * contrast_structure).view(shape), contrast_structure.view(shape)
+
+    def _maps_in_place(self, pred: torch.Tensor, repeats: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`maps` without autograd: ``x``, ``x^2`` and ``x y`` are written straight into the
+        filter's input (in its layout: no concatenation and no layout copy) and every later term
+        overwrites a filtered plane it no longer needs, so that per call only the filter's output
+        and ``mu_x^2`` are allocated. Each element sees the same operations in the same order as
+        in :meth:`maps`, so the maps are equal to the last bit (memory traffic, not arithmetic, is
+        what this saves: about 30 % of an SSIM at 600x800 on two CPU cores)."""
+        batch, channels = self.target.shape[0], pred.shape[1]
+        stacked = torch.empty(
+            (pred.shape[0], 3 * channels, *pred.shape[-2:]),
+            dtype=pred.dtype,
+            device=pred.device,
+            memory_format=_filter_layout(pred.device),
+        )
+        stacked[:, :channels] = pred
+        torch.mul(pred, pred, out=stacked[:, channels : 2 * channels])
+        by_target = stacked[:, 2 * channels :].unflatten(0, (repeats, batch))
+        torch.mul(pred.unflatten(0, (repeats, batch)), self.target, out=by_target)
+        filtered = _filter_valid(stacked, self.window.to(pred.dtype))
+        mu_x, xx, xy = (m.unflatten(0, (repeats, batch)) for m in torch.split(filtered, channels, dim=1))
+        mu_y, var_y, mu_y2 = self._target_terms()
+        c1, c2 = SSIM_K1**2, SSIM_K2**2
+        mu_x2 = mu_x * mu_x
+        mu_xy = mu_x.mul_(mu_y)  # mu_x is not needed again
+        contrast_structure = xy.sub_(mu_xy).mul_(2).add_(c2)  # 2 (xy - mu_xy) + c2
+        contrast_structure.div_(xx.sub_(mu_x2).add_(var_y).add_(c2))  # / ((xx - mu_x2) + var_y + c2)
+        luminance = mu_xy.mul_(2).add_(c1).div_(mu_x2.add_(mu_y2).add_(c1))  # (2 mu_xy + c1) / (mu_x2 + mu_y2 + c1)
+        ssim_map = luminance.mul_(contrast_structure)
+        return ssim_map.flatten(0, 1), contrast_structure.flatten(0, 1)
 
     def _target_terms(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``mu_y``, ``sigma_y^2`` and ``mu_y^2`` of the target (computed on first use, then kept)."""
