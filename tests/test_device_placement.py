@@ -11,8 +11,8 @@ image formation (flat screen, depth layers, field-varying PSFs, textured surface
 (forward and backward, float32 only and no read back to the host), training steps (joint, fixed
 DOE, safe network with validation, depth-varying screens, textured surfaces, a resumed session and
 a whole ``train`` call with its checkpoint, DOE file and figures), the evaluated methods and the
-display guard, their NSR tuning and the timing cases; the whole ``evaluate`` (flat, tilted, scenes,
-surfaces) in the slow tier. A GPU session runs this file first (``benchmarks/gpu/run_gpu_checks.sh``).
+display guard, their NSR tuning and the timing cases, the live loop's frame maps (``live
+--device``); the whole ``evaluate`` (flat, tilted, scenes, surfaces) in the slow tier. A GPU session runs this file first (``benchmarks/gpu/run_gpu_checks.sh``).
 """
 
 from __future__ import annotations
@@ -469,6 +469,48 @@ def test_timing_cases_run_on_the_device():
         ]
         for case in cases:
             assert case.build(32, 48)().device == META
+
+
+# ----------------------------------------------------------------------------- the live loop's maps
+
+
+@pytest.mark.parametrize("table", ["per-channel", "trilinear"])
+def test_live_frame_maps_stay_on_the_device(table):
+    """``live --device``'s rectification and inverse response (DeviceFrameMaps): every tensor on the
+    device, float32, the values of the same maps on the CPU, and no read back to the host."""
+    from edofproj.procams.color import ColorCalibration
+    from edofproj.procams.device_frame_maps import DeviceFrameMaps
+    from edofproj.procams.frame_maps import ChannelInverseTable, Rectifier, TrilinearInverseTable
+    from edofproj.procams.geometry import CameraMap
+
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:12, 0:16].astype(np.float64)
+    camera_map = CameraMap(
+        map_x=1.9 * x + 0.3 * y + 2.2, map_y=1.7 * y + 0.1 * x + 1.6,
+        homography=np.eye(3), dots_proj=np.zeros((0, 2)), dots_cam=np.zeros((0, 2)), camera_hw=(30, 40),
+    )  # fmt: skip
+    levels = np.linspace(0, 1, 4)
+    inputs = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), -1).reshape(-1, 3)
+    color = ColorCalibration(np.eye(3) + 0.05, np.full(3, 0.02), inputs, inputs**2.2)
+    rectifier = Rectifier(camera_map, color, rng.uniform(0.01, 0.05, (12, 16, 3)))
+    inverse = (
+        ChannelInverseTable(rng.uniform(size=(3, 256)))
+        if table == "per-channel"
+        else TrilinearInverseTable(rng.uniform(size=(5, 5, 5, 3)))
+    )
+    frame = rng.integers(0, 256, size=(30, 40, 3)).astype(np.uint8)
+    cpu_maps = DeviceFrameMaps(rectifier, inverse, "cpu")
+    expected = cpu_maps.rectify(cpu_maps.upload(frame))
+    expected_u, _ = cpu_maps.to_input(expected * 0.8 + 0.1)
+    with MetaDevice(forbid_dtypes=F64) as device:
+        maps = DeviceFrameMaps(rectifier, inverse, META)
+        rectified = maps.rectify(maps.upload(frame))
+        u, finite = maps.to_input(rectified * 0.8 + 0.1)
+        assert rectified.device == META and u.device == META and u.dtype == torch.float32
+        assert not device.host_reads  # the loop reads `finite` once the frame is on the host
+        torch.testing.assert_close(device.data(rectified), expected, rtol=0, atol=0)
+        torch.testing.assert_close(device.data(u), expected_u, rtol=0, atol=0)
+        assert bool(device.data(finite))
 
 
 # ----------------------------------------------------------------------------- evaluate, whole
