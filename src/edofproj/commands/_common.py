@@ -62,6 +62,16 @@ def add_method_options(parser: argparse.ArgumentParser, blind_only: bool = False
     )
 
 
+def add_device_option(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--device {auto,cpu,cuda}`` (default cpu): where ``what`` runs (auto: the GPU when available)."""
+    parser.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="cpu",
+        help=f"{what}: on the CPU (default) or a CUDA GPU (auto: the GPU when available)",
+    )
+
+
 def add_design_source_argument(parser: argparse.ArgumentParser) -> None:
     """The positional ``RUN|DESIGN_FILE`` (into ``args.source``): a run directory holding ``doe.npz``,
     a built-in run, or a DOE ``.npz`` file."""

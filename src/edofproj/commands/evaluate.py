@@ -34,7 +34,14 @@ import sys
 import time
 from pathlib import Path
 
-from ._common import RUN_HELP_SUFFIX, add_set_option, parse_name_list, parse_number_list, run_directory
+from ._common import (
+    RUN_HELP_SUFFIX,
+    add_device_option,
+    add_set_option,
+    parse_name_list,
+    parse_number_list,
+    run_directory,
+)
 
 
 def register(subparsers) -> None:
@@ -75,13 +82,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("--out", default=None, metavar="DIR", help="write the results here instead of into RUN")
     add_set_option(p, help="override an evaluation key, e.g. --set evaluation.image_size=[384,512] (repeatable)")
-    p.add_argument(
-        "--device",
-        choices=("auto", "cpu", "cuda"),
-        default="cpu",
-        help="run images, PSFs and networks on the CPU (default) or a CUDA GPU (auto: the GPU when "
-        "available); the scores agree to float32 rounding",
-    )
+    add_device_option(p, "run images, PSFs and networks (the scores agree to float32 rounding)")
     p.add_argument(
         "--scene",
         dest="scenes",

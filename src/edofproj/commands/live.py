@@ -28,7 +28,7 @@ surface in the calibration is not used (a note says so).
 from __future__ import annotations
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, add_method_options, run_directory
+from ._common import RUN_HELP_SUFFIX, add_device_option, add_method_options, run_directory
 
 DEFAULT_STALL_TIMEOUT_S = 2.0  # application.live.DEFAULT_STALL_TIMEOUT_S, not imported: --help stays fast
 
@@ -62,13 +62,7 @@ def register(subparsers) -> None:
         help="also capture each compensated projection and print SSIM of both captures against the target "
         "(on a surface: against the goal)",
     )
-    p.add_argument(
-        "--device",
-        choices=("auto", "cpu", "cuda"),
-        default="cpu",
-        help="where each frame is rectified, compensated and turned into projector input: the CPU (default) "
-        "or a CUDA GPU (auto: the GPU when available; not with a surface)",
-    )
+    add_device_option(p, "rectify, compensate and turn each frame into projector input (not on a surface)")
     p.add_argument(
         "--surface-from-calib",
         action="store_true",
