@@ -153,9 +153,28 @@ def test_bench_cli_times_the_multirate_network(capsys, restore_threads):
         (["--run", "somewhere", "--widths", "fast"], "exclude each other"),
         (["--window", "4", "--methods", "wiener"], "odd"),
         (["--architecture", "multirate", "--prefilter-bins", "48"], "--space-to-depth >= 2"),
+        (["--compile", "--methods", "unet"], "--compile needs --warmup >= 1"),
     ],
 )
 def test_bench_cli_errors_are_one_line(argv, message, capsys):
     assert main(["bench", "--repeats", "1", "--warmup", "0", "--sizes", "16x16", *argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+
+
+def test_bench_cli_a_failing_compiler_is_one_line(monkeypatch, capsys, restore_threads):
+    """torch.compile compiles at the first call of each size; a compiler that fails there (no C++
+    compiler on a CPU, an unsupported operator) ends the command in one line naming --compile."""
+
+    def failing_compile(module, **options):
+        def compiled(*args):
+            raise RuntimeError("InductorError: no working C++ compiler found\n(many more lines)")
+
+        return compiled
+
+    monkeypatch.setattr(torch, "compile", failing_compile)
+    argv = ["bench", "--sizes", "16x16", "--repeats", "1", "--warmup", "1", "--methods", "unet", "--no-onnx"]
+    assert main(argv + ["--widths", "4,8", "--device", "cpu", "--threads", "1", "--compile"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("edofproj: error: torch.compile of unet failed at 16x16 (InductorError: no working C++")
+    assert err[-1].endswith("leave out --compile")

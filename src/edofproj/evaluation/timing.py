@@ -206,6 +206,14 @@ def network_torch_case(
             with torch.inference_mode():
                 return run(target, captured)
 
+        if compile_network:  # compile for this size now: a compiler that fails is one line, not a traceback
+            try:
+                frame()
+            except Exception as error:
+                reason = (str(error).strip().splitlines() or [type(error).__name__])[0]
+                raise EdofprojError(
+                    f"torch.compile of {method} failed at {height}x{width} ({reason}); leave out --compile"
+                ) from error
         return frame
 
     return Case(method, "torch+compile" if compile_network else "torch", device, build)
