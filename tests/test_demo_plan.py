@@ -85,7 +85,7 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
         ("cpu", "lens+onlineprodeb", "demo-lens-onlineprodeb"),
         ("cpu-realtime", "axicon+net", "demo-realtime-axicon-net"),
         ("cpu-realtime", "cubic+net", "demo-realtime-cubic-net"),
-        ("cpu-realtime", "lens+onlineprodeb", "demo-lens-onlineprodeb"),  # OnlineProDeb: the same recipe
+        ("cpu-realtime", "lens+onlineprodeb", "demo-realtime-lens-onlineprodeb"),  # its PSFs in float32
     ],
 )
 def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tmp_path, preset, method, shipped):

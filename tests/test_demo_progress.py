@@ -8,6 +8,8 @@ import io
 import time
 from pathlib import Path
 
+import pytest
+
 from edofproj.application import demo
 from edofproj.application.schedule import ParallelTrainer, TrainingJob
 from edofproj.config import load_config
@@ -136,8 +138,9 @@ def test_the_demo_prints_its_plan_before_training(tmp_path, monkeypatch):
 
 def test_job_costs_follow_the_network_and_its_arithmetic():
     """The plan's cost of each run is the measured step of its network in the arithmetic it trains in:
-    OnlineProDeb's relative cost is the ratio of the two measured steps, the classic elements' networks
-    cost as much as lens+net, and the plan's rate before any step is logged is lens+net's."""
+    OnlineProDeb's relative cost is the ratio of the two measured steps, doe+net's is lens+net's plus
+    its PSFs in their precision, the classic elements' networks cost as much as lens+net, and the
+    plan's rate before any step is logged is lens+net's."""
     for preset, architecture in (("cpu", "unet"), ("cpu-realtime", "multirate")):
         for precision in ("bf16", "none"):
             cfg = load_config(preset, [f"train.mixed_precision={precision}"])
@@ -145,8 +148,14 @@ def test_job_costs_follow_the_network_and_its_arithmetic():
             lens = demo.LENS_NET_STEP_S[(architecture, precision)]
             assert demo.reference_rate_s(cfg) == lens
             assert costs["lens+onlineprodeb"][0] == demo.ONLINEPRODEB_STEP_S[precision] / lens
-            assert costs["doe+net"][0] == demo.DOE_NET_RELATIVE_COST[architecture] > 1.0
+            psf_s = demo.DOE_PSF_STEP_S[(cfg.psf.precision, precision)]
+            assert costs["doe+net"][0] == pytest.approx((lens + psf_s) / lens)
             assert {costs[m][0] for m in ("lens+net", "axicon+net", "cubic+net")} == {1.0}
+    # the PSFs in float32 (the cpu-realtime preset) cost about half of float64's
+    assert (
+        demo.job_costs(load_config("cpu-realtime"))["doe+net"][0]
+        < demo.job_costs(load_config("cpu-realtime", ["psf.precision=float64"]))["doe+net"][0]
+    )
     float32 = demo.job_costs(load_config("cpu-realtime", ["train.mixed_precision=none"]))
     bf16 = demo.job_costs(load_config("cpu-realtime", ["train.mixed_precision=bf16"]))
     assert float32["lens+onlineprodeb"][0] > 3 * bf16["lens+onlineprodeb"][0]  # emulated bf16 is not the cost

@@ -173,20 +173,31 @@ LENS_NET_STEP_S = {
     ("multirate", "none"): 0.063,
 }
 ONLINEPRODEB_STEP_S = {"bf16": 0.83, "none": 3.36}
-#: ``doe+net``'s step relative to ``lens+net``'s (its DOE's PSFs are simulated every step: about 10 ms of
-#: the U-Net's 0.1 s, 30 of the multi-rate network's 0.06 s); the classic elements' ``X+net`` cost as much as
-#: ``lens+net``. One-off start-up seconds of every run (process start, PSF tables); the cubic plate needs
-#: the 2-D engine for its table, about 2.3 s per simulated depth (:data:`CUBIC_SECONDS_PER_DEPTH`).
-DOE_NET_RELATIVE_COST = {"unet": 1.1, "multirate": 1.5}
+#: Seconds per step of simulating ``doe+net``'s PSFs (its DOE moves: they are simulated every step; the
+#: others read a table), by ``psf.precision`` and the arithmetic key of :data:`LENS_NET_STEP_S` (``bf16``
+#: stands for a CPU with native bfloat16, whose AVX-512 also computes the PSFs faster): the PSF stage of
+#: ``bench_training.py --stages --threads 1``, 2026-11-28 (``none``: the AVX2 limits). ``doe+net``'s step
+#: is ``lens+net``'s plus this; the classic elements' ``X+net`` cost as much as ``lens+net``. One-off
+#: start-up seconds of every run (process start, PSF tables); the cubic plate needs the 2-D engine for
+#: its table, about 2.3 s per simulated depth (:data:`CUBIC_SECONDS_PER_DEPTH`).
+DOE_PSF_STEP_S = {
+    ("float64", "bf16"): 0.018,
+    ("float64", "none"): 0.024,
+    ("float32", "bf16"): 0.009,
+    ("float32", "none"): 0.013,
+}
 SETUP_S = 15.0
 
 
 def job_costs(cfg) -> dict[str, tuple[float, float]]:
     """Each trained method's cost per step relative to ``lens+net`` and its start-up seconds, for the
-    network and arithmetic of ``cfg`` (a network not listed: the U-Net's figures)."""
+    network and arithmetic of ``cfg`` (a network not listed: the U-Net's figures) and its PSFs'
+    precision: ``doe+net`` costs ``1 + DOE_PSF_STEP_S / lens+net's step``."""
     architecture, precision = _cost_key(cfg)
-    onlineprodeb = ONLINEPRODEB_STEP_S[precision] / LENS_NET_STEP_S[(architecture, precision)]
-    costs = {"doe+net": DOE_NET_RELATIVE_COST[architecture], "lens+onlineprodeb": onlineprodeb}
+    lens_step_s = LENS_NET_STEP_S[(architecture, precision)]
+    onlineprodeb = ONLINEPRODEB_STEP_S[precision] / lens_step_s
+    doe_net = 1.0 + DOE_PSF_STEP_S[(cfg.psf.precision, precision)] / lens_step_s
+    costs = {"doe+net": doe_net, "lens+onlineprodeb": onlineprodeb}
     costs.update({method: 1.0 for method in ("lens+net", "axicon+net", "cubic+net")})
     return {method: (cost, SETUP_S) for method, cost in costs.items()}
 
@@ -197,7 +208,7 @@ def reference_rate_s(cfg) -> float:
 
 
 def _cost_key(cfg) -> tuple[str, str]:
-    architecture = cfg.net.architecture if cfg.net.architecture in DOE_NET_RELATIVE_COST else "unet"
+    architecture = cfg.net.architecture if (cfg.net.architecture, "none") in LENS_NET_STEP_S else "unet"
     precision = resolve_mixed_precision(cfg.train.mixed_precision, torch.device("cpu"))
     return architecture, "bf16" if precision == "bf16" else "none"
 
@@ -209,7 +220,7 @@ def _cost_key(cfg) -> tuple[str, str]:
 BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
     "axicon+net": ("demo-axicon-net", "demo-realtime-axicon-net"),
     "cubic+net": ("demo-cubic-net", "demo-realtime-cubic-net"),
-    "lens+onlineprodeb": ("demo-lens-onlineprodeb",),
+    "lens+onlineprodeb": ("demo-lens-onlineprodeb", "demo-realtime-lens-onlineprodeb"),
 }
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
@@ -348,8 +359,8 @@ REALTIME_PRESET = "cpu-realtime"
 def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
     """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction,
     the arithmetic the network trains in on this CPU and, for a U-Net in float32, the preset of the real-time
-    network, whose step costs about a third of the U-Net's there (:data:`REALTIME_PRESET`; with native
-    bfloat16 the two cost about the same)."""
+    network, whose step costs about a quarter of the U-Net's there (:data:`REALTIME_PRESET`; with native
+    bfloat16, about half: 60 against 109 ms, ``bench_training.py --stages``, its PSFs in float32)."""
     if predicted_s <= budget_s:
         return None
     architecture, precision = _cost_key(cfg)
@@ -360,7 +371,7 @@ def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
     )
     if architecture == "unet" and precision != "bf16":
         note += (
-            f"; --config {REALTIME_PRESET} trains the real-time multi-rate network instead, at about a third of "
+            f"; --config {REALTIME_PRESET} trains the real-time multi-rate network instead, at about a quarter of "
             "the U-Net's step cost here (it scores lower: the documentation's Results page)"
         )
     return note

@@ -33,6 +33,8 @@ BUILTIN_RUNS: dict[str, str] = {
     "real-time multi-rate network, 2,400 steps",
     "demo-realtime-cubic-net": "the cubic+net baseline of `demo --config cpu-realtime`: the cubic plate with the "
     "real-time multi-rate network, 2,400 steps",
+    "demo-realtime-lens-onlineprodeb": "the lens+onlineprodeb baseline of `demo --config cpu-realtime` (its PSFs "
+    "in float32), 1,800 steps",
 }
 
 #: Checkpoint entries a built-in run keeps (what loading a trained run reads).
