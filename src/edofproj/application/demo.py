@@ -360,7 +360,7 @@ def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
     """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction,
     the arithmetic the network trains in on this CPU and, for a U-Net in float32, the preset of the real-time
     network, whose step costs about a quarter of the U-Net's there (:data:`REALTIME_PRESET`; with native
-    bfloat16, about half: 60 against 109 ms, ``bench_training.py --stages``, its PSFs in float32)."""
+    bfloat16, about half: 60 against 128 ms a step, each preset as it is, ``bench_training.py --stages``)."""
     if predicted_s <= budget_s:
         return None
     architecture, precision = _cost_key(cfg)
