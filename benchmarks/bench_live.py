@@ -192,7 +192,7 @@ def main() -> int:
     else:
         cfg = load_config(args.config)
         net = build_network(cfg.net).eval()
-    bare_net = net
+    module = net  # what runs on the GPU, without the wrapper that copies its images there and back
     if device.type != "cpu":
         net = NetworkOnDevice(net, device)
     psf = simulator_from_config(cfg, window=args.window).bank(build_doe(cfg, "lens"), [args.depth_mm * 1e-3]).psf
@@ -227,12 +227,12 @@ def main() -> int:
         instant,
     )
     if device.type != "cpu":  # as `edofproj live --device cuda`: every per-frame stage on the GPU
-        run_live(bare_net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3, device=device)
+        run_live(module, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 3, device=device)
         on_device = run_live(
-            bare_net, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames, device=device
+            module, calibration, MemoryDisplay(), camera, [("target", target)] * args.frames, device=device
         )
         print_summary("instant camera, in-memory display, rectify + compensate + to_input on the GPU", on_device)
-    bench_frame = network_torch_case(bare_net, "net", device=str(device)).build(height, width)
+    bench_frame = network_torch_case(module, "net", device=str(device)).build(height, width)
     sync = torch.cuda.synchronize if device.type == "cuda" else None
     if sync is not None:  # the first calls on a GPU pick kernels
         measure_ms(bench_frame, repeats=1, warmup=3, synchronize=sync)

@@ -98,10 +98,12 @@ def _filter_layout(device: torch.device) -> torch.memory_format:
     return torch.channels_last if device.type == "cpu" else torch.contiguous_format
 
 
-def _filter_valid(images: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
-    """Separable Gaussian filter of every channel, only where the window fits ("valid"), in the
-    layout of :func:`_filter_layout` (a copy when ``images`` is in another); the result is contiguous."""
-    images = images.contiguous(memory_format=_filter_layout(images.device))
+def _filter_valid(
+    images: torch.Tensor, window: torch.Tensor, layout: torch.memory_format | None = None
+) -> torch.Tensor:
+    """Separable Gaussian filter of every channel, only where the window fits ("valid"), in ``layout``
+    (default :func:`_filter_layout`; a copy when ``images`` is in another); the result is contiguous."""
+    images = images.contiguous(memory_format=layout or _filter_layout(images.device))
     channels = images.shape[1]
     size = window.numel()
     rows = window.view(1, 1, 1, size).expand(channels, 1, 1, size)

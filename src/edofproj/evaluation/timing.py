@@ -13,7 +13,7 @@ On CUDA a case can also be replayed as a CUDA graph (:func:`cuda_graph_case`, ba
 ``<backend>+graph``): the frame's kernels are captured once after warm-up and each frame is one
 ``graph.replay()``, which removes the per-kernel launch cost of the host. A network can also be
 compiled by :func:`torch.compile` (TorchInductor, backend ``torch+compile``: fused kernels, one
-compilation per frame size, made during warm-up and not timed).
+compilation per frame size, made when the case is built and not timed).
 
 Inputs are random images: the cost of these methods does not depend on the content.
 """
@@ -223,7 +223,7 @@ def cuda_graph_case(case: Case, warmup: int = 3) -> Case:
     """``case`` replayed as a CUDA graph: its frame function is run ``warmup`` times on a side stream
     (filling caches such as the Wiener filter), captured once, and each frame is a replay writing
     the same output buffer. Only for torch cases on CUDA whose frame has no host synchronization."""
-    if not case.device.startswith("cuda") or not case.backend.startswith("torch"):
+    if not case.device.startswith("cuda") or case.backend != "torch":
         raise EdofprojError(f"a CUDA graph needs a torch case on CUDA, not {case.backend} on {case.device}")
 
     def build(height: int, width: int) -> FrameFunction:

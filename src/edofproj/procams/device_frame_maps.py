@@ -45,6 +45,7 @@ class DeviceFrameMaps:
 
     def __init__(self, rectifier: Rectifier, inverse: InverseTable, device: torch.device | str) -> None:
         self.device = torch.device(device)
+        self.rectifier = rectifier
         self.camera_hw, self.projector_hw = rectifier.camera_hw, rectifier.projector_hw
         Hc, Wc = self.camera_hw
         if min(Hc, Wc) < 2:
@@ -52,9 +53,11 @@ class DeviceFrameMaps:
         grid = np.stack([rectifier.map_x * (2.0 / (Wc - 1)) - 1.0, rectifier.map_y * (2.0 / (Hc - 1)) - 1.0], axis=-1)
         self.grid = torch.from_numpy(grid.astype(np.float32))[None].to(self.device)  # (1, H, W, 2)
         unmix = torch.from_numpy(rectifier.unmix.astype(np.float32))
+        # M^-1 / full scale, (3, 3), by the frame's torch dtype (uint8, uint16, float32)
         self.unmix_by_dtype = {
-            dtype: (unmix / scale).to(self.device) for dtype, scale in FRAME_FULL_SCALE.items()
-        }  # (3, 3) each
+            torch.from_numpy(np.zeros(1, dtype)).dtype: (unmix / scale).to(self.device)
+            for dtype, scale in FRAME_FULL_SCALE.items()
+        }
         offset = torch.from_numpy(rectifier.offset).permute(2, 0, 1)[None]  # (1, 3, H, W)
         self.offset = (offset[:, :, :1, :1] if rectifier.uniform_black else offset).contiguous().to(self.device)
         self.channel_table: torch.Tensor | None = None
@@ -72,11 +75,7 @@ class DeviceFrameMaps:
     def upload(self, frame: np.ndarray, staging: torch.Tensor | None = None) -> torch.Tensor:
         """A camera frame ``(Hc, Wc, 3)`` on the device, in its own dtype (through ``staging``, a
         page-locked host tensor of its shape and dtype, when given: the copy then overlaps)."""
-        if frame.shape != self.camera_hw + (3,):
-            Hc, Wc = self.camera_hw
-            raise EdofprojError(
-                f"camera frame is {frame.shape[0]}x{frame.shape[1]} pixels, the calibrated camera {Hc}x{Wc} (height x width)"
-            )
+        self.rectifier.check_frame(frame)
         if np.dtype(frame.dtype) not in FRAME_FULL_SCALE:
             frame = frame.astype(np.float32)
         host = torch.from_numpy(np.ascontiguousarray(frame))
@@ -87,8 +86,7 @@ class DeviceFrameMaps:
 
     def rectify(self, frame: torch.Tensor) -> torch.Tensor:
         """``o = M^-1 frame(q(x)) / full_scale - M^-1 c_black(q(x))``, ``(Hc, Wc, 3)`` -> ``(1, 3, H, W)``."""
-        dtype = np.dtype(str(frame.dtype).removeprefix("torch."))
-        unmix = self.unmix_by_dtype.get(dtype, self.unmix_by_dtype[np.dtype(np.float32)])
+        unmix = self.unmix_by_dtype[frame.dtype]  # an uploaded frame is in one of these dtypes
         image = frame.permute(2, 0, 1)[None].float()  # (1, 3, Hc, Wc), counts or [0, 1]
         warped = F.grid_sample(image, self.grid, mode="bilinear", padding_mode="border", align_corners=True)
         return torch.einsum("ij,bjhw->bihw", unmix, warped) - self.offset
