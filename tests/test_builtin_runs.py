@@ -1,6 +1,8 @@
 """Built-in runs: ``builtin:NAME`` wherever a run directory is, packaged without optimizer state,
 never written into."""
 
+import re
+
 import pytest
 import torch
 
@@ -109,3 +111,15 @@ def test_run_labels():
     assert builtin_runs.run_label(builtin_runs.ROOT / "cpu-doe-net") == SHIPPED
     assert builtin_runs.run_label(builtin_runs.ROOT / "cpu-doe-net" / "doe.npz") == SHIPPED + "/doe.npz"
     assert builtin_runs.run_label("runs/mine") == "runs/mine"  # a user's path stays as given
+
+
+@pytest.mark.parametrize("name", sorted(builtin_runs.BUILTIN_RUNS))
+def test_every_builtin_run_has_a_complete_model_card(name):
+    """A model card gives the command that trained the run and its scores, and keeps no placeholder
+    (a line that is one upper-case word, such as a SCORES left to fill in)."""
+    card = (builtin_runs.ROOT / name / "MODEL.md").read_text()
+    assert "edofproj train" in card
+    assert re.search(r"edofproj evaluate builtin:" + re.escape(name), card)
+    assert re.search(r"\b0\.\d{4}\b", card), "no score in the card"
+    placeholders = [line for line in card.splitlines() if re.fullmatch(r"\s*[A-Z_]{3,}\s*", line)]
+    assert not placeholders, placeholders

@@ -4,11 +4,13 @@ import math
 
 import numpy as np
 import pytest
+import torch
 from scipy import integrate
 from scipy.optimize import brentq
 from scipy.special import j0, j1
 
 from devices import DEVICES
+from edofproj.optics.geometry import ProjectorGeometry
 from edofproj.optics.radial_engine import RadialPSFEngine
 
 LAMBDA = 550e-9
@@ -29,8 +31,6 @@ def airy_fraction_per_px2(rho_px, geometry, lam=LAMBDA):
 @pytest.fixture(scope="module", params=DEVICES)
 def in_focus(request):
     """The in-focus PSF computed on the CPU and, when there is one, on a CUDA GPU."""
-    from edofproj.optics.geometry import ProjectorGeometry
-
     g = ProjectorGeometry()
     engine = RadialPSFEngine(g, [LAMBDA], window=9, pupil_samples=512, device=request.param)
     intensity = engine.radial_intensity(None, [g.focus_distance_m])[0, 0].cpu().numpy()
@@ -131,10 +131,6 @@ def test_the_float32_engine_is_the_airy_pattern_to_float32_rounding():
     Airy pattern within a few float32 units of the peak (measured 9e-7), and a defocused PSF is the
     float64 one within 1e-6 in relative L1 (measured ~1e-7; the spectral quadrature's own error is
     ~6e-3)."""
-    import torch
-
-    from edofproj.optics.geometry import ProjectorGeometry
-
     g = ProjectorGeometry()
     engine = RadialPSFEngine(g, [LAMBDA], window=9, pupil_samples=512, dtype=torch.float32)
     intensity = engine.radial_intensity(None, [g.focus_distance_m])[0, 0].double().numpy()
