@@ -160,3 +160,17 @@ def test_every_help_text_states_the_same_durations():
 def test_the_report_budget_is_the_stated_one(settings):
     minutes = FULL_BUDGET_MIN if settings is demo.FULL else demo.QUICK_BUDGET_MIN
     assert settings.budget_s == minutes * 60
+
+
+@pytest.mark.parametrize("preset", ["cpu-realtime", "realtime", "paper"])
+def test_every_preset_scores_the_tuned_classic_elements(preset):
+    """Whatever a preset trains, `evaluate` of its runs scores the classic elements as tuned for this
+    projector and 300-800 mm (the cpu preset's values): a 20-wave plate or a 300-800 mm axicon would be
+    the untuned rivals the results no longer compare against."""
+    tuned, doe = load_config("cpu").doe, load_config(preset).doe
+    assert (doe.cubic_waves, doe.axicon_near_mm, doe.axicon_far_mm, doe.multifocal_foci_mm) == (
+        tuned.cubic_waves,
+        tuned.axicon_near_mm,
+        tuned.axicon_far_mm,
+        tuned.multifocal_foci_mm,
+    )
