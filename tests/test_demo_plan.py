@@ -13,6 +13,7 @@ from edofproj.cli import build_parser
 from edofproj.config import load_config
 from edofproj.methods.builder import require_trained_run
 from edofproj.runs import load_run, saved_config
+from edofproj.training.phases import training_phases
 
 
 def _jobs(tmp_path, preset="cpu", **kwargs):
@@ -20,24 +21,42 @@ def _jobs(tmp_path, preset="cpu", **kwargs):
     return demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [], **kwargs)
 
 
-def test_ours_and_every_u_net_baseline_train_the_same_steps_onlineprodeb_the_preset_steps(tmp_path):
+def test_ours_trains_two_phases_and_every_u_net_baseline_the_refit_phase_alone(tmp_path):
+    preset = load_config("cpu").train
     jobs = {job.method: job for job in _jobs(tmp_path)}
-    for method in ("doe+net", "lens+net", "axicon+net", "cubic+net"):  # the same network: equal training
+    assert jobs["doe+net"].steps == preset.steps + preset.refit_steps
+    for method in ("lens+net", "axicon+net", "cubic+net"):  # the same network as doe+net's final one, trained alike
         job = jobs[method]
-        assert job.steps == demo.OURS_DEMO_STEPS and f"train.steps={demo.OURS_DEMO_STEPS}" in job.overrides, method
-    preset_steps = load_config("cpu").train.steps
-    assert preset_steps != demo.OURS_DEMO_STEPS
-    onlineprodeb = jobs["lens+onlineprodeb"]  # another architecture at 8.5x the cost per step
-    assert onlineprodeb.steps == preset_steps and not any(o.startswith("train.steps") for o in onlineprodeb.overrides)
+        run = load_config("cpu", job.overrides)
+        assert job.steps == preset.refit_steps and [p.name for p in training_phases(run)] == ["refit"], method
+    onlineprodeb = jobs["lens+onlineprodeb"]  # another architecture: its own recipe, one phase
+    assert onlineprodeb.steps == demo.OWN_RECIPE_STEPS["lens+onlineprodeb"] != preset.steps
+    assert [p.name for p in training_phases(load_config("cpu", onlineprodeb.overrides))] == ["joint"]
     assert [m for m, j in jobs.items() if j.required] == ["doe+net", "lens+net"]
     assert demo.steps_sentence(list(jobs.values())) == (
-        "2400 training steps for doe+net, lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb"
+        "2400 training steps for doe+net; 1200 for lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb"
+    )
+    # doe+net's joint phase simulates PSFs (dearer), its refit phase costs as lens+net
+    assert (
+        1.0 < jobs["doe+net"].relative_cost < demo.job_costs(load_config("cpu", ["train.refit_steps=0"]))["doe+net"][0]
     )
 
 
+def test_the_realtime_preset_trains_every_run_in_one_phase_of_its_steps(tmp_path):
+    jobs = {job.method: job for job in _jobs(tmp_path, "cpu-realtime")}
+    assert {jobs[m].steps for m in ("doe+net", "lens+net", "axicon+net", "cubic+net")} == {2400}
+
+
+def test_a_quick_demo_caps_the_refit_phase_only_where_there_is_one(tmp_path):
+    cfg = load_config("cpu", list(demo.QUICK.overrides))
+    jobs = {job.method: job for job in demo.demo_jobs(tmp_path, demo.QUICK, cfg, None, [])}
+    assert (jobs["doe+net"].steps, jobs["lens+net"].steps, jobs["lens+onlineprodeb"].steps) == (24, 12, 12)
+    assert load_config("cpu", jobs["lens+onlineprodeb"].overrides).train.refit_steps == 0
+
+
 def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, monkeypatch):
-    """With ``--pretrained`` the baselines train with the pretrained run's configuration, for the steps of
-    a demo without it (so that the shipped runs still stand for them)."""
+    """With ``--pretrained`` the baselines train with the pretrained run's configuration (its network, one
+    phase) for :data:`PRETRAINED_BASELINE_STEPS` (so that the shipped runs of its recipe still stand for them)."""
     seen = {}
 
     def plan(self):
@@ -49,8 +68,8 @@ def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, m
         demo.run_demo(tmp_path / "d", pretrained="builtin:cpu-doe-net")
     jobs = seen["jobs"]
     assert "doe+net" not in jobs
-    assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {demo.OURS_DEMO_STEPS}
-    assert jobs["lens+onlineprodeb"].steps == load_config("cpu").train.steps
+    assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {demo.PRETRAINED_BASELINE_STEPS}
+    assert jobs["lens+onlineprodeb"].steps == demo.OWN_RECIPE_STEPS["lens+onlineprodeb"]
     # the preset's tuned elements, which the pretrained (learned-DOE) run never reads: its baselines train with
     # them, and the copy that stands for doe+net builds its classic linear baselines with them
     preset = load_config("cpu").doe
@@ -67,10 +86,11 @@ def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, m
     assert copied.doe.kind == "mlp" and copied.net == saved_config(require_trained_run("builtin:cpu-doe-net")).net
 
 
-def test_a_user_step_count_applies_to_every_run(tmp_path):
+def test_a_user_step_count_sets_the_joint_phase_and_onlineprodebs_steps(tmp_path):
     cfg = load_config("cpu", ["train.steps=50"])
-    jobs = demo.demo_jobs(tmp_path, demo.FULL, cfg, None, ["train.steps=50"])
-    assert {job.steps for job in jobs} == {50}
+    jobs = {job.method: job for job in demo.demo_jobs(tmp_path, demo.FULL, cfg, None, ["train.steps=50"])}
+    refit = cfg.train.refit_steps
+    assert (jobs["doe+net"].steps, jobs["lens+net"].steps, jobs["lens+onlineprodeb"].steps) == (50 + refit, refit, 50)
 
 
 def test_retrain_baselines_makes_every_baseline_required(tmp_path):
@@ -80,8 +100,8 @@ def test_retrain_baselines_makes_every_baseline_required(tmp_path):
 @pytest.mark.parametrize(
     "preset, method, shipped",
     [
-        ("cpu", "axicon+net", "demo-axicon-net"),
-        ("cpu", "cubic+net", "demo-cubic-net"),
+        ("cpu", "axicon+net", "demo-refit-axicon-net"),
+        ("cpu", "cubic+net", "demo-refit-cubic-net"),
         ("cpu", "lens+onlineprodeb", "demo-lens-onlineprodeb"),
         ("cpu-realtime", "axicon+net", "demo-realtime-axicon-net"),
         ("cpu-realtime", "cubic+net", "demo-realtime-cubic-net"),

@@ -450,6 +450,14 @@ class TrainConfig:
     ``teacher_weight * mean|clamp(x, 0, 1) - clamp(x_T, 0, 1)|``, the mean absolute difference
     between the projector images the two networks emit for the same target and capture
     (:mod:`edofproj.training.distillation`).
+
+    ``refit_steps`` (0: none): a second phase that trains a fresh network, for that many steps, on the
+    DOE the first phase learned, frozen as fabricated (``doe.npz``): learning rate ``refit_lr_net``
+    after ``refit_warmup_steps`` of warm-up (decayed as the first phase's, over ``refit_steps``), training
+    crops colour-transformed at the rate ``refit_colour_augment`` (``data.colour_augment`` in the first
+    phase); every other setting is the first phase's. A run whose DOE does not train (a fixed or classic
+    element, ``train_doe: false``) has only this phase: its network is trained as a learned DOE's final
+    network is (:mod:`edofproj.training.phases`).
     """
 
     steps: int = 400
@@ -478,8 +486,16 @@ class TrainConfig:
     validation_images: int = 5
     teacher: str = ""
     teacher_weight: float = 1.0
+    refit_steps: int = 0
+    refit_lr_net: float = 3e-3
+    refit_warmup_steps: int = 300
+    refit_colour_augment: float = 0.0
 
     def validate(self) -> None:
+        if self.refit_steps < 0 or self.refit_warmup_steps < 0 or self.refit_lr_net < 0:
+            raise ConfigError("train.refit_steps, train.refit_warmup_steps and train.refit_lr_net must be >= 0")
+        if not (0.0 <= self.refit_colour_augment <= 1.0):
+            raise ConfigError(f"train.refit_colour_augment={self.refit_colour_augment} must be in [0, 1]")
         if self.teacher_weight < 0:
             raise ConfigError(f"train.teacher_weight={self.teacher_weight} must be >= 0")
         if self.linear_every < 1 or self.validate_every < 0 or self.validation_images < 1:

@@ -3,14 +3,15 @@
 Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
 
 1. **training** -- the runs of :func:`demo_jobs`, two one-thread processes at a time
-   (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: DOE + U-Net jointly, for
-   :attr:`DemoSettings.ours_steps` steps; ``cpu-realtime``: the real-time multi-rate network instead)
-   and ``lens_net`` (the same network without a DOE) always; ``axicon_net``, ``cubic_net`` (the same
-   network with the classic elements of the preset) and
+   (:mod:`.schedule`): ``doe_net`` (the ``cpu`` preset: the DOE with a U-Net jointly, then a fresh U-Net
+   for the DOE found, :mod:`edofproj.training.phases`; ``cpu-realtime``: the real-time multi-rate network,
+   one phase) and ``lens_net`` (the same network without a DOE) always; ``axicon_net``, ``cubic_net`` (the
+   same network with the classic elements of the preset) and
    ``lens_onlineprodeb`` when they are predicted to fit the time budget (planned before any training,
-   :meth:`~.schedule.ParallelTrainer.plan`, and printed in one line, :func:`plan_line`). The network's
-   baselines train for as many steps as ``doe_net`` (:data:`EQUAL_STEP_BASELINES`), ``lens_onlineprodeb``
-   for the preset's. A baseline that does not fit is taken from the run the package ships for it
+   :meth:`~.schedule.ParallelTrainer.plan`, and printed in one line, :func:`plan_line`). Each run trains
+   its preset's recipe: a fixed element's network is trained exactly as ``doe_net``'s final network (the
+   refit phase alone), so that the comparison measures the optics; ``lens_onlineprodeb``, another
+   architecture, its own recipe (:data:`OWN_RECIPE_STEPS`). A baseline that does not fit is taken from the run the package ships for it
    (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
    which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
@@ -64,6 +65,7 @@ from ..reporting.writeup import claims_section, psf_figure_depths_m, write_docum
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
 from ..runs.directory import flatten_keys
 from ..training.end_to_end import resolve_mixed_precision
+from ..training.phases import JOINT, total_steps, training_phases
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
@@ -89,9 +91,8 @@ class DemoSettings:
     timing_sizes: tuple[tuple[int, int], ...]
     timing_repeats: int
     cubic_table_depths: int
-    #: training steps of ``doe+net`` and of the baselines of :data:`EQUAL_STEP_BASELINES` (None: the
-    #: preset's ``train.steps``, as every other baseline)
-    ours_steps: int | None = None
+    #: the most steps of a refit phase (``train.refit_steps``) of the runs that have one (None: the preset's)
+    max_refit_steps: int | None = None
     #: evaluation seconds of each classic linear baseline (``X+wiener``, ``X+ensemble``) beyond
     #: ``evaluation_estimate_s``, their cubic PSFs apart (:func:`evaluation_seconds`)
     linear_method_s: float = 0.0
@@ -112,14 +113,13 @@ EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 0.7}
 #: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine).
 LINEAR_METHOD_SECONDS = 8.0
 
-#: Steps the full demo trains ``doe+net`` for, and every baseline of :data:`EQUAL_STEP_BASELINES`
-#: (docs/experiments/2026-11-25-training-speed.md).
-OURS_DEMO_STEPS = 2400
-#: The baselines that are ``doe+net``'s network and recipe with other optics (:attr:`MethodSpec.train_overrides`
-#: change ``doe.kind`` only): they train for the same steps as ``doe+net``, so that the comparison
-#: measures the optics. ``lens+onlineprodeb``, another architecture at 9 to 53 times the cost per step
-#: (:func:`job_costs`), keeps the preset's steps.
-EQUAL_STEP_BASELINES = ("lens+net", "axicon+net", "cubic+net")
+#: Steps of the baselines of another architecture, trained in one phase by their own recipe (those of their
+#: shipped runs) unless the demo's settings or the user set ``train.steps``: ``lens+onlineprodeb``, at 9 to 53
+#: times the U-Net's cost per step (:func:`job_costs`).
+OWN_RECIPE_STEPS = {"lens+onlineprodeb": 1800}
+#: Steps of the baselines of ``demo --pretrained`` (its run's network in one phase, as the shipped runs of
+#: its recipe were trained).
+PRETRAINED_BASELINE_STEPS = 2400
 
 FULL = DemoSettings(
     name="full",
@@ -129,7 +129,6 @@ FULL = DemoSettings(
     timing_sizes=((256, 256), (600, 800)),
     timing_repeats=3,
     cubic_table_depths=24,
-    ours_steps=OURS_DEMO_STEPS,
     linear_method_s=LINEAR_METHOD_SECONDS,
 )
 QUICK = DemoSettings(
@@ -153,6 +152,7 @@ QUICK = DemoSettings(
     timing_sizes=((128, 128),),
     timing_repeats=2,
     cubic_table_depths=8,
+    max_refit_steps=12,
     # measured: the four linear baselines of the axicon and the multifocal zones added 7.5 s of CPU time
     # to a quick-sized evaluate of builtin:cpu-doe-net (one thread; 14 s of wall time, loaded machine)
     linear_method_s=2.0,
@@ -161,14 +161,15 @@ QUICK = DemoSettings(
 )
 
 #: Seconds per training step of ``lens+net`` (the network alone: its PSFs come from a precomputed table),
-#: by the network the runs train (``net.architecture``) and the arithmetic it trains in (``bf16``: autocast
-#: where the CPU computes bfloat16 natively; ``none``: float32), and of OnlineProDeb, by arithmetic; one
-#: thread of the 2-core development machine (``benchmarks/bench_training.py --stages --threads 1``,
-#: float32 with the AVX2 limits). The plan uses them before any run has logged a step; then the measured
-#: ``lens+net`` rate replaces them (:mod:`.schedule`).
+#: by the network the runs train (``net.architecture``, at its preset's widths: the ``cpu`` preset's U-Net
+#: 8-16-32-64, the ``cpu-realtime`` preset's multi-rate network) and the arithmetic it trains in (``bf16``:
+#: autocast where the CPU computes bfloat16 natively; ``none``: float32), and of OnlineProDeb, by arithmetic;
+#: one thread of the 2-core development machine (``benchmarks/bench_training.py --stages --threads 1``,
+#: float32 with the AVX2 limits; the U-Net's 2026-11-28). The plan uses them before any run has logged a step;
+#: then the measured ``lens+net`` rate replaces them (:mod:`.schedule`).
 LENS_NET_STEP_S = {
-    ("unet", "bf16"): 0.095,
-    ("unet", "none"): 0.28,
+    ("unet", "bf16"): 0.090,
+    ("unet", "none"): 0.104,
     ("multirate", "bf16"): 0.058,
     ("multirate", "none"): 0.063,
 }
@@ -192,11 +193,14 @@ SETUP_S = 15.0
 def job_costs(cfg) -> dict[str, tuple[float, float]]:
     """Each trained method's cost per step relative to ``lens+net`` and its start-up seconds, for the
     network and arithmetic of ``cfg`` (a network not listed: the U-Net's figures) and its PSFs'
-    precision: ``doe+net`` costs ``1 + DOE_PSF_STEP_S / lens+net's step``."""
+    precision: a step of ``doe+net``'s joint phase costs ``1 + DOE_PSF_STEP_S / lens+net's step``, one of
+    its refit phase as much as ``lens+net``'s (its cost is their mean over its steps)."""
     architecture, precision = _cost_key(cfg)
     lens_step_s = LENS_NET_STEP_S[(architecture, precision)]
     onlineprodeb = ONLINEPRODEB_STEP_S[precision] / lens_step_s
-    doe_net = 1.0 + DOE_PSF_STEP_S[(cfg.psf.precision, precision)] / lens_step_s
+    joint_steps = sum(p.cfg.train.steps for p in training_phases(cfg) if p.name == JOINT)
+    psf_share = DOE_PSF_STEP_S[(cfg.psf.precision, precision)] / lens_step_s
+    doe_net = 1.0 + psf_share * joint_steps / total_steps(cfg)
     costs = {"doe+net": doe_net, "lens+onlineprodeb": onlineprodeb}
     costs.update({method: 1.0 for method in ("lens+net", "axicon+net", "cubic+net")})
     return {method: (cost, SETUP_S) for method, cost in costs.items()}
@@ -214,12 +218,13 @@ def _cost_key(cfg) -> tuple[str, str]:
 
 
 #: The runs the package ships for a baseline (``builtin:NAME``), trained beforehand with the demo's
-#: settings and a preset's recipe (the ``cpu`` preset's U-Net, the ``cpu-realtime`` preset's multi-rate
-#: network); the demo uses the one whose recipe is its own when training the baseline would overrun the
+#: settings and a recipe (the ``cpu`` preset's U-Net in its refit phase, ``demo-refit-*``; the reference
+#: model's wide U-Net in one phase of 2,400 steps, for ``demo --pretrained``; the ``cpu-realtime`` preset's
+#: multi-rate network); the demo uses the one whose recipe is its own when training the baseline would overrun the
 #: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
 BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
-    "axicon+net": ("demo-axicon-net", "demo-realtime-axicon-net"),
-    "cubic+net": ("demo-cubic-net", "demo-realtime-cubic-net"),
+    "axicon+net": ("demo-refit-axicon-net", "demo-axicon-net", "demo-realtime-axicon-net"),
+    "cubic+net": ("demo-refit-cubic-net", "demo-cubic-net", "demo-realtime-cubic-net"),
     "lens+onlineprodeb": ("demo-lens-onlineprodeb", "demo-realtime-lens-onlineprodeb"),
 }
 CUBIC_SECONDS_PER_DEPTH = 2.3
@@ -265,6 +270,11 @@ def demo_methods(settings: DemoSettings, methods: Sequence[str] | None) -> list[
     return [spec.name for spec in select_methods(None) if spec.name not in settings.left_out]
 
 
+def sets_steps(overrides: Sequence[str]) -> bool:
+    """Whether ``overrides`` set ``train.steps``."""
+    return any(o.split("=", 1)[0].strip() == "train.steps" for o in overrides)
+
+
 def demo_jobs(
     out: Path,
     settings: DemoSettings,
@@ -273,33 +283,36 @@ def demo_jobs(
     user_overrides: Sequence[str],
     train_ours: bool = True,
     retrain_baselines: bool = False,
-    user_steps: bool | None = None,
+    steps_set: bool | None = None,
 ) -> list[TrainingJob]:
     """The training runs of a demo: ours (unless ``train_ours`` is false: a pretrained run stands for
     it) and lens+net required, the others optional (or required when named in ``methods`` or with
-    ``retrain_baselines``). Ours and the baselines of :data:`EQUAL_STEP_BASELINES` train
-    :attr:`DemoSettings.ours_steps` steps, the others ``cfg.train.steps``, unless the user sets
-    ``train.steps`` (``user_steps``; None: found in ``user_overrides``): then every run trains that many.
-    The cubic plate's cost includes its PSF table (its evaluation's 2-D PSFs are the evaluation's,
-    :func:`evaluation_seconds`)."""
-    steps = cfg.train.steps
-    if user_steps is None:
-        user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in user_overrides)
-    ours_steps = settings.ours_steps if settings.ours_steps and not user_steps else steps
+    ``retrain_baselines``). ``cfg`` is the demo's configuration (its settings' and the user's overrides
+    applied); each run trains it with its method's :attr:`~edofproj.methods.catalogue.MethodSpec.train_overrides`
+    for all its phases (:func:`~edofproj.training.phases.total_steps`: a fixed element's network trains the
+    refit phase alone), those of :data:`OWN_RECIPE_STEPS` their own steps unless the settings or the user set
+    ``train.steps`` (``steps_set``; None: found in their overrides); :attr:`DemoSettings.max_refit_steps` caps a
+    refit phase. The cubic plate's cost includes its
+    PSF table (its evaluation's 2-D PSFs are the evaluation's, :func:`evaluation_seconds`)."""
+    if steps_set is None:
+        steps_set = sets_steps([*settings.overrides, *user_overrides])
     common = list(settings.overrides) + list(user_overrides)
-    costs = job_costs(cfg)
     wanted = set(methods) if methods else None
     jobs = []
 
-    def add(
-        method: str, run_dir: str, extra: Sequence[str], required: bool, setup_extra: float = 0.0, n: int = steps
-    ) -> None:
-        cost, setup = costs[method]
-        extra = list(extra) + ([f"train.steps={n}"] if n != steps else [])
-        jobs.append(TrainingJob(method, out / run_dir, common + extra, n, required, cost, setup + setup_extra))
+    def add(method: str, run_dir: str, extra: list[str], required: bool, setup_extra: float = 0.0) -> None:
+        if method in OWN_RECIPE_STEPS and not steps_set:
+            extra.append(f"train.steps={OWN_RECIPE_STEPS[method]}")
+        run_cfg = apply_overrides(cfg, extra)
+        if settings.max_refit_steps is not None and run_cfg.train.refit_steps > settings.max_refit_steps:
+            extra.append(f"train.refit_steps={settings.max_refit_steps}")
+            run_cfg = apply_overrides(cfg, extra)
+        steps = total_steps(run_cfg)
+        cost, setup = job_costs(run_cfg)[method]
+        jobs.append(TrainingJob(method, out / run_dir, common + extra, steps, required, cost, setup + setup_extra))
 
     if train_ours:
-        add(OURS, OURS_RUN_DIR, [], True, n=ours_steps)
+        add(OURS, OURS_RUN_DIR, [], True)
     baseline_methods = ["lens+net"] + list(OPTIONAL_ORDER)
     for method in baseline_methods:
         spec = method_spec(method)
@@ -313,14 +326,7 @@ def demo_jobs(
             setup_extra = CUBIC_SECONDS_PER_DEPTH * settings.cubic_table_depths
         if spec.run_dir is None:
             raise EdofprojError(f"method {method} has no separate run to train")
-        add(
-            method,
-            spec.run_dir,
-            extra,
-            required,
-            setup_extra,
-            n=ours_steps if method in EQUAL_STEP_BASELINES else steps,
-        )
+        add(method, spec.run_dir, extra, required, setup_extra)
     return jobs
 
 
@@ -335,6 +341,24 @@ def steps_sentence(jobs: Sequence[TrainingJob]) -> str:
         for index, (steps, names) in enumerate(groups.items())
     ]
     return "; ".join(parts)
+
+
+def phases_sentence(jobs: Sequence[TrainingJob], training_config: str) -> str:
+    """A clause on ``doe+net``'s two phases when its job (trained with ``training_config`` and the job's
+    overrides) has them (else empty): the steps of each, and that the fixed elements' networks train the
+    second alone."""
+    ours = [job for job in jobs if job.method == OURS]
+    if not ours:
+        return ""
+    phases = training_phases(load_config(training_config, ours[0].overrides))
+    if len(phases) < 2:
+        return ""
+    joint, refit = phases
+    return (
+        f" ({OURS} in two phases: {joint.cfg.train.steps} steps of the DOE with a network, then "
+        f"{refit.cfg.train.steps} of a fresh network for the DOE found, frozen; the baselines of that network "
+        "train the second phase alone)"
+    )
 
 
 def plan_line(jobs: Sequence[TrainingJob]) -> str:
@@ -359,8 +383,7 @@ REALTIME_PRESET = "cpu-realtime"
 def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
     """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction,
     the arithmetic the network trains in on this CPU and, for a U-Net in float32, the preset of the real-time
-    network, whose step costs about a quarter of the U-Net's there (:data:`REALTIME_PRESET`; with native
-    bfloat16, about half: 60 against 128 ms a step, each preset as it is, ``bench_training.py --stages``)."""
+    network (:data:`REALTIME_PRESET`) with its cost per step relative to the U-Net's (:data:`LENS_NET_STEP_S`)."""
     if predicted_s <= budget_s:
         return None
     architecture, precision = _cost_key(cfg)
@@ -370,8 +393,9 @@ def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
         f"{format_duration(budget_s, unit=True)} budget: the network trains in {arithmetic}"
     )
     if architecture == "unet" and precision != "bf16":
+        share = LENS_NET_STEP_S[("multirate", precision)] / LENS_NET_STEP_S[("unet", precision)]
         note += (
-            f"; --config {REALTIME_PRESET} trains the real-time multi-rate network instead, at about a quarter of "
+            f"; --config {REALTIME_PRESET} trains the real-time multi-rate network instead, at about {share:.0%} of "
             "the U-Net's step cost here (it scores lower: the documentation's Results page)"
         )
     return note
@@ -619,13 +643,14 @@ def run_demo(
     if pretrained is not None:
         require_trained_run(pretrained)  # fails before anything is written
     training_config = config
-    user_steps = any(o.split("=", 1)[0].strip() == "train.steps" for o in overrides)
+    steps_set = sets_steps([*settings.overrides, *overrides])
     if pretrained is not None:
         # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
-        # train with its configuration, for the preset's steps (those of EQUAL_STEP_BASELINES: ours_steps),
-        # with the preset's classic elements where the pretrained run's DOE does not read them
+        # train with its configuration (its network and phases) for PRETRAINED_BASELINE_STEPS, with the
+        # preset's classic elements where the pretrained run's DOE does not read them
         training_config = str(require_trained_run(pretrained) / "config.yaml")
-        overrides = [f"train.steps={cfg.train.steps}", *preset_elements(cfg, training_config), *overrides]
+        steps = [f"train.steps={PRETRAINED_BASELINE_STEPS}"]
+        overrides = [*steps, *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(
         out,
@@ -635,7 +660,7 @@ def run_demo(
         overrides,
         train_ours=pretrained is None,
         retrain_baselines=retrain_baselines,
-        user_steps=user_steps,
+        steps_set=steps_set,
     )
     planned = demo_methods(settings, methods)
     later = evaluation_seconds(settings, cfg, planned) + (TIMING_ESTIMATE_S[settings.name] if timing else 0.0)
@@ -689,6 +714,7 @@ def run_demo(
             f"`edofproj demo{' --quick' if quick else ''}{' --pretrained' if ours else ''}`: preset '{config}', "
             + (f"{OURS} the trained run {ours.source} ({ours.steps} steps, trained beforehand), " if ours else "")
             + steps_sentence(jobs)
+            + phases_sentence(jobs, training_config)
             + f", built-in photographs only. Wall time {format_duration(wall_s, unit=True)} "
             f"up to the report, budget {format_duration(budget, unit=True)}."
             + (" A quick smoke run: few steps and tiny images; its quality is not meant to be judged." if quick else "")

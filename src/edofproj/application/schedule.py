@@ -78,8 +78,8 @@ class TrainingJob:
 
 def train_command(config: str, job: TrainingJob) -> list[str]:
     """The argument list of the job's training process: ``python -m edofproj.cli train --config CONFIG
-    --out RUN_DIR --steps STEPS --quiet --set train.threads=1`` followed by ``--set`` of each of the job's
-    overrides (later ones win), run with this interpreter."""
+    --out RUN_DIR --quiet --set train.threads=1`` followed by ``--set`` of each of the job's overrides (later
+    ones win; they set the run's steps where it differs from CONFIG's), run with this interpreter."""
     sets = [item for override in ["train.threads=1"] + list(job.overrides) for item in ("--set", override)]
     return [
         sys.executable,
@@ -90,8 +90,6 @@ def train_command(config: str, job: TrainingJob) -> list[str]:
         config,
         "--out",
         str(job.run_dir),
-        "--steps",
-        str(job.steps),
         "--quiet",
     ] + sets
 

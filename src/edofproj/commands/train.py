@@ -33,7 +33,8 @@ def register(subparsers) -> None:
         type=_positive_int,
         default=None,
         metavar="N",
-        help="total optimizer steps of the run (shortcut for --set train.steps=N)",
+        help="optimizer steps of the run's first phase (shortcut for --set train.steps=N; a second phase of "
+        "train.refit_steps follows where the config has one)",
     )
     parser.add_argument(
         "--stop-after",
@@ -59,6 +60,7 @@ def _positive_int(text: str) -> int:
 def run(args: argparse.Namespace) -> int:
     from ..data import describe_training_data
     from ..runs import saved_config
+    from ..training.phases import total_steps
     from ..training.trainer import train
 
     overrides = list(args.overrides or [])
@@ -79,12 +81,12 @@ def run(args: argparse.Namespace) -> int:
     if int(os.environ.get("RANK", "0")) == 0:
         if result.step == result.start_step:
             print(
-                f"{out}: nothing to do, the run is at step {result.step} of {cfg.train.steps} "
+                f"{out}: nothing to do, the run is at step {result.step} of {total_steps(cfg)} "
                 f"(raise --steps to continue)"
             )
         else:
             print(
-                f"{out}: steps {result.start_step} -> {result.step} of {cfg.train.steps}, "
+                f"{out}: steps {result.start_step} -> {result.step} of {total_steps(cfg)}, "
                 f"loss {result.loss:.5g}, {result.seconds:.0f} s of training"
             )
             if result.peak_gpu_memory_bytes is not None:

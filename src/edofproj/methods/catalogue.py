@@ -143,7 +143,7 @@ METHODS: tuple[MethodSpec, ...] = (
         "net",
         "bare lens + OnlineProDeb (our re-implementation), trained on the same simulated lens-only data",
         run_dir="lens_onlineprodeb",
-        train_overrides=("doe.kind=lens", "net.architecture=onlineprodeb"),
+        train_overrides=("doe.kind=lens", "net.architecture=onlineprodeb", "train.refit_steps=0"),  # its own recipe
     ),
     MethodSpec("doe", "run", "none", "learned DOE, no compensation"),
     MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution"),

@@ -26,6 +26,7 @@ FIGURES_DIR = "figures"
 #: Keys that may change when a run is resumed (they do not change what is computed so far).
 RESUMABLE_KEYS = (
     "train.steps",
+    "train.refit_steps",
     "train.checkpoint_every",
     "train.keep_checkpoints",
     "train.threads",

@@ -19,8 +19,11 @@ One step, for a global batch of ``B`` training crops ``I_i``:
 
    after clipping the DOE's and the network's gradient norms (each) to ``train.grad_clip``.
 
+With ``train.refit_steps`` a run has a second phase, a fresh network for the DOE the first found
+(:mod:`.phases`); the steps above are each phase's, the run's files count on across them.
+
 Runs are deterministic under ``train.seed`` and resume exactly from a checkpoint
-(:mod:`.checkpoint`). Under ``torchrun`` the same code runs data-parallel (:mod:`.distributed`):
+(:mod:`.checkpoint`), in either phase. Under ``torchrun`` the same code runs data-parallel (:mod:`.distributed`):
 each process draws its share of the global batch, and DistributedDataParallel averages the
 gradients. Only rank 0 writes files. A non-finite loss or gradient stops the run with a
 one-line error naming the step; the last good checkpoint is kept.
@@ -50,7 +53,7 @@ from ..compensation.wiener import depth_ensemble_wiener_kernel
 from ..config import Config, to_dict
 from ..data import build_training_source
 from ..data.textures import TrainingSurfaces
-from ..doe import build_run_doe, save_doe
+from ..doe import build_run_doe, load_doe, save_doe
 from ..errors import BlurExceedsWindowWarning, EdofprojError, RecoveryWarning
 from ..fileio import remove_stale_temp_files
 from ..imaging.depth_layers import layer_depths_m
@@ -87,6 +90,7 @@ from .distributed import (
 )
 from .end_to_end import EndToEndProjector, SimulatedPSF, resolve_mixed_precision
 from .losses import build_loss
+from .phases import JOINT, Phase, training_phases
 from .psf_table import DepthPSFTable
 from .sampling import BatchShard, sample_depth_maps, sample_depths_m, sample_images, sample_noise, sample_surfaces
 from .validation import StepChecks
@@ -194,16 +198,23 @@ def _clip(parameters: list[nn.Parameter], max_norm: float) -> torch.Tensor:
 
 
 class _Session:
-    """The state of one training session (one process): model, optimizer, data, files."""
+    """The state of one phase of a training session (one process): model, optimizer, data, files.
+    ``phase``: which phase of the run (:mod:`.phases`; ``cfg`` is the phase's; None: a run of one phase);
+    ``step`` counts the phase's steps, the run's files ``phase.offset + step``."""
 
-    def __init__(self, cfg: Config, run_dir: Path, group: ProcessGroup):
+    def __init__(self, cfg: Config, run_dir: Path, group: ProcessGroup, phase: Phase | None = None):
+        phase = phase if phase is not None else Phase(JOINT, cfg, 0, False)
         self.cfg = cfg
+        self.phase = phase
         self.run_dir = run_dir
         self.group = group
         device = group.device
         seed_everything(cfg.train.seed)
 
-        self.doe = build_run_doe(cfg).to(device)
+        if phase.doe_from_run:  # the DOE the first phase fabricated, frozen
+            self.doe = load_doe(run_dir / DOE_NAME).to(device)
+        else:
+            self.doe = build_run_doe(cfg).to(device)
         self.doe_trained = doe_is_trained(cfg, self.doe)
         self.net = build_network(cfg.net).to(device)
         if not cfg.train.train_net:
@@ -211,7 +222,7 @@ class _Session:
                 p.requires_grad_(False)
         psf_source = build_psf_source(cfg, self.doe, self.doe_trained, device).to(device)
         start_from_wiener(cfg, self.net, psf_source)
-        self.checks = StepChecks(cfg, self.net, psf_source, run_dir, group.is_main, device)
+        self.checks = StepChecks(cfg, self.net, psf_source, run_dir, group.is_main, device, phase.offset)
         layers_m = None
         if cfg.train.screens == "varying":
             layers_m = layer_depths_m(cfg.psf.depth_min_m, cfg.psf.depth_max_m, max(2, cfg.imaging.depth_layers))
@@ -245,7 +256,7 @@ class _Session:
 
         self.step = 0
         self.elapsed = 0.0
-        self.last_checkpoint_step = 0
+        self.last_checkpoint_step = phase.offset  # a later phase starts from the last one's final checkpoint
         self.wrapped: nn.Module = self.model
         if group.distributed:
             # buffers (a PSF table) are identical on every rank: no need to sync them each step
@@ -259,9 +270,16 @@ class _Session:
             )
 
     # -- checkpoints ---------------------------------------------------------------
+    @property
+    def run_step(self) -> int:
+        """The run's step (the phase's plus the steps of the phases before)."""
+        return self.phase.offset + self.step
+
     def state(self) -> dict:
         return {
-            "step": self.step,
+            "step": self.run_step,
+            "phase": self.phase.name,
+            "phase_step": self.step,
             "elapsed_seconds": self.elapsed,
             "doe": self.doe.state_dict() if self.doe_trained else {},
             "net": self.net.state_dict(),
@@ -284,9 +302,9 @@ class _Session:
         except (RuntimeError, KeyError, ValueError) as exc:
             raise EdofprojError(f"the checkpoint does not fit this run's model: {str(exc).splitlines()[0]}") from None
         restore_rng_state(checkpoint["rng"])
-        self.step = int(checkpoint["step"])
+        self.step = int(checkpoint.get("phase_step", checkpoint["step"]))
         self.elapsed = float(checkpoint["elapsed_seconds"])
-        self.last_checkpoint_step = self.step
+        self.last_checkpoint_step = self.run_step
 
     def save(self) -> None:
         """Checkpoint (and the current fabricated DOE), written by rank 0 after checking that all
@@ -294,14 +312,14 @@ class _Session:
         difference = replica_max_difference(list(self.model.parameters()), self.group)
         if difference != 0.0:
             raise EdofprojError(
-                f"data-parallel replicas diverged at step {self.step} (parameters differ by up to {difference:.3g})"
+                f"data-parallel replicas diverged at step {self.run_step} (parameters differ by up to {difference:.3g})"
             )
         if self.group.is_main:
             state = dict(self.state(), replica_max_difference=difference)
             save_checkpoint(self.run_dir / CHECKPOINT_DIR, state, keep=self.cfg.train.keep_checkpoints)
             if self.doe_trained:
                 self.save_doe()
-        self.last_checkpoint_step = self.step
+        self.last_checkpoint_step = self.run_step
 
     def save_doe(self) -> None:
         if self.cfg.doe.kind != "lens":
@@ -351,13 +369,13 @@ class _Session:
             loss = loss + cfg.train.teacher_weight * distillation_term(out.compensated, taught)
         logged = average_across_processes(torch.stack([loss.detach(), mse, perceptual]).float().cpu(), self.group)
         if not math.isfinite(float(logged[0])):
-            self._stop_non_finite(step, "loss", float(logged[0]))
+            self._stop_non_finite(self.phase.offset + step, "loss", float(logged[0]))
 
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         norms = [_clip(params, cfg.train.grad_clip) for params in (self.doe_params, self.net_params) if params]
         if not all(math.isfinite(float(n)) for n in norms):
-            self._stop_non_finite(step, "gradient", math.nan)
+            self._stop_non_finite(self.phase.offset + step, "gradient", math.nan)
         self.optimizer.step()
         self.scheduler.step()
         self.step = step
@@ -404,12 +422,14 @@ class _Session:
 def train(
     cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: int | None = None, progress: bool = True
 ) -> TrainingResult:
-    """Train (or, with ``resume``, continue) the run in ``out_dir`` up to ``cfg.train.steps`` steps.
+    """Train (or, with ``resume``, continue) the run in ``out_dir`` through all its phases
+    (:func:`~.phases.total_steps`: ``train.steps``, plus ``train.refit_steps`` of a second phase).
 
-    ``stop_after``: end this session after that many steps in total (the learning-rate
-    schedule still spans ``cfg.train.steps``), e.g. to train in chunks; a checkpoint is
-    written at the end of every session. Resuming with a larger ``train.steps`` extends the
-    run; the remaining learning rates then follow ``lr_0 f^(t / T)`` with the new ``T``.
+    ``stop_after``: end this session after that many steps of the run in total (the learning-rate
+    schedules still span their phases), e.g. to train in chunks; a checkpoint is
+    written at the end of every session. Resuming with a larger ``train.steps`` during the first
+    phase (or ``train.refit_steps`` during the second) extends that phase; the remaining learning
+    rates then follow ``lr_0 f^(t / T)`` with the new ``T``.
     Returns a :class:`TrainingResult`.
     """
     run_dir = Path(out_dir)
@@ -440,6 +460,23 @@ def remove_interrupted_writes(run_dir: Path) -> None:
         )
 
 
+def checkpoint_phase(phases: list[Phase], checkpoint: dict) -> int:
+    """The index of the phase a checkpoint was written in (a checkpoint without phase: the first); a
+    one-line error when it is none of ``phases`` (the run's phases changed, e.g. ``train.steps`` after the
+    first phase ended)."""
+    name = checkpoint.get("phase", phases[0].name)
+    offset = int(checkpoint["step"]) - int(checkpoint.get("phase_step", checkpoint["step"]))
+    for index, phase in enumerate(phases):
+        if phase.name == name and phase.offset == offset:
+            return index
+    raise EdofprojError(
+        f"--resume: the run's checkpoint is step {checkpoint['step']} of its {name} phase, which began after step "
+        f"{offset}; with this configuration the phases are "
+        + ", ".join(f"{p.name} (steps {p.offset + 1}-{p.end})" for p in phases)
+        + ": keep train.steps as the run was trained"
+    )
+
+
 def _train(
     cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, progress: bool, group: ProcessGroup
 ) -> TrainingResult:
@@ -463,17 +500,22 @@ def _train(
         checkpoint = None
     barrier(group)
 
-    session = _Session(cfg, run_dir, group)
+    phases = training_phases(cfg)
+    first = checkpoint_phase(phases, checkpoint) if checkpoint is not None else 0
+    total = phases[-1].end
+    end = total if stop_after is None else min(total, int(stop_after))
+    start = int(checkpoint["step"]) if checkpoint is not None else 0
+    elapsed = float(checkpoint["elapsed_seconds"]) if checkpoint is not None else 0.0
+
+    session = _Session(phases[first].cfg, run_dir, group, phases[first])
     session.check_before_writing()
     if checkpoint is not None:
         session.restore(checkpoint)
-    start = session.step
-    session.checks.start(start, resumed=checkpoint is not None)
-    end = cfg.train.steps if stop_after is None else min(cfg.train.steps, int(stop_after))
+    session.checks.start(session.step, resumed=checkpoint is not None)
     if group.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         write_run_config(run_dir, cfg)
-        if not session.doe_trained and start == 0:
+        if not session.doe_trained and not session.phase.doe_from_run and start == 0:
             session.save_doe()
     if end <= start:
         return TrainingResult(run_dir, start, start, math.nan, session.elapsed)
@@ -484,20 +526,20 @@ def _train(
         bar = tqdm(total=end, initial=start, unit="step", dynamic_ncols=True, desc=cfg.name)
     loss = math.nan
     try:
-        clock = time.perf_counter()
-        base_elapsed = session.elapsed
-        while session.step < end:
-            lr = session.current_lr()
-            loss, mse, perceptual = session.train_step()
-            session.elapsed = base_elapsed + time.perf_counter() - clock
-            if log is not None:
-                log.write(session.step, loss, mse, perceptual, lr, session.elapsed)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{loss:.4g}")
-            session.checks.after_step(session.step, tqdm.write if bar is not None else print)
-            if session.step % cfg.train.checkpoint_every == 0 or session.step == end:
-                session.save()
+        for index in range(first, len(phases)):
+            phase = phases[index]
+            if index > first:
+                if phase.offset >= end:
+                    break
+                del session  # free the last phase's model before building this one's
+                session = _Session(phase.cfg, run_dir, group, phase)
+                session.elapsed = elapsed
+                session.checks.start(0, resumed=False)
+            if bar is not None and len(phases) > 1:
+                bar.set_description(f"{cfg.name} ({phase.name})")
+            phase_end = min(phase.cfg.train.steps, end - phase.offset)
+            loss = _train_phase(session, phase_end, log, bar) if session.step < phase_end else loss
+            elapsed = session.elapsed
     finally:
         if bar is not None:
             bar.close()
@@ -507,4 +549,26 @@ def _train(
         session.write_figures()
     barrier(group)
     peak = torch.cuda.max_memory_allocated(group.device) if group.device.type == "cuda" else None
-    return TrainingResult(run_dir, start, session.step, loss, session.elapsed, peak)
+    return TrainingResult(run_dir, start, session.run_step, loss, session.elapsed, peak)
+
+
+def _train_phase(session: _Session, end: int, log: TrainingLog | None, bar) -> float:
+    """Steps ``session.step + 1 .. end`` of the session's phase, logged and checkpointed (a checkpoint after
+    the last); returns the last loss."""
+    cfg = session.cfg
+    loss = math.nan
+    clock = time.perf_counter()
+    base_elapsed = session.elapsed
+    while session.step < end:
+        lr = session.current_lr()
+        loss, mse, perceptual = session.train_step()
+        session.elapsed = base_elapsed + time.perf_counter() - clock
+        if log is not None:
+            log.write(session.run_step, loss, mse, perceptual, lr, session.elapsed)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4g}")
+        session.checks.after_step(session.step, tqdm.write if bar is not None else print)
+        if session.step % cfg.train.checkpoint_every == 0 or session.step == end:
+            session.save()
+    return loss

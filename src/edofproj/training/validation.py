@@ -93,10 +93,13 @@ class StepChecks:
     """The trainer's hook: refreshes a safe network's linear base filter and validates (module docstring).
 
     ``start(step)`` before the first step of a session, ``after_step(step)`` after each step
-    (before that step's checkpoint). Only the process with ``writes=True`` validates and writes."""
+    (before that step's checkpoint); steps are the phase's, the log's the run's (``offset`` before them). Only the process with ``writes=True`` validates and writes."""
 
-    def __init__(self, cfg: Config, net: nn.Module, psf_source: nn.Module, run_dir: Path, writes: bool, device):
+    def __init__(
+        self, cfg: Config, net: nn.Module, psf_source: nn.Module, run_dir: Path, writes: bool, device, offset: int = 0
+    ):
         self.cfg = cfg
+        self.offset = offset  # the run's step before the first of this phase: the log counts the run's steps
         self.net = net
         self.psf_source = psf_source
         self.path = Path(run_dir) / VALIDATION_LOG
@@ -111,7 +114,7 @@ class StepChecks:
         if not resumed:  # a resumed run's checkpoint holds its filter
             refresh_linear_base(self.cfg, self.net, self.psf_source)
         if self.writes and self.images:
-            self._truncate_after(step)
+            self._truncate_after(self.offset + step)
 
     def after_step(self, step: int, say: Callable[[str], None] = print) -> None:
         if refresh_due(self.cfg, step):
@@ -129,7 +132,7 @@ class StepChecks:
         worst = int(np.argmin(difference))
         behind = int((difference < -BEHIND_TOLERANCE).sum())
         row = {
-            "step": step,
+            "step": self.offset + step,
             "ssim_net": float(scores["ssim_net"].mean()),
             "ssim_linear": float(scores["ssim_linear"].mean()),
             "de2000_net": float(scores["de2000_net"].mean()),
@@ -141,7 +144,7 @@ class StepChecks:
         self._append(row)
         if behind:
             say(
-                f"validation at step {step}: the network is behind the DOE's linear filter on {behind} of "
+                f"validation at step {self.offset + step}: the network is behind the DOE's linear filter on {behind} of "
                 f"{len(names)} image(s), most on {names[worst]} (SSIM {difference[worst]:+.4f}); mean SSIM "
                 f"{row['ssim_net']:.4f} vs {row['ssim_linear']:.4f}"
             )

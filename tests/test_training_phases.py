@@ -1,0 +1,147 @@
+"""A run in two phases (``train.refit_steps``): the DOE and a network jointly, then a fresh network for
+the fabricated DOE. The second phase must be exactly a separate run of the refit recipe on that DOE,
+leave the DOE as the first phase fabricated it, and resume bit for bit from a checkpoint in either
+phase."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from edofproj.config import Config, apply_overrides
+from edofproj.errors import EdofprojError
+from edofproj.runs.checkpoint import load_checkpoint
+from edofproj.training.phases import JOINT, REFIT, total_steps, training_phases
+from edofproj.training.trainer import train
+from edofproj.training.validation import VALIDATION_LOG, read_validation_log
+from tiny_configs import TINY_TRAINING
+
+JOINT_STEPS, REFIT_STEPS = 4, 3
+TWO_PHASES = TINY_TRAINING + [
+    "net.linear_base=ensemble",
+    "net.linear_radius=11",
+    "train.batch_size=2",
+    f"train.steps={JOINT_STEPS}",
+    f"train.refit_steps={REFIT_STEPS}",
+    "train.refit_lr_net=0.004",
+    "train.refit_warmup_steps=2",
+    "train.refit_colour_augment=0.0",
+    "data.colour_augment=0.5",
+    "train.checkpoint_every=2",
+    "train.keep_checkpoints=0",
+    "train.psf_table_depths=16",
+    "train.linear_every=2",
+    "train.validate_every=2",
+    "train.validation_images=2",
+]
+
+
+def two_phase_config(*extra: str) -> Config:
+    return apply_overrides(Config(), TWO_PHASES + list(extra))
+
+
+def _log(run_dir):
+    with open(run_dir / "train_log.csv", newline="") as handle:
+        return [{k: v for k, v in row.items() if k != "seconds"} for row in csv.DictReader(handle)]
+
+
+# ----------------------------------------------------------------------------- the phases of a configuration
+
+
+def test_a_learned_doe_trains_jointly_then_a_fresh_network_is_refit_for_it():
+    cfg = two_phase_config()
+    joint, refit = training_phases(cfg)
+    assert (joint.name, joint.offset, joint.cfg.train.steps, joint.cfg.train.train_doe) == (JOINT, 0, 4, True)
+    assert joint.cfg.data.colour_augment == 0.5 and joint.cfg.train.lr_net == cfg.train.lr_net
+    assert (refit.name, refit.offset, refit.end, refit.doe_from_run) == (REFIT, 4, 7, True)
+    assert refit.cfg.train.train_doe is False and refit.cfg.train.lr_net == 0.004
+    assert refit.cfg.train.warmup_steps == 2 and refit.cfg.data.colour_augment == 0.0
+    assert total_steps(cfg) == 7
+
+
+def test_a_fixed_doe_has_only_the_refit_phase_and_no_refit_keeps_one_phase():
+    (only,) = training_phases(two_phase_config("doe.kind=lens"))
+    assert (only.name, only.offset, only.cfg.train.steps, only.doe_from_run) == (REFIT, 0, 3, False)
+    assert only.cfg.train.lr_net == 0.004
+    (single,) = training_phases(two_phase_config("train.refit_steps=0"))
+    assert (single.name, single.cfg.train.steps, single.cfg.train.lr_net) == (JOINT, 4, 1e-3)
+
+
+# ----------------------------------------------------------------------------- a run in two phases
+
+pytestmark_slow = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("phases") / "straight"
+    result = train(two_phase_config(), run_dir, progress=False)
+    return run_dir, result
+
+
+@pytestmark_slow
+def test_the_run_counts_on_across_its_phases_and_keeps_the_fabricated_doe(straight):
+    run_dir, result = straight
+    assert (result.start_step, result.step) == (0, 7)
+    rows = _log(run_dir)
+    assert [int(r["step"]) for r in rows] == list(range(1, 8))
+    # the refit phase starts its own warm-up: lr_0 / W at its first step
+    assert float(rows[JOINT_STEPS]["lr"]) == pytest.approx(0.004 / 2)
+    assert [r["step"] for r in read_validation_log(run_dir / VALIDATION_LOG)] == [2.0, 4.0, 6.0, 7.0]
+    end_of_joint = load_checkpoint(run_dir / "checkpoints" / "step_000004.pt")
+    final = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    assert (end_of_joint["phase"], final["phase"], final["phase_step"]) == (JOINT, REFIT, REFIT_STEPS)
+    assert any(not torch.equal(v, final["net"][k]) for k, v in end_of_joint["net"].items())
+
+
+@pytestmark_slow
+def test_the_refit_phase_is_a_separate_run_of_its_recipe_on_the_fabricated_doe(straight, tmp_path):
+    run_dir, _ = straight
+    doe_file = tmp_path / "doe.npz"
+    shutil.copyfile(run_dir / "doe.npz", doe_file)
+    separate = two_phase_config(
+        "doe.kind=file",
+        f"doe.path={doe_file}",
+        "train.refit_steps=0",
+        f"train.steps={REFIT_STEPS}",
+        "train.lr_net=0.004",
+        "train.warmup_steps=2",
+        "data.colour_augment=0.0",
+    )
+    train(separate, tmp_path / "separate", progress=False)
+    a = load_checkpoint(run_dir / "checkpoints" / "last.pt")["net"]
+    b = load_checkpoint(tmp_path / "separate" / "checkpoints" / "last.pt")["net"]
+    for key, value in a.items():
+        assert torch.equal(value, b[key]), key
+    assert [r["loss"] for r in _log(run_dir)[JOINT_STEPS:]] == [r["loss"] for r in _log(tmp_path / "separate")]
+
+
+@pytestmark_slow
+@pytest.mark.parametrize("stop", [3, JOINT_STEPS, JOINT_STEPS + 1])
+def test_a_run_stopped_in_either_phase_resumes_bit_for_bit(straight, tmp_path, stop):
+    straight_dir, _ = straight
+    cfg = two_phase_config()
+    run_dir = tmp_path / "chunked"
+    first = train(cfg, run_dir, stop_after=stop, progress=False)
+    assert first.step == stop
+    second = train(cfg, run_dir, resume=True, progress=False)
+    assert (second.start_step, second.step) == (stop, 7)
+    a = load_checkpoint(straight_dir / "checkpoints" / "last.pt")
+    b = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    for key, value in a["net"].items():
+        assert torch.equal(value, b["net"][key]), key
+    assert _log(straight_dir) == _log(run_dir)
+    assert read_validation_log(straight_dir / VALIDATION_LOG) == read_validation_log(run_dir / VALIDATION_LOG)
+    assert np.array_equal(np.load(straight_dir / "doe.npz")["height_m"], np.load(run_dir / "doe.npz")["height_m"])
+
+
+@pytestmark_slow
+def test_resuming_the_refit_phase_with_another_joint_length_is_refused(tmp_path):
+    run_dir = tmp_path / "run"
+    train(two_phase_config(), run_dir, stop_after=JOINT_STEPS + 2, progress=False)
+    with pytest.raises(EdofprojError, match="keep train.steps"):
+        train(two_phase_config(f"train.steps={JOINT_STEPS + 2}"), run_dir, resume=True, progress=False)
