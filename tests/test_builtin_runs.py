@@ -2,6 +2,7 @@
 never written into."""
 
 import re
+import shlex
 
 import pytest
 import torch
@@ -10,7 +11,9 @@ import edofproj.builtin_runs as builtin_runs
 from edofproj.builtin_runs import builtin_names, package_run, resolve_run_dir
 from edofproj.cli import main
 from edofproj.errors import EdofprojError
-from edofproj.runs import load_run
+from edofproj.application.demo import recipe_difference
+from edofproj.config import load_config
+from edofproj.runs import load_run, saved_config
 from edofproj.training.trainer import train
 
 SHIPPED = "builtin:cpu-doe-net"
@@ -123,3 +126,23 @@ def test_every_builtin_run_has_a_complete_model_card(name):
     assert re.search(r"\b0\.\d{4}\b", card), "no score in the card"
     placeholders = [line for line in card.splitlines() if re.fullmatch(r"\s*[A-Z_]{3,}\s*", line)]
     assert not placeholders, placeholders
+
+
+def _card_training_command(card: str) -> list[str]:
+    """The arguments of the first ``edofproj train`` command of a model card (continuation lines joined)."""
+    text = card.replace("\\\n", " ")
+    line = next(line for line in text.splitlines() if "edofproj train " in line)
+    return shlex.split(line.split("edofproj train ", 1)[1])
+
+
+@pytest.mark.parametrize("name", sorted(builtin_runs.BUILTIN_RUNS))
+def test_every_model_cards_command_trains_its_runs_recipe_with_todays_presets(name):
+    """The card's command, run today, would train the run's recipe: a preset that moved on (another network,
+    other steps) must be pinned in the command (``--set``), or the card would not reproduce the run."""
+    args = _card_training_command((builtin_runs.ROOT / name / "MODEL.md").read_text())
+    config = args[args.index("--config") + 1]
+    sets = [args[i + 1] for i, arg in enumerate(args) if arg == "--set"]
+    if "--steps" in args:
+        sets.append(f"train.steps={args[args.index('--steps') + 1]}")
+    shipped = saved_config(builtin_runs.ROOT / name)
+    assert recipe_difference(shipped, load_config(config, sets)) is None

@@ -140,14 +140,14 @@ def test_train_on_images(trained):
     run_dir = out / "run"
     assert summary["images"] == 6 and summary["train_images"] + summary["test_images"] == 6
     assert summary["test_images"] >= 1 and summary["train_images"] >= 1
-    assert summary["steps"] == 6
+    assert summary["steps"] == 6 + 6  # the two phases
     assert summary["config_round_trip"] is True
     for key in ("loss_first_tenth", "loss_last_tenth"):
         assert math.isfinite(summary[key]) and summary[key] > 0
     assert summary["figures"] == ["doe_profile.png", "loss.png", "psf_depths.png"]
     for name in ("config.yaml", "doe.npz", "checkpoints/last.pt", "train_log.csv"):
         assert (run_dir / name).is_file()
-    assert len((run_dir / "train_log.csv").read_text(encoding="utf-8").strip().splitlines()) == 1 + 6
+    assert len((run_dir / "train_log.csv").read_text(encoding="utf-8").strip().splitlines()) == 1 + 12
     run = load_run(run_dir)
     assert run.step == 6 and run.doe.levels == summary["doe_levels"] == 16
     assert run.cfg.data.source == "folder"

@@ -45,6 +45,7 @@ SMALL = [
     "data.crop=32",
     "data.max_test_images=2",
     "train.steps=6",
+    "train.refit_steps=6",
     "train.batch_size=2",
     "train.checkpoint_every=6",
     "train.psf_table_depths=4",
@@ -75,7 +76,7 @@ def main() -> None:
     #    (a couple of minutes on one core; the demo trains 1800), or a tiny run with --small.
     run_dir = Path(args.run) if args.run else out / "run"
     if args.run is None:
-        overrides = SMALL if args.small else ["train.steps=400", "train.threads=1"]
+        overrides = SMALL if args.small else ["train.steps=400", "train.refit_steps=400", "train.threads=1"]
         train(load_config("cpu", overrides + ["train.device=cpu"]), run_dir, progress=False)
     run = load_run(run_dir)
     print(f"run {run_dir} at step {run.step}: {run.doe.describe()}")

@@ -49,7 +49,7 @@ def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="output folder (the run goes to OUT/run)")
     parser.add_argument("--images", default=None, help="folder of PNG/JPEG training images (default: examples)")
-    parser.add_argument("--steps", type=int, default=None, help="training steps (default 600; 6 with --small)")
+    parser.add_argument("--steps", type=int, default=None, help="steps of each training phase (default 600; 6 with --small)")
     parser.add_argument("--threads", type=int, default=1, help="CPU threads for training (0: all)")
     parser.add_argument("--small", action="store_true", help="tiny sizes: runs in seconds (for CI)")
     return parser.parse_args()
@@ -82,12 +82,14 @@ def main() -> None:
         f"{len(test_files)} held out ({', '.join(p.name for p in test_files)})"
     )
 
-    # 2. The configuration: the cpu preset, reading the folder; a short schedule.
+    # 2. The configuration: the cpu preset, reading the folder; a short schedule of its two phases
+    #    (N steps of the DOE with a network, then N of a fresh network for the DOE found).
     steps = args.steps or (6 if args.small else 600)
     overrides = (SMALL if args.small else []) + [
         "data.source=folder",
         f"data.folder={images}",
         f"train.steps={steps}",
+        f"train.refit_steps={steps}",
         f"train.threads={args.threads}",
         "train.device=cpu",
     ]
@@ -95,7 +97,7 @@ def main() -> None:
     cfg.name = "my_images"
 
     # 3. Train (the same as: edofproj train --config cpu --set data.source=folder
-    #    --set data.folder=IMAGES --steps N --out OUT/run).
+    #    --set data.folder=IMAGES --steps N --set train.refit_steps=N --out OUT/run).
     run_dir = out / "run"
     result = train(cfg, run_dir, progress=False)
     print(f"trained {result.step} steps in {result.seconds:.0f} s; last loss {result.loss:.4f}")

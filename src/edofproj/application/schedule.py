@@ -7,13 +7,15 @@ On a small CPU, two one-thread training processes finish more work than one two-
 Jobs are started in order. *Required* jobs always run. An *optional* job starts only when it
 is predicted to end before ``deadline``:
 
-    now + setup_s + steps * rate * relative_cost  <=  deadline
+    now + setup_s + steps * rate * relative_cost  <=  max(deadline, end of the required jobs)
 
 where ``rate`` is the measured seconds per step of a reference job (the first required job
 with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_rate_s``: the demo
 gives the ``lens+net`` step of its network on the 2-core development machine), and
 ``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
-and its one-off start-up cost (process start, PSF tables). A job that cannot fit is skipped
+and its one-off start-up cost (process start, PSF tables). The end of the required jobs is predicted
+the same way: an optional job that ends before it runs on a worker that would otherwise wait for them,
+and costs no time even when the whole demo overruns its budget. A job that cannot fit is skipped
 with a note.
 
 :meth:`ParallelTrainer.plan` decides before any training which optional jobs fit, simulating the
@@ -214,21 +216,34 @@ class ParallelTrainer:
         slots = sorted(self.remaining_seconds(j) for j in self.jobs if j.status == "running")
         return slots + [0.0] * (self.workers - len(slots))
 
+    def required_end(self) -> float:
+        """Predicted time (``time.perf_counter``) at which the running and pending required jobs have all
+        ended, simulating the worker slots with the current estimates."""
+        slots = sorted(self.remaining_seconds(j) for j in self.jobs if j.status == "running" and j.required)
+        slots += [0.0] * (self.workers - len(slots))
+        for job in self.jobs:
+            if job.status == "pending" and job.required:
+                slots.sort()
+                slots[0] += self.predicted_seconds(job)
+        return time.perf_counter() + max(slots)
+
     def plan(self) -> list[TrainingJob]:
-        """Decide which pending optional jobs fit before ``deadline``, before they are due to start:
-        each pending job starts when the first worker slot frees (in order), and an optional one that
-        would then end after the deadline is skipped with a note (shown at once). Returns the skipped
-        jobs and keeps the predicted seconds until the last planned job ends, :attr:`planned_seconds`.
-        :meth:`run` calls it first; calling it again re-plans with the current estimates."""
+        """Decide which pending optional jobs fit, before they are due to start: each pending job starts
+        when the first worker slot frees (in order), and an optional one that would then end after both the
+        deadline and the end of the required jobs (:meth:`required_end`) is skipped with a note (shown at
+        once). Returns the skipped jobs and keeps the predicted seconds until the last planned job ends,
+        :attr:`planned_seconds`. :meth:`run` calls it first; calling it again re-plans with the current
+        estimates."""
         now = time.perf_counter()
         slots = self._slots_after_running()
+        limit = max(self.deadline, self.required_end())
         skipped = []
         for job in self.jobs:
             if job.status != "pending":
                 continue
             slots.sort()
             predicted = self.predicted_seconds(job)
-            if job.required or now + slots[0] + predicted <= self.deadline:
+            if job.required or now + slots[0] + predicted <= limit:
                 slots[0] += predicted
                 continue
             self.skip(job, predicted)
@@ -256,14 +271,15 @@ class ParallelTrainer:
 
     # -- the loop ----------------------------------------------------------------------------
     def next_job(self) -> TrainingJob | None:
-        """The next pending job that may start now; optional jobs that cannot fit are skipped."""
+        """The next pending job that may start now; optional jobs that cannot fit (before the deadline or the
+        end of the required jobs) are skipped."""
         for job in self.jobs:
             if job.status != "pending":
                 continue
             if job.required:
                 return job
             predicted = self.predicted_seconds(job)
-            if time.perf_counter() + predicted <= self.deadline:
+            if time.perf_counter() + predicted <= max(self.deadline, self.required_end()):
                 return job
             self.skip(job, predicted)
         return None
@@ -309,13 +325,15 @@ class ParallelTrainer:
 
     def eta_s(self) -> float:
         """Time until the last job ends, simulating the worker slots with the current estimates
-        (optional jobs that would end after the deadline are left out: they will be skipped)."""
+        (optional jobs that would end after the deadline and the required jobs are left out: they will be
+        skipped)."""
         now = time.perf_counter()
         slots = self._slots_after_running()
+        limit = max(self.deadline, self.required_end())
         for job in self.jobs:
             if job.status == "pending":
                 slots.sort()
                 predicted = self.predicted_seconds(job)
-                if job.required or now + slots[0] + predicted <= self.deadline:
+                if job.required or now + slots[0] + predicted <= limit:
                     slots[0] += predicted
         return max(slots) if slots else 0.0

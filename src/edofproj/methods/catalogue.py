@@ -26,7 +26,8 @@ name                 optics            compensation
 ``doe+ensemble``     the run's DOE     one depth-ensemble Wiener filter for every depth (blind:
                                        the filter the real-time network starts from), NSR
                                        tuned on training images
-``doe+net``          the run's DOE     the run's jointly trained U-Net (ours)
+``doe+net``          the run's DOE     the run's U-Net (ours): trained with the DOE, or, in a run
+                                       of two phases, for the DOE the first phase found
 ``cubic+net``        cubic phase plate the U-Net trained with that plate (a separate run)
 ``axicon+net``       axicon            the U-Net trained with that axicon (a separate run)
 ``X``                classic element X none; X one of ``cubic``, ``axicon``, ``multifocal``, built

@@ -10,7 +10,8 @@ local filter's taps) follows the DOE: :func:`refresh_linear_base` recomputes it
 (detached: no gradient flows through the filter into the DOE) before the first step and after
 every ``train.linear_every`` steps and the last one. Simulating 32 depths and building the
 kernel takes about 0.2 s on one CPU core with the ``cpu`` preset (about one training step), so
-the default ``linear_every = 10`` adds about a tenth to the training time.
+the default ``linear_every = 10`` adds about a tenth to the training time. A fixed DOE's filter is
+computed once, before the first step.
 """
 
 from __future__ import annotations

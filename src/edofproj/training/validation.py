@@ -41,6 +41,7 @@ from ..errors import BlurExceedsWindowWarning
 from ..fileio import write_text_atomic
 from ..metrics import delta_e2000, ssim
 from .linear_filter import current_linear_filter, refresh_due, refresh_linear_base, scored_range_m
+from .psf_table import DepthPSFTable
 
 VALIDATION_LOG = "validation_log.csv"
 #: SSIM below the linear filter's by more than this counts as behind (smaller: rounding).
@@ -117,7 +118,8 @@ class StepChecks:
             self._truncate_after(self.offset + step)
 
     def after_step(self, step: int, say: Callable[[str], None] = print) -> None:
-        if refresh_due(self.cfg, step):
+        # a fixed DOE's filter never changes: set once by start() (or held by the resumed checkpoint)
+        if not isinstance(self.psf_source, DepthPSFTable) and refresh_due(self.cfg, step):
             refresh_linear_base(self.cfg, self.net, self.psf_source)
         every = self.cfg.train.validate_every
         if self.images and (step % every == 0 or step == self.cfg.train.steps):
