@@ -8,11 +8,11 @@ import pytest
 import torch
 
 import edofproj.builtin_runs as builtin_runs
+from edofproj.application.demo import recipe_difference
 from edofproj.builtin_runs import builtin_names, package_run, resolve_run_dir
 from edofproj.cli import main
-from edofproj.errors import EdofprojError
-from edofproj.application.demo import recipe_difference
 from edofproj.config import load_config
+from edofproj.errors import EdofprojError
 from edofproj.runs import load_run, saved_config
 from edofproj.training.trainer import train
 

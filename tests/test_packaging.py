@@ -33,7 +33,7 @@ def test_the_wheel_ships_the_presets_and_runs_the_quick_demo_from_any_directory(
         "edofproj/presets/realtime.yaml",
         "edofproj/presets/cpu-realtime.yaml",
     } <= set(names)
-    for run in ("cpu-doe-net", "demo-axicon-net", "demo-cubic-net", "demo-lens-onlineprodeb"):
+    for run in ("cpu-doe-net", "demo-refit-axicon-net", "demo-refit-cubic-net", "demo-lens-onlineprodeb"):
         shipped = f"edofproj/builtin_runs/{run}/"
         files = ["config.yaml", "train_log.csv", "MODEL.md", "checkpoints/last.pt"]
         files += ["doe.npz"] if run != "demo-lens-onlineprodeb" else []  # the bare lens has no design file

@@ -26,15 +26,15 @@ ROOT = Path(__file__).resolve().parent
 #: The built-in runs and what each is.
 BUILTIN_RUNS: dict[str, str] = {
     "cpu-doe-net": "the cpu preset's DOE + U-Net (doe+net) trained jointly for 10,000 steps (the demo: 1,800)",
-    "demo-refit-axicon-net": "the demo's axicon+net baseline: the axicon with the cpu preset's U-Net, trained as "
-    "its refit phase (1,200 steps)",
-    "demo-refit-cubic-net": "the demo's cubic+net baseline: the cubic plate with the cpu preset's U-Net, trained as "
-    "its refit phase (1,200 steps)",
     "demo-axicon-net": "the axicon+net baseline of `demo --pretrained`: the axicon with the reference model's "
     "U-Net, 2,400 steps",
     "demo-cubic-net": "the cubic+net baseline of `demo --pretrained`: the cubic plate with the reference model's "
     "U-Net, 2,400 steps",
     "demo-lens-onlineprodeb": "the demo's lens+onlineprodeb baseline (the OnlineProDeb re-implementation), 1,800 steps",
+    "demo-refit-axicon-net": "the demo's axicon+net baseline: the axicon with the cpu preset's U-Net, trained as "
+    "its refit phase (1,200 steps)",
+    "demo-refit-cubic-net": "the demo's cubic+net baseline: the cubic plate with the cpu preset's U-Net, trained as "
+    "its refit phase (1,200 steps)",
     "demo-realtime-axicon-net": "the axicon+net baseline of `demo --config cpu-realtime`: the axicon with the "
     "real-time multi-rate network, 2,400 steps",
     "demo-realtime-cubic-net": "the cubic+net baseline of `demo --config cpu-realtime`: the cubic plate with the "

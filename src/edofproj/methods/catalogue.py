@@ -154,7 +154,7 @@ METHODS: tuple[MethodSpec, ...] = (
         "ensemble",
         "learned DOE + one depth-ensemble Wiener filter for every depth (blind linear baseline)",
     ),
-    MethodSpec("doe+net", "run", "net", "learned DOE + jointly trained U-Net (ours)"),
+    MethodSpec("doe+net", "run", "net", "learned DOE + our U-Net, trained with it or for it (ours)"),
     MethodSpec(
         "cubic+net",
         "baseline",
