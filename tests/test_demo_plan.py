@@ -34,7 +34,7 @@ def test_ours_trains_two_phases_and_every_u_net_baseline_the_refit_phase_alone(t
     assert [p.name for p in training_phases(load_config("cpu", onlineprodeb.overrides))] == ["joint"]
     assert [m for m, j in jobs.items() if j.required] == ["doe+net", "lens+net"]
     assert demo.steps_sentence(list(jobs.values())) == (
-        "2400 training steps for doe+net; 1200 for lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb"
+        "2000 training steps for doe+net; 1000 for lens+net, axicon+net, cubic+net; 1800 for lens+onlineprodeb"
     )
     # doe+net's joint phase simulates PSFs (dearer), its refit phase costs as lens+net
     assert (

@@ -63,7 +63,7 @@ def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_
         assert f"{job.method}: not trained: predicted " in printed
     assert [job.status for job in trainer.jobs[:3]] == ["pending", "pending", "pending"]
     line = demo.plan_line(trainer.jobs)
-    assert line.startswith("plan: trains doe+net (2400 steps), lens+net (1200 steps), axicon+net (1200 steps)")
+    assert line.startswith("plan: trains doe+net (2000 steps), lens+net (1000 steps), axicon+net (1000 steps)")
     assert "leaves out cubic+net, lens+onlineprodeb" in line
     # once planned, the loop skips no more at the predicted rate: the job each free slot takes is a planned one
     assert trainer.next_job() is trainer.jobs[0]
@@ -74,7 +74,7 @@ def test_a_baseline_that_fits_is_planned_and_trained(tmp_path):
     trainer.deadline += 3600.0  # an hour more: every baseline fits
     assert trainer.plan() == []
     assert demo.plan_line(trainer.jobs).startswith(
-        "plan: trains doe+net (2400 steps), lens+net (1200 steps), axicon+net (1200 steps), cubic+net (1200 steps), "
+        "plan: trains doe+net (2000 steps), lens+net (1000 steps), axicon+net (1000 steps), cubic+net (1000 steps), "
         "lens+onlineprodeb (1800 steps)"
     )
 
@@ -121,7 +121,7 @@ def test_the_demo_prints_its_plan_before_training(tmp_path, monkeypatch):
     except KeyboardInterrupt:
         pass
     printed = seen["printed"]
-    assert "demo | plan: trains doe+net (2400 steps), lens+net (1200 steps)" in printed
+    assert "demo | plan: trains doe+net (2000 steps), lens+net (1000 steps)" in printed
     assert printed.index("plan:") < printed.index("stage 1/4 training")
     # each baseline not trained comes from its shipped run when that has the demo's recipe, else is left out
     cfg = load_config("cpu", list(demo.FULL.overrides))

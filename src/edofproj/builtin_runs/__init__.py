@@ -32,9 +32,9 @@ BUILTIN_RUNS: dict[str, str] = {
     "U-Net, 2,400 steps",
     "demo-lens-onlineprodeb": "the demo's lens+onlineprodeb baseline (the OnlineProDeb re-implementation), 1,800 steps",
     "demo-refit-axicon-net": "the demo's axicon+net baseline: the axicon with the cpu preset's U-Net, trained as "
-    "its refit phase (1,200 steps)",
+    "its refit phase (1,000 steps)",
     "demo-refit-cubic-net": "the demo's cubic+net baseline: the cubic plate with the cpu preset's U-Net, trained as "
-    "its refit phase (1,200 steps)",
+    "its refit phase (1,000 steps)",
     "demo-realtime-axicon-net": "the axicon+net baseline of `demo --config cpu-realtime`: the axicon with the "
     "real-time multi-rate network, 2,400 steps",
     "demo-realtime-cubic-net": "the cubic+net baseline of `demo --config cpu-realtime`: the cubic plate with the "
