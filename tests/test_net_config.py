@@ -97,7 +97,7 @@ def test_set_switches_the_architecture_keeping_the_shared_options():
     }
     multirate = load_config("cpu", ["net.architecture=multirate", "net.block_px=2"]).net
     assert isinstance(multirate, MultirateConfig)
-    assert multirate.widths == [16, 32, 64, 128] and multirate.block_px == 2 and multirate.filter_bins == 48
+    assert multirate.widths == load_config("cpu").net.widths and multirate.block_px == 2 and multirate.filter_bins == 48
     back = load_config("cpu", ["net.architecture=onlineprodeb", "net.architecture=unet"]).net
     assert isinstance(back, UNetConfig) and back.widths == UNetConfig().widths  # unet's own defaults again
 

@@ -81,9 +81,9 @@ def test_inference_cache_follows_parameter_updates():
 def test_network_description_names_the_prefilter():
     from edofproj.compensation.registry import describe_network
 
-    prefiltered = load_config("cpu", ["net.prefilter_bins=48", "net.linear_base=none"]).net
+    prefiltered = load_config("cpu", ["net.prefilter_bins=48", "net.linear_base=none", "net.widths=[16,32,64,128]"]).net
     assert describe_network(prefiltered) == "U-Net 16-128 (4 scales) + radial pre-filter (48 nodes)"
-    assert describe_network(load_config("cpu").net) == (
+    assert describe_network(load_config("cpu", ["net.widths=[16,32,64,128]"]).net) == (
         "U-Net 16-128 (4 scales) as a correction of at most 0.2 on its optics' depth-ensemble linear filter"
     )
     # the same words describe lens+net, whose optics is the bare lens: they must not name a DOE

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from edofproj.config import Config, apply_overrides
+from edofproj.config import Config, apply_overrides, to_dict
 from edofproj.errors import EdofprojError
 from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.training.phases import JOINT, REFIT, total_steps, training_phases
@@ -73,7 +73,7 @@ def test_a_fixed_doe_has_only_the_refit_phase_and_no_refit_keeps_one_phase():
 
 # ----------------------------------------------------------------------------- a run in two phases
 
-pytestmark_slow = pytest.mark.slow
+slow = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +83,7 @@ def straight(tmp_path_factory):
     return run_dir, result
 
 
-@pytestmark_slow
+@slow
 def test_the_run_counts_on_across_its_phases_and_keeps_the_fabricated_doe(straight):
     run_dir, result = straight
     assert (result.start_step, result.step) == (0, 7)
@@ -95,10 +95,11 @@ def test_the_run_counts_on_across_its_phases_and_keeps_the_fabricated_doe(straig
     end_of_joint = load_checkpoint(run_dir / "checkpoints" / "step_000004.pt")
     final = load_checkpoint(run_dir / "checkpoints" / "last.pt")
     assert (end_of_joint["phase"], final["phase"], final["phase_step"]) == (JOINT, REFIT, REFIT_STEPS)
+    assert end_of_joint["config"] == final["config"] == to_dict(two_phase_config())  # the run's, not the phase's
     assert any(not torch.equal(v, final["net"][k]) for k, v in end_of_joint["net"].items())
 
 
-@pytestmark_slow
+@slow
 def test_the_refit_phase_is_a_separate_run_of_its_recipe_on_the_fabricated_doe(straight, tmp_path):
     run_dir, _ = straight
     doe_file = tmp_path / "doe.npz"
@@ -120,7 +121,7 @@ def test_the_refit_phase_is_a_separate_run_of_its_recipe_on_the_fabricated_doe(s
     assert [r["loss"] for r in _log(run_dir)[JOINT_STEPS:]] == [r["loss"] for r in _log(tmp_path / "separate")]
 
 
-@pytestmark_slow
+@slow
 @pytest.mark.parametrize("stop", [3, JOINT_STEPS, JOINT_STEPS + 1])
 def test_a_run_stopped_in_either_phase_resumes_bit_for_bit(straight, tmp_path, stop):
     straight_dir, _ = straight
@@ -139,7 +140,7 @@ def test_a_run_stopped_in_either_phase_resumes_bit_for_bit(straight, tmp_path, s
     assert np.array_equal(np.load(straight_dir / "doe.npz")["height_m"], np.load(run_dir / "doe.npz")["height_m"])
 
 
-@pytestmark_slow
+@slow
 def test_resuming_the_refit_phase_with_another_joint_length_is_refused(tmp_path):
     run_dir = tmp_path / "run"
     train(two_phase_config(), run_dir, stop_after=JOINT_STEPS + 2, progress=False)

@@ -49,7 +49,9 @@ def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="output folder (the run goes to OUT/run)")
     parser.add_argument("--images", default=None, help="folder of PNG/JPEG training images (default: examples)")
-    parser.add_argument("--steps", type=int, default=None, help="steps of each training phase (default 600; 6 with --small)")
+    parser.add_argument(
+        "--steps", type=int, default=None, help="steps of each training phase (default 600; 6 with --small)"
+    )
     parser.add_argument("--threads", type=int, default=1, help="CPU threads for training (0: all)")
     parser.add_argument("--small", action="store_true", help="tiny sizes: runs in seconds (for CI)")
     return parser.parse_args()

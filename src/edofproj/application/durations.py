@@ -11,7 +11,7 @@ FULL_BUDGET_MIN = 10
 #: Budget of ``edofproj demo --quick`` (minutes).
 QUICK_BUDGET_MIN = 2
 #: How long each takes, in the words every help text uses. The full demo, measured on 2 idle cores of
-#: the development machine on 2026-11-27: 10.8 minutes with native bfloat16, 17.7 minutes with the same
-#: cores limited to AVX2 in float32 (docs/experiments/2026-11-27-realtime-joint-and-taught.md).
-FULL_DURATION = "about 11 minutes on 2 CPU cores with native bfloat16, 18 on AVX2 in float32"
+#: the development machine on 2026-11-28: 8.3 minutes limited to AVX2 in float32, 6.4 minutes with native
+#: bfloat16 (docs/experiments/2026-11-28-two-phase-demo.md).
+FULL_DURATION = "about 8 minutes on 2 CPU cores in float32 (AVX2), 6 with native bfloat16"
 QUICK_DURATION = "about a minute"

@@ -200,11 +200,15 @@ def _clip(parameters: list[nn.Parameter], max_norm: float) -> torch.Tensor:
 class _Session:
     """The state of one phase of a training session (one process): model, optimizer, data, files.
     ``phase``: which phase of the run (:mod:`.phases`; ``cfg`` is the phase's; None: a run of one phase);
-    ``step`` counts the phase's steps, the run's files ``phase.offset + step``."""
+    ``step`` counts the phase's steps, the run's files ``phase.offset + step``; checkpoints record the
+    run's configuration ``run_cfg`` (default ``cfg``), as its ``config.yaml`` does."""
 
-    def __init__(self, cfg: Config, run_dir: Path, group: ProcessGroup, phase: Phase | None = None):
+    def __init__(
+        self, cfg: Config, run_dir: Path, group: ProcessGroup, phase: Phase | None = None, run_cfg: Config | None = None
+    ):
         phase = phase if phase is not None else Phase(JOINT, cfg, 0, False)
         self.cfg = cfg
+        self.run_cfg = run_cfg if run_cfg is not None else cfg
         self.phase = phase
         self.run_dir = run_dir
         self.group = group
@@ -288,7 +292,7 @@ class _Session:
             "rng": capture_rng_state(),
             "world_size": self.group.world_size,
             "process_group": self.group.backend,
-            "config": to_dict(self.cfg),
+            "config": to_dict(self.run_cfg),
             "sampling": "per-sample generators seeded by (train.seed, step, global index, stream)",
         }
 
@@ -507,7 +511,7 @@ def _train(
     start = int(checkpoint["step"]) if checkpoint is not None else 0
     elapsed = float(checkpoint["elapsed_seconds"]) if checkpoint is not None else 0.0
 
-    session = _Session(phases[first].cfg, run_dir, group, phases[first])
+    session = _Session(phases[first].cfg, run_dir, group, phases[first], cfg)
     session.check_before_writing()
     if checkpoint is not None:
         session.restore(checkpoint)
@@ -532,7 +536,7 @@ def _train(
                 if phase.offset >= end:
                     break
                 del session  # free the last phase's model before building this one's
-                session = _Session(phase.cfg, run_dir, group, phase)
+                session = _Session(phase.cfg, run_dir, group, phase, cfg)
                 session.elapsed = elapsed
                 session.checks.start(0, resumed=False)
             if bar is not None and len(phases) > 1:
