@@ -2,9 +2,9 @@
 
     edofproj demo [--quick] [--out runs/demo]
 
-Trains the ``cpu`` preset jointly (DOE + U-Net, ``doe_net/``) and the same U-Net without a DOE
-(``lens_net/``), plus the axicon, cubic-plate and OnlineProDeb baselines when they fit the
-time budget (10 minutes; ``--quick``: 2), and takes each baseline that does not fit from the runs
+Trains the ``cpu`` preset (the DOE with a U-Net, then a fresh U-Net for the DOE found, ``doe_net/``) and
+the same U-Net without a DOE (``lens_net/``), plus the axicon, cubic-plate and OnlineProDeb baselines when
+they fit the time budget (10 minutes; ``--quick``: 2) or end before ``doe_net``, and takes each baseline that does not fit from the runs
 shipped with the package (``--retrain-baselines`` trains them all here). It then evaluates every
 method on the held-out photographs and writes ``report.html`` (self-contained), ``report.md`` with
 ``figures/``, ``summary.md`` and ``metrics.csv`` into ``--out``. ``--pretrained`` starts from the
@@ -54,7 +54,7 @@ def register(subparsers) -> None:
         default=None,
         help="only these methods (comma-separated; must include doe+net); their runs are then all trained",
     )
-    add_set_option(p, help="override a config key of every run, e.g. --set train.steps=300 (repeatable)")
+    add_set_option(p, help="override a config key of every run, e.g. --set train.refit_steps=300 (repeatable)")
     p.add_argument(
         "--budget-min",
         type=_positive_float,
