@@ -149,7 +149,7 @@ def test_train_on_images(trained):
         assert (run_dir / name).is_file()
     assert len((run_dir / "train_log.csv").read_text(encoding="utf-8").strip().splitlines()) == 1 + 12
     run = load_run(run_dir)
-    assert run.step == 6 and run.doe.levels == summary["doe_levels"] == 16
+    assert run.step == 6 + 6 and run.doe.levels == summary["doe_levels"] == 16
     assert run.cfg.data.source == "folder"
 
 
@@ -221,7 +221,7 @@ def check_compensation(out: Path, summary: dict) -> None:
 
 def test_compensate_images_trains_its_own_run(tmp_path):
     summary = run_tutorial("compensate_images", tmp_path)
-    assert summary["step"] == 6
+    assert summary["step"] == 6 + 6  # the two phases
     assert {row["depth_mm"] for row in summary["rows"]} == {300.0, 800.0}
     check_compensation(tmp_path, summary)
     assert (tmp_path / "compensation.png").stat().st_size > 10_000

@@ -497,7 +497,8 @@ def flat_doe_note(run_dir: Path) -> str | None:
     heights = data["height_m"] if "height_m" in data else data.get("height_map_m")
     if heights is None or np.ptp(np.asarray(heights, dtype=float)) > 0:
         return None
-    steps = load_run(run_dir).step
+    run = load_run(run_dir)
+    steps = min(run.step, training_phases(run.cfg)[0].cfg.train.steps)  # the steps of the phase that moves it
     return (
         f"The DOE trained here is still the flat plate it starts as ({steps} steps moved no height by a whole "
         "level of its quantized profile), so `doe` projects like `lens`; the full demo trains long enough to "
