@@ -57,6 +57,7 @@ def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_
     jobs = {job.method: job for job in trainer.jobs}
     lens, axicon, ours = (trainer.predicted_seconds(jobs[m]) for m in ("lens+net", "axicon+net", "doe+net"))
     assert trainer.deadline < time.perf_counter() + ours and lens + axicon <= ours
+    assert jobs["axicon+net"].note.startswith("trained beyond the time budget on a worker that waits")
     assert all(job.process is None for job in trainer.jobs)  # nothing started
     printed = stream.getvalue()
     for job in skipped:

@@ -41,6 +41,10 @@ from ..errors import EdofprojError
 from ..progress import StageProgress, format_duration
 
 POLL_S = 1.0
+#: The note of an optional job planned beyond the deadline because it ends before the required jobs.
+WAITING_WORKER_NOTE = (
+    "trained beyond the time budget on a worker that waits for the required runs: predicted to end before them"
+)
 
 
 @dataclass
@@ -244,6 +248,10 @@ class ParallelTrainer:
             slots.sort()
             predicted = self.predicted_seconds(job)
             if job.required or now + slots[0] + predicted <= limit:
+                if not job.required and now + slots[0] + predicted > self.deadline:
+                    job.note = WAITING_WORKER_NOTE
+                elif job.note == WAITING_WORKER_NOTE:  # re-planned within the budget
+                    job.note = ""
                 slots[0] += predicted
                 continue
             self.skip(job, predicted)
