@@ -96,3 +96,19 @@ def test_torchrun_with_one_process_joins_the_group_and_equals_the_plain_run(tmp_
     assert group["process_group"] == ("nccl" if device == "cuda" else "gloo")
     assert plain["process_group"] == "none"
     assert_same_parameters(group, plain, cfg)
+
+
+def test_two_processes_train_both_phases_as_one_process_does(tmp_path):
+    """A run of two phases under torchrun: every rank reads the DOE file rank 0 wrote at the phase boundary
+    (after a barrier), and the second phase's network ends where a single process's does."""
+    cfg = tiny_config("net.linear_base=ensemble", "net.linear_radius=11", "train.refit_steps=3")
+    done = torchrun(cfg, tmp_path, 2, "ddp")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.count("steps 0 -> 6 of 6") == 1
+
+    train(cfg, tmp_path / "single", progress=False)
+    ddp = load_checkpoint(tmp_path / "ddp" / "checkpoints" / "last.pt")
+    single = load_checkpoint(tmp_path / "single" / "checkpoints" / "last.pt")
+    assert ddp["phase"] == single["phase"] == "refit" and ddp["replica_max_difference"] == 0.0
+    for key, value in single["net"].items():
+        torch.testing.assert_close(ddp["net"][key], value, rtol=0, atol=1e-5)

@@ -536,6 +536,7 @@ def _train(
                 if phase.offset >= end:
                     break
                 del session  # free the last phase's model before building this one's
+                barrier(group)  # rank 0 has written the DOE file this phase reads
                 session = _Session(phase.cfg, run_dir, group, phase, cfg)
                 session.elapsed = elapsed
                 session.checks.start(0, resumed=False)
