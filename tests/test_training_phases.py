@@ -89,6 +89,9 @@ def test_the_run_counts_on_across_its_phases_and_keeps_the_fabricated_doe(straig
     assert (result.start_step, result.step) == (0, 7)
     rows = _log(run_dir)
     assert [int(r["step"]) for r in rows] == list(range(1, 8))
+    with open(run_dir / "train_log.csv", newline="") as handle:  # the training seconds go on across the phases
+        seconds = [float(row["seconds"]) for row in csv.DictReader(handle)]
+    assert seconds[JOINT_STEPS] > seconds[JOINT_STEPS - 1] and seconds == sorted(seconds)
     # the refit phase starts its own warm-up: lr_0 / W at its first step
     assert float(rows[JOINT_STEPS]["lr"]) == pytest.approx(0.004 / 2)
     assert [r["step"] for r in read_validation_log(run_dir / VALIDATION_LOG)] == [2.0, 4.0, 6.0, 7.0]

@@ -509,7 +509,6 @@ def _train(
     total = phases[-1].end
     end = total if stop_after is None else min(total, int(stop_after))
     start = int(checkpoint["step"]) if checkpoint is not None else 0
-    elapsed = float(checkpoint["elapsed_seconds"]) if checkpoint is not None else 0.0
 
     session = _Session(phases[first].cfg, run_dir, group, phases[first], cfg)
     session.check_before_writing()
@@ -535,6 +534,7 @@ def _train(
             if index > first:
                 if phase.offset >= end:
                     break
+                elapsed = session.elapsed  # the run's training seconds go on across the phases
                 del session  # free the last phase's model before building this one's
                 barrier(group)  # rank 0 has written the DOE file this phase reads
                 session = _Session(phase.cfg, run_dir, group, phase, cfg)
@@ -544,7 +544,6 @@ def _train(
                 bar.set_description(f"{cfg.name} ({phase.name})")
             phase_end = min(phase.cfg.train.steps, end - phase.offset)
             loss = _train_phase(session, phase_end, log, bar) if session.step < phase_end else loss
-            elapsed = session.elapsed
     finally:
         if bar is not None:
             bar.close()
