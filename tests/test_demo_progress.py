@@ -38,8 +38,9 @@ def test_the_duration_format_is_written_in_one_place():
 
 
 def full_demo_trainer(tmp_path, stream, workers=2) -> ParallelTrainer:
-    """The full demo's jobs and budget on the development machine's predicted rate (0.1 s/step)."""
-    cfg = load_config("cpu", list(demo.FULL.overrides))
+    """The full demo's jobs and budget on the development machine's predicted rate (0.1 s/step), with the
+    costs of a CPU without native bfloat16 whatever this one has (the plan must not depend on the test machine)."""
+    cfg = load_config("cpu", list(demo.FULL.overrides) + ["train.mixed_precision=none"])
     jobs = demo.demo_jobs(tmp_path, demo.FULL, cfg, None, [])
     later = demo.evaluation_seconds(demo.FULL, cfg, demo.demo_methods(demo.FULL, None)) + demo.TIMING_ESTIMATE_S["full"]
     deadline = time.perf_counter() + demo.FULL.budget_s - later - demo.REPORT_MARGIN_S
@@ -50,13 +51,14 @@ def full_demo_trainer(tmp_path, stream, workers=2) -> ParallelTrainer:
 def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_path):
     stream = io.StringIO()
     trainer = full_demo_trainer(tmp_path, stream)
+    jobs = {job.method: job for job in trainer.jobs}
+    lens, axicon, ours = (trainer.predicted_seconds(jobs[m]) for m in ("lens+net", "axicon+net", "doe+net"))
+    trainer.deadline = time.perf_counter() + ours - 60.0  # the budget runs out a minute before doe+net ends
     skipped = trainer.plan()
     # the deadline has passed when doe+net ends: axicon+net, which ends on the other worker before doe+net,
     # costs no time and is trained; cubic+net (its PSF table first) would end after it
     assert [job.method for job in skipped] == ["cubic+net", "lens+onlineprodeb"]
-    jobs = {job.method: job for job in trainer.jobs}
-    lens, axicon, ours = (trainer.predicted_seconds(jobs[m]) for m in ("lens+net", "axicon+net", "doe+net"))
-    assert trainer.deadline < time.perf_counter() + ours and lens + axicon <= ours
+    assert lens + axicon <= ours
     assert jobs["axicon+net"].note.startswith("trained beyond the time budget on a worker that waits")
     assert all(job.process is None for job in trainer.jobs)  # nothing started
     printed = stream.getvalue()
@@ -72,7 +74,7 @@ def test_the_plan_names_the_baselines_it_will_not_train_before_any_training(tmp_
 
 def test_a_baseline_that_fits_is_planned_and_trained(tmp_path):
     trainer = full_demo_trainer(tmp_path, io.StringIO())
-    trainer.deadline += 3600.0  # an hour more: every baseline fits
+    trainer.deadline += 3 * 3600.0  # three hours more: every baseline fits, OnlineProDeb's 1800 float32 steps too
     assert trainer.plan() == []
     assert demo.plan_line(trainer.jobs).startswith(
         "plan: trains doe+net (2000 steps), lens+net (1000 steps), axicon+net (1000 steps), cubic+net (1000 steps), "
@@ -84,6 +86,70 @@ def write_log(run_dir: Path, steps: int, seconds_per_step: float = 0.1) -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
     rows = ["step,loss,seconds"] + [f"{i},0.5,{(i + 1) * seconds_per_step}" for i in range(steps)]
     (run_dir / "train_log.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
+def test_on_a_slower_machine_the_later_stages_and_the_plan_follow_the_measured_step(tmp_path):
+    """A machine whose lens+net step takes twice the default: once 3 steps are logged, the stages after
+    training are predicted to take twice as long, the training deadline moves back by ``later_s``, an
+    optional baseline that fitted at the default rate is skipped, and ``on_measured`` is called once."""
+    stream = io.StringIO()
+    progress = StageProgress("demo", stream=stream)
+    jobs = [
+        TrainingJob("lens+net", tmp_path / "lens", [], 1000, True, 1.0, setup_s=0.0),
+        TrainingJob("axicon+net", tmp_path / "axicon", [], 1000, False, 1.0, setup_s=0.0),
+    ]
+    later = 200.0
+    # one worker: axicon+net starts after lens+net, 100 s from now at the default 0.1 s a step, and ends at
+    # 200 s: inside a deadline of 250 s
+    now = time.perf_counter()
+    seen = []
+    trainer = ParallelTrainer(
+        jobs, "cpu", tmp_path / "logs", 1, now + 250.0, progress, 0.1, later_s=later, on_measured=seen.append
+    )
+    assert trainer.plan() == [] and trainer.speed() == 1.0 and trainer.later_seconds() == later
+    assert not trainer.calibrate()  # nothing measured yet
+    jobs[0].status, jobs[0].started = "running", time.perf_counter()
+    write_log(jobs[0].run_dir, 2, 0.2)
+    assert not trainer.measured()  # two steps are not a measurement
+    write_log(jobs[0].run_dir, 3, 0.2)
+    assert trainer.measured() and trainer.speed() == pytest.approx(2.0)
+    assert trainer.later_seconds() == pytest.approx(2 * later)
+    assert trainer.training_deadline() == pytest.approx(trainer.deadline - later)
+    assert trainer.calibrate() and seen == [trainer]
+    # at 0.2 s a step axicon+net would end about 400 s from now, after the deadline (now 50 s away) and
+    # after lens+net (about 200 s): skipped, with its note printed
+    assert jobs[1].status == "skipped" and "axicon+net: not trained: predicted" in stream.getvalue()
+    assert not trainer.calibrate() and seen == [trainer]  # once
+
+
+def test_the_prediction_note_says_what_it_rests_on_and_whether_it_fits():
+    cfg = load_config("cpu", ["train.mixed_precision=none"])
+    within = demo.prediction_note(480.0, 600.0, 0.107, cfg)
+    assert (
+        within == "predicted 08:00 (min:s) in all (a lens+net step takes 0.107 s here), within the 10:00 (min:s) budget"
+    )
+    beyond = demo.prediction_note(1013.0, 600.0, 0.220, cfg)
+    assert beyond.startswith("predicted 16:53 (min:s) in all (a lens+net step takes 0.220 s here), beyond the 10:00")
+    assert "--config cpu-realtime" in beyond
+
+
+@pytest.mark.parametrize(
+    ("machine", "lens_net_step_s", "measured_s"),
+    [("Intel Xeon limited to AVX2", 0.107, 218.0), ("AMD EPYC, AVX2 only", 0.220, 453.0)],
+)
+def test_the_later_stages_estimate_matches_the_demos_measured_on_two_machines(
+    tmp_path, machine, lens_net_step_s, measured_s
+):
+    """The default demo's stages after training as measured on 2026-11-28 on two 2-core CPUs (the record
+    named in EVALUATION_ESTIMATE_S's comment): the plan's estimate at each machine's measured lens+net step,
+    with the report's margin, is within 10 % above what they took (never below: an overrun would go unsaid)."""
+    trainer = full_demo_trainer(tmp_path, io.StringIO())
+    trainer.default_rate_s = demo.reference_rate_s(load_config("cpu", ["train.mixed_precision=none"]))
+    lens = next(job for job in trainer.jobs if job.method == "lens+net")
+    lens.status, lens.started = "running", time.perf_counter()
+    write_log(lens.run_dir, 10, lens_net_step_s)
+    predicted = trainer.later_seconds() + demo.REPORT_MARGIN_S
+    assert measured_s <= predicted <= 1.1 * measured_s, (machine, predicted)
 
 
 def test_progress_counts_work_so_the_percentage_follows_the_predicted_time(tmp_path):

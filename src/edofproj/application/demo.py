@@ -100,9 +100,15 @@ class DemoSettings:
     left_out: tuple[str, ...] = ()
 
 
-#: Seconds of the full demo's evaluation of the methods scored by default before the classic elements'
-#: linear baselines joined them, a shipped ``cubic+net`` and its 2-D PSFs included (2-core machine).
-EVALUATION_ESTIMATE_S = 200.0
+#: Seconds of the full demo's stages after training (evaluation, scenes, surfaces; the timing apart,
+#: :data:`TIMING_ESTIMATE_S`) for the methods scored by default before the classic elements' linear baselines
+#: joined them (a shipped ``cubic+net`` and its 2-D PSFs included), on a machine whose ``lens+net`` step takes
+#: :data:`LENS_NET_STEP_S`; on another the plan scales them by the measured step
+#: (:meth:`~edofproj.application.schedule.ParallelTrainer.speed`). Calibrated on 2026-11-28: the default
+#: demo's stages after training took 218 s on the 2-core Intel Xeon limited to AVX2 (``lens+net`` 0.107 s a
+#: step) and 453 s on a 2-core AMD EPYC with AVX2 only (0.220 s a step), 2.1 times as long for 2.1 times the
+#: step; with these constants and the report's margin the plan predicts 234 and 466 s (docs/experiments/2026-11-28-amd-epyc-demo.md).
+EVALUATION_ESTIMATE_S = 90.0
 #: The evaluation's cost with the networks of ``net.architecture`` relative to the U-Net's (whose demo
 #: :data:`EVALUATION_ESTIMATE_S` is): the multi-rate networks' demo (``--config cpu-realtime``, every method)
 #: evaluated and timed in 176 s against the U-Net demo's 246 s (0.72), both on 2 idle cores limited to AVX2
@@ -110,8 +116,9 @@ EVALUATION_ESTIMATE_S = 200.0
 EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 0.7}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
-#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine).
-LINEAR_METHOD_SECONDS = 8.0
+#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine); 5 s each with the
+#: calibration of :data:`EVALUATION_ESTIMATE_S`.
+LINEAR_METHOD_SECONDS = 5.0
 
 #: Steps of the baselines of another architecture, trained in one phase by their own recipe (those of their
 #: shipped runs) unless the demo's settings or the user set ``train.steps``: ``lens+onlineprodeb``, at 9 to 53
@@ -230,7 +237,9 @@ BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
 OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
-TIMING_ESTIMATE_S = {"full": 40.0, "quick": 5.0}
+#: Seconds of the demo's timing stage on the machine of :data:`LENS_NET_STEP_S` (49 s on the AMD EPYC of
+#: :data:`EVALUATION_ESTIMATE_S`, 2.1 times slower).
+TIMING_ESTIMATE_S = {"full": 24.0, "quick": 5.0}
 REPORT_MARGIN_S = 15.0
 
 
@@ -380,16 +389,30 @@ def plan_line(jobs: Sequence[TrainingJob]) -> str:
 REALTIME_PRESET = "cpu-realtime"
 
 
-def overrun_note(predicted_s: float, budget_s: float, cfg) -> str | None:
-    """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction,
-    the arithmetic the network trains in on this CPU and, for a U-Net in float32, the preset of the real-time
-    network (:data:`REALTIME_PRESET`) with its cost per step relative to the U-Net's (:data:`LENS_NET_STEP_S`)."""
+def prediction_note(predicted_s: float, budget_s: float, rate_s: float, cfg) -> str:
+    """The demo's predicted wall time once this machine's ``lens+net`` step (``rate_s`` seconds) is measured:
+    :func:`overrun_note` when beyond ``budget_s``, else the prediction within the budget."""
+    measured = f" (a lens+net step takes {rate_s:.3f} s here)"
+    overrun = overrun_note(predicted_s, budget_s, cfg, measured)
+    if overrun is not None:
+        return overrun
+    return (
+        f"predicted {format_duration(predicted_s, unit=True)} in all{measured}, within the "
+        f"{format_duration(budget_s, unit=True)} budget"
+    )
+
+
+def overrun_note(predicted_s: float, budget_s: float, cfg, measured: str = "") -> str | None:
+    """One line when the demo is predicted to take longer than ``budget_s`` (None otherwise): the prediction
+    (followed by ``measured``, what it rests on), the arithmetic the network trains in on this CPU and, for a
+    U-Net in float32, the preset of the real-time network (:data:`REALTIME_PRESET`) with its cost per step
+    relative to the U-Net's (:data:`LENS_NET_STEP_S`)."""
     if predicted_s <= budget_s:
         return None
     architecture, precision = _cost_key(cfg)
     arithmetic = "bfloat16" if precision == "bf16" else "float32 (no native bfloat16 here)"
     note = (
-        f"predicted {format_duration(predicted_s, unit=True)} in all, beyond the "
+        f"predicted {format_duration(predicted_s, unit=True)} in all{measured}, beyond the "
         f"{format_duration(budget_s, unit=True)} budget: the network trains in {arithmetic}"
     )
     if architecture == "unet" and precision != "bf16":
@@ -670,15 +693,26 @@ def run_demo(
     ours = None
     if pretrained is not None:
         ours = copy_pretrained(pretrained, out / OURS_RUN_DIR, list(settings.overrides) + list(overrides))
+
+    def predict_on_this_machine(measured: ParallelTrainer) -> None:
+        # the later stages run on the same CPU: they scale with the measured step (ParallelTrainer.speed)
+        total_s = time.perf_counter() - clock + measured.planned_seconds + measured.later_seconds() + REPORT_MARGIN_S
+        progress.note(prediction_note(total_s, budget, measured.reference_rate_s(), cfg))
+
     trainer = ParallelTrainer(
-        jobs, training_config, out / LOG_DIR, workers, deadline, progress, reference_rate_s(cfg), later_s=later
+        jobs,
+        training_config,
+        out / LOG_DIR,
+        workers,
+        deadline,
+        progress,
+        reference_rate_s(cfg),
+        later_s=later,
+        on_measured=predict_on_this_machine,
     )
     trainer.plan()  # before any training: the baselines predicted not to fit are named now
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.note(plan_line(jobs))
-    overrun = overrun_note(time.perf_counter() - clock + trainer.planned_seconds + later + REPORT_MARGIN_S, budget, cfg)
-    if overrun:
-        progress.note(overrun)
     progress.start("stage 1/4 training", trainer.total_work(), later_s=later)
     trainer.run()
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)

@@ -16,7 +16,11 @@ gives the ``lens+net`` step of its network on the 2-core development machine), a
 and its one-off start-up cost (process start, PSF tables). The end of the required jobs is predicted
 the same way: an optional job that ends before it runs on a worker that would otherwise wait for them,
 and costs no time even when the whole demo overruns its budget. A job that cannot fit is skipped
-with a note.
+with a note. ``deadline`` is the end of training that leaves ``later_s`` for the stages after it on a
+machine of ``default_rate_s``; those stages run on the same CPU, so once the rate is measured they are
+predicted to take ``later_s * rate / default_rate_s`` (:meth:`ParallelTrainer.speed`) and the deadline
+moves by the difference (:meth:`ParallelTrainer.training_deadline`). ``on_measured`` is called once, when
+the rate is first measured.
 
 :meth:`ParallelTrainer.plan` decides before any training which optional jobs fit, simulating the
 worker slots with the predicted times (the rule above, applied when a slot frees), and says which
@@ -35,7 +39,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from ..errors import EdofprojError
 from ..progress import StageProgress, format_duration
@@ -113,6 +117,7 @@ class ParallelTrainer:
         progress: StageProgress,
         default_rate_s: float = 0.1,
         later_s: float = 0.0,
+        on_measured: Callable[["ParallelTrainer"], None] | None = None,
     ) -> None:
         self.jobs = list(jobs)
         self.config = config
@@ -122,6 +127,8 @@ class ParallelTrainer:
         self.progress = progress
         self.default_rate_s = default_rate_s
         self.later_s = later_s
+        self.on_measured = on_measured
+        self.calibrated = False
         #: predicted seconds from the last :meth:`plan` until the last job it keeps ends
         self.planned_seconds = 0.0
 
@@ -134,6 +141,27 @@ class ParallelTrainer:
                 if steps >= 3:
                     return job.training_seconds() / steps
         return self.default_rate_s
+
+    def measured(self) -> bool:
+        """Whether the reference job has logged enough steps for :meth:`reference_rate_s` to be measured."""
+        return any(
+            j.required and j.relative_cost == 1.0 and j.status in ("running", "done") and j.steps_done() >= 3
+            for j in self.jobs
+        )
+
+    def speed(self) -> float:
+        """This machine's seconds per step relative to the default's: ``reference_rate_s / default_rate_s``
+        (1 until measured)."""
+        return self.reference_rate_s() / self.default_rate_s if self.default_rate_s > 0 else 1.0
+
+    def later_seconds(self) -> float:
+        """Predicted seconds of the stages after training on this machine: ``later_s * speed``."""
+        return self.later_s * self.speed()
+
+    def training_deadline(self) -> float:
+        """``deadline`` moved by the later stages' predicted change on this machine:
+        ``deadline - later_s * (speed - 1)``."""
+        return self.deadline - self.later_s * (self.speed() - 1.0)
 
     def predicted_seconds(self, job: TrainingJob) -> float:
         """Predicted wall time (s) of the whole job: ``setup_s + steps * rate * relative_cost``, with ``rate``
@@ -240,7 +268,8 @@ class ParallelTrainer:
         estimates."""
         now = time.perf_counter()
         slots = self._slots_after_running()
-        limit = max(self.deadline, self.required_end())
+        deadline = self.training_deadline()
+        limit = max(deadline, self.required_end())
         skipped = []
         for job in self.jobs:
             if job.status != "pending":
@@ -248,7 +277,7 @@ class ParallelTrainer:
             slots.sort()
             predicted = self.predicted_seconds(job)
             if job.required or now + slots[0] + predicted <= limit:
-                if not job.required and now + slots[0] + predicted > self.deadline:
+                if not job.required and now + slots[0] + predicted > deadline:
                     job.note = WAITING_WORKER_NOTE
                 elif job.note == WAITING_WORKER_NOTE:  # re-planned within the budget
                     job.note = ""
@@ -287,14 +316,26 @@ class ParallelTrainer:
             if job.required:
                 return job
             predicted = self.predicted_seconds(job)
-            if time.perf_counter() + predicted <= max(self.deadline, self.required_end()):
+            if time.perf_counter() + predicted <= max(self.training_deadline(), self.required_end()):
                 return job
             self.skip(job, predicted)
         return None
 
+    def calibrate(self) -> bool:
+        """The first time the rate is :meth:`measured`: plan the optional jobs again with it (:meth:`plan`) and
+        call ``on_measured``. Returns whether it did so now."""
+        if self.calibrated or not self.measured():
+            return False
+        self.calibrated = True
+        self.plan()
+        if self.on_measured is not None:
+            self.on_measured(self)
+        return True
+
     def run(self) -> list[TrainingJob]:
         """Train the jobs: :meth:`plan` them, then keep up to ``workers`` processes running (starting the
-        next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds and report progress,
+        next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds, :meth:`calibrate` and report
+        progress,
         until no job runs or may start. Returns the jobs with their final status and notes. On any
         exception (a failed required job, Ctrl-C) the processes are stopped and the exception re-raised."""
         self.plan()
@@ -312,6 +353,7 @@ class ParallelTrainer:
                 time.sleep(POLL_S)
                 for job in running:
                     self.poll(job)
+                self.calibrate()
                 self.report()
         except BaseException:
             self.stop_all()
@@ -328,7 +370,7 @@ class ParallelTrainer:
             f"{j.method} {min(j.steps_done(), j.steps)}/{j.steps}" for j in self.jobs if j.status in ("running", "done")
         )
         eta = self.eta_s()
-        self.progress.later_s = self.later_s
+        self.progress.later_s = self.later_seconds()
         self.progress.set(done, detail=detail, total=max(total, 1), eta_s=eta)
 
     def eta_s(self) -> float:
@@ -337,7 +379,7 @@ class ParallelTrainer:
         skipped)."""
         now = time.perf_counter()
         slots = self._slots_after_running()
-        limit = max(self.deadline, self.required_end())
+        limit = max(self.training_deadline(), self.required_end())
         for job in self.jobs:
             if job.status == "pending":
                 slots.sort()
