@@ -334,9 +334,8 @@ class ParallelTrainer:
 
     def run(self) -> list[TrainingJob]:
         """Train the jobs: :meth:`plan` them, then keep up to ``workers`` processes running (starting the
-        next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds, :meth:`calibrate` and report
-        progress,
-        until no job runs or may start. Returns the jobs with their final status and notes. On any
+        next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds, :meth:`calibrate` and
+        report progress, until no job runs or may start. Returns the jobs with their final status and notes. On any
         exception (a failed required job, Ctrl-C) the processes are stopped and the exception re-raised."""
         self.plan()
         try:
