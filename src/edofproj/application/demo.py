@@ -109,11 +109,12 @@ class DemoSettings:
 #: step) and 453 s on a 2-core AMD EPYC with AVX2 only (0.220 s a step), 2.1 times as long for 2.1 times the
 #: step; with these constants and the report's margin the plan predicts 234 and 466 s (docs/experiments/2026-11-28-amd-epyc-demo.md).
 EVALUATION_ESTIMATE_S = 90.0
-#: The evaluation's cost with the networks of ``net.architecture`` relative to the U-Net's (whose demo
-#: :data:`EVALUATION_ESTIMATE_S` is): the multi-rate networks' demo (``--config cpu-realtime``, every method)
-#: evaluated and timed in 176 s against the U-Net demo's 246 s (0.72), both on 2 idle cores limited to AVX2
-#: in float32 (docs/experiments/2026-11-28-joint-realtime-network.md).
-EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 0.7}
+#: The stages' cost after the training of ``net.architecture``'s networks relative to the U-Net's (whose demo
+#: :data:`EVALUATION_ESTIMATE_S` is), at the assumed step of each (:data:`LENS_NET_STEP_S`): on the AMD EPYC of
+#: :data:`EVALUATION_ESTIMATE_S` the multi-rate networks' demo (``--config cpu-realtime``) spent 399 s after
+#: training at 0.105 s a ``lens+net`` step (1.7 times the assumed), the U-Net demo 453 s at 0.209 s (2.0 times):
+#: the evaluation does not shrink with the network's step (docs/experiments/2026-11-28-amd-epyc-demo.md).
+EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 1.2}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
 #: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine); 5 s each with the
