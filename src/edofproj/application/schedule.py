@@ -133,21 +133,23 @@ class ParallelTrainer:
         self.planned_seconds = 0.0
 
     # -- cost model ------------------------------------------------------------------------
-    def reference_rate_s(self) -> float:
-        """Measured seconds per step of the reference job (see module docstring)."""
+    def measured_rate_s(self) -> float | None:
+        """Seconds per step of the reference job once it has logged 3 steps (see module docstring), else None."""
         for job in self.jobs:
             if job.required and job.relative_cost == 1.0 and job.status in ("running", "done"):
                 steps = job.steps_done()
                 if steps >= 3:
                     return job.training_seconds() / steps
-        return self.default_rate_s
+        return None
+
+    def reference_rate_s(self) -> float:
+        """:meth:`measured_rate_s`, or ``default_rate_s`` before it is measured."""
+        measured = self.measured_rate_s()
+        return self.default_rate_s if measured is None else measured
 
     def measured(self) -> bool:
-        """Whether the reference job has logged enough steps for :meth:`reference_rate_s` to be measured."""
-        return any(
-            j.required and j.relative_cost == 1.0 and j.status in ("running", "done") and j.steps_done() >= 3
-            for j in self.jobs
-        )
+        """Whether the reference job's rate is measured (:meth:`measured_rate_s`)."""
+        return self.measured_rate_s() is not None
 
     def speed(self) -> float:
         """This machine's seconds per step relative to the default's: ``reference_rate_s / default_rate_s``
