@@ -107,3 +107,26 @@ def test_a_classic_baseline_run_of_the_configured_element_shares_its_design():
     assert len(builder.notes) == 3 and not any("pupil_samples" in note for note in builder.notes)
     axicon = load_config("cpu", ["doe.kind=axicon", "doe.cubic_waves=20"])  # an axicon does not read the plate's key
     assert same_classic_element(axicon, cfg, "axicon") and not same_classic_element(axicon, cfg, "cubic")
+
+
+def test_methods_already_built_are_taken_as_they_are():
+    """The demo's scene and surface sections score the flat-screen evaluation's methods: build_all takes
+    a method of ``built`` by name (the same object: its tuned filter, network and PSFs) and builds the rest."""
+    from pathlib import Path
+
+    from edofproj.config import load_config
+    from edofproj.methods.builder import MethodBuilder
+    from edofproj.progress import StageProgress
+
+    cfg = load_config("cpu")
+    psf = torch.from_numpy(gaussian_psf(1.2)).float()
+    design = types.SimpleNamespace(key="lens", psf=lambda depths: psf[None].repeat(len(depths), 1, 1, 1))
+    earlier = PreparedMethod(method_spec("lens+cls"), design, ConstrainedCompensation(30))
+    builder = MethodBuilder(None, cfg, Path("."), explicit=True)
+    progress = StageProgress("test", enabled=False)
+    specs = [method_spec("lens"), method_spec("lens+cls")]
+    taken = builder.build_all(specs, progress, built=[earlier])
+    assert [m.name for m in taken] == ["lens", "lens+cls"] and taken[1] is earlier
+    assert taken[0].design is builder.designs["lens"]  # built here: the run's bare lens
+    rebuilt = MethodBuilder(None, cfg, Path("."), explicit=True).build_all(specs, progress)
+    assert rebuilt[1] is not earlier and rebuilt[1].design is not design

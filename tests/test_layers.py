@@ -29,6 +29,7 @@ LAYERS = [
         "progress",
         "builtin_runs",
         "machine",
+        "cpu_tasks",
     },  # foundation
     {"optics"},
     {"doe"},

@@ -190,3 +190,31 @@ def test_ssim_scores_without_gradients_are_the_differentiable_ones_to_the_last_b
     with torch.inference_mode():
         reference.ssim(pred)
     assert torch.equal(pred, before)
+
+
+def test_image_scorer_gives_each_metric_functions_values_to_the_last_bit():
+    from edofproj.metrics import ImageScorer, delta_e2000, ms_ssim, psnr, ssim, ssim_per_channel
+
+    generator = torch.Generator().manual_seed(5)
+    target = torch.rand(2, 3, 48, 56, generator=generator)
+    scorer = ImageScorer(target)
+    for noise in (0.02, 0.2):
+        pred = (target + noise * torch.randn(target.shape, generator=generator)).clamp(0, 1)
+        scores = scorer.scores(pred)
+        de_mean, de_p95 = delta_e2000(pred, target)
+        channels = ssim_per_channel(pred, target)
+        expected = {
+            "psnr": psnr(pred, target),
+            "ssim": ssim(pred, target),
+            "ms_ssim": ms_ssim(pred, target),
+            "de2000": de_mean,
+            "de2000_p95": de_p95,
+            "ssim_r": channels[:, 0],
+            "ssim_g": channels[:, 1],
+            "ssim_b": channels[:, 2],
+        }
+        assert list(scores) == list(expected)
+        for name, values in expected.items():
+            assert torch.equal(scores[name], values), name
+    with pytest.raises(EdofprojError, match="same shape"):
+        scorer.scores(target[:1])

@@ -247,7 +247,9 @@ def ms_ssim_scales(height: int, width: int, max_scales: int = len(MS_SSIM_WEIGHT
     return scales
 
 
-def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def ms_ssim(
+    pred: torch.Tensor, target: torch.Tensor, finest: tuple[torch.Tensor, torch.Tensor] | None = None
+) -> torch.Tensor:
     """Multi-scale SSIM per image (Wang, Simoncelli, Bovik 2003):
 
         MS-SSIM = SSIM_M^{w_M} * prod_{j<M} cs_j^{w_j}
@@ -260,6 +262,8 @@ def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     Small images: the number of scales ``M`` is reduced (:func:`ms_ssim_scales`) so the
     coarsest scale still holds the 11×11 window, and the first ``M`` weights are rescaled to
     sum to 1 (e.g. 128×128 crops use 4 scales, 128 → 16 pixels). Images below 11×11 raise.
+    ``finest``: the mean SSIM and contrast-structure term of the first scale when already computed
+    (:class:`ImageScorer`), each ``(B,)``.
     """
     _check_pair(pred, target, "ms_ssim")
     scales = ms_ssim_scales(pred.shape[-2], pred.shape[-1])
@@ -271,7 +275,10 @@ def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     for scale in range(scales):
         if scale > 0:
             pred, target = F.avg_pool2d(pred, 2), F.avg_pool2d(target, 2)
-        full, contrast_structure = _ssim_and_contrast_structure(pred, target)
+        if scale == 0 and finest is not None:
+            full, contrast_structure = finest
+        else:
+            full, contrast_structure = _ssim_and_contrast_structure(pred, target)
         term = full if scale == scales - 1 else contrast_structure
         result = result * F.relu(term) ** weights[scale]
     return result
@@ -287,16 +294,36 @@ def delta_e2000_map(pred: torch.Tensor, target: torch.Tensor) -> np.ndarray:
     """Per-pixel CIEDE2000 difference ``(B, H, W)`` (float64) of two batches read as sRGB in [0, 1]
     (values outside are clipped first, as a display would)."""
     _check_pair(pred, target, "delta_e2000")
-    from skimage.color import deltaE_ciede2000, rgb2lab  # start-up: scikit-image's colour module is slow to import
-
-    a = pred.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float64)
-    b = target.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float64)
-    return np.stack([deltaE_ciede2000(rgb2lab(b[i]), rgb2lab(a[i])) for i in range(a.shape[0])])
+    return _delta_e2000_map_to_lab(pred, cielab(target))
 
 
-def delta_e2000(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(mean, p95)`` of the per-pixel CIEDE2000 difference, each ``(B,)`` float32 (module docstring)."""
-    maps = delta_e2000_map(pred, target).reshape(pred.shape[0], -1)
+def cielab(images: torch.Tensor) -> np.ndarray:
+    """CIELAB (D65) of a batch ``(B, 3, H, W)`` read as sRGB in ``[0, 1]`` (clipped first): ``(B, H, W, 3)``
+    float64 (scikit-image's ``rgb2lab``)."""
+    from skimage.color import rgb2lab  # start-up: scikit-image's colour module is slow to import
+
+    rgb = images.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy().astype(np.float64)
+    return np.stack([rgb2lab(image) for image in rgb])
+
+
+def _delta_e2000_map_to_lab(pred: torch.Tensor, target_lab: np.ndarray) -> np.ndarray:
+    """Per-pixel CIEDE2000 difference ``(B, H, W)`` of ``pred`` from a target given in CIELAB."""
+    from skimage.color import deltaE_ciede2000
+
+    return np.stack([deltaE_ciede2000(lab, pred_lab) for lab, pred_lab in zip(target_lab, cielab(pred))])
+
+
+def delta_e2000(
+    pred: torch.Tensor, target: torch.Tensor, target_lab: np.ndarray | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mean, p95)`` of the per-pixel CIEDE2000 difference, each ``(B,)`` float32 (module docstring).
+    ``target_lab``: :func:`cielab` of ``target`` when already computed."""
+    if target_lab is None:
+        maps = delta_e2000_map(pred, target)
+    else:
+        _check_pair(pred, target, "delta_e2000")
+        maps = _delta_e2000_map_to_lab(pred, target_lab)
+    maps = maps.reshape(pred.shape[0], -1)
     mean = torch.from_numpy(maps.mean(axis=1)).float()
     p95 = torch.from_numpy(np.percentile(maps, DELTA_E_PERCENTILE, axis=1)).float()
     return mean, p95
@@ -307,6 +334,38 @@ def ssim_per_channel(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     over the positions only (not over the channels)."""
     _check_pair(pred, target, "ssim_per_channel")
     return _ssim_maps(pred, target)[0].flatten(2).mean(2)
+
+
+class ImageScorer:
+    """The scores of many images against one fixed ``target`` ``(B, 3, H, W)`` (e.g. every method's
+    display at every depth): the target's local SSIM statistics (:class:`SSIMReference`) and its CIELAB
+    values are computed once, and one SSIM map per image gives its SSIM, the SSIM of each channel and
+    MS-SSIM's finest scale. The values equal :func:`psnr`, :func:`ssim`, :func:`ms_ssim`,
+    :func:`delta_e2000` and :func:`ssim_per_channel` to the last bit."""
+
+    def __init__(self, target: torch.Tensor) -> None:
+        self.target = target
+        self.reference = SSIMReference(target)
+        self.reference._target_terms()  # computed now: a scorer may be shared by threads
+        self.target_lab = cielab(target)
+
+    def scores(self, pred: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``{psnr, ssim, ms_ssim, de2000, de2000_p95, ssim_r, ssim_g, ssim_b}``, each ``(B,)``."""
+        _check_pair(pred, self.target, "ImageScorer")
+        ssim_values, contrast_structure = self.reference.maps(pred)
+        finest = (ssim_values.flatten(1).mean(1), contrast_structure.flatten(1).mean(1))
+        channels = ssim_values.flatten(2).mean(2)
+        de_mean, de_p95 = delta_e2000(pred, self.target, self.target_lab)
+        return {
+            "psnr": psnr(pred, self.target),
+            "ssim": finest[0],
+            "ms_ssim": ms_ssim(pred, self.target, finest),
+            "de2000": de_mean,
+            "de2000_p95": de_p95,
+            "ssim_r": channels[:, 0],
+            "ssim_g": channels[:, 1],
+            "ssim_b": channels[:, 2],
+        }
 
 
 # --------------------------------------------------------------------------- perceptual

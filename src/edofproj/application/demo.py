@@ -52,7 +52,7 @@ from ..evaluation.pipeline import Evaluation, design_depths_m, evaluate_run, is_
 from ..evaluation.scenes import evaluate_scenes
 from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
-from ..methods.builder import require_trained_run
+from ..methods.builder import PreparedMethod, require_trained_run
 from ..methods.catalogue import CLASSIC_ELEMENTS, OURS, method_spec, select_methods
 from ..methods.designs import DEPTH_KEY_RESOLUTION_M
 from ..progress import StageProgress, format_duration
@@ -735,8 +735,8 @@ def run_demo(
         progress.start("stage 3/4 timing", 1)
         timings = timing_rows(evaluation, settings)
         progress.finish()
-    scene_blocks = scene_section(out, [m.name for m in evaluation.methods], quick, progress)
-    surface_blocks = surface_section(out, progress)
+    scene_blocks = scene_section(out, evaluation.methods, quick, progress)
+    surface_blocks = surface_section(out, evaluation.methods, progress)
 
     progress.start("stage 4/4 report", 1)
     claims = ssim_claims(evaluation.table, evaluation.range_mm)
@@ -771,9 +771,11 @@ def run_demo(
     return DemoResult(out, evaluation, claims, jobs, time.perf_counter() - clock, paths["report_html"])
 
 
-def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: StageProgress) -> list:
-    """Score the methods on :data:`DEMO_SCENE` (first held-out image) and return the report's blocks."""
-    # the classic elements' linear baselines are scored on flat screens only: each would tune its filter again
+def scene_section(out: Path, evaluated: Sequence[PreparedMethod], quick: bool, progress: StageProgress) -> list:
+    """Score the methods on :data:`DEMO_SCENE` (first held-out image) and return the report's blocks;
+    ``evaluated``: the flat-screen evaluation's methods, scored as they are (not built again)."""
+    methods = [m.name for m in evaluated]
+    # the classic elements' linear baselines are scored on flat screens only (their 2-D PSFs at the scene's layers)
     chosen = (
         [m for m in methods if m in QUICK_SCENE_METHODS]
         if quick
@@ -788,6 +790,7 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
             methods=chosen,
             baselines_dir=out,
             overrides=["data.max_test_images=1"],
+            built=evaluated,
         )
     except EdofprojError as exc:  # e.g. a configuration whose PSF range does not cover the scene
         return [Heading("Projection onto a 3-D scene"), Paragraph(f"Scene `{DEMO_SCENE}` not scored: {exc}.")]
@@ -809,9 +812,10 @@ def scene_section(out: Path, methods: Sequence[str], quick: bool, progress: Stag
     ]
 
 
-def surface_section(out: Path, progress: StageProgress) -> list:
+def surface_section(out: Path, evaluated: Sequence[PreparedMethod], progress: StageProgress) -> list:
     """Score the demo's blind methods, their photometric variants and cascades on :data:`DEMO_SURFACE`
-    (first held-out image, ambient :data:`DEMO_AMBIENT`) and return the report's blocks."""
+    (first held-out image, ambient :data:`DEMO_AMBIENT`) and return the report's blocks; ``evaluated``: the
+    flat-screen evaluation's methods, scored as they are (not built again)."""
     progress.note(f"textured surface {DEMO_SURFACE}")
     try:
         surfaces = evaluate_surfaces(
@@ -821,6 +825,7 @@ def surface_section(out: Path, progress: StageProgress) -> list:
             ambient=DEMO_AMBIENT,
             baselines_dir=out,
             overrides=["data.max_test_images=1"],
+            built=evaluated,
         )
     except EdofprojError as exc:
         return [

@@ -32,6 +32,7 @@ on a GPU). :func:`tune_wiener_nsr` picks the NSR on *training* images.
 from __future__ import annotations
 
 import os
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
@@ -39,6 +40,7 @@ import scipy.fft
 import torch
 import torch.nn.functional as F
 
+from ..cpu_tasks import default_workers, run_tasks
 from ..errors import EdofprojError
 from ..imaging.convolution import optical_transfer_function
 
@@ -303,14 +305,18 @@ def tune_wiener_nsr(
         raise EdofprojError("tune_wiener_nsr needs at least one NSR candidate")
     psf = torch.as_tensor(psf, dtype=train_images.dtype)
     psfs = psf.unsqueeze(0) if psf.ndim == 3 else psf
-    scores: dict[float, float] = {}
-    with torch.no_grad():
-        for nsr in candidates:
-            total = 0.0
-            for one in psfs:
-                one = one.unsqueeze(0)
-                restored = wiener_deconvolve(train_images, one, nsr, haze=haze)
-                total += float(metric_fn(project_fn(restored, one), train_images).mean())
-            scores[nsr] = total / len(psfs)
+
+    def mean_score(nsr: float) -> float:
+        total = 0.0
+        for one in psfs:
+            one = one.unsqueeze(0)
+            restored = wiener_deconvolve(train_images, one, nsr, haze=haze)
+            total += float(metric_fn(project_fn(restored, one), train_images).mean())
+        return total / len(psfs)
+
+    # the candidates are independent: one task each on the CPU's cores (edofproj.cpu_tasks)
+    tasks = [partial(mean_score, nsr) for nsr in candidates]
+    workers = default_workers(train_images.device)
+    scores = dict(zip(candidates, run_tasks(tasks, workers)))
     best = max(scores, key=scores.__getitem__)
     return best, scores

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Sequence
 
@@ -32,8 +33,10 @@ import numpy as np
 import torch
 
 from ..config import apply_overrides
+from ..cpu_tasks import default_workers, run_tasks
 from ..data import evaluation_images
 from ..errors import EdofprojError
+from ..methods.builder import PreparedMethod
 from ..methods.catalogue import select_methods
 from ..methods.designs import OpticalDesign
 from ..metrics import ssim_map
@@ -98,8 +101,10 @@ def evaluate_scenes(
     overrides: Sequence[str] = (),
     progress: StageProgress | None = None,
     device: str | torch.device = "cpu",
+    built: Sequence[PreparedMethod] = (),
 ) -> SceneEvaluation:
-    """Score the run's methods on the scenes (module docstring); files go to ``out_dir`` (default: the run)."""
+    """Score the run's methods on the scenes (module docstring); files go to ``out_dir`` (default: the run).
+    ``built``: methods already built from this run (:meth:`~edofproj.methods.builder.MethodBuilder.build_all`)."""
     clock = time.perf_counter()
     specs = select_methods(methods)
     opened = open_run(run_dir, out_dir, overrides)
@@ -123,7 +128,7 @@ def evaluate_scenes(
 
     builder = opened.method_builder(baselines_dir, bool(methods), device)
     progress.start("preparing methods", len(specs))
-    prepared = builder.build_all(specs, progress)
+    prepared = builder.build_all(specs, progress, built)
 
     table = MetricsTable(("method", "scene", "image"), ("psnr", "ssim"))
     evaluation = SceneEvaluation(opened.out_dir, opened.run_path, list(casts), [m.name for m in prepared], table, {})
@@ -131,34 +136,39 @@ def evaluate_scenes(
     progress.start(
         "scenes", len(casts) * len(images) * len(prepared), detail=f"{len(casts)} scenes at {height}x{width}"
     )
-    with torch.inference_mode():
-        for scene_name, cast in casts.items():
-            lo, hi = cast.depth_range_m()
-            evaluation.depth_ranges_mm[scene_name] = (lo * 1e3, hi * 1e3)
-            layers = scene_layers_m(cast, cfg.imaging.depth_layers)
-            centre = np.array([2.0 / (1.0 / lo + 1.0 / hi)])
-            hit = torch.as_tensor(cast.hit, device=device)
-            for image_index, (image_name, image) in enumerate(images):
-                target = image[None].to(device)
+    for scene_name, cast in casts.items():
+        lo, hi = cast.depth_range_m()
+        evaluation.depth_ranges_mm[scene_name] = (lo * 1e3, hi * 1e3)
+        layers = scene_layers_m(cast, cfg.imaging.depth_layers)
+        centre = np.array([2.0 / (1.0 / lo + 1.0 / hi)])
+        hit = torch.as_tensor(cast.hit, device=device)
+        for image_index, (image_name, image) in enumerate(images):
+            target = image[None].to(device)
+            if image_index == 0:
+                evaluation.targets[scene_name] = (target * hit)[0].permute(1, 2, 0).cpu().numpy()
+            designs: dict[str, OpticalDesign] = {m.design.key: m.design for m in prepared}  # type: ignore[misc]
+            with torch.inference_mode():  # each design's capture and PSFs, before the methods share them
+                captured = {key: render_scene(target, cast, d.psf(layers), layers) for key, d in designs.items()}
+                for design in designs.values():
+                    design.psf(centre)
+
+            def shown(method, target=target, captured=captured, cast=cast, layers=layers, centre=centre, hit=hit):
+                design = method.design
+                x = method.compensate(target, captured[design.key], design.psf(centre))
+                display = render_scene(x, cast, design.psf(layers), layers)
+                return (*masked_scores(display, target, hit), display)
+
+            # one task per method on the CPU's cores (edofproj.cpu_tasks), results in the methods' order
+            tasks = [partial(shown, method) for method in prepared]
+            for method, (scores, local, display) in zip(prepared, run_tasks(tasks, default_workers(device))):
+                table.add(method=method.name, scene=scene_name, image=image_name, **scores[0])
                 if image_index == 0:
-                    evaluation.targets[scene_name] = (target * hit)[0].permute(1, 2, 0).cpu().numpy()
-                captured_by_design: dict[str, torch.Tensor] = {}
-                for method in prepared:
-                    design: OpticalDesign = method.design  # type: ignore[assignment]
-                    psf = design.psf(layers)
-                    if design.key not in captured_by_design:
-                        captured_by_design[design.key] = render_scene(target, cast, psf, layers)
-                    x = method.compensate(target, captured_by_design[design.key], design.psf(centre))
-                    display = render_scene(x, cast, psf, layers)
-                    scores, local = masked_scores(display, target, hit)
-                    table.add(method=method.name, scene=scene_name, image=image_name, **scores[0])
-                    if image_index == 0:
-                        evaluation.examples[(scene_name, method.name)] = (
-                            display[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy(),
-                            local[0].cpu().numpy(),
-                            scores[0],
-                        )
-                    progress.advance(1, detail=f"{scene_name} {method.name}")
+                    evaluation.examples[(scene_name, method.name)] = (
+                        display[0].clamp(0, 1).permute(1, 2, 0).cpu().numpy(),
+                        local[0].cpu().numpy(),
+                        scores[0],
+                    )
+                progress.advance(1, detail=f"{scene_name} {method.name}")
     progress.finish()
     write_scene_files(evaluation)
     evaluation.seconds = time.perf_counter() - clock

@@ -53,6 +53,7 @@ from ..data.textures import surface_reflectance
 from ..errors import EdofprojError
 from ..imaging.projection import ScreenProjection
 from ..imaging.surfaces import check_illuminance
+from ..methods.builder import PreparedMethod
 from ..methods.catalogue import select_methods
 from ..methods.compensators import score_range_mm
 from ..methods.surface_variants import surface_methods
@@ -99,12 +100,14 @@ def evaluate_surfaces(
     overrides: Sequence[str] = (),
     progress: StageProgress | None = None,
     device: str | torch.device = "cpu",
+    built: Sequence[PreparedMethod] = (),
 ) -> SurfaceEvaluation:
     """Score the methods on the textured surfaces (module docstring); files go to ``out_dir`` (default: the run).
 
     ``surfaces``: built-in texture names or reflectance files the size of the evaluation images;
     ``ambient``: the illuminance ``E >= 0`` (``a = s E``); ``methods``: base methods (default
-    :data:`DEFAULT_BASE_METHODS`)."""
+    :data:`DEFAULT_BASE_METHODS`); ``built``: methods already built from this run
+    (:meth:`~edofproj.methods.builder.MethodBuilder.build_all`)."""
     clock = time.perf_counter()
     ambient = check_illuminance(ambient, "--ambient")
     if not surfaces:
@@ -124,7 +127,7 @@ def evaluate_surfaces(
     specs = select_methods(list(methods) if methods is not None else list(DEFAULT_BASE_METHODS))
     builder = opened.method_builder(baselines_dir, explicit, device)
     progress.start("preparing methods", len(specs))
-    prepared = builder.build_all(specs, progress)
+    prepared = builder.build_all(specs, progress, built)
     chosen = surface_methods(prepared, opened.run.net)
 
     table = MetricsTable(("method", "surface", "depth_mm", "image"), ("psnr", "ssim", "clipped"))

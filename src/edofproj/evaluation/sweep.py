@@ -19,6 +19,12 @@ one PSF: they get ``p_c``, the PSF at the depth of the screen's middle column
 (``1/z_c = (1/near + 1/far) / 2``) -- a spatially invariant deconvolution, which is what those
 methods can do on a screen whose blur varies across the image.
 
+The work is split into tasks, one per depth, batch of images and optical design (the methods of a
+design share its uncompensated capture), run ``workers`` at a time (:mod:`edofproj.cpu_tasks`: on
+a 2-core CPU two tasks of one intra-op thread each, which keep both cores busy where one method at
+a time on two threads leaves them idle between its many small operations). A task's scores do not
+depend on the number of workers, only on the intra-op threads each is given.
+
 Scores per image: PSNR, SSIM, MS-SSIM, the CIEDE2000 colour difference (mean and 95th percentile),
 the SSIM of each colour channel (:mod:`edofproj.metrics`) and the perceptual metrics whose weights
 are present (LPIPS with AlexNet, DISTS).
@@ -41,6 +47,7 @@ import torch
 from .. import metrics
 from ..compensation.closed_loop import closed_loop, flat_screen
 from ..config import M_PER_MM
+from ..cpu_tasks import default_workers, run_tasks
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.screens import tilted_plane_depth_map
 from ..methods.depth_ranges import depth_notes, scored_range_mm, trained_range_mm  # noqa: F401 (re-exported)
@@ -68,20 +75,12 @@ def load_perceptual_metrics(weights_dir=None) -> dict:
     return loaded
 
 
-def score(display: torch.Tensor, target: torch.Tensor, perceptual: dict) -> list[dict[str, float]]:
-    """Metrics of each displayed image of a batch ``(B, 3, H, W)`` against its target: ``B`` dicts."""
-    de_mean, de_p95 = metrics.delta_e2000(display, target)
-    channels = metrics.ssim_per_channel(display, target)
-    columns = {
-        "psnr": metrics.psnr(display, target),
-        "ssim": metrics.ssim(display, target),
-        "ms_ssim": metrics.ms_ssim(display, target),
-        "de2000": de_mean,
-        "de2000_p95": de_p95,
-        "ssim_r": channels[:, 0],
-        "ssim_g": channels[:, 1],
-        "ssim_b": channels[:, 2],
-    }
+def score(
+    display: torch.Tensor, target: torch.Tensor, perceptual: dict, scorer: metrics.ImageScorer | None = None
+) -> list[dict[str, float]]:
+    """Metrics of each displayed image of a batch ``(B, 3, H, W)`` against its target: ``B`` dicts.
+    ``scorer``: :class:`~edofproj.metrics.ImageScorer` of ``target``, when several displays are scored against it."""
+    columns = (scorer or metrics.ImageScorer(target)).scores(display)
     for column, metric in perceptual.items():
         columns[column] = metric(display, target)
     return [{name: float(values[i]) for name, values in columns.items()} for i in range(display.shape[0])]
@@ -127,9 +126,14 @@ def image_batches(images: Sequence[tuple[str, torch.Tensor]], max_batch: int = M
 def flat_screen_displays(methods, target: torch.Tensor, depth_mm: float):
     """Yield ``(method, display)`` for every method at one depth; ``target`` and ``display`` ``(B, 3, H, W)``."""
     for group in _by_design(methods).values():
-        psf = group[0].design.psf([depth_mm * M_PER_MM])
-        forward = flat_screen(psf)
-        yield from _closed_loop_displays(group, target, forward, forward(target), psf)
+        yield from _flat_screen_group(group, target, depth_mm)
+
+
+def _flat_screen_group(group, target: torch.Tensor, depth_mm: float):
+    """Yield ``(method, display)`` for the methods of one design at one depth."""
+    psf = group[0].design.psf([depth_mm * M_PER_MM])
+    forward = flat_screen(psf)
+    yield from _closed_loop_displays(group, target, forward, forward(target), psf)
 
 
 def flat_screen_sweep(
@@ -139,22 +143,36 @@ def flat_screen_sweep(
     perceptual: dict,
     progress: Progress | None = None,
     device: str | torch.device = "cpu",
+    workers: int | None = None,
 ) -> MetricsTable:
     """Score every method on every image at every depth (rows: method, depth_mm, image); the images
-    are moved to ``device``, where the methods' networks and PSFs must be."""
+    are moved to ``device``, where the methods' networks and PSFs must be. ``workers``: tasks at once
+    (module docstring; default :func:`~edofproj.cpu_tasks.default_workers`)."""
     table = MetricsTable(("method", "depth_mm", "image"), metric_columns(perceptual))
     batches = [(names, target.to(device)) for names, target in image_batches(images)]
-    with torch.inference_mode():
-        for depth_mm in depths_mm:
-            for names, target in batches:
-                for method, display in flat_screen_displays(methods, target, depth_mm):
-                    for name, values in zip(names, score(display, target, perceptual)):
-                        table.add(method=method.name, depth_mm=float(depth_mm), image=name, **values)
-                    if progress is not None:
-                        progress(len(names))
+    scorers = [metrics.ImageScorer(target) for _, target in batches]
+
+    def task(group, target, scorer, depth_mm):
+        return lambda: [
+            (m.name, score(display, target, perceptual, scorer))
+            for m, display in _flat_screen_group(group, target, depth_mm)
+        ]
+
+    keys, tasks = [], []
+    for depth_mm in depths_mm:
+        for (names, target), scorer in zip(batches, scorers):
+            for group in _by_design(methods).values():
+                keys.append((float(depth_mm), names))
+                tasks.append(task(group, target, scorer, depth_mm))
+    for (depth_mm, names), scored in zip(keys, run_tasks(tasks, workers or default_workers(device))):
+        for method_name, values_of_images in scored:
+            for name, values in zip(names, values_of_images):
+                table.add(method=method_name, depth_mm=depth_mm, image=name, **values)
+            if progress is not None:
+                progress(len(names))
     order = {m.name: i for i, m in enumerate(methods)}
-    names = {name: i for i, (name, _) in enumerate(images)}
-    table.rows.sort(key=lambda r: (r["depth_mm"], order[r["method"]], names[r["image"]]))
+    names_order = {name: i for i, (name, _) in enumerate(images)}
+    table.rows.sort(key=lambda r: (r["depth_mm"], order[r["method"]], names_order[r["image"]]))
     return table
 
 
@@ -177,9 +195,13 @@ def example_displays(
     examples = {}
     target = image.unsqueeze(0).to(device)
     with torch.inference_mode():
+        scorer = metrics.ImageScorer(target)
         for depth_mm in depths_mm:
             for method, display in flat_screen_displays(methods, target, depth_mm):
-                examples[(float(depth_mm), method.name)] = (_to_array(display), score(display, target, perceptual)[0])
+                examples[(float(depth_mm), method.name)] = (
+                    _to_array(display),
+                    score(display, target, perceptual, scorer)[0],
+                )
     return examples
 
 
@@ -205,11 +227,15 @@ class TiltedScreen:
     def displays(self, methods, target: torch.Tensor):
         """Yield ``(method, display)`` on this screen for every method; ``target`` ``(B, 3, H, W)``."""
         for group in _by_design(methods).values():
-            design = group[0].design
-            forward = partial(self.render, design=design)
-            captured = forward(target)
-            centre_psf = design.psf([self.centre_m])
-            yield from _closed_loop_displays(group, target, forward, captured, centre_psf)
+            yield from self.group_displays(group, target)
+
+    def group_displays(self, group, target: torch.Tensor):
+        """Yield ``(method, display)`` on this screen for the methods of one design."""
+        design = group[0].design
+        forward = partial(self.render, design=design)
+        captured = forward(target)
+        centre_psf = design.psf([self.centre_m])
+        yield from _closed_loop_displays(group, target, forward, captured, centre_psf)
 
 
 def tilted_screen_sweep(
@@ -219,27 +245,45 @@ def tilted_screen_sweep(
     perceptual: dict,
     progress: Progress | None = None,
     device: str | torch.device = "cpu",
+    workers: int | None = None,
 ) -> tuple[MetricsTable, dict]:
     """Score every method on the tilted screen. Returns the table (rows: method, near_mm,
-    far_mm, image) and the displays of the first image ``{method name: (array, scores)}``."""
+    far_mm, image) and the displays of the first image ``{method name: (array, scores)}``.
+    ``workers``: tasks at once (module docstring; default :func:`~edofproj.cpu_tasks.default_workers`)."""
     table = MetricsTable(("method", "near_mm", "far_mm", "image"), metric_columns(perceptual))
     examples = {}
     screens: dict[tuple[int, int], TiltedScreen] = {}
     first = images[0][0]
-    with torch.inference_mode():
-        for names, target in image_batches(images):
-            target = target.to(device)
-            size = tuple(target.shape[-2:])
-            screen = screens.setdefault(size, TiltedScreen(cfg, *size))
-            for method, display in screen.displays(methods, target):
-                for index, (name, values) in enumerate(zip(names, score(display, target, perceptual))):
-                    table.add(
-                        method=method.name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3, image=name, **values
-                    )
-                    if name == first:
-                        examples[method.name] = (_to_array(display[index : index + 1]), values)
-                if progress is not None:
-                    progress(len(names))
+
+    def task(screen, group, target, scorer, names):
+        def run():
+            scored = []
+            for method, display in screen.group_displays(group, target):
+                example = _to_array(display[names.index(first) : names.index(first) + 1]) if first in names else None
+                scored.append((method.name, score(display, target, perceptual, scorer), example))
+            return scored
+
+        return run
+
+    keys, tasks = [], []
+    for names, target in image_batches(images):
+        target = target.to(device)
+        size = tuple(target.shape[-2:])
+        screen = screens.setdefault(size, TiltedScreen(cfg, *size))
+        scorer = metrics.ImageScorer(target)
+        for group in _by_design(methods).values():
+            keys.append((screen, names))
+            tasks.append(task(screen, group, target, scorer, names))
+    for (screen, names), scored in zip(keys, run_tasks(tasks, workers or default_workers(device))):
+        for method_name, values_of_images, example in scored:
+            for name, values in zip(names, values_of_images):
+                table.add(
+                    method=method_name, near_mm=screen.near_m * 1e3, far_mm=screen.far_m * 1e3, image=name, **values
+                )
+                if name == first:
+                    examples[method_name] = (example, values)
+            if progress is not None:
+                progress(len(names))
     return table, examples
 
 

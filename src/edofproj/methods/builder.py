@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 
@@ -265,12 +265,15 @@ class MethodBuilder:
         self.baseline_runs[spec.name] = baseline
         return baseline
 
-    def build_all(self, specs, progress: StageProgress) -> list[PreparedMethod]:
+    def build_all(self, specs, progress: StageProgress, built: Sequence[PreparedMethod] = ()) -> list[PreparedMethod]:
         """Every method of ``specs`` that can be built here (the others leave a note), advancing ``progress``
-        once per method; raises :class:`EdofprojError` when none can."""
+        once per method; raises :class:`EdofprojError` when none can. ``built``: methods already built
+        from the same run and optics (e.g. by its flat-screen evaluation), taken as they are instead of
+        built again (their tuned filters, loaded networks and simulated PSFs with them)."""
+        reuse = {method.name: method for method in built}
         prepared = []
         for spec in specs:
-            method = self.build(spec)
+            method = reuse[spec.name] if spec.name in reuse else self.build(spec)
             if method is not None:
                 prepared.append(method)
             progress.advance(1, detail=spec.name)

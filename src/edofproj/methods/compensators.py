@@ -8,6 +8,7 @@ The linear filters' noise-to-signal ratios are tuned on *training* crops, never 
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -22,6 +23,7 @@ from ..compensation.wiener import (
     tune_wiener_nsr,
     wiener_deconvolve,
 )
+from ..cpu_tasks import default_workers, run_tasks
 from ..data import build_training_source
 from ..imaging.convolution import convolve_same
 from ..imaging.projection import project
@@ -141,12 +143,15 @@ def tune_ensemble_nsr(design, train_images: torch.Tensor, cfg, candidates=None) 
     tuning = design.psf(np.linspace(near_mm, far_mm, cfg.evaluation.wiener_tuning_depths) * 1e-3)
     ensemble = design.psf(ensemble_depths_m(cfg))
     metric = ssim if cfg.evaluation.wiener_tuning_metric == "ssim" else psnr
-    scores: dict[float, float] = {}
-    with torch.no_grad():
-        for nsr in candidates if candidates is not None else DEFAULT_NSR_CANDIDATES:
-            compensate = EnsembleWienerCompensation(ensemble, float(nsr), ensemble_radius(cfg))
-            x = compensate(train_images, train_images, ensemble[:1])
-            total = sum(float(metric(project(x, p.unsqueeze(0)), train_images).mean()) for p in tuning)
-            scores[float(nsr)] = total / len(tuning)
+
+    def mean_score(nsr: float) -> float:
+        compensate = EnsembleWienerCompensation(ensemble, nsr, ensemble_radius(cfg))
+        x = compensate(train_images, train_images, ensemble[:1])
+        return sum(float(metric(project(x, p.unsqueeze(0)), train_images).mean()) for p in tuning) / len(tuning)
+
+    nsrs = [float(nsr) for nsr in (candidates if candidates is not None else DEFAULT_NSR_CANDIDATES)]
+    # the candidates are independent: one task each on the CPU's cores (edofproj.cpu_tasks)
+    tasks = [partial(mean_score, nsr) for nsr in nsrs]
+    scores = dict(zip(nsrs, run_tasks(tasks, default_workers(train_images.device))))
     best = max(scores, key=scores.__getitem__)
     return best, scores
