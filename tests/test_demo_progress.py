@@ -134,26 +134,32 @@ def test_the_prediction_note_says_what_it_rests_on_and_whether_it_fits():
 
 
 @pytest.mark.parametrize(
-    ("machine", "preset", "lens_net_step_s", "measured_s"),
+    ("machine", "preset", "lens_net_step_s", "measured_s", "this_code"),
     [
-        ("Intel Xeon limited to AVX2", "cpu", 0.107, 218.0),
-        ("AMD EPYC, AVX2 only", "cpu", 0.220, 453.0),
-        ("AMD EPYC, AVX2 only", "cpu-realtime", 0.105, 399.0),
+        ("AMD EPYC, AVX2 only", "cpu", 0.217, 322.0, True),
+        ("Intel Xeon limited to AVX2", "cpu", 0.107, 218.0, False),
+        ("AMD EPYC, AVX2 only", "cpu", 0.220, 453.0, False),
+        ("AMD EPYC, AVX2 only", "cpu-realtime", 0.105, 399.0, False),
     ],
 )
 def test_the_later_stages_estimate_matches_the_demos_measured_on_two_machines(
-    tmp_path, machine, preset, lens_net_step_s, measured_s
+    tmp_path, machine, preset, lens_net_step_s, measured_s, this_code
 ):
-    """The default demo's stages after training as measured on 2026-11-28 on two 2-core CPUs (the record
+    """The default demo's stages after training as measured on 2026-11-28 on two 2-core CPUs (the records
     named in EVALUATION_ESTIMATE_S's comment): the plan's estimate at each machine's measured lens+net step,
-    with the report's margin, is within 10 % above what they took (never below: an overrun would go unsaid)."""
+    with the report's margin, is within 10 % above what they took with today's evaluation (never below: an
+    overrun would go unsaid); the demos measured before the evaluation ran on every core (0.71 times the
+    time there) took longer than it predicts, by at most the factor the AMD EPYC gained and 10 %."""
     trainer = full_demo_trainer(tmp_path, io.StringIO(), preset=preset)
     trainer.default_rate_s = demo.reference_rate_s(load_config(preset, ["train.mixed_precision=none"]))
     lens = next(job for job in trainer.jobs if job.method == "lens+net")
     lens.status, lens.started = "running", time.perf_counter()
     write_log(lens.run_dir, 10, lens_net_step_s)
     predicted = trainer.later_seconds() + demo.REPORT_MARGIN_S
-    assert measured_s <= predicted <= 1.1 * measured_s, (machine, predicted)
+    if this_code:
+        assert measured_s <= predicted <= 1.1 * measured_s, (machine, predicted)
+    else:
+        assert 0.71 / 1.1 * measured_s <= predicted <= measured_s, (machine, predicted)
 
 
 def test_progress_counts_work_so_the_percentage_follows_the_predicted_time(tmp_path):
@@ -243,8 +249,9 @@ def test_job_costs_follow_the_network_and_its_arithmetic():
 def test_a_demo_predicted_to_overrun_says_so_and_names_the_faster_preset_where_it_helps(tmp_path):
     trainer = full_demo_trainer(tmp_path, io.StringIO())
     trainer.plan()
-    # the two required runs in parallel: the longer one ends last
-    assert trainer.planned_seconds == max(trainer.predicted_seconds(job) for job in trainer.jobs[:2])
+    # the two required runs in parallel, and the optional ones kept, end within the budget
+    assert trainer.planned_seconds >= max(trainer.predicted_seconds(job) for job in trainer.jobs[:2])
+    assert trainer.planned_seconds <= trainer.deadline - time.perf_counter()
     unet_float32 = load_config("cpu", ["train.mixed_precision=none"])
     assert demo.overrun_note(599.0, 600.0, unet_float32) is None
     note = demo.overrun_note(1100.0, 600.0, unet_float32)

@@ -104,22 +104,25 @@ class DemoSettings:
 #: :data:`TIMING_ESTIMATE_S`) for the methods scored by default before the classic elements' linear baselines
 #: joined them (a shipped ``cubic+net`` and its 2-D PSFs included), on a machine whose ``lens+net`` step takes
 #: :data:`LENS_NET_STEP_S`; on another the plan scales them by the measured step
-#: (:meth:`~edofproj.application.schedule.ParallelTrainer.speed`). Calibrated on 2026-11-28: the default
-#: demo's stages after training took 218 s on the 2-core Intel Xeon limited to AVX2 (``lens+net`` 0.107 s a
-#: step) and 453 s on a 2-core AMD EPYC with AVX2 only (0.220 s a step), 2.1 times as long for 2.1 times the
-#: step; with these constants and the report's margin the plan predicts 234 and 466 s (docs/experiments/2026-11-28-amd-epyc-demo.md).
-EVALUATION_ESTIMATE_S = 90.0
+#: (:meth:`~edofproj.application.schedule.ParallelTrainer.speed`). Calibrated on 2026-11-28 on a 2-core AMD
+#: EPYC with AVX2 only, where the default demo's stages after training took 322 s (``lens+net`` 0.217 s a
+#: step, 2.0 times the assumed): with these constants and the report's margin the plan predicts 347 s
+#: (docs/experiments/2026-11-28-evaluation-on-every-core.md). Before the evaluation ran its tasks on every
+#: core they took 453 s there and 218 s on the Intel Xeon limited to AVX2 (0.107 s a step), which now
+#: bound the prediction from above (docs/experiments/2026-11-28-amd-epyc-demo.md).
+EVALUATION_ESTIMATE_S = 48.0
 #: The stages' cost after the training of ``net.architecture``'s networks relative to the U-Net's (whose demo
 #: :data:`EVALUATION_ESTIMATE_S` is), at the assumed step of each (:data:`LENS_NET_STEP_S`): on the AMD EPYC of
 #: :data:`EVALUATION_ESTIMATE_S` the multi-rate networks' demo (``--config cpu-realtime``) spent 399 s after
 #: training at 0.105 s a ``lens+net`` step (1.7 times the assumed), the U-Net demo 453 s at 0.209 s (2.0 times):
-#: the evaluation does not shrink with the network's step (docs/experiments/2026-11-28-amd-epyc-demo.md).
+#: the evaluation does not shrink with the network's step (docs/experiments/2026-11-28-amd-epyc-demo.md; both
+#: measured before the evaluation ran on every core).
 EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 1.2}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
-#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine); 5 s each with the
-#: calibration of :data:`EVALUATION_ESTIMATE_S`.
-LINEAR_METHOD_SECONDS = 5.0
+#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine); 3 s each with the
+#: calibration of :data:`EVALUATION_ESTIMATE_S` (the evaluation on every core).
+LINEAR_METHOD_SECONDS = 3.0
 
 #: Steps of the baselines of another architecture, trained in one phase by their own recipe (those of their
 #: shipped runs) unless the demo's settings or the user set ``train.steps``: ``lens+onlineprodeb``, at 9 to 53
