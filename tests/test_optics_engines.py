@@ -96,17 +96,3 @@ def test_gradcheck_through_the_radial_engine_wrt_mlp_parameters(geometry):
         return torch.func.functional_call(module, dict(zip(names, values)), ([0.45, 0.55],))
 
     assert torch.autograd.gradcheck(psf_of, inputs, eps=1e-6, atol=1e-7, rtol=1e-4)
-
-
-def test_the_padded_transform_skips_the_zero_rows_and_equals_fft2():
-    from edofproj.optics.fourier_engine import padded_fft2
-
-    generator = torch.Generator().manual_seed(2)
-    field = torch.polar(
-        torch.rand(3, 24, 24, generator=generator, dtype=torch.float64),
-        6.0 * torch.rand(3, 24, 24, generator=generator, dtype=torch.float64),
-    )
-    full = torch.fft.fft2(field, s=(64, 64))
-    torch.testing.assert_close(padded_fft2(field, 64), full, rtol=0, atol=1e-12)
-    # Parseval: the zero padding adds no energy
-    assert float((full.abs() ** 2).sum() / 64**2) == pytest.approx(float((field.abs() ** 2).sum()), rel=1e-12)
