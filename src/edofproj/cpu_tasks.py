@@ -39,16 +39,15 @@ def run_tasks(tasks: Sequence[Callable[[], T]], workers: int = 1) -> Iterator[T]
     (``threads // workers`` each, at least one; restored after). ``workers == 1``: one after another
     in this thread. An exception of a task is raised here, once the tasks already started have ended.
     """
-    if workers <= 1 or len(tasks) <= 1:
-        for task in tasks:
-            with torch.inference_mode():
-                yield task()
-        return
 
     def run(task: Callable[[], T]) -> T:
         with torch.inference_mode():
             return task()
 
+    if workers <= 1 or len(tasks) <= 1:
+        for task in tasks:
+            yield run(task)
+        return
     threads = torch.get_num_threads()
     torch.set_num_threads(max(1, threads // workers))
     try:

@@ -318,12 +318,9 @@ def delta_e2000(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(mean, p95)`` of the per-pixel CIEDE2000 difference, each ``(B,)`` float32 (module docstring).
     ``target_lab``: :func:`cielab` of ``target`` when already computed."""
-    if target_lab is None:
-        maps = delta_e2000_map(pred, target)
-    else:
-        _check_pair(pred, target, "delta_e2000")
-        maps = _delta_e2000_map_to_lab(pred, target_lab)
-    maps = maps.reshape(pred.shape[0], -1)
+    _check_pair(pred, target, "delta_e2000")
+    lab = cielab(target) if target_lab is None else target_lab
+    maps = _delta_e2000_map_to_lab(pred, lab).reshape(pred.shape[0], -1)
     mean = torch.from_numpy(maps.mean(axis=1)).float()
     p95 = torch.from_numpy(np.percentile(maps, DELTA_E_PERCENTILE, axis=1)).float()
     return mean, p95

@@ -146,7 +146,7 @@ def evaluate_scenes(
             target = image[None].to(device)
             if image_index == 0:
                 evaluation.targets[scene_name] = (target * hit)[0].permute(1, 2, 0).cpu().numpy()
-            designs: dict[str, OpticalDesign] = {m.design.key: m.design for m in prepared}  # type: ignore[misc]
+            designs: dict[str, OpticalDesign] = {m.design.key: m.design for m in prepared}
             with torch.inference_mode():  # each design's capture and PSFs, before the methods share them
                 captured = {key: render_scene(target, cast, d.psf(layers), layers) for key, d in designs.items()}
                 for design in designs.values():
