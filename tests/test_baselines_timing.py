@@ -23,6 +23,28 @@ def test_measure_ms_runs_warmup_then_times_each_repeat():
     assert min(times) >= 2.0  # each timed call sleeps 2 ms
 
 
+def test_a_time_budget_stops_the_repeats_once_the_timed_frames_add_up_to_it(monkeypatch):
+    # a fake clock: each frame advances it by its length, so the test does not depend on the machine's speed
+    clock = [0.0]
+    monkeypatch.setattr("edofproj.evaluation.timing.time.perf_counter", lambda: clock[0])
+    lengths = iter([4.0, 2.0, 2.0, 2.0, 2.0, 2.0])  # seconds: one warm-up frame, then the timed ones
+
+    def frame():
+        clock[0] += next(lengths)
+
+    times = measure_ms(frame, repeats=5, warmup=1, budget_s=5.0)
+    assert times == [2000.0, 2000.0, 2000.0]  # 6 s >= 5 s after the third timed frame; the warm-up is not counted
+    one = iter([7.0])
+    results = time_cases(
+        [Case("m", "b", "cpu", lambda h, w: lambda: clock.__setitem__(0, clock[0] + next(one)))],
+        [(4, 4)],
+        repeats=3,
+        warmup=0,
+        budget_s=5.0,
+    )
+    assert results[0].repeats == 1 and results[0].median_ms == 7000.0
+
+
 def test_time_cases_builds_one_frame_function_per_size():
     built = []
 

@@ -44,6 +44,31 @@ def test_range_stats_are_mean_and_worst_of_the_per_depth_means():
     assert stats.worst == pytest.approx(0.5) and stats.worst_depth_mm == 300.0
 
 
+def test_per_depth_means_are_the_means_of_the_selected_rows():
+    # rows of two methods interleaved, a depth written as 300 and as 300.0000004 (the same depth within
+    # 1e-6 mm), a method without rows at one depth, a NaN score: each mean is that of `values` at the depth
+    rng = np.random.default_rng(3)
+    table = MetricsTable(("method", "depth_mm", "image"), ("ssim",))
+    for image in "abc":
+        for depth in (800.0, 300, 500.0, 300.0000004):
+            for method in ("lens", "doe"):
+                if method == "doe" and depth == 500.0:
+                    continue
+                table.add(method=method, depth_mm=depth, image=image, ssim=float(rng.random()))
+    table.add(method="lens", depth_mm=800.0, image="d", ssim=math.nan)
+    for method in ("lens", "doe"):
+        means = table.per_depth_means(method, "ssim")
+        expected = {
+            z: float(table.values("ssim", method=method, depth_mm=z).mean())
+            for z in table.depths_mm()
+            if table.values("ssim", method=method, depth_mm=z).size
+        }
+        assert list(means) == list(expected)
+        assert all(means[z] == expected[z] or math.isnan(means[z]) and math.isnan(expected[z]) for z in expected)
+    assert 500.0 not in table.per_depth_means("doe", "ssim")
+    assert math.isnan(table.per_depth_means("lens", "ssim")[800.0])
+
+
 def test_worst_is_the_highest_value_for_lower_is_better_metrics():
     table = MetricsTable(("method", "depth_mm", "image"), ("lpips",))
     for depth, value in ((300.0, 0.4), (500.0, 0.1), (800.0, 0.3)):

@@ -244,6 +244,10 @@ OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
 #: Seconds of the demo's timing stage on the machine of :data:`LENS_NET_STEP_S` (49 s on the AMD EPYC of
 #: :data:`EVALUATION_ESTIMATE_S`, 2.1 times slower).
 TIMING_ESTIMATE_S = {"full": 24.0, "quick": 5.0}
+#: Seconds of timed frames after which a case of the timing stage stops repeating (after its warm-up frame):
+#: OnlineProDeb's network takes about 10 s a 600x800 frame on 2 AVX2 cores, timed once instead of
+#: :attr:`DemoSettings.timing_repeats` times (``edofproj bench`` repeats every case).
+TIMING_CASE_BUDGET_S = 5.0
 REPORT_MARGIN_S = 15.0
 
 
@@ -545,7 +549,9 @@ def timing_rows(evaluation, settings: DemoSettings) -> list:
     for name in (OURS, "lens+onlineprodeb"):
         if name in by_name:  # the forward pass alone: no display guard (the summary's ms/frame has it)
             cases.append(timing.network_torch_case(by_name[name].compensate.net, f"{name} network alone"))
-    results = timing.time_cases(cases, list(settings.timing_sizes), repeats=settings.timing_repeats, warmup=1)
+    results = timing.time_cases(
+        cases, list(settings.timing_sizes), repeats=settings.timing_repeats, warmup=1, budget_s=TIMING_CASE_BUDGET_S
+    )
     if "lens+cls" in by_name and psf is not None:
         cls_case = timing.cls_torch_case(psf, evaluation.cfg.evaluation.cls_iterations)
         results += timing.time_cases([cls_case], list(settings.timing_sizes[:1]), repeats=1, warmup=0)
@@ -580,7 +586,8 @@ def timing_section(results, threads: int, evaluated_hw: tuple[int, int] | None =
             + ", in PyTorch, right after scoring (the non-blind Wiener filter rebuilt for each frame), while "
             "this table times the kernels alone on random frames of fixed sizes (the Wiener filter applied from "
             "a cached transfer function with SciPy; the networks' forward pass with channels-last weights), "
-            "a few repeats each. Both are wall clock on whatever else the machine runs: on a shared machine the "
+            f"a few repeats each (fewer once the timed frames add up to {TIMING_CASE_BUDGET_S:g} s). Both are wall "
+            "clock on whatever else the machine runs: on a shared machine the "
             "same frame can take several times longer from one minute to the next (`edofproj bench` repeats "
             "more)."
         ),

@@ -62,22 +62,30 @@ class Timing:
 
 
 def measure_ms(
-    frame: FrameFunction, repeats: int = 10, warmup: int = 2, synchronize: Callable[[], None] | None = None
+    frame: FrameFunction,
+    repeats: int = 10,
+    warmup: int = 2,
+    synchronize: Callable[[], None] | None = None,
+    budget_s: float | None = None,
 ) -> list[float]:
     """Wall-clock milliseconds of each of ``repeats`` calls of ``frame`` after ``warmup`` untimed
-    calls (``synchronize`` is called after each, e.g. to wait for a device)."""
+    calls (``synchronize`` is called after each, e.g. to wait for a device). With ``budget_s``, fewer
+    calls (at least one) once the timed ones add up to ``budget_s`` seconds: a frame of several
+    seconds is timed once or twice, not ``repeats`` times."""
     if repeats < 1 or warmup < 0:
         raise EdofprojError(f"repeats={repeats} must be >= 1 and warmup={warmup} >= 0")
     sync = synchronize or (lambda: None)
     for _ in range(warmup):
         frame()
     sync()
-    times = []
+    times: list[float] = []
     for _ in range(repeats):
         start = time.perf_counter()
         frame()
         sync()
         times.append((time.perf_counter() - start) * 1e3)
+        if budget_s is not None and sum(times) >= budget_s * 1e3:
+            break
     return times
 
 
@@ -98,11 +106,13 @@ def measure_cuda_ms(frame: FrameFunction, repeats: int = 10, warmup: int = 2) ->
     return [start.elapsed_time(end) for start, end in events]
 
 
-def _measure(case: "Case", frame: FrameFunction, repeats: int, warmup: int) -> list[float]:
+def _measure(
+    case: "Case", frame: FrameFunction, repeats: int, warmup: int, budget_s: float | None = None
+) -> list[float]:
     if case.device.startswith("cuda") and case.backend != "onnxruntime":
         return measure_cuda_ms(frame, repeats, warmup)
     synchronize = torch.cuda.synchronize if case.device.startswith("cuda") else None
-    return measure_ms(frame, repeats, warmup, synchronize)
+    return measure_ms(frame, repeats, warmup, synchronize, budget_s)
 
 
 def time_cases(
@@ -111,14 +121,17 @@ def time_cases(
     repeats: int = 10,
     warmup: int = 2,
     progress: Callable[[Timing], None] | None = None,
+    budget_s: float | None = None,
 ) -> list[Timing]:
-    """Median milliseconds per frame of every case at every ``(height, width)``."""
+    """Median milliseconds per frame of every case at every ``(height, width)``; ``budget_s``: on the CPU,
+    the seconds of timed calls after which a case stops repeating (:func:`measure_ms`; each
+    :class:`Timing` gives the calls timed)."""
     results = []
     for case in cases:
         for height, width in sizes:
             frame = case.build(height, width)
-            times = _measure(case, frame, repeats, warmup)
-            timing = Timing(case.method, case.backend, case.device, height, width, statistics.median(times), repeats)
+            times = _measure(case, frame, repeats, warmup, budget_s)
+            timing = Timing(case.method, case.backend, case.device, height, width, statistics.median(times), len(times))
             results.append(timing)
             if progress is not None:
                 progress(timing)
