@@ -104,13 +104,15 @@ class DemoSettings:
 #: :data:`TIMING_ESTIMATE_S`) for the methods scored by default before the classic elements' linear baselines
 #: joined them (a shipped ``cubic+net`` and its 2-D PSFs included), on a machine whose ``lens+net`` step takes
 #: :data:`LENS_NET_STEP_S`; on another the plan scales them by the measured step
-#: (:meth:`~edofproj.application.schedule.ParallelTrainer.speed`). Calibrated on 2026-11-28 on a 2-core AMD
-#: EPYC with AVX2 only, where the default demo's stages after training took 322 s (``lens+net`` 0.217 s a
-#: step, 2.0 times the assumed): with these constants and the report's margin the plan predicts 347 s
-#: (docs/experiments/2026-11-28-evaluation-on-every-core.md). Before the evaluation ran its tasks on every
-#: core they took 453 s there and 218 s on the Intel Xeon limited to AVX2 (0.107 s a step), which now
-#: bound the prediction from above (docs/experiments/2026-11-28-amd-epyc-demo.md).
-EVALUATION_ESTIMATE_S = 48.0
+#: (:meth:`~edofproj.application.schedule.ParallelTrainer.speed`, the step over the first
+#: :data:`~edofproj.application.schedule.RATE_STEPS`). Calibrated on 2026-11-28 on a 2-core AMD EPYC with AVX2
+#: only, where the default demo's stages after training took 308 s up to the report (``lens+net`` 0.183 s a
+#: step over its first 50, 1.76 times the assumed) and 322 s in a run before the timing stage's budget (0.197 s):
+#: with these constants and the report's margin the plan predicts 317 and 340 s
+#: (docs/experiments/2026-11-28-demo-later-stages.md). Before the evaluation ran its tasks on every core they
+#: took 453 s there and 218 s on the Intel Xeon limited to AVX2 (0.107 s a step), which bound the prediction
+#: from above (docs/experiments/2026-11-28-amd-epyc-demo.md).
+EVALUATION_ESTIMATE_S = 71.0
 #: The stages' cost after the training of ``net.architecture``'s networks relative to the U-Net's (whose demo
 #: :data:`EVALUATION_ESTIMATE_S` is), at the assumed step of each (:data:`LENS_NET_STEP_S`): on the AMD EPYC of
 #: :data:`EVALUATION_ESTIMATE_S` the multi-rate networks' demo (``--config cpu-realtime``) spent 399 s after
@@ -241,9 +243,9 @@ BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
 CUBIC_SECONDS_PER_DEPTH = 2.3
 #: Optional baselines in the order they are tried.
 OPTIONAL_ORDER = ("axicon+net", "cubic+net", "lens+onlineprodeb")
-#: Seconds of the demo's timing stage on the machine of :data:`LENS_NET_STEP_S` (49 s on the AMD EPYC of
-#: :data:`EVALUATION_ESTIMATE_S`, 2.1 times slower).
-TIMING_ESTIMATE_S = {"full": 24.0, "quick": 5.0}
+#: Seconds of the demo's timing stage on the machine of :data:`LENS_NET_STEP_S` (24 s on the AMD EPYC of
+#: :data:`EVALUATION_ESTIMATE_S`, at 1.76 times its step, with :data:`TIMING_CASE_BUDGET_S`).
+TIMING_ESTIMATE_S = {"full": 14.0, "quick": 5.0}
 #: Seconds of timed frames after which a case of the timing stage stops repeating (after its warm-up frame):
 #: OnlineProDeb's network takes about 10 s a 600x800 frame on 2 AVX2 cores, timed once instead of
 #: :attr:`DemoSettings.timing_repeats` times (``edofproj bench`` repeats every case).

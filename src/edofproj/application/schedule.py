@@ -10,7 +10,7 @@ is predicted to end before ``deadline``:
     now + setup_s + steps * rate * relative_cost  <=  max(deadline, end of the required jobs)
 
 where ``rate`` is the measured seconds per step of a reference job (the first required job
-with ``relative_cost == 1``, once it has logged 3 steps; before that ``default_rate_s``: the demo
+with ``relative_cost == 1``, once it has logged :data:`RATE_STEPS` steps; before that ``default_rate_s``: the demo
 gives the ``lens+net`` step of its network on the 2-core development machine), and
 ``relative_cost``/``setup_s`` are the job's measured cost per step relative to the reference
 and its one-off start-up cost (process start, PSF tables). The end of the required jobs is predicted
@@ -45,6 +45,11 @@ from ..errors import EdofprojError
 from ..progress import StageProgress, format_duration
 
 POLL_S = 1.0
+#: Steps the reference job logs before its seconds per step are taken as the machine's rate (all of them
+#: when it has fewer): its first steps include the warm-up. In five demos on a 2-core AMD EPYC, whose
+#: ``lens+net`` runs averaged 0.187-0.220 s a step, the rate after 3 steps ranged over 0.157-0.251 s, after 50
+#: over 0.157-0.210 s (docs/experiments/2026-11-28-demo-later-stages.md).
+RATE_STEPS = 50
 #: The note of an optional job planned beyond the deadline because it ends before the required jobs.
 WAITING_WORKER_NOTE = (
     "trained beyond the time budget on a worker that waits for the required runs: predicted to end before them"
@@ -134,11 +139,12 @@ class ParallelTrainer:
 
     # -- cost model ------------------------------------------------------------------------
     def measured_rate_s(self) -> float | None:
-        """Seconds per step of the reference job once it has logged 3 steps (see module docstring), else None."""
+        """Seconds per step of the reference job once it has logged :data:`RATE_STEPS` steps (or all of its
+        steps, when it has fewer; module docstring), else None."""
         for job in self.jobs:
             if job.required and job.relative_cost == 1.0 and job.status in ("running", "done"):
                 steps = job.steps_done()
-                if steps >= 3:
+                if steps >= min(RATE_STEPS, job.steps):
                     return job.training_seconds() / steps
         return None
 
