@@ -151,16 +151,14 @@ class MetricsTable:
         """``{z: m(z)}``: the mean of ``metric`` over the images of ``method`` at each depth ``z`` (mm) where
         it has rows, depths ascending; the rows of a depth are those within 1e-6 mm of it, as :meth:`mean`
         matches them (one pass over the rows: the reports ask for every method and metric)."""
-        by_depth: dict[float, list[tuple[int, float]]] = {}
-        for index, row in enumerate(self.rows):
+        depths = self.depths_mm()
+        selected: dict[float, list[float]] = {z: [] for z in depths}
+        for row in self.rows:
             if _same(row["method"], method):
-                by_depth.setdefault(float(row["depth_mm"]), []).append((index, float(row[metric])))
-        means = {}
-        for z in self.depths_mm():
-            matched = sorted(item for depth, items in by_depth.items() if abs(depth - z) < 1e-6 for item in items)
-            if matched:
-                means[z] = float(np.array([value for _, value in matched], dtype=float).mean())
-        return means
+                for z in depths:
+                    if _same(row["depth_mm"], z):
+                        selected[z].append(float(row[metric]))
+        return {z: float(np.array(values, dtype=float).mean()) for z, values in selected.items() if values}
 
     def range_stats(self, method: str, metric: str, lo_mm: float, hi_mm: float) -> RangeStats:
         """Mean and worst of the per-depth means over the depths ``Z`` in ``[lo_mm, hi_mm]`` (module docstring:
