@@ -3,6 +3,7 @@ prediction of a capture from a map and a PSF map (on the virtual ProCams)."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -172,3 +173,85 @@ def test_a_psf_as_small_as_the_camera_pixels_still_helps() -> None:
     # the interpolation's own spread on top of them
     psf_map, with_psf, without = virtual_prediction((0.6, 0.6))
     assert with_psf.psnr_db > without.psnr_db + 0.8
+
+
+# --------------------------------------------------------------------- per-colour PSF maps
+COLOUR_SIGMAS = {"mean": (1.1, 1.8), "red": (0.9, 1.4), "green": (1.3, 2.0), "blue": (1.8, 2.7)}
+
+
+def colour_dot_lab(folder) -> None:
+    """A lab folder with a white dot capture and a red, a green and a blue one of a 60x72 projector seen
+    at 2 camera px per projector px: each colour's dots blurred by its own Gaussian (``COLOUR_SIGMAS``)
+    in the camera's channel of that colour, and leaking into the other two channels with another,
+    wider blur (a channel read by mistake gives another width); a map file ``map.npz``."""
+    from edofproj.procams.capture_io import write_rgb_png
+
+    H, W = 60, 72
+    v, u = np.mgrid[0 : 2 * H, 0 : 2 * W].astype(float)
+    tx, ty = (u - 0.5) / 2, (v - 0.5) / 2
+
+    def dots(sigma_x: float, sigma_y: float) -> np.ndarray:
+        light = np.zeros_like(tx)
+        for y0 in range(0, H, 12):
+            for x0 in range(0, W, 12):
+                light += np.exp(-0.5 * (((tx - x0) / sigma_x) ** 2 + ((ty - y0) / sigma_y) ** 2))
+        return light
+
+    leak = 0.3 * dots(3.5, 3.5)
+    for name, (sx, sy) in COLOUR_SIGMAS.items():
+        own = 0.02 + 0.8 * dots(sx, sy)
+        if name == "mean":
+            rgb = np.repeat(own[..., None], 3, -1)
+        else:
+            rgb = np.repeat((0.02 + leak)[..., None], 3, -1)
+            rgb[..., ("red", "green", "blue").index(name)] = own
+        write_rgb_png(folder / f"dots_{name}.png", np.clip(rgb, 0, 1))
+    sequences = [
+        {"name": f"dots_{name}", "kind": "dots", "spacing_px": [12, 12], "files": {"list": [f"dots_{name}.png"]}}
+        | ({} if name == "mean" else {"channel": name})
+        for name in COLOUR_SIGMAS
+    ]
+    data = {"format": "edofproj-lab-captures", "version": 1, "projector": {"height": H, "width": W},
+            "sequences": sequences}  # fmt: skip
+    (folder / "lab.json").write_text(json.dumps(data), encoding="utf-8")
+    CorrespondenceMap(tx, ty, (H, W)).save(folder / "map.npz")
+
+
+def test_per_colour_maps_recover_three_known_widths(tmp_path, capsys) -> None:
+    from edofproj.cli import main
+    from edofproj.procams.psf_map import load_psf_maps, psf_maps_for_rgb
+
+    colour_dot_lab(tmp_path)
+    out = tmp_path / "psf.npz"
+    code = main(["procams", "psf-map", "--lab", str(tmp_path / "lab.json"), "--map", str(tmp_path / "map.npz"),
+                 "--dots", "dots_blue", "dots_mean", "dots_red", "dots_green", "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    maps = load_psf_maps(out)
+    assert list(maps) == ["mean", "red", "green", "blue"]
+    for name, (sx, sy) in COLOUR_SIGMAS.items():
+        m = maps[name]
+        assert m.channel == name and m.fitted.sum() >= 20
+        assert math.isclose(np.median(m.sigma_x[m.fitted]), sx, rel_tol=0.05), name
+        assert math.isclose(np.median(m.sigma_y[m.fitted]), sy, rel_tol=0.05), name
+    assert PSFMap.load(out).channel == "mean" and PSFMap.load(out, "blue").channel == "blue"
+    assert [m.channel for m in psf_maps_for_rgb(maps)] == ["red", "green", "blue"]
+    # two sequences of one colour are refused in one line
+    code = main(["procams", "psf-map", "--lab", str(tmp_path / "lab.json"), "--map", str(tmp_path / "map.npz"),
+                 "--dots", "dots_red", "dots_red", "--out", str(tmp_path / "p2.npz")])  # fmt: skip
+    assert code != 0 and "channel 'red'" in capsys.readouterr().err and not (tmp_path / "p2.npz").exists()
+
+
+def test_a_single_map_file_without_channels_still_loads(tmp_path) -> None:
+    """A map written before per-colour maps (no ``channels`` key) is one ``mean`` map; a colour's map it
+    lacks is one line; the RGB planes all use it."""
+    from edofproj.procams.psf_map import load_psf_maps, psf_maps_for_rgb
+
+    cov = np.broadcast_to(covariance(1.0, 2.0, 0.3), (2, 3, 2, 2)).copy()
+    np.savez(tmp_path / "old.npz", format=np.array("edofproj-procams-psf-map"), xs=np.array([0.0, 10.0, 20.0]),
+             ys=np.array([0.0, 10.0]), cov=cov, offset_px=np.array([0.5, -0.5]), fitted=np.ones((2, 3), bool),
+             projector_hw=np.array([20, 30]))  # fmt: skip
+    maps = load_psf_maps(tmp_path / "old.npz")
+    assert list(maps) == ["mean"] and np.allclose(maps["mean"].cov, cov)
+    assert all(m is maps["mean"] for m in psf_maps_for_rgb(maps))
+    with pytest.raises(EdofprojError, match="no map for channel 'red'"):
+        PSFMap.load(tmp_path / "old.npz", "red")

@@ -24,6 +24,9 @@ of its files, and the projector's size, so that the structured-light commands (`
 * ``gray-code``: ``planes`` captures, most significant plane first; ``inverse`` (optional, bool):
   each plane followed by its inverse.
 * ``dots``: single lit pixels every ``spacing_px`` ``[along y, along x]`` from ``origin_px`` ``[y, x]``.
+* ``channel`` (any sequence, optional): the channel its captures are read in, instead of the
+  manifest's; a ``dots`` sequence of red, green or blue dots says so with ``"channel": "red"`` ...,
+  and ``procams psf-map`` fits that colour's map from it.
 """
 
 from __future__ import annotations
@@ -59,11 +62,14 @@ class Sequence:
     inverse: bool = False
     spacing_px: tuple[int, int] = (0, 0)
     origin_px: tuple[float, float] = (0.0, 0.0)
+    channel: str | None = None
 
     def to_json(self) -> dict:
         item: dict = {"name": self.name, "kind": self.kind}
         if self.axis is not None:
             item["axis"] = self.axis
+        if self.channel is not None:
+            item["channel"] = self.channel
         if self.kind == "phase-shift":
             item.update(periods=list(self.periods), steps=self.steps, order=self.order)
         if self.kind == "gray-code":
@@ -113,9 +119,13 @@ class LabManifest:
         names = ", ".join(s.name for s in self.sequences)
         raise EdofprojError(f"the lab manifest has no sequence '{name}' (it has: {names})")
 
-    def read_grey(self, relative: str) -> np.ndarray:
-        """One capture as grey ``(Hc, Wc)`` float64 in ``[0, 1]`` (``channel``)."""
-        return to_grey(read_rgb(self.root / relative, what="capture"), self.channel)
+    def channel_of(self, seq: Sequence) -> str:
+        """The channel ``seq``'s captures are read in: its own ``channel``, else the manifest's."""
+        return seq.channel if seq.channel is not None else self.channel
+
+    def read_grey(self, relative: str, channel: str | None = None) -> np.ndarray:
+        """One capture as grey ``(Hc, Wc)`` float64 in ``[0, 1]`` (``channel``, default the manifest's)."""
+        return to_grey(read_rgb(self.root / relative, what="capture"), channel or self.channel)
 
     def read_rgb(self, relative: str) -> np.ndarray:
         """One capture ``(Hc, Wc, 3)`` float32 in ``[0, 1]``."""
@@ -162,6 +172,10 @@ def _sequence(item: dict, root: Path, projector_hw: tuple[int, int]) -> Sequence
     if kind not in KINDS:
         raise ValueError(f"sequence '{item.get('name')}' has unknown kind '{kind}' (one of {', '.join(KINDS)})")
     seq = Sequence(name=str(item["name"]), kind=kind, files=_files(item, root), axis=item.get("axis"))
+    if "channel" in item:
+        seq.channel = str(item["channel"])
+        if seq.channel not in CHANNELS:
+            raise ValueError(f"sequence '{seq.name}' has channel '{seq.channel}', not one of {', '.join(CHANNELS)}")
     if not seq.files:
         raise ValueError(f"sequence '{seq.name}' lists no files")
     want = 1
@@ -202,6 +216,20 @@ def to_grey(image: np.ndarray, channel: str = "mean") -> np.ndarray:
     return image.mean(axis=-1) if index is None else image[..., index]
 
 
+def censored_samples(image: np.ndarray, channel: str = "mean") -> tuple[np.ndarray, np.ndarray]:
+    """``(saturated, clipped)`` ``(Hc, Wc)`` bool for :func:`to_grey` of ``image`` ``(Hc, Wc, 3)`` in
+    ``channel``: its grey value is only a lower bound where a channel it averages is saturated, and
+    only an upper bound where every channel it averages is clipped to black."""
+    from .structured_light import CLIPPED_BLACK, SATURATED
+
+    image = np.asarray(image)
+    if image.ndim == 2:
+        return image >= SATURATED, image <= CLIPPED_BLACK
+    index = CHANNELS[channel]
+    used = image if index is None else image[..., index : index + 1]
+    return np.asarray((used >= SATURATED).any(axis=-1)), np.asarray((used <= CLIPPED_BLACK).all(axis=-1))
+
+
 def phase_frames_in_profile_order(seq: Sequence) -> list[str]:
     """The sequence's files in :func:`.structured_light.phase_shift_profiles` order (period-major)."""
     if seq.order == "period-major":
@@ -221,9 +249,10 @@ def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None)
     length = axis_length(manifest.projector_hw, seq.axis)
     if seq.kind == "phase-shift":
         files = phase_frames_in_profile_order(seq)
-        first = manifest.read_grey(files[0])
+        channel = manifest.channel_of(seq)
+        first = manifest.read_grey(files[0], channel)
         check_decoding_memory(first.shape, len(files))
-        frames = [first] + [manifest.read_grey(f) for f in files[1:]]
+        frames = [first] + [manifest.read_grey(f, channel) for f in files[1:]]
         _same_size(frames, name)
         return decode_phase_shift(frames, seq.periods, seq.steps, length)
     frames, inverse = read_gray_code(manifest, name, planes)
@@ -242,8 +271,9 @@ def read_gray_code(
     if not 2 <= use <= seq.planes:
         raise EdofprojError(f"--planes {use} must be 2..{seq.planes} (the planes of '{name}')")
     step = 2 if seq.inverse else 1
-    frames = [manifest.read_grey(seq.files[step * b]) for b in range(use)]
-    inverse = [manifest.read_grey(seq.files[step * b + 1]) for b in range(use)] if seq.inverse else None
+    channel = manifest.channel_of(seq)
+    frames = [manifest.read_grey(seq.files[step * b], channel) for b in range(use)]
+    inverse = [manifest.read_grey(seq.files[step * b + 1], channel) for b in range(use)] if seq.inverse else None
     _same_size(frames + (inverse or []), name)
     return frames, inverse
 

@@ -25,7 +25,14 @@ of ``centre - d``; the dots are then fitted again about ``d + o``.
 **The map.** The fitted covariances on the dot grid, median-filtered over ``3 x 3`` dots (outliers),
 gaps filled from the nearest fitted dot; between dots the covariance is interpolated bilinearly
 (a convex combination of covariances is a covariance). :class:`PSFMap` is saved as ``.npz``
-(format ``edofproj-procams-psf-map``).
+(format ``edofproj-procams-psf-map``); one file holds a map per colour (``mean`` for white dots,
+``red``, ``green``, ``blue``), each fitted from that colour's dot capture on its own grid
+(:func:`save_psf_maps`, :func:`load_psf_maps`, :func:`psf_maps_for_rgb`).
+
+**Pixel indices.** The map is in projector pixel indices (column ``x``, row ``y``), whatever the
+projector's pixel layout: on a diamond (DMD) array whose rows are half a column pitch apart, a
+round blur on the surface has ``sigma_y`` about twice ``sigma_x``, which the anisotropic Gaussian
+carries like any other anisotropy.
 """
 
 from __future__ import annotations
@@ -44,6 +51,8 @@ from ..fileio import read_tagged_arrays, save_npz_atomic
 from .structured_light import CorrespondenceMap
 
 PSF_MAP_FORMAT = "edofproj-procams-psf-map"
+PSF_MAP_CHANNELS = ("mean", "red", "green", "blue")
+"""The colours a PSF map file holds maps for, in file order (``mean``: white dots, grey = mean of R, G, B)."""
 MAX_SIGMA_PX = 20.0
 """Largest PSF width (projector px) a fit may return."""
 
@@ -153,7 +162,9 @@ class PSFMap:
     """Anisotropic Gaussian PSFs on a grid of projector points (module docstring): ``cov``
     ``(rows, cols, 2, 2)`` in projector px^2 at ``ys`` x ``xs`` (the dots' nominal positions);
     ``offset_px`` the estimated offset ``o`` ``(x, y)`` of the decoded map: the projector pixel a
-    camera pixel sees is ``P(q) - o``; ``fitted`` ``(rows, cols)`` where a dot was fitted."""
+    camera pixel sees is ``P(q) - o``; ``fitted`` ``(rows, cols)`` where a dot was fitted;
+    ``channel`` the colour the map is for (``mean``: white dots read as the mean of R, G, B;
+    ``red``, ``green``, ``blue``: that primary's dots read in the camera's channel of that colour)."""
 
     xs: np.ndarray
     ys: np.ndarray
@@ -161,6 +172,7 @@ class PSFMap:
     offset_px: np.ndarray
     fitted: np.ndarray
     projector_hw: tuple[int, int]
+    channel: str = "mean"
 
     @property
     def sigma_x(self) -> np.ndarray:
@@ -188,38 +200,104 @@ class PSFMap:
         return interp(np.stack([y, x], axis=-1)).reshape(*np.shape(x), 2, 2)
 
     def save(self, path) -> None:
-        save_npz_atomic(
-            path,
-            format=np.array(PSF_MAP_FORMAT),
-            xs=self.xs,
-            ys=self.ys,
-            cov=self.cov,
-            offset_px=self.offset_px,
-            fitted=self.fitted,
-            projector_hw=np.array(self.projector_hw),
-        )
+        """Write this one map (:func:`save_psf_maps`)."""
+        save_psf_maps(path, [self])
 
     @classmethod
-    def load(cls, path) -> "PSFMap":
-        keys = ("xs", "ys", "cov", "offset_px", "fitted", "projector_hw")
-        data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, keys, "make one with 'edofproj procams psf-map'")
-        source = f"PSF map '{path}'"
-        xs, ys, cov = data["xs"], data["ys"], data["cov"]
+    def load(cls, path, channel: str | None = None) -> "PSFMap":
+        """The file's first map (``channel`` None), or its map for ``channel`` (one line when it has none)."""
+        maps = load_psf_maps(path)
+        if channel is None:
+            return next(iter(maps.values()))
+        if channel not in maps:
+            raise EdofprojError(
+                f"PSF map '{path}' has no map for channel '{channel}' (it has: {', '.join(maps)}): "
+                "fit one with 'edofproj procams psf-map --dots' from that colour's dot capture"
+            )
+        return maps[channel]
+
+
+_MAP_KEYS = ("xs", "ys", "cov", "offset_px", "fitted")
+
+
+def _key(channel_index: int, channel: str, key: str) -> str:
+    """The file's key for ``key`` of the ``channel_index``-th map: unprefixed for the first (so a
+    reader of single-map files reads it), ``{channel}_{key}`` for the others."""
+    return key if channel_index == 0 else f"{channel}_{key}"
+
+
+def save_psf_maps(path, maps: list[PSFMap]) -> None:
+    """Write one or more maps of distinct channels (one projector) to one ``.npz``, atomically, in
+    the order ``mean``, ``red``, ``green``, ``blue`` (file format: ``docs/formats.md``)."""
+    if not maps:
+        raise EdofprojError("no PSF map to write")
+    names = [m.channel for m in maps]
+    if len(set(names)) != len(names) or any(n not in PSF_MAP_CHANNELS for n in names):
+        raise EdofprojError(f"PSF maps of channels {names}: each one of {', '.join(PSF_MAP_CHANNELS)}, once")
+    if len({tuple(m.projector_hw) for m in maps}) != 1:
+        raise EdofprojError("PSF maps of different projector sizes cannot share one file")
+    maps = sorted(maps, key=lambda m: PSF_MAP_CHANNELS.index(m.channel))
+    arrays: dict[str, np.ndarray] = {}
+    for k, m in enumerate(maps):
+        for key in _MAP_KEYS:
+            arrays[_key(k, m.channel, key)] = np.asarray(getattr(m, key))
+    save_npz_atomic(
+        path,
+        format=np.array(PSF_MAP_FORMAT),
+        projector_hw=np.array(maps[0].projector_hw),
+        channels=np.array([m.channel for m in maps]),
+        **arrays,
+    )
+
+
+def load_psf_maps(path) -> dict[str, PSFMap]:
+    """Every map of a PSF map file, by channel, in file order (a file without ``channels``, as
+    written before per-colour maps: one map, ``mean``)."""
+    data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, ("projector_hw", *_MAP_KEYS),
+                              "make one with 'edofproj procams psf-map'")  # fmt: skip
+    source = f"PSF map '{path}'"
+    channels = [str(c) for c in np.atleast_1d(data["channels"])] if "channels" in data else ["mean"]
+    if not channels or len(set(channels)) != len(channels) or any(c not in PSF_MAP_CHANNELS for c in channels):
+        raise EdofprojError(f"{source} lists channels {channels}: each one of {', '.join(PSF_MAP_CHANNELS)}, once")
+    hw = data["projector_hw"]
+    if hw.shape != (2,) or not np.all(hw >= 2):
+        raise EdofprojError(f"{source} has a projector size of {hw.tolist()}")
+    maps: dict[str, PSFMap] = {}
+    for k, channel in enumerate(channels):
+        keys = {key: _key(k, channel, key) for key in _MAP_KEYS}
+        missing = [name for name in keys.values() if name not in data]
+        if missing:
+            raise EdofprojError(f"{source} lacks {', '.join(missing)} (channel '{channel}')")
+        where = source if len(channels) == 1 else f"{source} (channel '{channel}')"
+        xs, ys, cov = data[keys["xs"]], data[keys["ys"]], data[keys["cov"]]
         if xs.ndim != 1 or ys.ndim != 1 or len(xs) < 2 or len(ys) < 2 or cov.shape != (len(ys), len(xs), 2, 2):
-            raise EdofprojError(f"{source} has a covariance of shape {cov.shape} for {len(ys)}x{len(xs)} grid points")
+            raise EdofprojError(f"{where} has a covariance of shape {cov.shape} for {len(ys)}x{len(xs)} grid points")
         if not (np.all(np.isfinite(cov)) and np.all(np.diff(xs) > 0) and np.all(np.diff(ys) > 0)):
-            raise EdofprojError(f"{source} has non-finite covariances or unsorted grid points")
+            raise EdofprojError(f"{where} has non-finite covariances or unsorted grid points")
         if np.any(np.linalg.det(cov) <= 0) or np.any(cov[..., 0, 0] <= 0):
-            raise EdofprojError(f"{source} has a covariance that is not positive definite")
-        hw = data["projector_hw"]
-        return cls(
+            raise EdofprojError(f"{where} has a covariance that is not positive definite")
+        offset, fitted = data[keys["offset_px"]], data[keys["fitted"]]
+        if offset.shape != (2,) or not np.all(np.isfinite(offset)) or fitted.shape != cov.shape[:2]:
+            raise EdofprojError(f"{where} has an offset of shape {offset.shape} or fitted dots of shape {fitted.shape}")
+        maps[channel] = PSFMap(
             xs=xs.astype(np.float64),
             ys=ys.astype(np.float64),
             cov=cov.astype(np.float64),
-            offset_px=data["offset_px"].astype(np.float64),
-            fitted=data["fitted"].astype(bool),
+            offset_px=offset.astype(np.float64),
+            fitted=fitted.astype(bool),
             projector_hw=(int(hw[0]), int(hw[1])),
+            channel=channel,
         )
+    return maps
+
+
+def psf_maps_for_rgb(maps: dict[str, PSFMap]) -> tuple[PSFMap, PSFMap, PSFMap]:
+    """The maps for an image's R, G and B planes: each colour's own map where there is one, else the
+    ``mean`` (white-dot) map, else the first map."""
+    if not maps:
+        raise EdofprojError("no PSF map")
+    fallback = maps.get("mean", next(iter(maps.values())))
+    return tuple(maps.get(c, fallback) for c in ("red", "green", "blue"))  # type: ignore[return-value]
 
 
 def _samples_by_dot(
@@ -298,9 +376,11 @@ def measure_psf_map(
     every: int = 1,
     saturated: np.ndarray | None = None,
     clipped: np.ndarray | None = None,
+    channel: str = "mean",
 ) -> tuple[PSFMap, dict[int, DotFit]]:
     """The PSF map from a grey dot capture ``(Hc, Wc)`` (image units) and the map of the same camera
-    pose. ``saturated``/``clipped``: the censored samples (default: at least ``top`` / at most 0)."""
+    pose. ``saturated``/``clipped``: the censored samples (default: at least ``top`` / at most 0);
+    ``channel``: the colour of the dots (:attr:`PSFMap.channel`)."""
     if not corr.is_complete:
         raise EdofprojError("a PSF map needs a decoded map with columns and rows")
     capture = np.asarray(capture, dtype=np.float64)
@@ -346,7 +426,9 @@ def measure_psf_map(
     # the component-wise median of covariances need not be one: fall back to the raw fit there
     bad = (np.linalg.det(smooth) <= 0) & fitted
     smooth[bad] = cov[bad]
-    psf_map = PSFMap(xs=xs, ys=ys, cov=smooth, offset_px=offset, fitted=fitted, projector_hw=corr.projector_hw)
+    psf_map = PSFMap(
+        xs=xs, ys=ys, cov=smooth, offset_px=offset, fitted=fitted, projector_hw=corr.projector_hw, channel=channel
+    )
     return psf_map, fits
 
 

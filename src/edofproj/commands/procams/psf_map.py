@@ -1,11 +1,13 @@
 """``edofproj procams psf-map``: the PSF across the surface from a captured grid of single-pixel dots.
 
-    edofproj procams psf-map --lab lab.json --dots SEQ --map map.npz --out psf_map.npz [--figure psf_map.png]
+    edofproj procams psf-map --lab lab.json --dots SEQ [SEQ ...] --map map.npz --out psf_map.npz [--figure psf_map.png]
     edofproj procams psf-map --lab lab.json --code GRAY --planes N --map map.npz [--like psf_map.npz] --out psf_b.npz
 
 Fits an anisotropic Gaussian (projector pixels) to every dot, saturated and black-clipped
 samples censored, estimates the decoded map's offset, and writes the map of covariances
 (:mod:`edofproj.procams.psf_map`). The map must be of the same camera pose as the dot capture.
+Several ``--dots`` sequences of different colours (their ``channel`` in the lab manifest: white dots
+``mean``, or ``red``, ``green``, ``blue``) give one map per colour in one file.
 ``--code``: the PSF's width along a Gray code's axis, measured from the first ``N`` planes' captures
 themselves through a sub-pixel map (``procams decode --edges``), per cell of projector points; the
 other components from the ``--like`` PSF map, else an isotropic Gaussian
@@ -26,7 +28,8 @@ def register(subparsers) -> None:
     p.add_argument("--lab", required=True, help="lab manifest (lab.json)")
     p.add_argument("--root", default=None, help="folder the manifest's files are in (default: the manifest's folder)")
     source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--dots", metavar="SEQ", help="the dot-grid sequence")
+    source.add_argument("--dots", metavar="SEQ", nargs="+",
+                        help="the dot-grid sequence(s): one map per colour (the sequences' 'channel')")  # fmt: skip
     source.add_argument("--code", metavar="SEQ", help="a Gray-code sequence: the width along its axis")
     p.add_argument("--planes", type=int, default=None, metavar="N", help="--code: use the first N planes (all)")
     p.add_argument("--like", default=None, metavar="PSF_MAP", help="--code: the components it does not measure")
@@ -39,9 +42,9 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ...procams.lab_manifest import LabManifest, to_grey
-    from ...procams.psf_map import DotGrid, measure_psf_map
-    from ...procams.structured_light import CLIPPED_BLACK, SATURATED, CorrespondenceMap
+    from ...procams.lab_manifest import LabManifest, censored_samples, to_grey
+    from ...procams.psf_map import DotGrid, measure_psf_map, save_psf_maps
+    from ...procams.structured_light import CorrespondenceMap
 
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
@@ -55,27 +58,39 @@ def run(args) -> int:
     if args.every < 1:
         raise EdofprojError(f"--every {args.every} must be >= 1")
     lab = LabManifest.load(args.lab, args.root)
-    seq = lab.sequence(args.dots)
-    if seq.kind != "dots":
-        raise EdofprojError(f"sequence '{args.dots}' is of kind '{seq.kind}', not 'dots'")
-    if not 0 <= args.index < len(seq.files):
-        raise EdofprojError(f"--index {args.index} is not 0..{len(seq.files) - 1}")
+    sequences = [lab.sequence(name) for name in args.dots]
+    channels = [lab.channel_of(seq) for seq in sequences]
+    for seq, channel in zip(sequences, channels):
+        if seq.kind != "dots":
+            raise EdofprojError(f"sequence '{seq.name}' is of kind '{seq.kind}', not 'dots'")
+        if channels.count(channel) > 1:
+            raise EdofprojError(
+                f"--dots {' '.join(args.dots)}: {channels.count(channel)} sequences are of channel '{channel}'; "
+                "give one per colour (a sequence's colour is its 'channel' in the lab manifest)"
+            )
+        if not 0 <= args.index < len(seq.files):
+            raise EdofprojError(f"--index {args.index} is not 0..{len(seq.files) - 1} (sequence '{seq.name}')")
     corr = CorrespondenceMap.load(args.map)
-    rgb = lab.read_rgb(seq.files[args.index]).astype(np.float64)
-    grey = to_grey(rgb, lab.channel)
-    saturated = np.asarray((rgb >= SATURATED).any(axis=-1))
-    clipped = np.asarray((rgb <= CLIPPED_BLACK).all(axis=-1))
-    grid = DotGrid.covering(lab.projector_hw, seq.spacing_px, seq.origin_px)
-    psf_map, fits = measure_psf_map(grey, corr, grid, every=args.every, saturated=saturated, clipped=clipped)
-    psf_map.save(args.out)
-    censored = sum(f.censored for f in fits.values()) / max(sum(f.samples for f in fits.values()), 1)
-    fitted = psf_map.fitted
-    print(
-        f"wrote {args.out}: {len(fits)} dots fitted ({censored:.0%} of their samples censored); map offset "
-        f"o = ({psf_map.offset_px[0]:+.2f}, {psf_map.offset_px[1]:+.2f}) projector px; median sigma_x "
-        f"{np.median(psf_map.sigma_x[fitted]):.2f} px, sigma_y {np.median(psf_map.sigma_y[fitted]):.2f} px, "
-        f"major axis at {np.median(psf_map.angle_deg[fitted]):.0f} deg"
-    )
+    maps = []
+    for seq, channel in zip(sequences, channels):
+        rgb = lab.read_rgb(seq.files[args.index]).astype(np.float64)
+        saturated, clipped = censored_samples(rgb, channel)
+        grid = DotGrid.covering(lab.projector_hw, seq.spacing_px, seq.origin_px)
+        psf_map, fits = measure_psf_map(
+            to_grey(rgb, channel), corr, grid, every=args.every, saturated=saturated, clipped=clipped, channel=channel
+        )
+        maps.append(psf_map)
+        censored = sum(f.censored for f in fits.values()) / max(sum(f.samples for f in fits.values()), 1)
+        fitted = psf_map.fitted
+        print(
+            f"{channel} ('{seq.name}'): {len(fits)} dots fitted ({censored:.0%} of their samples censored); map offset "
+            f"o = ({psf_map.offset_px[0]:+.2f}, {psf_map.offset_px[1]:+.2f}) projector px; median sigma_x "
+            f"{np.median(psf_map.sigma_x[fitted]):.2f} px, sigma_y {np.median(psf_map.sigma_y[fitted]):.2f} px, "
+            f"major axis at {np.median(psf_map.angle_deg[fitted]):.0f} deg"
+        )
+    save_psf_maps(args.out, maps)
+    print(f"wrote {args.out}: {', '.join(m.channel for m in maps)}")
+    psf_map = maps[0]
     return _write_figure(psf_map, args.figure)
 
 
