@@ -19,7 +19,18 @@ The model of one capture ``C`` of projector image ``u`` (grey, ``(H, W)`` in ``[
   ``flat_filter_px`` camera pixels: a Gray code's per-pixel min and max are partial values where a
   pixel's only dark (or lit) plane has an edge next to it, a thin band that the median removes;
 * ``alpha``, ``beta``: the capture's gain and offset (an auto-exposure that changes between frames),
-  fitted by least squares over the valid pixels that are neither saturated nor black in the capture.
+  and ``delta``: how much the dark level changed since the map's session beyond that gain (ambient
+  light, the projector's black: ``D`` is the map's, not the capture's black), the term
+  ``delta (D(q) - mean D)``, zero for a flat ``D``. So the capture is modelled as
+  ``alpha m + delta (D - mean D) + beta`` with ``m`` the bracket above. The three are fitted by
+  least squares over the valid pixels with the capture's saturated and black-clipped pixels
+  censored: a pixel clipped to black says only that the model is ``<= 0`` there and a saturated one
+  only that it is ``>= top``, residuals ``max(0, model)`` and ``max(0, top - model)`` (a dot
+  capture is mostly black: those pixels fix the dark level); ``alpha > 0``.
+
+**Registration.** ``o`` is one choice for the blurred and the unblurred model alike
+(:func:`registration_offset`): the given offset, else the PSF map's, else none; ``blur_psf=False``
+predicts without blur at the PSF map's registration, so that the two differ by the blur alone.
 
 Scores over the valid region (:func:`score`): PSNR ``10 log10(top^2 / mean (C - C_hat)^2)`` and SSIM
 (:func:`skimage.metrics.structural_similarity`, its map averaged over the region).
@@ -125,7 +136,7 @@ def sample_at_map(projector_image: np.ndarray, corr: CorrespondenceMap, offset_p
 @dataclass
 class Prediction:
     """A predicted capture ``image`` ``(Hc, Wc)`` (image units, NaN outside ``region``), the fitted
-    ``gain`` and ``offset``, and the scores over ``region``."""
+    ``gain`` and ``offset``, the scores over ``region`` and the registration ``offset_px`` ``o`` used."""
 
     image: np.ndarray
     region: np.ndarray
@@ -133,17 +144,71 @@ class Prediction:
     offset: float
     psnr_db: float
     ssim: float
+    offset_px: tuple[float, float] = (0.0, 0.0)
 
 
-def fit_exposure(model: np.ndarray, capture: np.ndarray, region: np.ndarray) -> tuple[float, float]:
-    """``(alpha, beta)`` minimizing ``sum (alpha m + beta - c)^2`` over ``region`` minus the capture's
-    saturated and black-clipped pixels (censored: they say only a bound)."""
-    use = region & (capture < SATURATED) & (capture > CLIPPED_BLACK) & np.isfinite(model)
-    if use.sum() < 2:
-        raise EdofprojError("too few unclipped valid pixels to fit the capture's gain and offset")
-    A = np.c_[model[use], np.ones(int(use.sum()))]
-    (alpha, beta), *_ = np.linalg.lstsq(A, capture[use], rcond=None)
-    return float(alpha), float(beta)
+def fit_exposure(model: np.ndarray, capture: np.ndarray, region: np.ndarray, top: float = 1.0) -> tuple[float, float]:
+    """``(alpha, beta)``, ``alpha > 0``, minimizing the module docstring's censored squares over
+    ``region``: unclipped pixels ``(alpha m + beta - c)^2``, black-clipped ``max(0, alpha m + beta)^2``,
+    saturated ``max(0, top - alpha m - beta)^2``."""
+    alpha, beta = censored_linear_fit([np.asarray(model, dtype=np.float64)], capture, region, top)
+    return alpha, beta
+
+
+def censored_linear_fit(
+    columns: list[np.ndarray], capture: np.ndarray, region: np.ndarray, top: float = 1.0
+) -> tuple[float, ...]:
+    """``(a_1, ..., a_n, beta)`` of ``c ~ sum_i a_i x_i + beta`` over ``region`` (``columns`` ``x_i``
+    like ``capture``), ``a_1 > 0``, with the capture's black-clipped and saturated pixels censored
+    (module docstring; a clipped pixel is at most ``CLIPPED_BLACK``, a saturated one at least
+    ``SATURATED top``). Starts from the least squares over the unclipped pixels."""
+    from scipy.optimize import least_squares
+
+    capture = np.asarray(capture, dtype=np.float64)
+    usable = region & np.isfinite(capture)
+    for x in columns:
+        usable = usable & np.isfinite(x)
+    high, low = usable & (capture >= SATURATED), usable & (capture <= CLIPPED_BLACK)
+    free = usable & ~high & ~low
+    if free.sum() < len(columns) + 1:
+        raise EdofprojError(
+            f"too few valid pixels between black and saturation in the capture ({int(free.sum())} of "
+            f"{int(usable.sum())}) to fit its gain and offset: is the capture under- or over-exposed?"
+        )
+    design = {name: np.stack([x[mask] for x in columns] + [np.ones(int(mask.sum()))], axis=1)
+              for name, mask in (("free", free), ("high", high), ("low", low))}  # fmt: skip
+    target = capture[free]
+    x0, *_ = np.linalg.lstsq(design["free"], target, rcond=None)
+    if x0[0] > 0 and not high.any() and not low.any():
+        return tuple(float(v) for v in x0)
+    if x0[0] <= 0:  # the unclipped pixels alone do not see the light: start from the capture's range
+        x0 = np.zeros(len(columns) + 1)
+        span = float(np.ptp(columns[0][usable])) or 1.0
+        x0[0] = max(float(np.ptp(target)), 1e-3) / span
+        x0[-1] = float(target.min() - x0[0] * columns[0][free].min())
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        return np.concatenate([design["free"] @ p - target, np.maximum(0.0, design["low"] @ p - CLIPPED_BLACK),
+                               np.maximum(0.0, SATURATED * top - design["high"] @ p)])  # fmt: skip
+
+    lower = np.full(len(x0), -np.inf)
+    lower[0] = 1e-9
+    x0[0] = max(x0[0], 1e-6)
+    result = least_squares(
+        residuals, x0, bounds=(lower, np.full(len(x0), np.inf)), x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12
+    )
+    return tuple(float(v) for v in result.x)
+
+
+def registration_offset(psf_map: PSFMap | None, offset_px: tuple[float, float] | None) -> tuple[float, float]:
+    """``o``: ``offset_px`` when given (finite, inside the projector), else the PSF map's estimate, else none."""
+    if offset_px is not None:
+        if len(offset_px) != 2 or not all(math.isfinite(v) for v in offset_px):
+            raise EdofprojError(f"the map offset {tuple(offset_px)} is not two finite numbers of projector px")
+        return float(offset_px[0]), float(offset_px[1])
+    if psf_map is not None:
+        return float(psf_map.offset_px[0]), float(psf_map.offset_px[1])
+    return 0.0, 0.0
 
 
 def score(prediction: np.ndarray, capture: np.ndarray, region: np.ndarray, top: float = 1.0) -> tuple[float, float]:
@@ -169,19 +234,26 @@ def predict_capture(
     top: float = 1.0,
     offset_px: tuple[float, float] | None = None,
     flat_filter_px: int = 11,
+    blur_psf: bool = True,
 ) -> Prediction:
     """The module docstring's model for a grey projector image ``(H, W)`` in ``[0, 1]`` and a grey
     capture ``(Hc, Wc)`` in image units, scored over ``region`` (default: the map's valid pixels
-    where ``B > D``). ``offset_px``: ``o`` (default: the PSF map's, else none)."""
+    where ``B > D``). ``offset_px``: ``o`` (:func:`registration_offset`); ``blur_psf`` False: the
+    PSF map registers but does not blur."""
     capture = np.asarray(capture, dtype=np.float64)
     if capture.shape != corr.camera_hw:
         raise EdofprojError(
             f"the capture is {capture.shape[1]}x{capture.shape[0]}, the map's camera {corr.camera_hw[1]}x{corr.camera_hw[0]}"
         )
-    if offset_px is None:
-        offset_px = (0.0, 0.0) if psf_map is None else (float(psf_map.offset_px[0]), float(psf_map.offset_px[1]))
+    offset_px = registration_offset(psf_map, offset_px)
+    H, W = corr.projector_hw
+    if abs(offset_px[0]) >= W or abs(offset_px[1]) >= H:
+        raise EdofprojError(
+            f"the map offset ({offset_px[0]:g}, {offset_px[1]:g}) projector px moves every camera pixel off the "
+            f"{W}x{H} projector: an offset is a few px (the PSF map's estimate, or 0 0 for a Gray-code map)"
+        )
     light = np.asarray(projector_image, dtype=np.float64)
-    if psf_map is not None:
+    if psf_map is not None and blur_psf:
         light = blur(light, psf_map)
     seen = sample_at_map(light, corr, offset_px)
     if flat_filter_px > 1:
@@ -191,9 +263,12 @@ def predict_capture(
     if region is None:
         region = corr.valid & (bright > dark)
     region = region & np.isfinite(model)
-    alpha, beta = fit_exposure(model, capture, region)
-    predicted = np.clip(alpha * model + beta, 0.0, top)
+    # the dark level's own change between sessions: D about its mean over the region (zero for a flat D)
+    ambient = dark - float(np.mean(dark[region])) if region.any() else np.zeros_like(dark)
+    alpha, delta, beta = censored_linear_fit([model, ambient], capture, region, top)
+    predicted = np.clip(alpha * model + delta * ambient + beta, 0.0, top)
     psnr, ssim = score(np.where(region, predicted, 0.0), capture, region, top)
     return Prediction(
-        image=np.where(region, predicted, np.nan), region=region, gain=alpha, offset=beta, psnr_db=psnr, ssim=ssim
-    )
+        image=np.where(region, predicted, np.nan), region=region, gain=alpha, offset=beta, psnr_db=psnr, ssim=ssim,
+        offset_px=offset_px,
+    )  # fmt: skip

@@ -6,7 +6,9 @@
 The projector image (grey: the mean of its channels) blurred by the PSF map, seen through the map,
 scaled between the per-pixel dark and bright levels (the black and white captures, or the map's), with the capture's own gain and offset
 fitted (auto-exposure); PSNR and SSIM over the valid region (:mod:`edofproj.procams.prediction`).
-Without ``--psf-map``: the same model without blur. This is how a lab checks its model before it
+Without ``--psf-map``: the same model without blur, registered at ``--offset-px`` (default 0 0);
+``--psf-map P --no-blur``: without blur at the registration the blurred prediction has (P's offset),
+so that the two scores differ by the blur alone. This is how a lab checks its model before it
 trusts compensation.
 """
 
@@ -35,6 +37,11 @@ def register(subparsers) -> None:
         default=None,
         metavar=("X", "Y"),
         help="the map's offset o (default: the PSF map's estimate; 0 0 for a map anchored to a Gray code)",
+    )
+    p.add_argument(
+        "--no-blur",
+        action="store_true",
+        help="with --psf-map: register with the PSF map's offset but do not blur (the same registration as with blur)",
     )
     p.add_argument("--out", default=None, help="write the predicted capture (8-bit PNG, black outside the region)")
     p.set_defaults(func=run)
@@ -66,19 +73,24 @@ def run(args) -> int:
             f"no dark and bright levels of the map's {corr.camera_hw[1]}x{corr.camera_hw[0]} camera "
             "(a map from 'edofproj procams decode', or --black and --white captures of that size)"
         )
+    if args.no_blur and not args.psf_map:
+        raise EdofprojError("--no-blur registers with a PSF map's offset: give --psf-map (or --offset-px without it)")
     psf_map = PSFMap.load(args.psf_map) if args.psf_map else None
     image = to_grey(read_rgb(args.image, what="projector image"), args.channel)
     capture = to_grey(read_rgb(args.capture, what="capture"), args.channel)
     offset = tuple(args.offset_px) if args.offset_px is not None else None
     result = predict_capture(
         image, capture, corr, stored["dark"].astype(np.float64), stored["bright"].astype(np.float64),
-        psf_map=psf_map, offset_px=offset,
+        psf_map=psf_map, offset_px=offset, blur_psf=not args.no_blur,
     )  # fmt: skip
     if args.out:
         write_rgb_png(args.out, np.repeat(np.nan_to_num(result.image)[..., None], 3, axis=-1))
-    blur = "with the PSF map" if psf_map is not None else "without blur"
+    blur = "with the PSF map" if psf_map is not None and not args.no_blur else "without blur"
+    source = "--offset-px" if offset is not None else ("the PSF map's" if psf_map is not None else "no PSF map")
+    o = result.offset_px
     print(
         f"prediction {blur} over {result.region.sum()} valid camera pixels: PSNR {result.psnr_db:.2f} dB, "
-        f"SSIM {result.ssim:.3f} (capture gain {result.gain:.3f}, offset {result.offset:+.3f})"
+        f"SSIM {result.ssim:.3f} (capture gain {result.gain:.3f}, offset {result.offset:+.3f}; registered at "
+        f"o = ({o[0]:+.2f}, {o[1]:+.2f}) projector px, {source})"
     )
     return 0
