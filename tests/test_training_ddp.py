@@ -101,7 +101,7 @@ def test_torchrun_with_one_process_joins_the_group_and_equals_the_plain_run(tmp_
 def test_two_processes_train_both_phases_as_one_process_does(tmp_path):
     """A run of two phases under torchrun: every rank reads the DOE file rank 0 wrote at the phase boundary
     (after a barrier), and the second phase's network ends where a single process's does."""
-    cfg = tiny_config("net.linear_base=ensemble", "net.linear_radius=11", "train.refit_steps=3")
+    cfg = tiny_config("net.linear_base=ensemble", "net.linear_radius=11", "train.refit_steps=3", "train.refit_warmup_steps=1")
     done = torchrun(cfg, tmp_path, 2, "ddp")
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.count("steps 0 -> 6 of 6") == 1

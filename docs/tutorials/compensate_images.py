@@ -46,6 +46,7 @@ SMALL = [
     "data.max_test_images=2",
     "train.steps=6",
     "train.refit_steps=6",
+    "train.refit_warmup_steps=2",
     "train.batch_size=2",
     "train.checkpoint_every=6",
     "train.psf_table_depths=4",

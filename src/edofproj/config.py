@@ -132,7 +132,10 @@ class SpectrumConfig:
     Gauss rule of its SPD (on a 1 nm grid over ``wavelength_min_nm..max``), each channel weighting
     only its own nodes. :mod:`edofproj.optics.spectra` warns when a primary is undersampled, unless
     ``stated_l1_error`` gives the sampling's measured PSF error (worst channel, a fraction of the
-    PSF's L1 norm, against a 1 nm sampling): a configuration that states its error accepts it.
+    PSF's L1 norm, against a 1 nm sampling; null: none stated): a configuration that states its error
+    accepts it. A statement belongs to the projector it was measured for: a config whose ``base``
+    states one, or ``--set`` overrides, that change the projector (:data:`STATED_FOR_KEYS`) without
+    stating their own do not inherit it (:func:`_load_on_base`, :func:`apply_overrides`).
     """
 
     wavelength_min_nm: float = 400.0
@@ -144,7 +147,7 @@ class SpectrumConfig:
     spd_csv: Optional[str] = None
     quadrature: str = "uniform"
     nodes_per_primary: int = 2
-    stated_l1_error: float = 0.0
+    stated_l1_error: Optional[float] = None
 
     def validate(self) -> None:
         for name in ("wavelength_min_nm", "wavelength_max_nm"):
@@ -162,8 +165,8 @@ class SpectrumConfig:
         if isinstance(n, bool) or not isinstance(n, int) or not (1 <= n <= 16):
             raise ConfigError(f"spectrum.nodes_per_primary={n!r} must be an integer in 1-16")
         e = self.stated_l1_error
-        if isinstance(e, bool) or not isinstance(e, (int, float)) or not (0.0 <= e < 1.0):
-            raise ConfigError(f"spectrum.stated_l1_error={e!r} must be a fraction in [0, 1)")
+        if e is not None and (isinstance(e, bool) or not isinstance(e, (int, float)) or not (0.0 <= e < 1.0)):
+            raise ConfigError(f"spectrum.stated_l1_error={e!r} must be a fraction in [0, 1), or null (none stated)")
         if len(self.peaks_nm) != 3 or len(self.fwhm_nm) != 3:
             raise ConfigError("spectrum.peaks_nm and spectrum.fwhm_nm need three values (R, G, B)")
         if any(not (350.0 <= p <= 1000.0) for p in self.peaks_nm):
@@ -494,6 +497,12 @@ class TrainConfig:
     def validate(self) -> None:
         if self.refit_steps < 0 or self.refit_warmup_steps < 0 or self.refit_lr_net < 0:
             raise ConfigError("train.refit_steps, train.refit_warmup_steps and train.refit_lr_net must be >= 0")
+        if self.refit_steps > 0 and self.refit_warmup_steps > self.refit_steps:
+            raise ConfigError(
+                f"train.refit_warmup_steps={self.refit_warmup_steps} is longer than its phase, "
+                f"train.refit_steps={self.refit_steps}: the network would never leave its warm-up; "
+                "give a shorter train.refit_warmup_steps"
+            )
         if not (0.0 <= self.refit_colour_augment <= 1.0):
             raise ConfigError(f"train.refit_colour_augment={self.refit_colour_augment} must be in [0, 1]")
         if self.teacher_weight < 0:
@@ -817,6 +826,7 @@ def to_dict(cfg: Any) -> dict:
 def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
     """Apply ``section.key=value`` strings (values parsed as YAML) to a config."""
     data = to_dict(cfg)
+    stated_here = False
     for item in overrides or ():
         if "=" not in item:
             raise ConfigError(f"override '{item}' must look like section.key=value")
@@ -824,7 +834,11 @@ def apply_overrides(cfg: Config, overrides: typing.Sequence[str]) -> Config:
         if not raw.strip():
             raise ConfigError(f"override '{item}' has no value: give one, e.g. {dotted.strip()}=VALUE (null for none)")
         set_key(data, dotted.strip(), _parse_override_value(raw))
-    return from_dict(Config, data).validate()
+        stated_here |= dotted.strip() in STATEMENT_KEYS
+    result = from_dict(Config, data).validate()
+    if overrides and not stated_here and stated_measurement_changed(cfg, result):
+        result.spectrum.stated_l1_error = None  # measured for the projector before the overrides, not this one
+    return result
 
 
 def set_key(data: dict, dotted: str, value: Any) -> None:
@@ -955,13 +969,91 @@ def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
     if here in chain:
         raise ConfigError(f"config '{file}': its bases form a loop ({' -> '.join(p.name for p in (*chain, here))})")
     beside = file.parent / base  # a file named relative to the config that names it, else a preset or a path
-    merged = to_dict(_load_file(beside if beside.is_file() else resolve_config_path(base), (*chain, here)))
+    base_cfg = _load_file(beside if beside.is_file() else resolve_config_path(base), (*chain, here))
+    merged = to_dict(base_cfg)
     name = data.pop("name", None)
     if name is not None:
         merged["name"] = name
-    for dotted, value in _base_statements(data):
+    statements = _base_statements(data)
+    for dotted, value in statements:
         set_key(merged, dotted, value)
-    return from_dict(Config, merged).validate()
+    cfg = from_dict(Config, merged).validate()
+    stated_here = {dotted for dotted, _ in statements}
+    if stated_measurement_changed(base_cfg, cfg) and "spectrum.stated_l1_error" not in stated_here:
+        cfg.spectrum.stated_l1_error = None  # measured for the base's projector, not this one
+    return cfg
+
+
+#: The keys a measured accuracy (``spectrum.stated_l1_error``) depends on: the projector's optics, its
+#: spectra and sampling, and the depths the PSFs span. A statement holds for these values only.
+STATED_FOR_KEYS = ("optics.", "spectrum.", "psf.depth_min_mm", "psf.depth_max_mm")
+
+
+def stated_measurement_changed(base: Config, cfg: Config) -> bool:
+    """Whether ``cfg`` differs from ``base`` in a key a stated accuracy depends on (:data:`STATED_FOR_KEYS`,
+    the statements themselves aside)."""
+    a, b = flatten_config(base), flatten_config(cfg)
+    keys = [k for k in set(a) | set(b) if k.startswith(STATED_FOR_KEYS) and k not in STATEMENT_KEYS]
+    return any(a.get(k) != b.get(k) for k in keys)
+
+
+def flatten_config(cfg: Config) -> dict:
+    """``{"section.key": value}`` of a whole configuration (:func:`to_dict`)."""
+    return {
+        f"{section}.{key}": value
+        for section, values in to_dict(cfg).items()
+        if isinstance(values, dict)
+        for key, value in values.items()
+    }
+
+
+#: The configuration sections that describe a projector and the simulation of its PSFs (lens, pixel grid,
+#: throw ratio, spectra, PSF sampling, training depth range): a design is simulated with exactly these
+#: settings of the run that made it (:func:`config_on_run`).
+PROJECTOR_SECTIONS = ("optics", "spectrum", "psf")
+
+
+def projector_keys(cfg: Config) -> dict:
+    """``{"section.key": value}`` of the :data:`PROJECTOR_SECTIONS` of ``cfg``, stated accuracies
+    (:data:`STATEMENT_KEYS`) aside."""
+    data = to_dict(cfg)
+    return {
+        f"{section}.{key}": value
+        for section in PROJECTOR_SECTIONS
+        for key, value in without_statements(section, data[section]).items()
+    }
+
+
+def projector_differences(reference: Config, other: Config) -> list[tuple[str, Any, Any]]:
+    """``(key, reference value, other value)`` of every projector key (:func:`projector_keys`) that differs."""
+    a, b = projector_keys(reference), projector_keys(other)
+    return [(k, a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def describe_differences(differences: typing.Sequence[tuple[str, Any, Any]], limit: int = 4) -> str:
+    """``key (a -> b), ...`` of the first ``limit`` differences, and how many more."""
+    shown = ", ".join(f"{k} ({a!r} -> {b!r})" for k, a, b in differences[:limit])
+    more = f" and {len(differences) - limit} more" if len(differences) > limit else ""
+    return shown + more
+
+
+def config_on_run(
+    run_config: str | Path, config_arg: str | None, overrides: typing.Sequence[str] = (), label: str = "the run"
+) -> Config:
+    """The configuration of a command given a run (whose ``config.yaml`` is ``run_config``; ``label``
+    names the run in messages): the run's own, with ``overrides`` on top; ``config_arg`` (a config
+    file or preset) only where it describes the run's projector (:func:`projector_differences` empty),
+    else a :class:`ConfigError` naming the keys that differ. No default fills a key the run has."""
+    own = load_config(str(run_config))
+    if config_arg is None:
+        return apply_overrides(own, overrides)
+    differences = projector_differences(own, load_config(config_arg))
+    if differences:
+        raise ConfigError(
+            f"--config '{config_arg}' describes another projector than {label} ({describe_differences(differences)}): "
+            "leave out --config (the run's own projector is used), or change a key deliberately with --set"
+        )
+    return load_config(config_arg, overrides)
 
 
 def dump_config(cfg: Config) -> str:

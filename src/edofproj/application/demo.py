@@ -324,7 +324,9 @@ def demo_jobs(
             extra.append(f"train.steps={OWN_RECIPE_STEPS[method]}")
         run_cfg = apply_overrides(cfg, extra)
         if settings.max_refit_steps is not None and run_cfg.train.refit_steps > settings.max_refit_steps:
-            extra.append(f"train.refit_steps={settings.max_refit_steps}")
+            # the recipe's warm-up fraction of the shortened phase (a warm-up longer than its phase is refused)
+            warmup = run_cfg.train.refit_warmup_steps * settings.max_refit_steps // run_cfg.train.refit_steps
+            extra += [f"train.refit_steps={settings.max_refit_steps}", f"train.refit_warmup_steps={warmup}"]
             run_cfg = apply_overrides(cfg, extra)
         steps = total_steps(run_cfg)
         cost, setup = job_costs(run_cfg)[method]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import EdofprojError
-from ._common import add_config_options, config_from_args, parse_number_list, refuse_output_over
+from ._common import add_config_options, parse_number_list, refuse_output_over
 
 
 def add_optics_options(parser) -> None:
@@ -46,6 +46,26 @@ def depths_from_args(depth_specs, cfg) -> np.ndarray:
     if np.any(depths_mm <= 0):
         raise EdofprojError(f"--depth-mm values must be positive, got {depths_mm[depths_mm <= 0][0]:g}")
     return depths_mm * 1e-3
+
+
+def design_config(args, specs):
+    """The configuration that simulates the designs ``specs``: a run's own projector
+    (:func:`edofproj.runs.projector.config_for_designs`), with the optics options and ``--set`` on top."""
+    from ..runs.projector import config_for_designs
+
+    overrides = psf_overrides(args) + list(getattr(args, "overrides", []) or [])
+    return config_for_designs(args.config, overrides, specs)
+
+
+def build_design(cfg, spec):
+    """:func:`edofproj.doe.build_doe`, refusing a design file made for another aperture than ``cfg``'s."""
+    from ..doe import build_doe
+    from ..runs.projector import check_design_aperture
+
+    doe = build_doe(cfg, spec)
+    if spec is not None and doe.name == "file":
+        check_design_aperture(doe, cfg, spec)
+    return doe
 
 
 def register(subparsers) -> None:
@@ -87,7 +107,7 @@ def run(args) -> int:
     from ..optics.psf_bank import simulator_from_config
     from ..optics.spectra import check_wavelengths_nm
 
-    cfg = config_from_args(args, psf_overrides(args))
+    cfg = design_config(args, [args.doe])
     if args.wavelength_nm is not None:
         check_wavelengths_nm([args.wavelength_nm])
     depths_m = depths_from_args(args.depth_mm, cfg)
@@ -96,7 +116,7 @@ def run(args) -> int:
     for option in ("--out", "--plot"):
         output = getattr(args, option[2:])
         refuse_output_over(output, option, [("--config", args.config)], runs=[("--doe", args.doe)], file_output=True)
-    doe = build_doe(cfg, args.doe)
+    doe = build_design(cfg, args.doe)
     engine = cfg.psf.engine
     if not doe.radially_symmetric and engine == "radial":
         if args.engine == "radial":
@@ -106,11 +126,13 @@ def run(args) -> int:
     bank = sim.bank(doe, depths_m)
     panels = None
     if args.plot:  # the bare lens in the command's engine and optics, simulated before anything is written
-        lens = build_doe(cfg, "lens")
-        with torch.no_grad():
-            lens_bank = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine).bank(lens, depths_m)
         label = doe.name if args.doe is None else design_label(args.doe)  # builtin:NAME, not "file"
-        panels = [("lens", lens, lens_bank), (label, doe, bank)]
+        panels = [(label, doe, bank)]
+        if doe.name != "lens":  # the bare lens beside the design (not the lens beside itself)
+            lens = build_doe(cfg, "lens")
+            with torch.no_grad():
+                sim = simulator_from_config(cfg, wavelength_nm=args.wavelength_nm, engine=engine)
+                panels.insert(0, ("lens", lens, sim.bank(lens, depths_m)))
     bank.save(args.out)
     energy = bank.energy_in_window.numpy()
     print(

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import EdofprojError
-from ._common import add_config_options, config_from_args, refuse_output_over
+from ._common import add_config_options, refuse_output_over
 
 
 def register(subparsers) -> None:
@@ -167,7 +167,9 @@ def run(args) -> int:
     inputs = [("--image", args.image), ("--psf", args.psf), ("--depth-map", args.depth_map)]
     inputs += [("--surface", args.surface), ("--config", args.config)]
     refuse_output_over(args.out, "--out", inputs, runs=[("--doe", args.doe)], file_output=True)
-    cfg = config_from_args(args)
+    from ..runs.projector import config_for_designs
+
+    cfg = config_for_designs(args.config, args.overrides, [args.doe])  # a run's --doe: the run's own projector
     size = image_file_size(args.image)
     if size is not None:
         layers = 1 if args.depth_map is None and args.tilt_deg is None else int(cfg.imaging.depth_layers)
@@ -223,9 +225,9 @@ def run(args) -> int:
                 screen = f"flat screen at {bank.depths_m[index] * 1e3:.1f} mm"
                 source = f"'{args.psf}' depth index {index}"
         else:
-            from ..doe import build_doe
+            from .psf import build_design
 
-            doe = build_doe(cfg, args.doe)
+            doe = build_design(cfg, args.doe)
             simulator = simulator_for(cfg, doe)
             if depth_map_m is not None:
                 layers = int(cfg.imaging.depth_layers)

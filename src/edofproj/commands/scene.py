@@ -131,7 +131,9 @@ def run_render(args) -> int:
         trained = load_run(require_trained_run(args.run))
         cfg = apply_overrides(trained.cfg, args.overrides) if args.overrides else trained.cfg
     else:
-        cfg = config_from_args(args)
+        from ..runs.projector import config_for_designs
+
+        cfg = config_for_designs(args.config, args.overrides, [args.doe])  # a run's --doe: its own projector
     geometry = ProjectorGeometry.from_config(cfg.optics)
     scene = load_scene(args.scene, geometry)
     image = read_image(args.image)[None]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import EdofprojError
-from .._common import add_config_options, config_from_args, refuse_output_over
+from .._common import add_config_options, refuse_output_over
 from ..psf import add_optics_options, psf_overrides
 from ._common import note_width
 
@@ -104,7 +104,9 @@ def run(args) -> int:
         ("--config", args.config),
     ]
     refuse_output_over(args.out, "--out", inputs, runs=[("--doe", args.doe)])
-    cfg = config_from_args(args, psf_overrides(args))
+    from ...runs.projector import config_for_designs
+
+    cfg = config_for_designs(args.config, psf_overrides(args) + list(args.overrides), [args.doe])  # a run's own
     from ...optics.geometry import check_screen_depths_mm
 
     check_screen_depths_mm(args.depth_mm, "--depth-mm")
