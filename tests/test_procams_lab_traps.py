@@ -95,3 +95,117 @@ def test_a_mostly_black_dot_capture_fits_a_positive_gain() -> None:
     result = predict_capture(dots, capture, corr, map_dark, bright, psf_map=psf_map, flat_filter_px=1)
     assert 0.85 < result.gain < 1.15
     assert result.psnr_db > 45.0
+
+
+# ------------------------------------------------------------------ decoding a subset of period counts
+def phase_lab(folder, periods=(1, 4, 16), steps=4, garbage_from: int | None = None, axis: str = "x") -> None:
+    """A lab folder of ideal phase-shift captures of a 40x48 projector seen by an identity camera;
+    the frames of period counts from index ``garbage_from`` on are replaced by noise."""
+    import json
+
+    from edofproj.procams.capture_io import write_rgb_png
+    from edofproj.procams.structured_light import phase_shift_profiles
+
+    hw = (40, 48)
+    length = hw[1] if axis == "x" else hw[0]
+    images = profiles_to_images(0.1 + 0.8 * phase_shift_profiles(length, list(periods), steps), hw, axis)
+    rng = np.random.default_rng(1)
+    names = []
+    for i, image in enumerate(images):
+        if garbage_from is not None and i >= garbage_from * steps:
+            image = rng.uniform(0.1, 0.9, image.shape)
+        names.append(f"p{i:02d}.png")
+        write_rgb_png(folder / names[-1], np.repeat(image[..., None], 3, -1))
+    seq = {"name": "columns", "kind": "phase-shift", "axis": axis, "periods": list(periods), "steps": steps,
+           "files": {"list": names}}  # fmt: skip
+    data = {"format": "edofproj-lab-captures", "version": 1, "projector": {"height": hw[0], "width": hw[1]},
+            "sequences": [seq]}  # fmt: skip
+    (folder / "lab.json").write_text(json.dumps(data), encoding="utf-8")
+
+
+def test_decode_holds_the_finest_period_counts_out(tmp_path, capsys) -> None:
+    """The finest period count's captures are noise: all three period counts decode garbage; the first
+    two (``--periods 2``) decode every column to 0.05 px. ``--planes`` on a phase shift is refused."""
+    phase_lab(tmp_path, garbage_from=2)
+    lab = ("procams", "decode", "--lab", tmp_path / "lab.json", "--x", "columns")
+    code, out, err = run_cli(capsys, *lab, "--periods", "2", "--out", tmp_path / "held.npz")
+    assert code == 0, err
+    held = CorrespondenceMap.load(tmp_path / "held.npz")
+    assert held.valid.all() and np.allclose(held.proj_x, np.arange(48)[None, :], atol=0.05)
+    code, out, err = run_cli(capsys, *lab, "--out", tmp_path / "all.npz")
+    if code == 0:  # decoded, but the noise is in it
+        whole = CorrespondenceMap.load(tmp_path / "all.npz")
+        good = whole.valid & (np.abs(whole.proj_x - np.arange(48)[None, :]) < 0.5)
+        assert good.mean() < 0.5
+    code, out, err = run_cli(capsys, *lab, "--planes", "3", "--out", tmp_path / "p.npz")
+    assert code == 2 and "--periods" in err and not (tmp_path / "p.npz").exists()
+    code, out, err = run_cli(capsys, *lab, "--periods", "4", "--out", tmp_path / "p.npz")
+    assert code == 2 and "1..3" in err
+
+
+# ------------------------------------------------------------------ psf-map: progress, summary, figure
+INNER_SIGMA, EDGE_SIGMA = 1.2, 3.0
+EDGE_HW = (84, 96)  # dots every 12 px: 7 x 8, 26 on the edge, 18 one dot in, 12 interior
+
+
+def edge_dot_lab(folder) -> None:
+    """A white dot capture of an ``EDGE_HW`` projector (dots every 12 px) seen at 2 camera px per
+    projector px, the dots blurred by ``INNER_SIGMA``, those at the projection's edge by ``EDGE_SIGMA``
+    (their light half off the surface, their fits widened), and its map ``map.npz``."""
+    import json
+
+    from edofproj.procams.capture_io import write_rgb_png
+
+    h, w = EDGE_HW
+    v, u = np.mgrid[0 : 2 * h, 0 : 2 * w].astype(float)
+    tx, ty = (u - 0.5) / 2, (v - 0.5) / 2
+    light = np.zeros_like(tx)
+    for y0 in range(0, h, 12):
+        for x0 in range(0, w, 12):
+            edge = y0 in (0, h - 12) or x0 in (0, w - 12)
+            s = EDGE_SIGMA if edge else INNER_SIGMA
+            light += np.exp(-0.5 * (((tx - x0) / s) ** 2 + ((ty - y0) / s) ** 2))
+    write_rgb_png(folder / "dots.png", np.repeat(np.clip(0.02 + 0.8 * light, 0, 1)[..., None], 3, -1))
+    seq = {"name": "dots", "kind": "dots", "spacing_px": [12, 12], "files": {"list": ["dots.png"]}}
+    data = {"format": "edofproj-lab-captures", "version": 1, "projector": {"height": h, "width": w},
+            "sequences": [seq]}  # fmt: skip
+    (folder / "lab.json").write_text(json.dumps(data), encoding="utf-8")
+    CorrespondenceMap(tx, ty, (h, w)).save(folder / "map.npz")
+
+
+def test_psf_map_shows_progress_and_summarizes_the_interior_dots(tmp_path, capsys) -> None:
+    edge_dot_lab(tmp_path)
+    code, out, err = run_cli(capsys, "procams", "psf-map", "--lab", tmp_path / "lab.json", "--dots", "dots",
+                             "--map", tmp_path / "map.npz", "--out", tmp_path / "p.npz")  # fmt: skip
+    assert code == 0, err
+    # progress on stderr: each pass announced with its dot count, and its end
+    assert re.search(r"psf-map \| mean: fitting dots \| 56 dots", err) and "fitting dots: done in" in err
+    medians = re.search(r"median sigma_x (\S+) px, sigma_y (\S+) px", out)
+    assert (
+        medians
+        and abs(float(medians.group(1)) - INNER_SIGMA) < 0.1
+        and abs(float(medians.group(2)) - INNER_SIGMA) < 0.1
+    )
+    assert "over 12 interior dots (44 at the edge left out)" in out
+
+
+def test_psf_map_figure_scales_by_the_interior_and_wraps_the_angle(tmp_path) -> None:
+    from edofproj.procams.lab_manifest import LabManifest
+    from edofproj.procams.psf_map import DotGrid, figure_panels, measure_psf_map
+
+    edge_dot_lab(tmp_path)
+    lab = LabManifest.load(tmp_path / "lab.json")
+    psf_map, _ = measure_psf_map(lab.read_grey("dots.png"), CorrespondenceMap.load(tmp_path / "map.npz"),
+                                 DotGrid.covering(EDGE_HW, (12, 12)))  # fmt: skip
+    assert psf_map.sigma_x[psf_map.fitted].max() > 2.5  # the edge's widths are in the map
+    sigma_x, sigma_y, angle = figure_panels(psf_map)
+    assert (
+        sigma_x["vmax"] < 1.5
+        and sigma_x["vmin"] > 1.0
+        and (sigma_x["vmin"], sigma_x["vmax"]) == (sigma_y["vmin"], sigma_y["vmax"])
+    )
+    import matplotlib
+
+    assert angle["cmap"] == "twilight" and (angle["vmin"], angle["vmax"]) == (-90.0, 90.0)
+    cmap = matplotlib.colormaps[angle["cmap"]]
+    assert np.allclose(cmap(0.0), cmap(1.0), atol=0.02)  # cyclic: -90 and +90 deg are one direction

@@ -238,9 +238,10 @@ def phase_frames_in_profile_order(seq: Sequence) -> list[str]:
     return [seq.files[k * n_periods + j] for j in range(n_periods) for k in range(seq.steps)]
 
 
-def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None):
+def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None, periods: int | None = None):
     """Decode sequence ``name`` (phase shift or Gray code) into an :class:`.structured_light.AxisDecoding`;
-    ``planes``: decode only the first ``planes`` Gray-code planes (the others held out)."""
+    ``planes``: decode only the first ``planes`` Gray-code planes, ``periods``: only the first
+    ``periods`` period counts of a phase shift (the others held out). Each is refused for the other kind."""
     from .structured_light import check_decoding_memory, decode_gray_code, decode_phase_shift
 
     seq = manifest.sequence(name)
@@ -248,13 +249,25 @@ def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None)
         raise EdofprojError(f"sequence '{name}' is of kind '{seq.kind}', not a phase shift or a Gray code")
     length = axis_length(manifest.projector_hw, seq.axis)
     if seq.kind == "phase-shift":
-        files = phase_frames_in_profile_order(seq)
+        if planes is not None:
+            raise EdofprojError(
+                f"--planes counts Gray-code planes; '{name}' is a phase shift: hold its finest period counts "
+                f"out with --periods N (it has {len(seq.periods)}: {seq.periods})"
+            )
+        use = len(seq.periods) if periods is None else int(periods)
+        if not 1 <= use <= len(seq.periods):
+            raise EdofprojError(f"--periods {use} must be 1..{len(seq.periods)} (the period counts of '{name}')")
+        files = phase_frames_in_profile_order(seq)[: use * seq.steps]
         channel = manifest.channel_of(seq)
         first = manifest.read_grey(files[0], channel)
         check_decoding_memory(first.shape, len(files))
         frames = [first] + [manifest.read_grey(f, channel) for f in files[1:]]
         _same_size(frames, name)
-        return decode_phase_shift(frames, seq.periods, seq.steps, length)
+        return decode_phase_shift(frames, seq.periods[:use], seq.steps, length)
+    if periods is not None:
+        raise EdofprojError(
+            f"--periods counts a phase shift's period counts; '{name}' is a Gray code: hold planes out with --planes N"
+        )
     frames, inverse = read_gray_code(manifest, name, planes)
     return decode_gray_code(frames, length, inverse_frames=inverse)
 

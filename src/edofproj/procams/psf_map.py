@@ -48,6 +48,7 @@ from scipy.optimize import least_squares
 
 from ..errors import EdofprojError
 from ..fileio import read_tagged_arrays, save_npz_atomic
+from ..progress import StageProgress
 from .structured_light import CorrespondenceMap
 
 PSF_MAP_FORMAT = "edofproj-procams-psf-map"
@@ -335,17 +336,25 @@ def fit_dots(
     half_window: float,
     top: float,
     every: int = 1,
+    progress: StageProgress | None = None,
+    stage: str = "fitting dots",
 ) -> dict[int, DotFit]:
     """:func:`fit_dot` for the grid's dots (every ``every``-th in both directions), by dot index
-    ``j cols + i``; centres are relative to the nominal dot positions (without ``offset``)."""
+    ``j cols + i``; centres are relative to the nominal dot positions (without ``offset``).
+    ``progress``: shows ``stage``, one unit per dot."""
     flat, dots, starts, ends = _samples_by_dot(corr, grid, offset, half_window)
     values, hi, lo = capture.ravel(), high.ravel(), low.ravel()
     px_all, py_all = corr.proj_x.ravel(), corr.proj_y.ravel()
     fits: dict[int, DotFit] = {}
-    for dot, start, end in zip(dots, starts, ends):
-        j, i = divmod(int(dot), grid.cols)
-        if i % every or j % every:
-            continue
+    chosen = [
+        (int(d), s, e) for d, s, e in zip(dots, starts, ends) if not (d % grid.cols % every or d // grid.cols % every)
+    ]
+    if progress is not None:
+        progress.start(stage, len(chosen), detail=f"{len(chosen)} dots")
+    for dot, start, end in chosen:
+        if progress is not None:
+            progress.advance()
+        j, i = divmod(dot, grid.cols)
         idx = flat[start:end]
         fit = fit_dot(
             px_all[idx] - grid.xs[i],
@@ -358,6 +367,8 @@ def fit_dots(
         )
         if fit is not None:
             fits[int(dot)] = fit
+    if progress is not None:
+        progress.finish(f"{len(fits)} of {len(chosen)} fitted")
     return fits
 
 
@@ -377,10 +388,11 @@ def measure_psf_map(
     saturated: np.ndarray | None = None,
     clipped: np.ndarray | None = None,
     channel: str = "mean",
+    progress: StageProgress | None = None,
 ) -> tuple[PSFMap, dict[int, DotFit]]:
     """The PSF map from a grey dot capture ``(Hc, Wc)`` (image units) and the map of the same camera
     pose. ``saturated``/``clipped``: the censored samples (default: at least ``top`` / at most 0);
-    ``channel``: the colour of the dots (:attr:`PSFMap.channel`)."""
+    ``channel``: the colour of the dots (:attr:`PSFMap.channel`); ``progress``: shows the two passes."""
     if not corr.is_complete:
         raise EdofprojError("a PSF map needs a decoded map with columns and rows")
     capture = np.asarray(capture, dtype=np.float64)
@@ -391,9 +403,11 @@ def measure_psf_map(
     low = capture <= 0.5 / 255.0 if clipped is None else np.asarray(clipped, bool)
     half = 0.5 * min(grid.spacing_px)
     coarse = max(1, every * 3)
-    first = fit_dots(capture, high, low, corr, grid, np.zeros(2), half, top, every=coarse)
+    first = fit_dots(capture, high, low, corr, grid, np.zeros(2), half, top, every=coarse, progress=progress,
+                     stage=f"{channel}: the map's offset (one dot in {coarse} per direction)")  # fmt: skip
     offset = estimate_offset(first)
-    fits = fit_dots(capture, high, low, corr, grid, offset, half, top, every=every)
+    fits = fit_dots(capture, high, low, corr, grid, offset, half, top, every=every, progress=progress,
+                    stage=f"{channel}: fitting dots")  # fmt: skip
     if not fits:
         raise EdofprojError("no dot could be fitted about the estimated offset")
     offset = estimate_offset(fits)
@@ -432,8 +446,52 @@ def measure_psf_map(
     return psf_map, fits
 
 
-def plot_psf_map(psf_map: PSFMap, path) -> None:
-    """Draw ``sigma_x``, ``sigma_y`` and the major axis's angle over the projector image (PNG, atomic)."""
+def interior_dots(fitted: np.ndarray) -> np.ndarray:
+    """``(rows, cols)``: the fitted dots at least two grid steps inside the fitted region (all 24
+    neighbours within two steps fitted). A dot at the projection's edge (or the fitted region's, or
+    the grid's) sees part of its light fall off the surface or outside the decoded map, and its fit
+    widens; the map's ``3 x 3`` median carries those widths one dot further in. Summaries and colour
+    scales leave both rings out."""
+    inner = ndimage.binary_erosion(np.asarray(fitted, bool), structure=np.ones((5, 5), bool), border_value=0)
+    return np.asarray(inner & fitted)
+
+
+def summary(psf_map: PSFMap) -> str:
+    """One line: the medians of ``sigma_x``, ``sigma_y`` and the major axis's angle over the interior
+    dots (:func:`interior_dots`; all fitted dots when none is interior), and how many were left out."""
+    inner = interior_dots(psf_map.fitted)
+    fitted = int(psf_map.fitted.sum())
+    over = f"over {int(inner.sum())} interior dots ({fitted - int(inner.sum())} at the edge left out)"
+    if not inner.any():
+        inner, over = psf_map.fitted, f"over all {fitted} fitted dots (none is two dots inside the fitted region)"
+    return (
+        f"median sigma_x {np.median(psf_map.sigma_x[inner]):.2f} px, sigma_y {np.median(psf_map.sigma_y[inner]):.2f} "
+        f"px, major axis at {np.median(psf_map.angle_deg[inner]):.0f} deg, {over}"
+    )
+
+
+def figure_panels(psf_map: PSFMap) -> list[dict]:
+    """The figure's three panels: ``values`` ``(rows, cols)``, ``title``, ``cmap``, ``vmin``, ``vmax``.
+    The widths share one colour scale, from the 2nd to the 98th percentile of the interior dots'
+    widths (:func:`interior_dots`: edge dots' widths are outliers that would set it); the angle, which
+    wraps at +-90 deg, uses the cyclic map ``twilight`` over -90..90 deg."""
+    inner = interior_dots(psf_map.fitted)
+    inner = inner if inner.any() else psf_map.fitted
+    if not inner.any():
+        inner = np.ones_like(psf_map.fitted)
+    widths = np.concatenate([psf_map.sigma_x[inner], psf_map.sigma_y[inner]])
+    low, high = (float(v) for v in np.percentile(widths, [2, 98]))
+    high = max(high, low + 1e-3)
+    return [
+        {"values": psf_map.sigma_x, "title": "sigma_x (px)", "cmap": "viridis", "vmin": low, "vmax": high},
+        {"values": psf_map.sigma_y, "title": "sigma_y (px)", "cmap": "viridis", "vmin": low, "vmax": high},
+        {"values": psf_map.angle_deg, "title": "major axis (deg)", "cmap": "twilight", "vmin": -90.0, "vmax": 90.0},
+    ]
+
+
+def plot_psf_map(psf_map: PSFMap | list[PSFMap], path) -> None:
+    """Draw ``sigma_x``, ``sigma_y`` and the major axis's angle over the projector image, a row per
+    map (colour) (:func:`figure_panels`; PNG, atomic)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -441,19 +499,18 @@ def plot_psf_map(psf_map: PSFMap, path) -> None:
 
     from ..fileio import atomic_path
 
-    extent = (psf_map.xs[0], psf_map.xs[-1], psf_map.ys[-1], psf_map.ys[0])
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.5))
-    panels = (
-        (psf_map.sigma_x, "sigma_x (px)"),
-        (psf_map.sigma_y, "sigma_y (px)"),
-        (psf_map.angle_deg, "major axis (deg)"),
-    )
-    for ax, (values, title) in zip(axes, panels):
-        shown = ax.imshow(values, extent=extent, cmap="viridis")
-        ax.set_title(title)
-        ax.set_xlabel("projector x (px)")
-        ax.set_ylabel("projector y (px)")
-        fig.colorbar(shown, ax=ax, shrink=0.8)
+    maps = [psf_map] if isinstance(psf_map, PSFMap) else list(psf_map)
+    fig, grid = plt.subplots(len(maps), 3, figsize=(13, 4.5 * len(maps)), squeeze=False)
+    for axes, m in zip(grid, maps):
+        extent = (m.xs[0], m.xs[-1], m.ys[-1], m.ys[0])
+        for ax, panel in zip(axes, figure_panels(m)):
+            shown = ax.imshow(
+                panel["values"], extent=extent, cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"]
+            )
+            ax.set_title(f"{m.channel}: {panel['title']}" if len(maps) > 1 else panel["title"])
+            ax.set_xlabel("projector x (px)")
+            ax.set_ylabel("projector y (px)")
+            fig.colorbar(shown, ax=ax, shrink=0.8, extend="both" if panel["cmap"] != "twilight" else "neither")
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=80)

@@ -1,13 +1,15 @@
 """``edofproj procams decode``: structured-light captures -> the camera -> projector map.
 
-    edofproj procams decode --lab lab.json [--root CAPTURES] --x SEQ [--y SEQ] [--planes N] --out map.npz
+    edofproj procams decode --lab lab.json [--root CAPTURES] --x SEQ [--y SEQ] [--planes N | --periods N] --out map.npz
     edofproj procams decode --lab lab.json --x GRAY --planes 7 --carry-from sessionA_map.npz --out map_b.npz
     edofproj procams decode --lab lab.json --x GRAY --planes 7 --edges [--carry-from A.npz] --out map_b.npz
 
 Decodes a Gray-code or phase-shift sequence per axis (:mod:`edofproj.procams.structured_light`)
 named in a lab manifest (:mod:`edofproj.procams.lab_manifest`) into ``map.npz``: the projector
 point every camera pixel sees, NaN where the decoding is not valid, with the per-pixel dark and
-bright levels. With both axes it prints the map's residual to a homography. ``--carry-from``: the
+bright levels. With both axes it prints the map's residual to a homography. ``--planes N`` decodes
+a Gray code's first ``N`` planes, ``--periods N`` a phase shift's first ``N`` period counts (the
+finer ones held out, e.g. to predict them). ``--carry-from``: the
 camera moved since the session of that map; the map is carried over and anchored to this
 session's code (:mod:`edofproj.procams.camera_motion`). ``--edges`` (Gray codes): the coordinate
 along the code's axis from the stripes' edges, to a fraction of a pixel, over the surface they fit
@@ -20,6 +22,7 @@ import numpy as np
 
 from ...errors import EdofprojError
 from .._common import refuse_output_over
+from ._common import lab_inputs
 
 
 def register(subparsers) -> None:
@@ -30,6 +33,13 @@ def register(subparsers) -> None:
     p.add_argument("--x", default=None, metavar="SEQ", help="sequence coding the projector's columns")
     p.add_argument("--y", default=None, metavar="SEQ", help="sequence coding the projector's rows")
     p.add_argument("--planes", type=int, default=None, metavar="N", help="decode only the first N Gray-code planes")
+    p.add_argument(
+        "--periods",
+        type=int,
+        default=None,
+        metavar="N",
+        help="decode only the first N period counts of a phase shift (the finest held out)",
+    )
     p.add_argument(
         "--carry-from",
         default=None,
@@ -52,12 +62,27 @@ def run(args) -> int:
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
     inputs = [("--lab", args.lab), ("--root", args.root), ("--carry-from", args.carry_from)]
+    inputs += lab_inputs(args.lab, args.root)
     refuse_output_over(args.out, "--out", inputs, file_output=True)
     if args.x is None and args.y is None:
         raise EdofprojError("give --x, --y or both: the sequences to decode")
     lab = LabManifest.load(args.lab, args.root)
-    x = decode_sequence(lab, args.x, args.planes) if args.x else None
-    y = decode_sequence(lab, args.y, args.planes) if args.y else None
+    kinds = {lab.sequence(name).kind for name in (args.x, args.y) if name}
+    for option, value, kind in (("--planes", args.planes, "gray-code"), ("--periods", args.periods, "phase-shift")):
+        if value is not None and kind not in kinds:
+            other = "--periods N for a phase shift" if option == "--planes" else "--planes N for a Gray code"
+            raise EdofprojError(
+                f"{option} applies to a {kind.replace('-', ' ')}, and no sequence decoded is one ({other})"
+            )
+
+    def decoded(name):
+        kind = lab.sequence(name).kind
+        planes = args.planes if kind == "gray-code" else None
+        periods = args.periods if kind == "phase-shift" else None
+        return decode_sequence(lab, name, planes, periods)
+
+    x = decoded(args.x) if args.x else None
+    y = decoded(args.y) if args.y else None
     edges = {}
     if args.edges:
         edges = {

@@ -20,6 +20,7 @@ import numpy as np
 
 from ...errors import EdofprojError
 from .._common import refuse_output_over
+from ._common import lab_inputs
 
 
 def register(subparsers) -> None:
@@ -43,12 +44,14 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ...procams.lab_manifest import LabManifest, censored_samples, to_grey
-    from ...procams.psf_map import DotGrid, measure_psf_map, save_psf_maps
+    from ...procams.psf_map import DotGrid, measure_psf_map, save_psf_maps, summary
     from ...procams.structured_light import CorrespondenceMap
+    from ...progress import StageProgress
 
     if not str(args.out).endswith(".npz"):
         raise EdofprojError(f"--out '{args.out}' must end in .npz")
     inputs = [("--lab", args.lab), ("--root", args.root), ("--map", args.map), ("--like", args.like)]
+    inputs += lab_inputs(args.lab, args.root)
     for option, output in (("--out", args.out), ("--figure", args.figure)):
         refuse_output_over(output, option, inputs, file_output=True)
     if args.code is not None:
@@ -71,27 +74,25 @@ def run(args) -> int:
         if not 0 <= args.index < len(seq.files):
             raise EdofprojError(f"--index {args.index} is not 0..{len(seq.files) - 1} (sequence '{seq.name}')")
     corr = CorrespondenceMap.load(args.map)
+    progress = StageProgress("psf-map")
     maps = []
     for seq, channel in zip(sequences, channels):
         rgb = lab.read_rgb(seq.files[args.index]).astype(np.float64)
         saturated, clipped = censored_samples(rgb, channel)
         grid = DotGrid.covering(lab.projector_hw, seq.spacing_px, seq.origin_px)
         psf_map, fits = measure_psf_map(
-            to_grey(rgb, channel), corr, grid, every=args.every, saturated=saturated, clipped=clipped, channel=channel
-        )
+            to_grey(rgb, channel), corr, grid, every=args.every, saturated=saturated, clipped=clipped,
+            channel=channel, progress=progress,
+        )  # fmt: skip
         maps.append(psf_map)
         censored = sum(f.censored for f in fits.values()) / max(sum(f.samples for f in fits.values()), 1)
-        fitted = psf_map.fitted
         print(
             f"{channel} ('{seq.name}'): {len(fits)} dots fitted ({censored:.0%} of their samples censored); map offset "
-            f"o = ({psf_map.offset_px[0]:+.2f}, {psf_map.offset_px[1]:+.2f}) projector px; median sigma_x "
-            f"{np.median(psf_map.sigma_x[fitted]):.2f} px, sigma_y {np.median(psf_map.sigma_y[fitted]):.2f} px, "
-            f"major axis at {np.median(psf_map.angle_deg[fitted]):.0f} deg"
+            f"o = ({psf_map.offset_px[0]:+.2f}, {psf_map.offset_px[1]:+.2f}) projector px; {summary(psf_map)}"
         )
     save_psf_maps(args.out, maps)
     print(f"wrote {args.out}: {', '.join(m.channel for m in maps)}")
-    psf_map = maps[0]
-    return _write_figure(psf_map, args.figure)
+    return _write_figure(maps, args.figure)
 
 
 def _from_code(args) -> int:
