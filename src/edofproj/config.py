@@ -62,6 +62,11 @@ class OpticsConfig:
     wavefront (``.npy``, micrometres, square over the aperture; 2-D engine only);
     ``aberration_csv`` a table ``field_x,field_y,wavelength_nm,noll,coefficient_um`` per field
     point and wavelength (field coordinates in [-1, 1]) for field-dependent PSFs.
+
+    ``lens_prescription``: a multi-element lens (a Zemax ``.zmx`` or Optiland ``.json`` file, read
+    by :mod:`edofproj.optics.lens_prescription`; the ``lens`` extra) whose traced wavefront and
+    vignetting replace the thin lens's pupil (2-D engine; ``aperture_mm`` must be its entrance-pupil
+    diameter) at the lens's normalized field point ``lens_field`` ``[Hx, Hy]`` (radius <= 1).
     """
 
     aperture_mm: float = 7.0
@@ -72,6 +77,8 @@ class OpticsConfig:
     zernike_um: dict = field(default_factory=dict)
     wavefront_map: Optional[str] = None
     aberration_csv: Optional[str] = None
+    lens_prescription: Optional[str] = None
+    lens_field: list = field(default_factory=lambda: [0.0, 0.0])
 
     @property
     def aperture_m(self) -> float:
@@ -101,6 +108,30 @@ class OpticsConfig:
                 raise ConfigError(f"optics.zernike_um: Noll index {j!r} must be an integer >= 1")
             if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
                 raise ConfigError(f"optics.zernike_um[{j}]={c!r} must be a finite number (micrometres)")
+        self._validate_lens()
+
+    def _validate_lens(self) -> None:
+        lf = self.lens_field
+        if (
+            not isinstance(lf, (list, tuple))
+            or len(lf) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in lf)
+            or math.hypot(*lf) > 1.0
+        ):
+            raise ConfigError(f"optics.lens_field={lf!r} must be [Hx, Hy], the lens's normalized field (radius <= 1)")
+        if self.lens_prescription is None:
+            return
+        if not isinstance(self.lens_prescription, str) or not self.lens_prescription.lower().endswith(
+            (".zmx", ".json")
+        ):
+            raise ConfigError(
+                f"optics.lens_prescription={self.lens_prescription!r} must be a Zemax .zmx or an Optiland .json file"
+            )
+        given = [k for k in ("zernike_um", "wavefront_map", "aberration_csv") if getattr(self, k)]
+        if given:
+            raise ConfigError(
+                f"optics.lens_prescription gives the lens's whole wavefront: drop optics.{', optics.'.join(given)}"
+            )
 
 
 SPECTRAL_QUADRATURES = ("uniform", "gauss")
@@ -197,15 +228,16 @@ class DOEConfig:
     of the radius), ``free`` (one height per ring), ``cubic`` (2-D cubic phase plate),
     ``axicon``, ``multifocal`` (equal-area zones focused at ``multifocal_foci_mm``), or
     ``file`` (a saved design, ``path``). Heights are wrapped to one 2pi wave at
-    ``design_wavelength_nm`` and quantized to ``levels`` levels (straight-through estimator
-    during training).
+    ``design_wavelength_nm`` (null: the centroid of the primaries' spectra,
+    :func:`edofproj.optics.spectra.design_wavelength_nm`) and quantized to ``levels`` levels
+    (straight-through estimator during training).
     """
 
     kind: str = "mlp"
     path: Optional[str] = None
     levels: int = 16
     quantize: bool = True
-    design_wavelength_nm: float = 550.0
+    design_wavelength_nm: Optional[float] = None
     material: str = "fused_silica"
     mlp_frequencies: int = 9
     mlp_hidden: int = 64
@@ -235,7 +267,7 @@ class DOEConfig:
             raise ConfigError("doe.kind=file needs doe.path (a saved DOE .npz or a run directory)")
         if self.levels < 2:
             raise ConfigError(f"doe.levels={self.levels} must be >= 2")
-        if not (350.0 <= self.design_wavelength_nm <= 1000.0):
+        if self.design_wavelength_nm is not None and not (350.0 <= self.design_wavelength_nm <= 1000.0):
             raise ConfigError(f"doe.design_wavelength_nm={self.design_wavelength_nm} is outside 350-1000 nm")
         if self.mlp_frequencies < 0 or self.mlp_hidden < 1 or self.mlp_layers < 1:
             raise ConfigError("doe.mlp_frequencies must be >= 0, doe.mlp_hidden and doe.mlp_layers >= 1")
@@ -548,8 +580,9 @@ class EvaluationConfig:
     ``depths_mm``: flat-screen depths of the sweep. ``comparison_depths_mm``: the rows of the
     side-by-side figure (paper Fig. 6: 320, 630, 800 mm), each drawn at the nearest depth of
     ``depths_mm`` (a scored one: its tiles can be found in the tables). Tilted screen (paper
-    Sec. 5.3): a plane turned by ``tilt_deg`` whose depth runs from the in-focus distance ``v`` to
-    ``v + tilt_span_mm``. ``image_size``: ``[height, width]`` of the scored images (``[]``:
+    Sec. 5.3): a plane turned by ``tilt_deg`` whose depth runs across the image from ``tilt_range_mm``'s
+    near to its far depth (``[]``: the scored range, ``score_range_mm`` or else the training range; the
+    paper's is ``[v, v + 200]``; a saved config's former ``tilt_span_mm: S`` reads as ``[v, v + S]``). ``image_size``: ``[height, width]`` of the scored images (``[]``:
     native sizes); ``image_scaling``: ``crop`` takes the centre of each image at its native
     resolution (the pixel scale of the training crops; smaller images are scaled up to cover),
     ``cover`` scales each image to cover the size first. ``cls_iterations``: iterations of the
@@ -583,7 +616,7 @@ class EvaluationConfig:
     )
     comparison_depths_mm: list[float] = field(default_factory=lambda: [320.0, 630.0, 800.0])
     tilt_deg: float = 50.0
-    tilt_span_mm: float = 200.0
+    tilt_range_mm: list[float] = field(default_factory=list)
     image_size: list[int] = field(default_factory=lambda: [256, 256])
     image_scaling: str = "crop"
     cls_iterations: int = 100
@@ -592,10 +625,6 @@ class EvaluationConfig:
     score_range_mm: list[float] = field(default_factory=list)
     wiener_tuning_metric: str = "ssim"
     display_guard: bool = True
-
-    @property
-    def tilt_span_m(self) -> float:
-        return self.tilt_span_mm * M_PER_MM
 
     def validate(self) -> None:
         if self.wiener_tuning_metric not in ("ssim", "psnr"):
@@ -620,7 +649,15 @@ class EvaluationConfig:
             raise ConfigError("evaluation.comparison_depths_mm needs one or more positive depths")
         if not (math.isfinite(self.tilt_deg) and 0 < abs(self.tilt_deg) < 90):
             raise ConfigError(f"evaluation.tilt_deg={self.tilt_deg} must be between 0 and 90 degrees (exclusive)")
-        _positive(self, "tilt_span_mm", "evaluation.tilt_span_mm")
+        if self.tilt_range_mm and (
+            len(self.tilt_range_mm) != 2
+            or not all(math.isfinite(d) for d in self.tilt_range_mm)
+            or not 0 < self.tilt_range_mm[0] < self.tilt_range_mm[1]
+        ):
+            raise ConfigError(
+                f"evaluation.tilt_range_mm={self.tilt_range_mm} must be [near, far] with 0 < near < far (mm), "
+                "or [] (the scored range)"
+            )
         if self.image_size and (
             len(self.image_size) != 2
             or any(
@@ -877,6 +914,19 @@ def _base_statements(data: dict) -> list[tuple[str, Any]]:
     return pairs
 
 
+def _convert_tilt_span(data: dict, default_focus_mm: float) -> None:
+    """A config mapping's former ``evaluation.tilt_span_mm: S`` (the tilted screen from ``v`` to ``v + S``) as
+    the same screen in ``evaluation.tilt_range_mm``, in place (a run saved before the key changed)."""
+    evaluation = data.get("evaluation")
+    if not isinstance(evaluation, dict) or "tilt_span_mm" not in evaluation:
+        return
+    span = evaluation.pop("tilt_span_mm")
+    optics = data.get("optics")
+    focus = optics.get("focus_mm", default_focus_mm) if isinstance(optics, dict) else default_focus_mm
+    if "tilt_range_mm" not in evaluation and isinstance(span, (int, float)) and isinstance(focus, (int, float)):
+        evaluation["tilt_range_mm"] = [float(focus), float(focus) + float(span)]
+
+
 def _parse_override_value(raw: str) -> Any:
     """The value of a ``--set`` override: YAML, or the text itself where it is not YAML."""
     try:
@@ -953,6 +1003,8 @@ def _load_file(file: Path, chain: tuple[Path, ...]) -> Config:
         raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
     if isinstance(data, dict) and "base" in data:
         return _load_on_base(file, data, chain)
+    if isinstance(data, dict):
+        _convert_tilt_span(data, OpticsConfig.focus_mm)
     if isinstance(data, dict) and "net" in data:
         data["net"], note = convert_flat_net(data["net"])
         if note:  # once per file and process (Python's default warning filter)
@@ -974,27 +1026,49 @@ def _load_on_base(file: Path, data: dict, chain: tuple[Path, ...]) -> Config:
     name = data.pop("name", None)
     if name is not None:
         merged["name"] = name
+    _convert_tilt_span(data, merged["optics"]["focus_mm"])
     statements = _base_statements(data)
     for dotted, value in statements:
         set_key(merged, dotted, value)
     cfg = from_dict(Config, merged).validate()
     stated_here = {dotted for dotted, _ in statements}
-    if stated_measurement_changed(base_cfg, cfg) and "spectrum.stated_l1_error" not in stated_here:
-        cfg.spectrum.stated_l1_error = None  # measured for the base's projector, not this one
-    return cfg
+    data_after = to_dict(cfg)
+    for key, (depends_on, cleared) in PROJECTOR_BOUND_KEYS.items():
+        if key not in stated_here and keys_changed(base_cfg, cfg, depends_on, exclude=(key,)):
+            section, name = key.split(".")
+            data_after[section][name] = cleared  # set for the base's projector, not this one
+    return from_dict(Config, data_after).validate()
 
 
 #: The keys a measured accuracy (``spectrum.stated_l1_error``) depends on: the projector's optics, its
 #: spectra and sampling, and the depths the PSFs span. A statement holds for these values only.
 STATED_FOR_KEYS = ("optics.", "spectrum.", "psf.depth_min_mm", "psf.depth_max_mm")
+#: The keys a depth range of the evaluation is chosen for: the projector's focus and training range.
+RANGE_FOR_KEYS = ("optics.focus_mm", "psf.depth_min_mm", "psf.depth_max_mm")
+
+#: Keys that belong to the projector they were set for: ``key -> (the keys it depends on (prefixes), the value
+#: that follows the new projector)``. A config whose ``base`` sets one and that changes what it depends on
+#: without setting it again does not inherit it: a stated accuracy is dropped (the sampling check speaks
+#: again), the scored and tilted-screen ranges follow the new training range.
+PROJECTOR_BOUND_KEYS: dict[str, tuple[tuple[str, ...], Any]] = {
+    "spectrum.stated_l1_error": (STATED_FOR_KEYS, None),
+    "evaluation.score_range_mm": (RANGE_FOR_KEYS, []),
+    "evaluation.tilt_range_mm": (RANGE_FOR_KEYS, []),
+    "doe.design_wavelength_nm": (("spectrum.peaks_nm", "spectrum.fwhm_nm", "spectrum.spd_csv"), None),
+}
+
+
+def keys_changed(base: Config, cfg: Config, prefixes: tuple[str, ...], exclude: tuple[str, ...] = ()) -> bool:
+    """Whether ``cfg`` differs from ``base`` in a key that starts with one of ``prefixes`` (``exclude`` and the
+    :data:`STATEMENT_KEYS` aside)."""
+    a, b = flatten_config(base), flatten_config(cfg)
+    keys = [k for k in set(a) | set(b) if k.startswith(prefixes) and k not in STATEMENT_KEYS and k not in exclude]
+    return any(a.get(k) != b.get(k) for k in keys)
 
 
 def stated_measurement_changed(base: Config, cfg: Config) -> bool:
-    """Whether ``cfg`` differs from ``base`` in a key a stated accuracy depends on (:data:`STATED_FOR_KEYS`,
-    the statements themselves aside)."""
-    a, b = flatten_config(base), flatten_config(cfg)
-    keys = [k for k in set(a) | set(b) if k.startswith(STATED_FOR_KEYS) and k not in STATEMENT_KEYS]
-    return any(a.get(k) != b.get(k) for k in keys)
+    """Whether ``cfg`` differs from ``base`` in a key a stated accuracy depends on (:data:`STATED_FOR_KEYS`)."""
+    return keys_changed(base, cfg, STATED_FOR_KEYS)
 
 
 def flatten_config(cfg: Config) -> dict:

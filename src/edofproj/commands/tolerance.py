@@ -127,10 +127,26 @@ def run(args: argparse.Namespace) -> int:
     )
     out_dir = args.out or design.run_dir or design.doe_file.parent
     paths = write_outputs(result, out_dir, source=args.source)
+    from ..methods.depth_ranges import format_span_mm
+
     p05, p50, _ = result.percentiles()
-    worst = int(np.argmin(p05))
+    worst, (near, far) = headline_depth_index(result.depths_m * 1e3, p05, cfg)
     print(
-        f"wrote {', '.join(str(p) for p in paths)}; energy in 3x3 px at {result.depths_m[worst] * 1e3:.0f} mm: "
+        f"wrote {', '.join(str(p) for p in paths)}; energy in 3x3 px at {result.depths_m[worst] * 1e3:.0f} mm "
+        f"(the worst depth of the scored {format_span_mm(near, far)} mm): "
         f"nominal {result.nominal[worst]:.4f}, median {p50[worst]:.4f}, 5th percentile {p05[worst]:.4f}"
     )
     return 0
+
+
+def headline_depth_index(depths_mm, p05, cfg) -> tuple[int, tuple[float, float]]:
+    """The index of the depth the headline reports -- the lowest 5th percentile among the depths in the run's
+    scored range (``evaluation.score_range_mm``, else its training range; all depths when none lies in it,
+    :func:`edofproj.methods.depth_ranges.scored_range_mm`) -- and that range as the depths cover it."""
+    from ..methods.compensators import score_range_mm
+    from ..methods.depth_ranges import scored_range_mm
+
+    depths_mm = np.asarray(depths_mm, dtype=float)
+    near, far = scored_range_mm(depths_mm.tolist(), score_range_mm(cfg))
+    inside = np.flatnonzero((depths_mm >= near - 1e-9) & (depths_mm <= far + 1e-9))
+    return int(inside[np.argmin(np.asarray(p05)[inside])]), (near, far)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..builtin_runs import PREFIX, resolve_run_dir
 from ..errors import EdofprojError
+from ..optics.spectra import design_wavelength_nm
 from .base import DOE
 from .design_rules import apply_design_rules
 from .designs import Axicon, CubicPhasePlate, LensOnly, Multifocal
@@ -57,7 +58,7 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
     v = cfg.optics.focus_m
     common = dict(
         aperture_radius_m=R,
-        design_wavelength_m=doe_cfg.design_wavelength_nm * 1e-9,
+        design_wavelength_m=design_wavelength_nm(cfg) * 1e-9,
         levels=doe_cfg.levels if doe_cfg.quantize else None,
         material=doe_cfg.material,
     )

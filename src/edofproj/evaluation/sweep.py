@@ -6,8 +6,8 @@ Both run the closed loop of :mod:`edofproj.compensation.closed_loop` (the forwar
     I* = project(I, p_z),   x = compensate(I, I*, p_z),   display = project(x, p_z)
 
 Tilted screen (paper Sec. 5.3): a plane turned by ``evaluation.tilt_deg`` about the vertical
-axis whose depth runs from the in-focus distance ``v`` (left column) to ``v + tilt_span_mm``
-(right column), ``1/z`` affine across the columns
+axis whose depth runs from the near end of ``evaluation.tilt_range_mm`` (left column) to its far end
+(right column; ``[]``: the scored range, :func:`tilted_range_mm`), ``1/z`` affine across the columns
 (:func:`edofproj.imaging.screens.tilted_plane_depth_map`). The projection of an image ``x`` on
 it is rendered by depth layers, ``render(x)`` (:func:`edofproj.imaging.depth_layers.render_depth_map`,
 ``imaging.depth_layers`` layers evenly spaced in ``1/z``), so::
@@ -50,6 +50,7 @@ from ..config import M_PER_MM
 from ..cpu_tasks import default_workers, run_tasks
 from ..imaging.depth_layers import layer_depths_m, render_depth_map
 from ..imaging.screens import tilted_plane_depth_map
+from ..methods.compensators import score_range_mm
 from ..methods.depth_ranges import depth_notes, scored_range_mm, trained_range_mm  # noqa: F401 (re-exported)
 from .results import BASE_METRICS, MetricsTable
 
@@ -208,13 +209,22 @@ def example_displays(
 # --------------------------------------------------------------------------- tilted screen
 
 
+def tilted_range_mm(cfg) -> tuple[float, float]:
+    """``(near, far)`` depths (mm) of the tilted screen: ``evaluation.tilt_range_mm``, or the scored range
+    (:func:`edofproj.methods.compensators.score_range_mm`) when that is empty."""
+    if cfg.evaluation.tilt_range_mm:
+        near, far = cfg.evaluation.tilt_range_mm
+        return float(near), float(far)
+    return score_range_mm(cfg)
+
+
 class TiltedScreen:
     """The tilted plane of the module docstring for images of ``height x width`` pixels."""
 
     def __init__(self, cfg, height: int, width: int) -> None:
         ev = cfg.evaluation
-        self.near_m = cfg.optics.focus_m
-        self.far_m = cfg.optics.focus_m + ev.tilt_span_m
+        near_mm, far_mm = tilted_range_mm(cfg)
+        self.near_m, self.far_m = near_mm * 1e-3, far_mm * 1e-3
         self.tilt_deg = float(ev.tilt_deg)
         self.depth_map_m = tilted_plane_depth_map(height, width, self.tilt_deg, self.near_m, self.far_m)
         self.layers_m = layer_depths_m(self.near_m, self.far_m, cfg.imaging.depth_layers)

@@ -210,12 +210,22 @@ def reference_spd(spectrum_cfg, step_nm: float = REFERENCE_STEP_NM) -> tuple[np.
     return lam, ref.weights
 
 
+def design_wavelength_nm(cfg) -> float:
+    """The DOE's design wavelength (nm) of a configuration: ``doe.design_wavelength_nm`` where set, else the
+    centroid of the primaries, ``(1/3) sum_c (sum_l l s_c(l)) / (sum_l s_c(l))`` over their SPDs
+    (:func:`reference_spd`; for LED-like Gaussian peaks, the mean of ``spectrum.peaks_nm`` within their cut)."""
+    if cfg.doe.design_wavelength_nm is not None:
+        return float(cfg.doe.design_wavelength_nm)
+    lam, spd = reference_spd(cfg.spectrum)
+    return float(np.mean(spd @ lam / spd.sum(axis=1)))
+
+
 def pupil_path_difference_m(geometry, cfg) -> float:
     """The largest optical path difference across the pupil for a config's depth range: the
     defocus ``R^2 max|1/z - 1/v| / 2`` plus one wave of DOE at the design wavelength."""
     z = np.array([cfg.psf.depth_min_mm, cfg.psf.depth_max_mm]) * 1e-3
     defocus = geometry.aperture_radius_m**2 * float(np.max(np.abs(1 / z - 1 / geometry.focus_distance_m))) / 2
-    return defocus + cfg.doe.design_wavelength_nm * 1e-9
+    return defocus + design_wavelength_nm(cfg) * 1e-9
 
 
 def shortest_spectral_period_nm(wavelength_nm: float, path_difference_m: float) -> float:

@@ -1,6 +1,6 @@
 """The paper's claims checked by the demo, measured on held-out images (never assumed).
 
-(a) ``doe+net`` has the best mean SSIM over the training depth range of all evaluated methods;
+(a) ``doe+net`` has the best mean SSIM over the scored depth range (``evaluation.score_range_mm``) of all evaluated methods;
 (b) ``doe+net``'s worst depth in that range (lowest per-depth mean SSIM) beats every other
     method's worst depth;
 (c) the demo's wall time is within its budget.

@@ -1,7 +1,7 @@
 """Figures of an evaluation (matplotlib, Agg backend, PNG written atomically).
 
 * :func:`plot_metric_vs_depth` -- a metric against the screen depth, one line per method,
-  the training depth range shaded;
+  the scored depth range shaded;
 * :func:`plot_designs_vs_depth` -- the same for every optical design with its best blind (solid) and
   non-blind (dashed) compensation (:mod:`.designs`), one colour per design;
 * :func:`plot_comparison` -- the side-by-side grid of the paper's Fig. 6: rows = depths,

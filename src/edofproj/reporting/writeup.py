@@ -17,6 +17,7 @@ import numpy as np
 
 from ..doe import build_doe
 from ..evaluation.results import METRIC_LABELS, format_span_mm, headline_metrics
+from ..evaluation.sweep import tilted_range_mm
 from ..methods.catalogue import METHOD_NAMES
 from ..methods.designs import OpticalDesign
 from ..methods.guard import GuardedNetworkCompensation
@@ -59,8 +60,9 @@ def overview(ev) -> list:
         Paragraph(
             f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
             f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
-            f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
-            f"{format_span_mm(lo, hi)} mm."
+            f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; trained over "
+            f"{format_span_mm(ev.cfg.psf.depth_min_mm, ev.cfg.psf.depth_max_mm)} mm (psf.depth_min_mm-psf.depth_max_mm), "
+            f"scored over {format_span_mm(lo, hi)} mm (the means and worst depths of the tables)."
         ),
         Paragraph(
             f"Scored on {len(ev.images)} {IMAGE_SET_LABELS.get(ev.image_set, 'held-out')} image(s) ({images}) "
@@ -223,7 +225,7 @@ def full_report(ev, title: str = "edofproj evaluation", preface: Sequence = (), 
         figures,
         "tilted",
         f"A plane screen tilted by {ev.cfg.evaluation.tilt_deg:g} deg, depth "
-        f"from v to v + {ev.cfg.evaluation.tilt_span_mm:g} mm (left to right), "
+        f"from {tilted_range_mm(ev.cfg)[0]:.0f} to {tilted_range_mm(ev.cfg)[1]:.0f} mm (left to right), "
         f"rendered by {ev.cfg.imaging.depth_layers} depth layers.",
     )
     report.add(Heading("Optics"))
