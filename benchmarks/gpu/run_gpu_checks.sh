@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The CUDA checks and measurements of edofproj in one go, on a machine with an NVIDIA GPU.
 #
-#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|shipped|live|compile|paper|scored|all]...   (default: all)
+#   bash benchmarks/gpu/run_gpu_checks.sh [setup|placement|tests|suite|bench|shipped|live|compile|paper|loan|all]...   (default: all)
 #
 # setup      installs what the GPU image lacks from .whl/ (nothing can be fetched there; download
 #            the wheels beforehand, see below) and makes the package importable without a build
@@ -23,11 +23,17 @@
 # compile    `edofproj bench --compile` on CUDA at COMPILE_SIZES (600x800): the reference model (guarded
 #            and bare) and the real-time network, eager, compiled by torch.compile, and each as a CUDA graph
 # paper      benchmarks/gpu/paper_scale.py: s/step and peak memory at the paper's sizes, fp32 vs bf16
-# scored     trains the `paper` preset for SCORED_STEPS steps and evaluates it and the reference
-#            model (REFERENCE_RUN, default the built-in run builtin:cpu-doe-net) on the GPU
+# loan       benchmarks/gpu/loan.py: trains LOAN_CONFIG (the `paper` preset) until LOAN_S seconds after this
+#            script started less a reserve, scores it (`edofproj evaluate`, test images and validation set),
+#            and writes record.json, results.tar.gz and the run packed for the next loan (run.pack.json,
+#            run.tar.NNN) into $OUT within what a loan brings back (8 files of 16 MB, 64 MB in all, counting
+#            what the steps before wrote); LOAN_RESUME=FOLDER/run.pack.json continues a packed run
+#            instead. Knobs: LOAN_S (540), LOAN_CONFIG (paper), LOAN_SET (space-separated KEY=VALUE
+#            overrides), LOAN_RESUME, LOAN_DEVICE (cuda), LOAN_METHODS (doe+net), LOAN_SETS (test,validation),
+#            LOAN_ARGS (more options of loan.py)
 #
 # Knobs for a short loan (environment): BENCH_REPEATS (300), PAPER_STEPS (40), TESTS_TIMEOUT (420 s),
-# STEP_TIMEOUT (the cap of bench, live, paper and scored each, 600 s).
+# STEP_TIMEOUT (the cap of bench, live and paper each, 600 s).
 #
 # setup and placement always run first. Results go to $OUT (default /tmp/edofproj-gpu): logs, CSV
 # tables and results.tar.gz.
@@ -44,10 +50,14 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-/tmp/edofproj-gpu}
 WORK=${WORK:-/tmp/edofproj-gpu-work}
-SCORED_STEPS=${SCORED_STEPS:-3000}
-SCORED_CROP=${SCORED_CROP:-256}
-SCORED_BATCH=${SCORED_BATCH:-4}
-SCORED_PRECISION=${SCORED_PRECISION:-bf16}
+LOAN_S=${LOAN_S:-540}
+LOAN_CONFIG=${LOAN_CONFIG:-paper}
+LOAN_SET=${LOAN_SET:-}
+LOAN_RESUME=${LOAN_RESUME:-}
+LOAN_DEVICE=${LOAN_DEVICE:-cuda}
+LOAN_METHODS=${LOAN_METHODS:-doe+net}
+LOAN_SETS=${LOAN_SETS:-test,validation}
+LOAN_ARGS=${LOAN_ARGS:-}
 REFERENCE_RUN=${REFERENCE_RUN:-builtin:cpu-doe-net}
 BENCH_REPEATS=${BENCH_REPEATS:-300}
 COMPILE_SIZES=${COMPILE_SIZES:-600x800}
@@ -59,7 +69,11 @@ export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/src:${PYTHONPATH:-}"
 CLI="timeout $STEP_TIMEOUT python3 -m edofproj.cli"
 
 setup() {
-    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+    if command -v nvidia-smi >/dev/null; then
+        nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+    else
+        echo "no nvidia-smi: no NVIDIA GPU here (only the CPU steps can run: loan with LOAN_DEVICE=cpu)"
+    fi
     if compgen -G ".whl/*.whl" >/dev/null; then
         python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || return 1
         export PYTHONPATH="$PYTHONPATH:/tmp/site"
@@ -73,8 +87,10 @@ for name, why in missing.items():
     print(f"missing: {name} ({why}): put its wheel in .whl/ (see the header of this script)")
 sys.exit(1 if set(missing) & set(needed) else 0)
 PY
-    python3 -c "import torch, edofproj; print('torch', torch.__version__, 'CUDA', torch.version.cuda, \
-'GPU', torch.cuda.get_device_name(), 'cuDNN', torch.backends.cudnn.version())"
+    python3 -c "import torch, edofproj; from edofproj.machine import instruction_sets; \
+gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else None; \
+print('torch', torch.__version__, 'CUDA', torch.version.cuda, 'GPU', gpu, 'cuDNN', torch.backends.cudnn.version()); \
+print('CPU', instruction_sets())"
 }
 
 placement() {
@@ -154,32 +170,25 @@ paper() {
         --crop 1024 2>&1 | grep -v Warning | tee "$OUT/paper_scale.log" | tail -8
 }
 
-scored() {
-    rm -rf "$WORK/paper_gpu"
-    $CLI train --config paper --out "$WORK/paper_gpu" --quiet \
-        --set data.source=builtin --set data.test_fraction=0.3 --set data.crop="$SCORED_CROP" \
-        --set loss.perceptual=ms-ssim --set train.steps="$SCORED_STEPS" --set train.batch_size="$SCORED_BATCH" \
-        --set train.checkpoint_every=1000 --set train.device=cuda --set train.mixed_precision="$SCORED_PRECISION" \
-        || return 1
-    local methods="lens,lens+wiener,doe,doe+wiener,doe+net"
-    $CLI evaluate "$WORK/paper_gpu" --methods "$methods" --device cuda --out "$WORK/eval_paper" --quiet || return 1
-    $CLI evaluate "$REFERENCE_RUN" --methods "$methods" --device cuda --out "$WORK/eval_cpu" --quiet || return 1
-    cp "$WORK/paper_gpu/train_log.csv" "$OUT/paper_gpu_train_log.csv"
-    tar -czf "$OUT/results.tar.gz" -C "$WORK" paper_gpu/config.yaml paper_gpu/doe.npz eval_paper/metrics.csv \
-        eval_paper/tilted_metrics.csv eval_paper/summary.md eval_cpu/metrics.csv eval_cpu/tilted_metrics.csv \
-        eval_cpu/summary.md 2>&1
+loan() {
+    local sets=() s
+    for s in $LOAN_SET; do sets+=(--set "$s"); done
+    # shellcheck disable=SC2086  # LOAN_ARGS: options split as words
+    python3 benchmarks/gpu/loan.py "$OUT" --budget-s "$((LOAN_S - SECONDS))" --config "$LOAN_CONFIG" \
+        --device "$LOAN_DEVICE" --methods "$LOAN_METHODS" --sets "$LOAN_SETS" --work "$WORK/loan" \
+        ${LOAN_RESUME:+--resume "$LOAN_RESUME"} "${sets[@]}" $LOAN_ARGS
 }
 
 steps=()
 for step in "$@"; do
     case "$step" in
-    all) steps+=(tests bench shipped live compile paper scored) ;;
+    all) steps+=(tests bench shipped live compile paper loan) ;;
     setup | placement) ;;  # always run first
-    tests | suite | bench | shipped | live | compile | paper | scored) steps+=("$step") ;;
-    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, shipped, live, compile, paper, scored, all)" >&2; exit 2 ;;
+    tests | suite | bench | shipped | live | compile | paper | loan) steps+=("$step") ;;
+    *) echo "unknown step '$step' (setup, placement, tests, suite, bench, shipped, live, compile, paper, loan, all)" >&2; exit 2 ;;
     esac
 done
-[ $# -eq 0 ] && steps=(tests bench shipped live compile paper scored)
+[ $# -eq 0 ] && steps=(tests bench shipped live compile paper loan)
 steps=(setup placement "${steps[@]}")
 status=0
 for step in "${steps[@]}"; do

@@ -11,7 +11,8 @@
 * :mod:`.directory` -- the layout, new-run and resume checks, :func:`load_run`;
 * :mod:`.checkpoint` -- atomic checkpoints and random-generator state;
 * :mod:`.log` -- ``train_log.csv``;
-* :mod:`.figures` -- a run's figures.
+* :mod:`.figures` -- a run's figures;
+* :mod:`.pack` -- a run as a few files of bounded size (to carry it off a leased machine) and back.
 """
 
 from .directory import (

@@ -39,7 +39,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -102,7 +102,8 @@ FIGURE_DEPTHS = 6
 @dataclass
 class TrainingResult:
     """What a call of :func:`train` did: steps ``start_step -> step``, the last loss, total seconds,
-    and on a CUDA device the peak GPU memory PyTorch allocated in this session (bytes; None on the CPU)."""
+    on a CUDA device the peak GPU memory PyTorch allocated in this session (bytes; None on the CPU), and
+    whether the session ended at its time budget (:class:`TimeBudget`) before the run's end."""
 
     run_dir: Path
     start_step: int
@@ -110,6 +111,7 @@ class TrainingResult:
     loss: float
     seconds: float
     peak_gpu_memory_bytes: int | None = None
+    stopped_at_time_budget: bool = False
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -192,6 +194,45 @@ def _clip(parameters: list[nn.Parameter], max_norm: float) -> torch.Tensor:
     if max_norm > 0:
         return torch.nn.utils.clip_grad_norm_(grads, max_norm)
     return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in grads]))
+
+
+class TimeBudget:
+    """A session's wall-clock budget: a step is begun only if it should end inside the budget.
+
+    With ``t_0`` the clock when the session began, ``t`` now (before a step) and ``d`` the
+    duration of the previous step (the time between the two checks before it and before this one:
+    the step, its log row, its checkpoint and validation; 0 before the first), the session goes on
+    while
+
+        (t - t_0) + d <= seconds.
+
+    ``seconds`` None: no budget. ``clock``: seconds of a monotonic clock (``time.monotonic``; a test
+    gives its own). Under ``torchrun`` the processes stop together: at the first check where any of
+    them would stop (one collective call per check, made only with a budget)."""
+
+    def __init__(self, seconds: float | None, group: ProcessGroup, clock: Callable[[], float] = time.monotonic):
+        if seconds is not None and not seconds > 0:
+            raise EdofprojError(f"the time budget must be > 0 seconds, not {seconds}")
+        self.seconds = seconds
+        self.group = group
+        self.clock = clock
+        self.started = clock()
+        self.previous: float | None = None
+        self.reached = False
+
+    def allows_another_step(self) -> bool:
+        """Whether the next step should end inside the budget (always True without one); once False,
+        :attr:`reached` stays True."""
+        if self.seconds is None:
+            return True
+        now = self.clock()
+        last_step_s = now - self.previous if self.previous is not None else 0.0
+        self.previous = now
+        stop = (now - self.started) + last_step_s > self.seconds
+        if self.group.distributed:
+            stop = bool(average_across_processes(torch.tensor([float(stop)]), self.group).item() > 0)
+        self.reached = self.reached or stop
+        return not stop
 
 
 # ----------------------------------------------------------------------------- the training run
@@ -424,14 +465,22 @@ class _Session:
 
 
 def train(
-    cfg: Config, out_dir: str | Path, resume: bool = False, stop_after: int | None = None, progress: bool = True
+    cfg: Config,
+    out_dir: str | Path,
+    resume: bool = False,
+    stop_after: int | None = None,
+    progress: bool = True,
+    time_budget_s: float | None = None,
+    clock: Callable[[], float] = time.monotonic,
 ) -> TrainingResult:
     """Train (or, with ``resume``, continue) the run in ``out_dir`` through all its phases
     (:func:`~.phases.total_steps`: ``train.steps``, plus ``train.refit_steps`` of a second phase).
 
     ``stop_after``: end this session after that many steps of the run in total (the learning-rate
-    schedules still span their phases), e.g. to train in chunks; a checkpoint is
-    written at the end of every session. Resuming with a larger ``train.steps`` during the first
+    schedules still span their phases), e.g. to train in chunks; ``time_budget_s``: end it before
+    the first step that would end more than that many seconds after this call (:class:`TimeBudget`,
+    read on ``clock``), e.g. to fit a lease of a machine; a checkpoint is written at the end of
+    every session, so ``resume`` continues it exactly. Resuming with a larger ``train.steps`` during the first
     phase (or ``train.refit_steps`` during the second) extends that phase; the remaining learning
     rates then follow ``lr_0 f^(t / T)`` with the new ``T``.
     Returns a :class:`TrainingResult`.
@@ -446,7 +495,8 @@ def train(
         # rank 0 writes the run directory: it holds the directory's lock while it runs
         lock = directory_lock(run_dir, "edofproj train", "--out") if group.is_main else contextlib.nullcontext()
         with lock:
-            return _train(cfg, run_dir, resume, stop_after, progress, group)
+            budget = TimeBudget(time_budget_s, group, clock)
+            return _train(cfg, run_dir, resume, stop_after, progress, group, budget)
     finally:
         teardown_process_group(group)
 
@@ -482,7 +532,13 @@ def checkpoint_phase(phases: list[Phase], checkpoint: dict) -> int:
 
 
 def _train(
-    cfg: Config, run_dir: Path, resume: bool, stop_after: int | None, progress: bool, group: ProcessGroup
+    cfg: Config,
+    run_dir: Path,
+    resume: bool,
+    stop_after: int | None,
+    progress: bool,
+    group: ProcessGroup,
+    budget: TimeBudget,
 ) -> TrainingResult:
     if resume:
         check_resume_config(run_dir, cfg)
@@ -532,7 +588,7 @@ def _train(
         for index in range(first, len(phases)):
             phase = phases[index]
             if index > first:
-                if phase.offset >= end:
+                if phase.offset >= end or budget.reached:
                     break
                 elapsed = session.elapsed  # the run's training seconds go on across the phases
                 del session  # free the last phase's model before building this one's
@@ -543,7 +599,7 @@ def _train(
             if bar is not None and len(phases) > 1:
                 bar.set_description(f"{cfg.name} ({phase.name})")
             phase_end = min(phase.cfg.train.steps, end - phase.offset)
-            loss = _train_phase(session, phase_end, log, bar) if session.step < phase_end else loss
+            loss = _train_phase(session, phase_end, log, bar, budget) if session.step < phase_end else loss
     finally:
         if bar is not None:
             bar.close()
@@ -553,17 +609,22 @@ def _train(
         session.write_figures()
     barrier(group)
     peak = torch.cuda.max_memory_allocated(group.device) if group.device.type == "cuda" else None
-    return TrainingResult(run_dir, start, session.run_step, loss, session.elapsed, peak)
+    stopped = budget.reached and session.run_step < total
+    return TrainingResult(run_dir, start, session.run_step, loss, session.elapsed, peak, stopped)
 
 
-def _train_phase(session: _Session, end: int, log: TrainingLog | None, bar) -> float:
+def _train_phase(session: _Session, end: int, log: TrainingLog | None, bar, budget: TimeBudget) -> float:
     """Steps ``session.step + 1 .. end`` of the session's phase, logged and checkpointed (a checkpoint after
-    the last); returns the last loss."""
+    the last, or after the last that ``budget`` allowed); returns the last loss."""
     cfg = session.cfg
     loss = math.nan
     clock = time.perf_counter()
     base_elapsed = session.elapsed
     while session.step < end:
+        if not budget.allows_another_step():
+            if session.last_checkpoint_step != session.run_step:
+                session.save()
+            break
         lr = session.current_lr()
         loss, mse, perceptual = session.train_step()
         session.elapsed = base_elapsed + time.perf_counter() - clock
