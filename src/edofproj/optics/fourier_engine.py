@@ -178,8 +178,19 @@ class FourierPSFEngine:
         phase = 2 * math.pi * ab.opd_m(rho, theta, wavelength_m) / wavelength_m
         return torch.where(self.aperture, phase, torch.zeros_like(phase))
 
+    def pupil_amplitude(self, wavelength_m: float) -> torch.Tensor:
+        """The pupil's amplitude A(x, y), (M, M): the aperture (1 inside, 0 outside), or a lens
+        prescription's ray amplitude (``aberration.amplitude``: vignetting, absorption)."""
+        ab = self.aberration
+        if ab is None or not hasattr(ab, "amplitude"):
+            return self.aperture.to(self.dtype)
+        R = self.geometry.aperture_radius_m
+        amp = ab.amplitude(torch.sqrt(self.r2) / R, torch.atan2(self.yy, self.xx), wavelength_m)
+        return torch.where(self.aperture, amp, torch.zeros_like(amp)).to(self.dtype)
+
     def psf(self, doe, depths_m) -> torch.Tensor:
-        """Pixel-integrated PSFs, (n_depths, n_lambda, K, K), fractions of the pupil energy."""
+        """Pixel-integrated PSFs, (n_depths, n_lambda, K, K), fractions of the pupil energy
+        (``sum A^2``: the light the lens transmits)."""
         depths_m = check_depths(depths_m)
         warn_if_blur_exceeds_window(self.geometry, depths_m, self.window)
         self._check_sampling(doe, depths_m)
@@ -206,10 +217,10 @@ class FourierPSFEngine:
                 raise EdofprojError("the DOE produced NaN or infinite heights")
         z = torch.as_tensor(depths_m, dtype=torch.float64, device=self.device)
         complex_dtype = torch.complex128 if self.dtype == torch.float64 else torch.complex64
-        aperture = self.aperture.to(self.dtype)
-        pupil_energy = aperture.sum()
         out = []
         for li, lam in enumerate(self.wavelengths_m):
+            aperture = self.pupil_amplitude(float(lam))
+            pupil_energy = aperture.square().sum()
             n_minus_1 = 0.0 if doe is None else float(doe.refractive_index(lam)) - 1.0
             doe_phase = 2 * math.pi * n_minus_1 * height / lam + self.aberration_phase(float(lam))
             N = self.fft_size[li]

@@ -23,6 +23,7 @@ from ..fileio import read_arrays, save_npz_atomic
 from .aberrations import PupilAberration, aberration_from_config
 from .fourier_engine import FourierPSFEngine
 from .geometry import ProjectorGeometry
+from .lens_prescription import lens_pupil_from_config
 from .psf_checks import validate_psf
 from .radial_engine import RadialPSFEngine, check_depths, check_window
 from .spectra import Spectrum, check_spectral_sampling, pupil_path_difference_m
@@ -195,5 +196,6 @@ def simulator_from_config(
         engine or cfg.psf.engine,
         dtype,
         device,
-        aberration=aberration_from_config(cfg.optics),
+        aberration=lens_pupil_from_config(cfg.optics, spectrum.wavelengths_m, cfg.psf.pupil_samples)
+        or aberration_from_config(cfg.optics),
     )

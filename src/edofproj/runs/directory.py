@@ -40,6 +40,7 @@ RESUMABLE_KEYS = (
 PATH_KEYS = (
     "optics.wavefront_map",
     "optics.aberration_csv",
+    "optics.lens_prescription",
     "spectrum.spd_csv",
     "doe.path",
     "loss.weights_dir",
