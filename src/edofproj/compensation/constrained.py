@@ -108,21 +108,52 @@ def box_constrained_deconvolution(
         raise EdofprojError(f"PSF {tuple(psf.shape)} does not match target {tuple(target.shape)}")
     with torch.no_grad():
         op = BlurHazeOperator(psf, target.shape[-2], target.shape[-1], haze=haze)
-        step = 1.0 / op.lipschitz.clamp_min(1e-12)
+        return box_least_squares(
+            target,
+            op.forward,
+            op.adjoint,
+            1.0 / op.lipschitz.clamp_min(1e-12),
+            iterations,
+            method,
+            return_objective=return_objective,
+            callback=callback,
+        )
 
+
+def box_least_squares(
+    target: torch.Tensor,
+    forward: Callable[[torch.Tensor], torch.Tensor],
+    adjoint: Callable[[torch.Tensor], torch.Tensor],
+    step,
+    iterations: int = 100,
+    method: str = "fista",
+    start: torch.Tensor | None = None,
+    return_objective: bool = False,
+    callback: Callable[[int, torch.Tensor], None] | None = None,
+):
+    """The solver of the module docstring for any linear operator: ``x in [0, 1]`` minimizing
+    ``1/2 ||A x - I||^2`` with ``A = forward``, ``A^T = adjoint`` and the step ``1 / L`` (``step`` a
+    number or a tensor broadcasting against ``(B, C, 1, 1)``, ``L >= ||A||^2`` per channel).
+    ``start``: the first iterate (default ``clamp(I, 0, 1)``; clamped). Returns as
+    :func:`box_constrained_deconvolution`."""
+    if method not in SOLVERS:
+        raise EdofprojError(f"unknown constrained solver '{method}' (known: {', '.join(SOLVERS)})")
+    if int(iterations) < 0:
+        raise EdofprojError(f"iterations={iterations} must be >= 0")
+    with torch.no_grad():
         # A is linear, so A y of FISTA's extrapolated point y = x + a (z - x) + b (x - x_prev) is the same
         # combination of A z, A x and A x_prev, all at hand: each iteration applies A once and Aᵀ once.
         def gradient_step(y: torch.Tensor, a_y: torch.Tensor) -> torch.Tensor:
-            return (y - step * op.adjoint(a_y - target)).clamp_(0.0, 1.0)
+            return (y - step * adjoint(a_y - target)).clamp_(0.0, 1.0)
 
-        x = target.clamp(0.0, 1.0)
-        a_x = op(x)
+        x = (target if start is None else start).clamp(0.0, 1.0)
+        a_x = forward(x)
         f_x = _objective(a_x - target)
         history = [f_x]
         if method == "pgd":
             for _ in range(int(iterations)):
                 x = gradient_step(x, a_x)
-                a_x = op(x)
+                a_x = forward(x)
                 f_x = _objective(a_x - target)
                 history.append(f_x)
                 if callback is not None:
@@ -131,7 +162,7 @@ def box_constrained_deconvolution(
             y, a_y, t = x, a_x, 1.0
             for _ in range(int(iterations)):
                 z = gradient_step(y, a_y)
-                a_z = op(z)
+                a_z = forward(z)
                 f_z = _objective(a_z - target)
                 better = (f_z <= f_x).view(-1, 1, 1, 1)
                 x_prev, x = x, torch.where(better, z, x)

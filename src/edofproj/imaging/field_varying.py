@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from .convolution import convolve_same
+from .convolution import convolve_same, fft_shape, optical_transfer_function
 
 
 def field_centres_px(field_coords, size_px: int) -> np.ndarray:
@@ -96,3 +96,167 @@ def project_field_varying(
                 lost = 1.0 - kernel.sum(dim=(-1, -2), keepdim=True)
                 lost_mean = lost_mean + lost * weighted.sum(dim=(-1, -2), keepdim=True) / (H * W)
     return out + lost_mean if haze else out
+
+
+def low_rank_kernels(kernels: torch.Tensor, tolerance: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """``kernels (N, K, K) ~= sum_m coefficients[:, m] basis[m]``: the truncated singular value
+    decomposition of the ``N x K^2`` matrix ``X`` of the kernels, keeping the fewest ``M`` components whose
+    dropped singular values ``sigma_m`` satisfy ``sqrt(sum_dropped sigma_m^2) <= tolerance * ||X||_F``
+    (``tolerance = 0``: all above ``1e-12 sigma_0``, exact to rounding). Returns ``basis (M, K, K)`` (orthonormal)
+    and ``coefficients (N, M)`` float64. With more kernels than taps (``N > K^2``) the right singular
+    vectors are the eigenvectors of ``X^T X`` (a ``K^2 x K^2`` problem, whatever ``N``)."""
+    n, k = kernels.shape[0], kernels.shape[-1]
+    matrix = kernels.reshape(n, k * k).to(torch.float64)
+    if n <= k * k:
+        _, sigma, vh = torch.linalg.svd(matrix, full_matrices=False)
+        energy, vectors = sigma**2, vh.T
+    else:
+        energy, vectors = torch.linalg.eigh(matrix.T @ matrix)
+        energy, vectors = torch.flip(energy, (0,)).clamp_min(0.0), torch.flip(vectors, (1,))
+    rank = max(int((energy > 1e-24 * energy[0]).sum()), 1)  # the numerical rank (singular values > 1e-12 sigma_0)
+    if float(tolerance) > 0:
+        dropped = torch.flip(torch.cumsum(torch.flip(energy, (0,)), 0), (0,))  # dropped[m]: energy beyond m terms
+        bound = float(tolerance) ** 2 * float(energy.sum())
+        rank = next((m for m in range(1, len(energy)) if float(dropped[m]) <= bound), len(energy))
+    basis = vectors[:, :rank]
+    return basis.T.reshape(rank, k, k), matrix @ basis
+
+
+class FieldVaryingBlur:
+    """The linear blur whose PSF varies across the image, and its exact adjoint.
+
+    Kernels ``h_g`` (``K x K``, odd, centred) are given at a grid of nodes ``g = (i, j)`` at pixel rows
+    ``centres_y_px[i]`` and columns ``centres_x_px[j]``; a pixel's PSF is the bilinear interpolation of
+    the kernels of the nodes around it, with the tent weights ``w_g`` of :func:`hat_weights`
+    (``sum_g w_g = 1``, constant beyond the outermost nodes). The operator is the *source* form
+
+        A x = sum_g h_g (*) (w_g . x),        A^T y = sum_g w_g . (h_g (x) y)
+
+    (``(*)`` the zero-padded 'same' convolution of :mod:`.convolution`, ``(x)`` the correlation,
+    ``.`` the pixel-wise product): light leaving pixel ``x'`` spreads with the PSF interpolated at
+    ``x'``, so every source's light sums to its own kernel's mass, as a projector pixel's light goes
+    through its own PSF. This is :func:`project_field_varying` without its clamp and haze. The other
+    order, ``sum_g w_g . (h_g (*) x)``, interpolates the outputs: the adjoint's structure, and how the
+    field-varying Wiener filter (:mod:`edofproj.compensation.field_varying`) blends its nodes. Light
+    that leaves the image is lost, and none comes from outside it.
+
+    **Computation (low rank).** With the kernels written in an orthonormal basis,
+    ``h_g = sum_m a_gm e_m`` (:func:`low_rank_kernels`), the sum over nodes regroups exactly as
+
+        A x = sum_m e_m (*) (c_m . x),        c_m = sum_g a_gm w_g,
+
+    ``M`` convolutions of the whole image by FFT (transfer functions from
+    :func:`.convolution.optical_transfer_function` on the :func:`.convolution.fft_shape` grid), ``M``
+    forward transforms and one inverse for ``A``, one forward and ``M`` inverse for ``A^T``, however many
+    nodes there are. ``M`` is the kernels' rank (exact: ``rank_tolerance = 0``) or the fewest basis
+    kernels within ``rank_tolerance`` (relative Frobenius error of all node kernels together); the
+    truncated operator is the one applied, and its adjoint is exact for it.
+
+    Shapes: ``kernels (Gy, Gx, C or 1, K, K)`` (a kernel channel axis of 1 serves every colour);
+    images ``(B, C, H, W)`` of ``image_hw``, any floating dtype (cached per dtype and device).
+    """
+
+    def __init__(
+        self,
+        kernels: torch.Tensor,
+        centres_y_px,
+        centres_x_px,
+        image_hw: tuple[int, int],
+        rank_tolerance: float = 0.0,
+    ):
+        kernels = torch.as_tensor(kernels)
+        if kernels.ndim != 5 or kernels.shape[-1] != kernels.shape[-2] or kernels.shape[-1] % 2 == 0:
+            raise EdofprojError(f"node kernels must be (Gy, Gx, C or 1, K, K) with K odd, got {tuple(kernels.shape)}")
+        if not torch.isfinite(kernels).all():
+            raise EdofprojError("the node kernels contain NaN or infinite values")
+        gy, gx, channels, k = kernels.shape[0], kernels.shape[1], kernels.shape[2], kernels.shape[-1]
+        if len(centres_y_px) != gy or len(centres_x_px) != gx:
+            raise EdofprojError(f"{gy} x {gx} node kernels but {len(centres_y_px)} x {len(centres_x_px)} centres")
+        if not (0.0 <= float(rank_tolerance) < 1.0):
+            raise EdofprojError(f"rank tolerance {rank_tolerance} must be in [0, 1)")
+        self.height, self.width = int(image_hw[0]), int(image_hw[1])
+        self.kernels = kernels
+        wy = torch.as_tensor(hat_weights(centres_y_px, self.height))  # (Gy, H)
+        wx = torch.as_tensor(hat_weights(centres_x_px, self.width))  # (Gx, W)
+        bases, maps = [], []
+        for c in range(channels):
+            basis, coefficients = low_rank_kernels(kernels[:, :, c].reshape(gy * gx, k, k), rank_tolerance)
+            bases.append(basis)
+            maps.append(torch.einsum("iy,ijm,jx->myx", wy, coefficients.reshape(gy, gx, -1), wx))
+        rank = max(b.shape[0] for b in bases)
+        #: ``(C|1, M, K, K)`` orthonormal basis kernels ``e_m`` (zero-padded to the largest rank).
+        self.basis = torch.stack([_pad_rank(b, rank) for b in bases])
+        #: ``(C|1, M, H, W)`` the maps ``c_m`` (float64).
+        self.coefficients = torch.stack([_pad_rank(m, rank) for m in maps])
+        self.grid = fft_shape((self.height, self.width), (k, k))
+        self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    @property
+    def rank(self) -> int:
+        """``M``: basis kernels (convolutions) per application."""
+        return int(self.basis.shape[1])
+
+    @property
+    def channels(self) -> int:
+        """Colour channels of the kernels (1: one set for every colour)."""
+        return int(self.basis.shape[0])
+
+    def _parts(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(coefficient maps ``(C|1, M, H, W)``, transfer functions ``(C|1, M, Gh, Gw//2+1)``) for ``like``."""
+        key = (like.dtype, like.device)
+        if key not in self._cache:
+            otf = optical_transfer_function(self.basis.to(like.device, like.dtype), self.grid)
+            self._cache[key] = (self.coefficients.to(like.device, like.dtype), otf)
+        return self._cache[key]
+
+    def _check(self, image: torch.Tensor) -> None:
+        if image.ndim != 4 or tuple(image.shape[-2:]) != (self.height, self.width):
+            raise EdofprojError(
+                f"the blur is set up for (B, C, {self.height}, {self.width}) images, got {tuple(image.shape)}"
+            )
+        if self.channels not in (1, image.shape[1]):
+            raise EdofprojError(f"{self.channels}-channel node kernels for a {image.shape[1]}-channel image")
+        if not image.is_floating_point():
+            raise EdofprojError(f"the blur needs a floating-point image, got {image.dtype}")
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``A x = sum_m e_m (*) (c_m . x)``: ``x (B, C, H, W)`` -> ``(B, C, H, W)``."""
+        self._check(x)
+        maps, otf = self._parts(x)
+        spectrum = None
+        for m in range(self.rank):
+            term = torch.fft.rfft2(x * maps[:, m], s=self.grid) * otf[:, m]
+            spectrum = term if spectrum is None else spectrum.add_(term)
+        assert spectrum is not None
+        return torch.fft.irfft2(spectrum, s=self.grid)[..., : self.height, : self.width]
+
+    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
+        """``A^T y = sum_m c_m . (e_m (x) y)``, the exact transpose of :meth:`forward`."""
+        self._check(y)
+        maps, otf = self._parts(y)
+        spectrum = torch.fft.rfft2(y, s=self.grid)
+        out = torch.zeros_like(y)
+        for m in range(self.rank):
+            spread = torch.fft.irfft2(spectrum * otf[:, m].conj(), s=self.grid)[..., : self.height, : self.width]
+            out.addcmul_(spread, maps[:, m])
+        return out
+
+    __call__ = forward
+
+    def norm_bound(self) -> torch.Tensor:
+        """An upper bound of ``||A||_2`` per channel ``(C|1,)`` by Schur's test, ``sqrt(max_y sum_x |A_yx|
+        max_x sum_y |A_yx|)``, for non-negative node kernels (the sums are then ``A 1`` and ``A^T 1``,
+        computed exactly)."""
+        if bool((self.kernels < 0).any()):
+            raise EdofprojError("Schur's bound here needs non-negative node kernels")
+        ones = torch.ones((1, self.channels, self.height, self.width), dtype=torch.float64)
+        rows = self.forward(ones).amax(dim=(0, 2, 3))
+        cols = self.adjoint(ones).amax(dim=(0, 2, 3))
+        return torch.sqrt(rows.clamp_min(0) * cols.clamp_min(0))
+
+
+def _pad_rank(tensor: torch.Tensor, rank: int) -> torch.Tensor:
+    """``tensor (M, ...)`` zero-padded along its first axis to ``rank``."""
+    if tensor.shape[0] == rank:
+        return tensor
+    return torch.cat([tensor, tensor.new_zeros((rank - tensor.shape[0],) + tuple(tensor.shape[1:]))])
