@@ -10,6 +10,7 @@
     edofproj procams decode --lab lab.json --x SEQ [--y SEQ] --out map.npz
     edofproj procams psf-map --lab lab.json --dots SEQ --map map.npz --out psf_map.npz
     edofproj procams predict --map map.npz [--psf-map psf_map.npz] --image PROJ --capture CAP
+    edofproj procams score (--psf-map psf_map.npz | --lab lab.json --dots SEQ --map map.npz) --image ORIG --compensation COMP
 
 Project every pattern, capture it with a camera (linear/RAW, fixed exposure, the whole
 projected image in view) into a folder under the pattern's file name (``capture`` does it
@@ -18,7 +19,8 @@ with the devices named by --camera/--display, resumably), calibrate, then measur
 into projector space; ``evaluate`` scores captured projections against their targets. A rig with structured light (its
 own captures described by a lab manifest, or ``patterns --structured-light``) is read by
 ``decode`` (camera -> projector map), ``psf-map`` (PSFs from single-pixel dots) and ``predict``
-(a projector image's capture predicted and scored).
+(a projector image's capture predicted and scored); ``score`` scores compensations in simulation
+under the measured blur, as Li et al. (IEEE TII 2020) do.
 
 Each step is one module of this package defining ``register(subparsers)``, as each command is one
 module of :mod:`edofproj.commands`; :data:`STEPS` lists them in the order ``--help`` shows them.
@@ -27,10 +29,10 @@ The device options that ``capture`` shares with ``live`` are in :mod:`.devices`.
 
 from __future__ import annotations
 
-from . import calibrate, capture, decode, estimate_psf, evaluate, patterns, predict, psf_map, rectify, simulate
+from . import calibrate, capture, decode, estimate_psf, evaluate, patterns, predict, psf_map, rectify, score, simulate
 
 #: The ``procams`` steps, in the order of a measurement (and of ``edofproj procams --help``).
-STEPS = (patterns, simulate, calibrate, estimate_psf, capture, rectify, evaluate, decode, psf_map, predict)
+STEPS = (patterns, simulate, calibrate, estimate_psf, capture, rectify, evaluate, decode, psf_map, predict, score)
 
 
 def register(subparsers) -> None:
