@@ -194,3 +194,18 @@ def test_a_loan_packs_its_run_within_out_limits_and_the_next_loan_resumes_it_bit
     b = load_checkpoint(tmp_path / "back" / "checkpoints" / "last.pt")
     assert_same_state({k: a[k] for k in COMPARED}, {k: b[k] for k in COMPARED})
     assert losses(tmp_path / "straight") == losses(tmp_path / "back")
+
+
+def test_a_loan_refuses_to_resume_a_slimmed_pack_and_still_writes_its_record(tmp_path):
+    from edofproj.runs.pack import pack_run
+    from test_runs_pack import fake_run
+
+    loan = load_loan()
+    packed = pack_run(fake_run(tmp_path / "run"), tmp_path / "carried", resumable=False)
+    out = tmp_path / "out"
+    argv = [str(out), "--resume", str(packed.manifest), "--budget-s", "300", "--work", str(tmp_path / "work")]
+    assert loan.main([*argv, "--device", "cpu"]) == 1
+    record = json.loads((out / "record.json").read_text())
+    assert "not resumed" in record["errors"]["train"] and "training" not in record
+    assert record["pack"] == {"refused": ["no checkpoint: nothing trained"]}
+    assert sorted(p.name for p in out.iterdir()) == ["record.json", "results.tar.gz"]

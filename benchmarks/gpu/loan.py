@@ -295,80 +295,109 @@ def results_archive(loan: Loan, run: Path, evaluations: dict[str, Path]) -> None
 # ----------------------------------------------------------------------------- the loan
 
 
+def train_stage(loan: Loan, args, record: dict, run: Path) -> None:
+    """Unpack the run to resume (``--resume``) or start a new one, train it for the time there is, and
+    record the session's figures."""
+    from edofproj.errors import EdofprojError
+    from edofproj.runs import saved_config
+    from edofproj.runs.checkpoint import load_checkpoint
+    from edofproj.runs.pack import read_manifest, unpack_run
+
+    start_step = 0
+    if args.resume:
+        if not read_manifest(args.resume)["resumable"]:
+            raise EdofprojError(
+                f"{args.resume} holds a checkpoint slimmed to the network and the DOE (no optimizer state): "
+                "it can be evaluated or fine-tuned, not resumed"
+            )
+        unpack_run(args.resume, run)
+        start_step = int(load_checkpoint(run / "checkpoints" / "last.pt")["step"])
+        loan.say(f"unpacked {args.resume} at step {start_step}")
+    train_s = loan.left_s() - args.reserve_s
+    record["train_budget_s"] = train_s
+    code, output = 124, ""
+    if train_s < 10:
+        loan.say(f"no time to train ({train_s:.0f} s left after the reserve of {args.reserve_s:.0f} s)")
+    else:
+        started = time.monotonic()
+        # a session that overruns may take the scoring's time, never the packing's
+        code, output = loan.run(train_command(run, args, train_s), loan.left_s() - args.pack_s)
+        record["train_wall_s"] = time.monotonic() - started
+    record["train_exit_code"] = code
+    last = run / "checkpoints" / "last.pt"
+    record["training"] = {
+        "start_step": start_step,
+        "step": int(load_checkpoint(last)["step"]) if last.is_file() else 0,
+        "stopped_at_time_budget": "stopped at the time budget" in output,
+        "peak_gpu_memory_gib": _peak_gib(output),
+    }
+    if (run / "config.yaml").is_file():
+        cfg = saved_config(run)
+        record["config"] = {"name": cfg.name, "steps": cfg.train.steps, "batch_size": cfg.train.batch_size}
+        record["training"].update(training_figures(run, start_step, cfg.train.batch_size))
+
+
+def evaluate_stage(loan: Loan, args, record: dict, run: Path) -> dict[str, Path]:
+    """Score the run on each image set of ``--sets`` in the time left (but ``--pack-s``); the evaluation
+    folders that hold a ``metrics.csv``."""
+    from edofproj.runs import saved_config
+
+    cfg = saved_config(run)
+    evaluations = {}
+    sets = [s for s in args.sets.split(",") if s]
+    for index, image_set in enumerate(sets):
+        folder = args.work / f"eval_{image_set}"
+        shutil.rmtree(folder, ignore_errors=True)
+        command = [*CLI, "evaluate", str(run), "--methods", args.methods, "--device", args.device]
+        command += ["--out", str(folder), "--quiet", *(["--validation"] if image_set == "validation" else [])]
+        command += [a for s in args.evaluate_set for a in ("--set", s)]
+        code, _ = loan.run(command, (loan.left_s() - args.pack_s) / (len(sets) - index))
+        if (folder / "metrics.csv").is_file():
+            evaluations[image_set] = folder
+            record["evaluation"][image_set] = evaluation_table(folder / "metrics.csv", cfg)
+        else:
+            record["evaluation"][image_set] = f"no metrics.csv (exit code {code})"
+    return evaluations
+
+
 def loan_session(args) -> int:
+    """The stages in order; a stage that fails is recorded (``errors``) and the later ones still run
+    on what there is, so that whatever was trained comes back."""
     loan = Loan(args.out, args.work, args.budget_s)
-    record: dict = {"budget_s": args.budget_s, "argv": sys.argv[1:]}
-    try:
-        record["machine"] = machine()
+    record: dict = {"budget_s": args.budget_s, "argv": sys.argv[1:], "errors": {}, "evaluation": {}}
+    run = args.work / "run"
+
+    def stage(name: str, action, *arguments):
+        try:
+            return action(*arguments)
+        except Exception as exc:  # noqa: BLE001 - recorded; the later stages still run
+            first_line = str(exc).splitlines()[0] if str(exc) else ""
+            loan.say(f"{name} failed: {type(exc).__name__}: {first_line}")
+            record["errors"][name] = f"{type(exc).__name__}: {exc}"
+            return None
+
+    record["machine"] = stage("machine", machine)
+    if record["machine"]:
         m = record["machine"]
         loan.say(
             f"GPU: {m['gpu']}; torch {m['torch']} CUDA {m['cuda']}; CPU {m['cpu']} ({m['cpu_cores']} cores): "
             f"{m['instruction_sets']}"
         )
-        from edofproj.runs import saved_config
-        from edofproj.runs.checkpoint import load_checkpoint
-
-        run = args.work / "run"
-        if run.exists():
-            shutil.rmtree(run)
-        start_step = 0
-        if args.resume:
-            from edofproj.runs.pack import unpack_run
-
-            unpack_run(args.resume, run)
-            start_step = int(load_checkpoint(run / "checkpoints" / "last.pt")["step"])
-            loan.say(f"unpacked {args.resume} at step {start_step}")
-        train_s = loan.left_s() - args.reserve_s
-        record["train_budget_s"] = train_s
-        if train_s < 10:
-            loan.say(f"no time to train ({train_s:.0f} s left after the reserve of {args.reserve_s:.0f} s)")
-            code, output = 124, ""
-        else:
-            started = time.monotonic()
-            # a session that overruns may take the scoring's time, never the packing's
-            code, output = loan.run(train_command(run, args, train_s), loan.left_s() - args.pack_s)
-            record["train_wall_s"] = time.monotonic() - started
-        record["train_exit_code"] = code
-        cfg = saved_config(run) if (run / "config.yaml").is_file() else None
-        trained = (run / "checkpoints" / "last.pt").is_file()
-        record["training"] = {
-            "start_step": start_step,
-            "step": int(load_checkpoint(run / "checkpoints" / "last.pt")["step"]) if trained else 0,
-            "stopped_at_time_budget": "stopped at the time budget" in output,
-            "peak_gpu_memory_gib": _peak_gib(output),
-            **(training_figures(run, start_step, cfg.train.batch_size) if cfg is not None else {}),
-        }
-        if cfg is not None:
-            record["config"] = {"name": cfg.name, "steps": cfg.train.steps, "batch_size": cfg.train.batch_size}
-        evaluations = {}
-        record["evaluation"] = {}
-        sets = [s for s in args.sets.split(",") if s]
-        for index, image_set in enumerate(sets):
-            if not trained or cfg is None:
-                break
-            folder = args.work / f"eval_{image_set}"
-            shutil.rmtree(folder, ignore_errors=True)
-            command = [*CLI, "evaluate", str(run), "--methods", args.methods, "--device", args.device]
-            command += ["--out", str(folder), "--quiet", *(["--validation"] if image_set == "validation" else [])]
-            command += [a for s in args.evaluate_set for a in ("--set", s)]
-            share = (loan.left_s() - args.pack_s) / (len(sets) - index)
-            code, _ = loan.run(command, share)
-            if (folder / "metrics.csv").is_file():
-                evaluations[image_set] = folder
-                record["evaluation"][image_set] = evaluation_table(folder / "metrics.csv", cfg)
-            else:
-                record["evaluation"][image_set] = f"no metrics.csv (exit code {code})"
-        results_archive(loan, run, evaluations)
-        record["pack"] = pack(loan, run) if trained else {"refused": ["no checkpoint: nothing trained"]}
-    except Exception as exc:  # noqa: BLE001 - the record must still be written
-        loan.say(f"failed: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-        record["error"] = f"{type(exc).__name__}: {exc}"
+    shutil.rmtree(run, ignore_errors=True)
+    stage("train", train_stage, loan, args, record, run)
+    trained = (run / "checkpoints" / "last.pt").is_file()
+    evaluations = (stage("evaluate", evaluate_stage, loan, args, record, run) if trained else None) or {}
+    stage("results", results_archive, loan, run, evaluations)
+    if trained:
+        record["pack"] = stage("pack", pack, loan, run)
+    else:
+        record["pack"] = {"refused": ["no checkpoint: nothing trained"]}
     record["commands"] = loan.commands
     record["wall_s"] = time.monotonic() - loan.t0
-    text = json.dumps(record, indent=1, default=_json_default) + "\n"
-    (loan.out / "record.json").write_text(text[:RECORD_BYTES], encoding="utf-8")
+    text = json.dumps(_finite(record), indent=1, default=str) + "\n"
+    (loan.out / "record.json").write_text(text, encoding="utf-8")
     loan.say(f"record: {loan.out / 'record.json'}; OUT holds {sorted(p.name for p in loan.out.iterdir())}")
-    return 1 if "error" in record or not record.get("pack", {}).get("manifest") else 0
+    return 1 if record["errors"] or not (record["pack"] or {}).get("manifest") else 0
 
 
 def _peak_gib(output: str) -> float | None:
@@ -376,10 +405,15 @@ def _peak_gib(output: str) -> float | None:
     return float(match.group(1)) if match else None
 
 
-def _json_default(value):
+def _finite(value):
+    """``value`` with every non-finite float as None (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
     if isinstance(value, float) and not math.isfinite(value):
         return None
-    return str(value)
+    return value
 
 
 def parse_args(argv=None):
