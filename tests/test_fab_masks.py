@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from edofproj.config import Config
+from edofproj.config import Config, apply_overrides
 from edofproj.doe import build_doe, load_doe, save_doe
 from edofproj.doe.storage import TabulatedRadialDOE
 from edofproj.errors import EdofprojError
@@ -34,7 +34,7 @@ def test_power_of_two_levels():
 
 
 def test_paper_etch_depths(tmp_path):
-    doe = build_doe(Config(), "axicon")
+    doe = build_doe(apply_overrides(Config(), ["doe.design_wavelength_nm=550"]), "axicon")  # the paper's 550 nm
     profile = RadialProfile.from_doe(tabulated(doe, tmp_path))
     depths_nm = [m.etch_depth_m * 1e9 for m in decompose(profile)]
     np.testing.assert_allclose(depths_nm, [75, 150, 300, 600], rtol=0.01)  # paper: 75/150/300/600 nm

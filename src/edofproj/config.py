@@ -685,7 +685,11 @@ class FabricationConfig:
     of each mask's etch depth, in percent of its target. ``misalignment_um``: standard
     deviation, per axis, of each mask's overlay error against the first mask.
     ``decentre_um``: standard deviation, per axis, of the DOE's decentre against the lens.
-    ``tolerance_trials``: Monte Carlo trials.
+    ``tolerance_trials``: Monte Carlo trials. The die and substrate (:mod:`edofproj.fabrication.layout`):
+    ``die_mm``, the side of the square die (0: the smallest multiple of 0.5 mm that holds the aperture
+    and its alignment marks with a 1 mm margin); ``substrate_diameter_mm``, ``substrate_thickness_mm``
+    and ``edge_exclusion_mm`` of the wafer (of the DOE's material); ``resist``: ``positive`` (the etch
+    masks are dark field, their polygons clear) or ``negative`` (clear field, polygons chrome).
     """
 
     critical_dimension_um: float = 1.0
@@ -694,6 +698,11 @@ class FabricationConfig:
     misalignment_um: float = 0.5
     decentre_um: float = 0.0
     tolerance_trials: int = 20
+    die_mm: float = 0.0
+    substrate_diameter_mm: float = 100.0
+    substrate_thickness_mm: float = 0.5
+    edge_exclusion_mm: float = 3.0
+    resist: str = "positive"
 
     def validate(self) -> None:
         if not (math.isfinite(self.critical_dimension_um) and self.critical_dimension_um > 0):
@@ -706,6 +715,14 @@ class FabricationConfig:
                 raise ConfigError(f"fabrication.{name}={value} must be >= 0")
         if self.tolerance_trials < 1:
             raise ConfigError(f"fabrication.tolerance_trials={self.tolerance_trials} must be >= 1")
+        for name in ("die_mm", "edge_exclusion_mm"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"fabrication.{name}={value} must be >= 0")
+        _positive(self, "substrate_diameter_mm", "fabrication.substrate_diameter_mm")
+        _positive(self, "substrate_thickness_mm", "fabrication.substrate_thickness_mm")
+        if self.resist not in ("positive", "negative"):
+            raise ConfigError(_unknown_choice("fabrication.resist", self.resist, ("positive", "negative")))
 
 
 @dataclass

@@ -14,8 +14,9 @@ def register(subparsers) -> None:
         "export-doe",
         help="export a radial DOE for lithography (GDSII masks, height map, report)",
         description="Export a radial DOE design (a run directory holding doe.npz, or a design .npz) as binary "
-        "lithography masks: profile.csv, a 16-bit height_map.png, masks.gds (mask j on layer j+1, "
-        "aperture on layer 100), mask previews and fab_report.md/.json. Written all-or-nothing.",
+        "lithography masks: profile.csv, a 16-bit height_map.png, masks.gds (mask j on layer j+1 with its alignment "
+        "marks, aperture on layer 100, die outline on layer 101), mask previews and fab_report.md/.json (masks, "
+        "tone, etch depths with their tolerance, die and substrate). Written all-or-nothing.",
     )
     add_design_source_argument(parser)
     parser.add_argument(
@@ -79,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
             strict=args.strict,
             map_px=args.map_px,
             source=run_label(args.source),
+            fabrication_cfg=cfg.fabrication,
         )
     except CriticalDimensionError as exc:
         print(f"edofproj: error: {exc}", file=sys.stderr)

@@ -6,7 +6,8 @@ Output directory (written all-or-nothing, see :mod:`.output_dir`):
   design rings of equal level merged); ``radius_um`` is the zone's *outer* radius, the zone
   starting at the previous row's radius (the first at the axis);
 * ``height_map.png``: 16-bit height map across the aperture (scaling in :mod:`.raster`);
-* ``masks.gds``: mask j on GDS layer j + 1, the clear aperture on layer 100 (:mod:`.gdsii`);
+* ``masks.gds``: mask j on GDS layer j + 1, the clear aperture on layer 100 (:mod:`.gdsii`), alignment
+  marks on every layer and the die outline on layer 101 (:mod:`.layout`);
 * ``mask_<j>_etch_<depth>nm.png``: previews of each mask (white = etched);
 * ``efficiency.png``: first-order efficiency against wavelength, with the primaries' SPDs;
 * ``fab_report.json`` / ``fab_report.md``: the manufacturability report (:mod:`.report`).
@@ -22,12 +23,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from ..config import SpectrumConfig  # noqa: E402
+from ..config import FabricationConfig, SpectrumConfig  # noqa: E402
 from ..doe.storage import load_doe  # noqa: E402
 from ..errors import EdofprojError  # noqa: E402
 from .efficiency import continuous_efficiency, efficiency_spectrum, fine_spectrum, phase_depth_ratio  # noqa: E402
 from .gdsii import arc_tolerance_um as choose_arc_tolerance_um  # noqa: E402
 from .gdsii import write_gds
+from .layout import DIE_LAYER, DieLayout  # noqa: E402
 from .masks import decompose  # noqa: E402
 from .output_dir import staged_directory  # noqa: E402
 from .profile import RadialProfile  # noqa: E402
@@ -91,24 +93,28 @@ def export_doe(
     strict: bool = False,
     map_px: int | None = None,
     source: str | None = None,
+    fabrication_cfg: FabricationConfig | None = None,
 ) -> dict:
     """Export ``doe_file`` into ``out_dir``; returns the report mapping.
 
     ``levels``: re-quantize to this many levels (a power of two; default: the design's own).
     ``strict``: raise :class:`~.report.CriticalDimensionError` (and write nothing) if any mask
-    feature is narrower than ``critical_dimension_um``.
+    feature is narrower than ``critical_dimension_um``. ``fabrication_cfg``: the die, substrate, resist and
+    etch-depth tolerance (``etch_error_pct``) of the report and the layout (default: the defaults).
     """
     if not critical_dimension_um > 0:
         raise EdofprojError(f"--critical-dimension-um={critical_dimension_um:g} must be > 0")
     if map_px is not None and not (2 <= map_px <= 16384):
         raise EdofprojError(f"height-map size {map_px} must be in 2-16384 pixels")
     spectrum_cfg = spectrum_cfg or SpectrumConfig()
+    fabrication_cfg = fabrication_cfg or FabricationConfig()
     doe = load_doe(doe_file)
     if not doe.radially_symmetric:
         raise EdofprojError(f"'{doe_file}' holds a 2-D height map; mask export needs a radial design")
     profile = RadialProfile.from_doe(doe, levels)
     source_levels = doe.levels
     masks = decompose(profile)
+    layout = DieLayout.from_config(fabrication_cfg, profile.aperture_radius_m)
     checks = check_masks(masks, critical_dimension_um * 1e-6)
     if strict:
         message = strict_failure_message(checks, critical_dimension_um)
@@ -129,8 +135,9 @@ def export_doe(
             if pitch_um <= profile.narrowest_zone_m() * 1e6 / 2
             else "; this pitch does not resolve the narrowest zone (preview only; the GDSII is exact)"
         ),
-        GDS_FILE: f"GDSII (um units, 1 nm grid): mask j on layer j+1 = etched regions, layer 100 = clear aperture "
-        f"(chrome outside); arc sagitta <= {tolerance_um:g} um",
+        GDS_FILE: f"GDSII (um units, 1 nm grid): mask j on layer j+1 = etched regions and its alignment marks, "
+        f"layer 100 = clear aperture and mark windows (chrome outside), layer {DIE_LAYER} = die outline; "
+        f"arc sagitta <= {tolerance_um:g} um",
         EFFICIENCY_PNG: "first-order efficiency vs wavelength",
     }
     for mask in masks:
@@ -145,6 +152,8 @@ def export_doe(
         source=source or str(doe_file),
         source_levels=source_levels,
         files=files,
+        layout=layout,
+        etch_error_pct=fabrication_cfg.etch_error_pct,
     )
 
     with staged_directory(out_dir, REPORT_JSON) as stage:
@@ -152,7 +161,7 @@ def export_doe(
         (stage / HEIGHT_PNG).write_bytes(png_bytes(height_map_grey(profile, size)))
         for mask in masks:
             (stage / mask_preview_name(mask)).write_bytes(png_bytes(mask_preview(mask, profile.aperture_radius_m)))
-        report["gds"] = write_gds(stage / GDS_FILE, masks, profile.aperture_radius_m, tolerance_um)
+        report["gds"] = write_gds(stage / GDS_FILE, masks, profile.aperture_radius_m, tolerance_um, layout)
         plot_efficiency(stage / EFFICIENCY_PNG, profile, spectrum_cfg)
         (stage / REPORT_MD).write_text(report_markdown(report), encoding="utf-8")
         (stage / REPORT_JSON).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

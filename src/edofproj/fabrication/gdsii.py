@@ -5,7 +5,9 @@ Layout (cell ``DOE``, database unit 1 nm, user unit 1 um, centred on the optical
 * layer ``j + 1``: the regions etched in cycle ``j`` (mask ``j``; see :mod:`.masks`), each
   etched annulus one polygon (a disk when it starts on the axis);
 * layer ``APERTURE_LAYER`` (100): the clear aperture, a disk of the aperture radius; the
-  chrome stop is deposited outside it.
+  chrome stop is deposited outside it;
+* with a die layout (:mod:`.layout`): the alignment marks on every mask layer, clear windows over
+  them on the aperture layer, and the die outline on layer 101.
 
 Circles are polygons whose vertices lie on the circle; the largest gap between an arc and
 its chord (the sagitta) is the ``tolerance``: for a radius ``r`` and ``n`` vertices it is
@@ -22,6 +24,7 @@ import gdstk
 import numpy as np
 
 from ..errors import EdofprojError
+from .layout import DieLayout, die_outline, mark_polygons, window_polygons
 from .masks import MaskLayer
 
 APERTURE_LAYER = 100
@@ -45,21 +48,36 @@ def annulus_polygon(inner_um: float, outer_um: float, tolerance_um: float, layer
 
 
 def build_library(
-    masks: list[MaskLayer], aperture_radius_m: float, tolerance_um: float, name: str = "EDOFPROJ_DOE"
+    masks: list[MaskLayer],
+    aperture_radius_m: float,
+    tolerance_um: float,
+    name: str = "EDOFPROJ_DOE",
+    layout: DieLayout | None = None,
 ) -> gdstk.Library:
-    """A gdstk library with one cell holding all mask layers and the aperture layer."""
+    """A gdstk library with one cell holding all mask layers and the aperture layer (and, with ``layout``,
+    the alignment marks of every layer and the die outline)."""
     lib = gdstk.Library(name, unit=UNIT_M, precision=PRECISION_M)
     cell = lib.new_cell(CELL_NAME)
     for mask in masks:
         for inner_m, outer_m in mask.annuli_m:
             cell.add(annulus_polygon(inner_m * 1e6, outer_m * 1e6, tolerance_um, mask.gds_layer))
+        if layout is not None:
+            cell.add(*mark_polygons(layout, mask.index, mask.gds_layer))
     cell.add(annulus_polygon(0.0, aperture_radius_m * 1e6, tolerance_um, APERTURE_LAYER))
+    if layout is not None:
+        cell.add(*window_polygons(layout, APERTURE_LAYER), die_outline(layout))
     return lib
 
 
-def write_gds(path: str | Path, masks: list[MaskLayer], aperture_radius_m: float, tolerance_um: float) -> dict:
+def write_gds(
+    path: str | Path,
+    masks: list[MaskLayer],
+    aperture_radius_m: float,
+    tolerance_um: float,
+    layout: DieLayout | None = None,
+) -> dict:
     """Write the layout to ``path`` (the caller makes it atomic); returns polygon and vertex counts."""
-    lib = build_library(masks, aperture_radius_m, tolerance_um)
+    lib = build_library(masks, aperture_radius_m, tolerance_um, layout=layout)
     lib.write_gds(str(path), max_points=MAX_POINTS)
     cell = lib.cells[0]
     if not isinstance(cell, gdstk.Cell):

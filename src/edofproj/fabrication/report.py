@@ -44,14 +44,15 @@ class MaskCheck:
     narrowest_kind: str
     below_cd: int
 
-    def as_dict(self) -> dict:
-        """The mask's entry of ``fab_report.json``: index, GDS layer, etch depth (nm), ring count, the
-        narrowest feature's width (um), kind and radius of its centre (um; both None when the mask etches
-        nothing), and the number of features below the CD."""
+    def as_dict(self, etch_error_pct: float = 0.0) -> dict:
+        """The mask's entry of ``fab_report.json``: index, GDS layer, etch depth (nm) and its tolerance
+        (``etch_error_pct`` of it, 1 sigma, nm), ring count, the narrowest feature's width (um), kind and
+        radius of its centre (um; both None when the mask etches nothing), and the number of features below the CD."""
         return {
             "mask": self.mask.index,
             "gds_layer": self.mask.gds_layer,
             "etch_depth_nm": self.mask.etch_depth_m * 1e9,
+            "etch_depth_tolerance_nm": self.mask.etch_depth_m * 1e9 * etch_error_pct / 100,
             "rings": self.mask.ring_count,
             "narrowest_feature_um": self.narrowest_um,
             "narrowest_feature_kind": self.narrowest_kind,
@@ -112,8 +113,11 @@ def build_report(
     source: str,
     source_levels: int | None,
     files: dict | None = None,
+    layout=None,
+    etch_error_pct: float = 0.0,
 ) -> dict:
-    """The report as a JSON-ready mapping."""
+    """The report as a JSON-ready mapping; ``layout`` (:class:`~.layout.DieLayout`): the die, marks, substrate and
+    mask tones; ``etch_error_pct``: the etch-depth tolerance of each step (1 sigma, percent of its depth)."""
     checks = check_masks(masks, critical_dimension_um * 1e-6)
     edges, _ = profile.zones()
     lam_d = profile.design_wavelength_m
@@ -139,7 +143,9 @@ def build_report(
         "mask j (GDS layer j+1) etches step*2^j where bit j of (N-1-level) is set",
         "total_etch_depth_nm": top_surface_m(profile) * 1e9,
         "critical_dimension_um": critical_dimension_um,
-        "masks": [c.as_dict() for c in checks],
+        "etch_depth_tolerance_pct": etch_error_pct,
+        "masks": [c.as_dict(etch_error_pct) for c in checks],
+        "die": layout.as_dict(profile.material) if layout is not None else None,
         "passes_critical_dimension": not any(c.below_cd for c in checks),
         "efficiency": {
             "formula": "eta_1 = sinc^2(1/N) [sinc(alpha-1)/sinc((alpha-1)/N)]^2, "
@@ -159,6 +165,46 @@ def build_report(
         },
         "files": files or {},
     }
+
+
+def clean_room_lines(report: dict) -> list[str]:
+    """The report's section for the clean room: substrate, die, resist and mask tone, alignment marks, and the
+    etch steps in the order they are run with their depths and tolerances (empty without a die layout)."""
+    die = report.get("die")
+    if not die:
+        return []
+    sub, marks = die["substrate"], die["alignment_marks"]
+    tol = report.get("etch_depth_tolerance_pct", 0.0)
+    sites = ", ".join(f"({x:.0f}, {y:.0f})" for x, y in marks["sites_um"])
+    lines = [
+        "## For the clean room",
+        "",
+        f"* Substrate: {sub['material']} wafer, {sub['diameter_mm']:g} mm diameter x {sub['thickness_mm']:g} mm thick, "
+        f"{sub['edge_exclusion_mm']:g} mm edge exclusion: {sub['dies']} dies.",
+        f"* Die: {die['die_mm']:g} x {die['die_mm']:g} mm, centred on the optical axis; outline (dicing line) on GDS "
+        f"layer {die['die_gds_layer']}.",
+        f"* Resist: {die['resist']}. Etch masks (GDS layers 1-{report['masks_count']}): "
+        f"**{die['etch_mask_tone']['field']}**, polygons = {die['etch_mask_tone']['polygons']}. Aperture mask "
+        f"(layer 100): **{die['aperture_mask_tone']['field']}**, polygons = {die['aperture_mask_tone']['polygons']}.",
+        f"* Alignment marks on every layer at {sites} um: crosses {marks['cross_length_um']:g} um long, "
+        f"{marks['cross_width_um']:g} um wide; {marks['scheme']} ({marks['frame_gap_um']:g} um nominal gap).",
+        "",
+        "| step | mask (GDS layer) | etch depth (nm) | tolerance, 1 sigma (nm) |",
+        "| --- | --- | --- | --- |",
+    ]
+    for step, m in enumerate(report["masks"], start=1):
+        lines.append(
+            f"| {step} | {m['mask']} ({m['gds_layer']}) | {m['etch_depth_nm']:.1f} | "
+            f"+-{m.get('etch_depth_tolerance_nm', 0.0):.1f} ({tol:g} %) |"
+        )
+    lines += [
+        f"| {len(report['masks']) + 1} | aperture (100) | chrome stop outside the aperture | - |",
+        "",
+        f"Total etch depth {report['total_etch_depth_nm']:.1f} nm. The tolerances are fabrication.etch_error_pct; "
+        "`edofproj tolerance` simulates what they (and the overlay error) do to the PSFs.",
+        "",
+    ]
+    return lines
 
 
 def report_markdown(report: dict) -> str:
@@ -184,15 +230,20 @@ def report_markdown(report: dict) -> str:
         f"* Etch convention: {report['etch_convention']}",
         f"* Total etch depth: {report['total_etch_depth_nm']:.1f} nm",
         "",
+    ]
+    lines += clean_room_lines(report)
+    lines += [
         f"## Masks against the critical dimension ({cd:g} um): {verdict}",
         "",
-        "| mask | GDS layer | etch depth (nm) | rings | narrowest feature (um) | kind | at radius (um) | below CD |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| mask | GDS layer | etch depth (nm) | tolerance, 1 sigma (nm) | rings | narrowest feature (um) | kind | "
+        "at radius (um) | below CD |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for m in report["masks"]:
         width, at = m["narrowest_feature_um"], m["narrowest_feature_at_radius_um"]
         lines.append(
-            f"| {m['mask']} | {m['gds_layer']} | {m['etch_depth_nm']:.1f} | {m['rings']} | "
+            f"| {m['mask']} | {m['gds_layer']} | {m['etch_depth_nm']:.1f} | "
+            f"+-{m.get('etch_depth_tolerance_nm', 0.0):.1f} | {m['rings']} | "
             f"{'-' if width is None else f'{width:.4g}'} | {m['narrowest_feature_kind']} | "
             f"{'-' if at is None else f'{at:.1f}'} | {m['features_below_cd']} |"
         )
