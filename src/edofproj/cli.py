@@ -13,6 +13,7 @@ import argparse
 import importlib
 import os
 import pkgutil
+import re
 import sys
 import warnings
 
@@ -42,6 +43,9 @@ class OneLineParser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", TerminalHelpFormatter)
         super().__init__(*args, **kwargs)
+        # a word that starts like a negative number (-5x10, -1e-3, -300:800) is a value, not an unknown
+        # option (no option starts with a digit): the command's own check then says what is wrong with it
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
 
     def error(self, message):  # noqa: D401 - argparse API
         """Exit with code 2 after one line on stderr, ``edofproj: error: MESSAGE (see 'PROG --help')``,
@@ -73,8 +77,53 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Options that name a file or folder a command writes: never inside a built-in run.
-OUTPUT_OPTIONS = ("out", "preview")
+#: Options (their ``dest``) that name a file or folder a command writes, in any command but those of
+#: :data:`READ_OPTIONS`: never inside a built-in run, never over a path another option names, never in a
+#: run's checkpoints (:func:`_refuse_outputs_over_arguments`; tests/test_output_options.py finds every
+#: output option of every command here).
+OUTPUT_OPTIONS = ("out", "preview", "figure", "plot", "csv", "patch_psfs", "projector_out", "depth_out", "dir")
+
+#: ``(command, dest)`` of the options named like an output that a command reads (``estimate-psf``
+#: writes ``--patch-psfs``, ``finetune`` reads them).
+READ_OPTIONS = {("finetune", "patch_psfs")}
+
+
+def is_output_option(command: str, dest: str) -> bool:
+    """Whether option ``dest`` of ``command`` (``"procams psf-map"``) names what it writes."""
+    return dest in OUTPUT_OPTIONS and (command, dest) not in READ_OPTIONS
+
+
+def command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[str, argparse.ArgumentParser]:
+    """The (sub)command ``args`` was parsed for: its name (``"procams psf-map"``) and its innermost parser."""
+    names = []
+    while True:
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = getattr(args, sub.dest, None) if sub is not None else None
+        if sub is None or name not in sub.choices:
+            return " ".join(names), parser
+        names.append(name)
+        parser = sub.choices[name]
+
+
+def _refuse_outputs_over_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Every output option (:func:`is_output_option`) through the output-over-input rule before the
+    command runs: it is no path another option names, no other output, and not inside a run's
+    ``checkpoints/`` (:mod:`edofproj.outputs`)."""
+    from .outputs import refuse_output_in_checkpoints, refuse_outputs_over_arguments
+
+    command, leaf = command_parser(parser, args)
+    outputs, arguments = [], []
+    for action in leaf._actions:
+        if isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)):
+            continue
+        value = getattr(args, action.dest, None)
+        name = action.option_strings[0] if action.option_strings else str(action.metavar or action.dest.upper())
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, (str, os.PathLike)) and os.fspath(item):
+                (outputs if is_output_option(command, action.dest) else arguments).append((name, item))
+    refuse_outputs_over_arguments(outputs, arguments)
+    for option, path in outputs:
+        refuse_output_in_checkpoints(path, option)
 
 
 def _refuse_outputs_in_builtin_runs(args: argparse.Namespace) -> argparse.Namespace:
@@ -101,8 +150,10 @@ def main(argv=None) -> int:
     debug = bool(os.environ.get("EDOFPROJ_DEBUG"))
     try:
         # inside the try: a Ctrl-C while the subcommands load (the first second) ends as cleanly as later
-        args = build_parser().parse_args(argv)
+        parser = build_parser()
+        args = parser.parse_args(argv)
         args = _refuse_outputs_in_builtin_runs(args)
+        _refuse_outputs_over_arguments(parser, args)
         result = args.func(args)
         return int(result or 0)
     except EdofprojError as exc:

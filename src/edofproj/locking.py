@@ -115,15 +115,22 @@ def _read_owner_file(path: Path) -> dict[str, Any] | None:
 
 class DirectoryLock:
     """The write lock of one directory (module docstring). ``what`` names the writer in messages
-    (e.g. ``"train"``); ``option`` names the user's option for the directory (e.g. ``"--out"``)."""
+    (e.g. ``"train"``); ``option`` names the user's option for the directory (e.g. ``"--out"``).
+    ``of_file``: the path is a file written in place (:func:`sole_file_writer`; the lock sits beside it)."""
 
     def __init__(
-        self, directory: str | os.PathLike, what: str = "edofproj", option: str = "", beside: bool = False
+        self,
+        directory: str | os.PathLike,
+        what: str = "edofproj",
+        option: str = "",
+        beside: bool = False,
+        of_file: bool = False,
     ) -> None:
         self.directory = Path(directory)
-        self.beside = beside
+        self.beside = beside or of_file
+        self.of_file = of_file
         self.path = (
-            self.directory.parent / f".{self.directory.name}{LOCK_NAME}" if beside else self.directory / LOCK_NAME
+            self.directory.parent / f".{self.directory.name}{LOCK_NAME}" if self.beside else self.directory / LOCK_NAME
         )
         self.what = what
         self.option = option
@@ -158,7 +165,7 @@ class DirectoryLock:
         process holds it; take over, with a warning, a lock left by a dead one."""
         if self._fd is not None:
             return self
-        if self.directory.exists() and not self.directory.is_dir():
+        if self.directory.exists() and not self.directory.is_dir() and not self.of_file:
             raise EdofprojError(f"'{self.directory}' exists and is not a directory")
         try:
             if self.beside:
@@ -255,4 +262,29 @@ def directory_lock(
     (:class:`DirectoryLock`; ``beside``: the lock file sits beside the directory)."""
     lock = DirectoryLock(directory, what, option, beside)
     with lock:
+        yield lock
+
+
+@contextlib.contextmanager
+def sole_file_writer(path: str | os.PathLike, what: str = "edofproj", option: str = "--out") -> Iterator[DirectoryLock]:
+    """``with sole_file_writer(out, "edofproj export"):`` write the file ``path`` (atomically,
+    :func:`edofproj.fileio.atomic_path`) as its one writer: hold its lock (the lock file
+    ``.<name>.edofproj.lock`` beside it; a second live writer is refused with one line naming the
+    first) and, under it, remove the temporary files ``.<name>.tmp-*`` that killed writers of the same
+    file left (no live writer can own them then: :func:`edofproj.fileio.remove_stale_temp_files`
+    with ``target``), with a :class:`~edofproj.errors.RecoveryWarning`."""
+    from .fileio import remove_stale_temp_files
+
+    target = Path(path)
+    if target.is_dir():
+        raise EdofprojError(f"{option} '{target}' is a directory: give a file name")
+    with DirectoryLock(target, what, option, of_file=True) as lock:
+        stale = remove_stale_temp_files(target.parent, target=target.name)
+        if stale:
+            warnings.warn(
+                f"removed {len(stale)} unfinished file(s) of an interrupted write of '{target}' "
+                f"({', '.join(p.name for p in stale)})",
+                RecoveryWarning,
+                stacklevel=3,
+            )
         yield lock

@@ -22,6 +22,16 @@ Folder outputs named after their inputs (``x.jpg`` -> ``x.png``) can collide: tw
 and ``x.jpg`` would both become ``x.png``, the second silently replacing the first.
 :func:`refuse_colliding_names` refuses such a set before any work, naming the inputs that clash
 (the user renames one; edofproj never invents a name the user did not choose).
+
+Across a whole command line, :func:`refuse_outputs_over_arguments` applies the rule's first case to
+every output option (``--out``, ``--figure``, ``--preview``, ``--csv``, ...; the list is
+:data:`edofproj.cli.OUTPUT_OPTIONS`) against every path any other option names: no output is an input,
+and no two outputs are one file. ``edofproj`` applies it to every command before the command runs;
+each command then applies :func:`refuse_output_over_inputs` with what it alone knows (the files a
+lab manifest or a run directory lists, whether an output is a folder it replaces).
+
+A training run's ``checkpoints/`` folder is written by training alone: :func:`refuse_output_in_checkpoints`
+refuses any other output there (an export named ``last.pt`` would replace the run's newest checkpoint).
 """
 
 from __future__ import annotations
@@ -78,10 +88,7 @@ def refuse_output_over_inputs(
             continue
         source = _resolved(path)
         if _same(out, source):
-            raise EdofprojError(
-                f"{_named(option, output)} is the input {_named(what, path)}: writing it would replace the input; "
-                "write elsewhere"
-            )
+            raise _is_input_error(option, output, what, path)
         if _is_under(source, out):
             raise EdofprojError(
                 f"{_named(option, output)} contains the input {_named(what, path)}: writing it would delete the "
@@ -100,6 +107,51 @@ def refuse_output_over_inputs(
             raise EdofprojError(
                 f"{_named(option, output)} {relation} {_named(what, path)}, whose files are inputs: write "
                 "elsewhere (a new folder, or one inside it)"
+            )
+
+
+def _is_input_error(option: str, output, what: str, path) -> EdofprojError:
+    return EdofprojError(
+        f"{_named(option, output)} is the input {_named(what, path)}: writing it would replace the input; write elsewhere"
+    )
+
+
+def refuse_outputs_over_arguments(outputs: Sequence[NamedPath], arguments: Iterable[NamedPath]) -> None:
+    """Raise one line when an output of ``outputs`` (``(option, path)``) is the same file or folder
+    as one of ``arguments`` (every other path the command line names; those not on disk are skipped)
+    or as another output (module docstring)."""
+    given = [(what, path) for what, path in arguments if path is not None and os.fspath(path) != ""]
+    existing = [(what, path, _resolved(path)) for what, path in given if os.path.lexists(os.fspath(path))]
+    named = [(option, path, _resolved(path)) for option, path in outputs if path is not None and os.fspath(path) != ""]
+    for index, (option, output, out) in enumerate(named):
+        for what, path, source in existing:
+            if _same(out, source):
+                raise _is_input_error(option, output, what, path)
+        for other, other_path, resolved in named[:index]:
+            if _same(out, resolved):
+                raise EdofprojError(
+                    f"{_named(option, output)} is also {_named(other, other_path)}: one would replace the other; "
+                    "give each output its own path"
+                )
+
+
+#: A run's checkpoint folder and the file that makes a folder a run (``edofproj.runs``'
+#: ``CHECKPOINT_DIR`` and ``CONFIG_NAME``; tests/test_output_options.py checks: not imported, the
+#: foundation layer loads without torch).
+CHECKPOINT_DIR, RUN_CONFIG_NAME = "checkpoints", "config.yaml"
+
+
+def refuse_output_in_checkpoints(output: str | os.PathLike | None, option: str = "--out") -> None:
+    """Raise one line when ``output`` is, or lies inside, the ``checkpoints/`` folder of a training run
+    (a folder of that name beside a ``config.yaml``): training alone writes there (module docstring)."""
+    if output is None or os.fspath(output) == "":
+        return
+    out = _resolved(output)
+    for folder in (out, *out.parents):
+        if folder.name == CHECKPOINT_DIR and (folder.parent / RUN_CONFIG_NAME).is_file():
+            raise EdofprojError(
+                f"{_named(option, output)} is inside the checkpoints of the run '{folder.parent}', which only "
+                "training writes (the run reads its newest checkpoint from there): write elsewhere"
             )
 
 
@@ -123,4 +175,9 @@ def refuse_colliding_names(sources: Sequence[Path], output_name, what: str = "th
         )
 
 
-__all__ = ["refuse_output_over_inputs", "refuse_colliding_names"]
+__all__ = [
+    "refuse_output_over_inputs",
+    "refuse_outputs_over_arguments",
+    "refuse_output_in_checkpoints",
+    "refuse_colliding_names",
+]

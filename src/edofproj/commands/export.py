@@ -6,7 +6,10 @@ network, or the network and its guard as one graph -- is what is written. Method
 network (the linear filters) have nothing to export.
 
 The export itself (formats, verification, fixed-size ONNX for Fourier networks) is
-:mod:`edofproj.compensation.export`.
+:mod:`edofproj.compensation.export`. The output is written atomically by its one writer
+(:func:`edofproj.locking.sole_file_writer`): a second export of the same file at the same time is
+refused, and the temporary file ``.NAME.tmp-*`` of an export that was killed is removed by the
+next. ``--out`` may not lie in the run's ``checkpoints/`` (only training writes there).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ def run(args) -> int:
         require_onnx,
         verification_sizes,
     )
+    from ..locking import sole_file_writer
     from ..methods.builder import build_method, require_trained_run
     from ..runs import load_run
 
@@ -60,7 +64,8 @@ def run(args) -> int:
     if module is None:
         raise EdofprojError(f"method {method.name} has no network to export (a linear filter: nothing trained)")
     step = load_run(run_dir).step if method.spec.run_dir is None else None
-    worst = export_network(module, out, args.format, args.height, args.width, verify=not args.no_verify)
+    with sole_file_writer(out, "edofproj export"):  # one writer; a killed one's temporary files are removed
+        worst = export_network(module, out, args.format, args.height, args.width, verify=not args.no_verify)
     fixed_size = args.format == "onnx" and fixed_size_onnx(module)
     checked = (
         ""
