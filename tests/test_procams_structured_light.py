@@ -84,24 +84,26 @@ def test_gray_code_every_boundary_is_an_edge_in_exactly_one_plane() -> None:
 
 def test_ideal_codes_decode_exactly_and_held_out_planes_give_stripe_centres() -> None:
     length = 100
-    gray = gray_code_profiles(length)[:, None, :]  # (n, 1, L): a camera that sees one projector row
+    # (n, 3, L): a camera that sees one projector row three times (each pixel's decoding is checked
+    # against its neighbours': the middle row's are all in the image)
+    gray = np.repeat(gray_code_profiles(length)[:, None, :], 3, axis=1)
     full = decode_gray_code(gray, length, min_contrast=0.5)
     # without inverse patterns, a column dark (0) or lit (85: g = 127) in every plane has no threshold
-    undecodable = np.flatnonzero(gray.min(axis=0)[0] == gray.max(axis=0)[0])
+    undecodable = np.flatnonzero(gray.min(axis=0)[1] == gray.max(axis=0)[1])
     assert undecodable.tolist() == [0, 85]
     decodable = np.setdiff1d(np.arange(length), undecodable)
-    assert np.array_equal(full.coordinate[0, decodable], decodable)
-    assert not full.valid[0, undecodable].any()
+    assert np.array_equal(full.coordinate[1, decodable], decodable)
+    assert not full.valid[1, undecodable].any()
     coarse = decode_gray_code(gray[:4], length, min_contrast=0.5)
     width = 2 ** (gray_code_bits(length) - 4)
     c = np.arange(length)
     expected = (c // width) * width + (width - 1) / 2
-    ok = coarse.valid[0]
+    ok = coarse.valid[1]
     assert ok.sum() >= length - 2 * width - 4  # the stripes dark or lit in all 4 planes are not decodable
-    assert np.array_equal(coarse.coordinate[0, ok], expected[ok])
-    phase = 0.1 + 0.8 * phase_shift_profiles(length, [1, 4, 16], 4)[:, None, :]  # 0 and 1 read as clipped
+    assert np.array_equal(coarse.coordinate[1, ok], expected[ok])
+    phase = 0.1 + 0.8 * np.repeat(phase_shift_profiles(length, [1, 4, 16], 4)[:, None, :], 3, axis=1)  # 0 and 1 read as clipped
     decoded = decode_phase_shift(phase, [1, 4, 16], 4, length, min_modulation=0.1)
-    assert np.allclose(decoded.coordinate[0], c, atol=1e-9)
+    assert np.allclose(decoded.coordinate[1], c, atol=1e-9)
 
 
 def test_phase_plan_is_checked() -> None:

@@ -263,13 +263,30 @@ def decode_sequence(manifest: LabManifest, name: str, planes: int | None = None,
         check_decoding_memory(first.shape, len(files))
         frames = [first] + [manifest.read_grey(f, channel) for f in files[1:]]
         _same_size(frames, name)
-        return decode_phase_shift(frames, seq.periods[:use], seq.steps, length)
+        return _enough_valid(decode_phase_shift(frames, seq.periods[:use], seq.steps, length), name)
     if periods is not None:
         raise EdofprojError(
             f"--periods counts a phase shift's period counts; '{name}' is a Gray code: hold planes out with --planes N"
         )
     frames, inverse = read_gray_code(manifest, name, planes)
-    return decode_gray_code(frames, length, inverse_frames=inverse)
+    return _enough_valid(decode_gray_code(frames, length, inverse_frames=inverse), name)
+
+
+MIN_VALID_FRACTION = 0.01
+"""Smallest fraction of the camera's pixels a decoded sequence must give a valid coordinate."""
+
+
+def _enough_valid(decoding, name: str):
+    """``decoding``, or one line when fewer than ``MIN_VALID_FRACTION`` of its pixels are valid: the
+    captures do not hold the sequence's pattern (noise, other files, another order)."""
+    fraction = float(np.mean(decoding.valid))
+    if fraction < MIN_VALID_FRACTION:
+        raise EdofprojError(
+            f"only {fraction:.2%} of the camera's pixels decode '{name}' to a coordinate that agrees with their "
+            f"neighbours' (at least {MIN_VALID_FRACTION:.0%} needed): the captures do not show the sequence's "
+            "pattern -- check its files, their order and its kind, periods or planes in the lab manifest"
+        )
+    return decoding
 
 
 def read_gray_code(

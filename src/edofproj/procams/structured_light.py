@@ -34,6 +34,15 @@ reaches ``min_modulation``, every rounding residual is below ``max_unwrap_residu
 no frame is saturated or clipped to black there (a clipped sample bends the sinusoid and biases phi).
 A rig whose phase origin is not at pixel centre 0 (e.g. 1-based columns) decodes to coordinates
 shifted by a constant: :mod:`.psf_map` estimates that offset from dots.
+
+**What a valid pixel needs, besides.** Its captures change by ``min_contrast`` (Gray code) or are
+modulated by ``min_modulation`` (phase shift) in the captures' own units -- never only after the
+frames are brought to one exposure, where a constant dark pixel divided by a small gain reaches any
+contrast. And its decoded coordinate agrees with at least ``MIN_COHERENT_NEIGHBOURS`` of its four
+neighbours' to ``COHERENCE_PX`` projector px (or two Gray-code stripes, the wider): a surface seen
+by a camera decodes to a smooth map, noise decodes to coordinates that jump from pixel to pixel
+(:func:`coherent`). This assumes the camera samples the projector at least once per
+``COHERENCE_PX / 2`` projector px. A frame set in which no pixel changes is refused.
 """
 
 from __future__ import annotations
@@ -59,6 +68,11 @@ DEFAULT_MAX_UNWRAP_RESIDUAL = 0.4
 """Largest rounding residual (periods) of the temporal unwrapping at a valid pixel. Rounding is right
 below 0.5; a projector's gamma bends a one-period sinusoid enough to leave residuals of 0.3 period
 on a real rig (4 steps cancel only the second harmonic), so the margin is kept small."""
+COHERENCE_PX = 4.0
+"""Largest difference (projector px) between the coordinates of two neighbouring camera pixels that
+see one smooth surface (module docstring)."""
+MIN_COHERENT_NEIGHBOURS = 2
+"""Of a valid pixel's four neighbours, how many must decode within ``COHERENCE_PX`` of it."""
 SATURATED = 1.0 - 0.5 / 255.0
 """A sample at or above this (image units) is saturated."""
 CLIPPED_BLACK = 0.5 / 255.0
@@ -144,6 +158,29 @@ def _stack(frames) -> np.ndarray:
     return stack
 
 
+def coherent(coordinate: np.ndarray, valid: np.ndarray, tolerance_px: float = COHERENCE_PX) -> np.ndarray:
+    """``valid`` ``(Hc, Wc)`` where at least ``MIN_COHERENT_NEIGHBOURS`` of the pixel's four neighbours
+    are valid too and decode within ``tolerance_px`` of it (module docstring)."""
+    c = np.where(valid, coordinate, np.nan)
+    padded = np.pad(c, 1, constant_values=np.nan)
+    centre = padded[1:-1, 1:-1]
+    agree = np.zeros(c.shape, dtype=np.int64)
+    with np.errstate(invalid="ignore"):
+        for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            other = padded[1 + dv : padded.shape[0] - 1 + dv, 1 + du : padded.shape[1] - 1 + du]
+            agree += np.abs(other - centre) <= tolerance_px
+    return np.asarray(valid & (agree >= MIN_COHERENT_NEIGHBOURS))
+
+
+def _require_pattern(changes: np.ndarray, least: float, what: str, count: int) -> None:
+    """One line when no camera pixel's captures change by ``least`` (all black, all white, a projector off)."""
+    if not np.any(changes >= least):
+        raise EdofprojError(
+            f"the {count} captures show no pattern: no camera pixel's {what} reaches {least * 255:.0f}/255 "
+            f"(largest {float(np.max(changes)) * 255:.1f}/255): all black, all white, or the projector off?"
+        )
+
+
 def decode_phase_shift(
     frames,
     periods: list[int],
@@ -161,6 +198,7 @@ def decode_phase_shift(
             f"{len(periods)} periods x {steps} steps need {len(periods) * steps} captures, got {len(stack)}"
         )
     valid = np.all((stack < SATURATED) & (stack > CLIPPED_BLACK), axis=0)
+    _require_pattern(stack.max(axis=0) - stack.min(axis=0), 2 * min_modulation, "range", len(stack))
     delta = 2 * math.pi * np.arange(steps) / steps
     weights = np.exp(-1j * delta)[:, None, None]
     unwrapped = np.zeros(stack.shape[1:])
@@ -187,6 +225,7 @@ def decode_phase_shift(
             modulation_coarse = modulation  # the least blurred: the fine sinusoids lose contrast to the PSF
     coordinate = unwrapped * length_px / (2 * math.pi * periods[-1])
     valid &= (coordinate > -0.5) & (coordinate < length_px - 0.5)
+    valid = coherent(coordinate, valid)
     coordinate = np.where(valid, coordinate, np.nan)
     return AxisDecoding(
         coordinate=coordinate, valid=valid, dark=mean - modulation_coarse, bright=mean + modulation_coarse
@@ -210,23 +249,28 @@ def decode_gray_code(
     m = len(stack)
     if not 1 <= m <= n:
         raise EdofprojError(f"a {length_px}-px axis has {n} Gray-code planes, got {m} captures")
+    raw_contrast = stack.max(axis=0) - stack.min(axis=0)
     if inverse_frames is not None:
         inverse = _stack(inverse_frames)
         if inverse.shape != stack.shape:
             raise EdofprojError(f"the inverse captures {inverse.shape} do not match the captures {stack.shape}")
+        raw_contrast = np.min(np.abs(stack - inverse), axis=0)
+        _require_pattern(raw_contrast, min_contrast, "difference from its inverse", 2 * m)
         bits = stack > inverse
-        contrast = np.min(np.abs(stack - inverse), axis=0)
+        contrast = raw_contrast
         bright = np.maximum(stack, inverse).max(axis=0)
         dark = np.minimum(stack, inverse).min(axis=0)
     else:
         if m < 2:
             raise EdofprojError("Gray-code decoding without inverse patterns needs at least 2 planes")
+        _require_pattern(raw_contrast, min_contrast, "range", m)
         if normalize_exposure:
             stack = normalize_exposures(stack, min_contrast)
         dark, bright = stack.min(axis=0), stack.max(axis=0)
         bits = stack > 0.5 * (dark + bright)
         contrast = bright - dark
-    valid = contrast >= min_contrast
+    # in the captures' own units: normalized, a constant dark pixel divided by a small gain has any contrast
+    valid = (contrast >= min_contrast) & (raw_contrast >= min_contrast)
     binary = np.zeros(stack.shape[1:], dtype=bool)
     stripe = np.zeros(stack.shape[1:], dtype=np.int64)
     for k in range(m):
@@ -235,6 +279,7 @@ def decode_gray_code(
     width = 2 ** (n - m)
     coordinate = stripe * width + (width - 1) / 2.0
     valid &= coordinate <= length_px - 1
+    valid = coherent(coordinate, valid, max(COHERENCE_PX, 2.0 * width))
     return AxisDecoding(
         coordinate=np.where(valid, coordinate, np.nan).astype(np.float64), valid=valid, dark=dark, bright=bright
     )
