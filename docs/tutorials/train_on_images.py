@@ -92,7 +92,7 @@ def main() -> None:
         f"data.folder={images}",
         f"train.steps={steps}",
         f"train.refit_steps={steps}",
-        f"train.refit_warmup_steps={min(300, 3 * steps // 10)}",  # the preset's 300 or less: never past the phase
+        f"train.refit_warmup_steps={min(300, steps // 2)}",  # the preset's 300, or half a shorter phase
         f"train.threads={args.threads}",
         "train.device=cpu",
     ]

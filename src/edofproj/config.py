@@ -907,16 +907,25 @@ def set_key(data: dict, dotted: str, value: Any) -> None:
     for depth, key in enumerate(keys[:-1]):
         if not isinstance(node, dict) or key not in node:
             known = list(node) if isinstance(node, dict) else []
-            hint = difflib.get_close_matches(key, known, n=1)
-            did_you_mean = f"; did you mean '{hint[0]}'?" if hint else ""
-            raise ConfigError(f"unknown config key '{'.'.join(keys[: depth + 1])}'{did_you_mean}")
+            prefix = ".".join(keys[:depth])
+            raise ConfigError(f"unknown config key '{'.'.join(keys[: depth + 1])}'{_suggestion(key, known, prefix)}")
         node = node[key]
     if not isinstance(node, dict) or keys[-1] not in node:
         known = list(node) if isinstance(node, dict) else []
-        hint = difflib.get_close_matches(keys[-1], known, n=1)
-        did_you_mean = f"; did you mean '{'.'.join(keys[:-1] + [hint[0]])}'?" if hint else ""
-        raise ConfigError(f"unknown config key '{dotted}'{did_you_mean}")
+        raise ConfigError(f"unknown config key '{dotted}'{_suggestion(keys[-1], known, '.'.join(keys[:-1]))}")
     node[keys[-1]] = value
+
+
+def _suggestion(key: str, known: list, prefix: str) -> str:
+    """``; did you mean 'prefix.match'?`` for the closest of ``known``, else the valid keys there
+    (``; valid: prefix.a, prefix.b, ...``; the reference: docs/reference/config.md)."""
+    hint = difflib.get_close_matches(key, [str(k) for k in known], n=1)
+    dotted = [f"{prefix}.{k}" if prefix else str(k) for k in known]
+    if hint:
+        return f"; did you mean '{f'{prefix}.{hint[0]}' if prefix else hint[0]}'?"
+    if not dotted:
+        return f" ('{prefix}' holds no keys)"
+    return f"; valid: {', '.join(dotted)} (every key: docs/reference/config.md)"
 
 
 def _base_statements(data: dict) -> list[tuple[str, Any]]:
