@@ -14,7 +14,6 @@ from edofproj.procams.capture_io import write_rgb_png
 from edofproj.procams.structured_light import (
     CorrespondenceMap,
     gray_code_profiles,
-    phase_shift_profiles,
     profiles_to_images,
 )
 
@@ -107,3 +106,115 @@ def test_captures_without_a_pattern_are_refused(tmp_path, capsys, kind, level) -
                          "--out", tmp_path / "map.npz")  # fmt: skip
     assert code == 2 and "show no pattern" in err and "projector off" in err
     assert not (tmp_path / "map.npz").exists()
+
+
+# ------------------------------------------------------------------ item 4: axes
+def ideal_lab(folder, hw=(48, 64)) -> None:
+    """``structured_light_set``'s patterns, captured by an identity camera between 0.1 and 0.9."""
+    from edofproj.procams.lab_manifest import structured_light_set
+
+    lab, images = structured_light_set(hw, steps=4, dot_spacing_px=8)
+    for name, image in images.items():
+        write_rgb_png(folder / name, np.repeat((0.1 + 0.8 * image)[..., None], 3, -1))
+    (folder / "lab.json").write_text(json.dumps(lab.to_json()), encoding="utf-8")
+
+
+@pytest.mark.parametrize(
+    ("x", "y", "message"),
+    [
+        ("phase_y", None, "declares 'phase_y' on axis 'y'"),
+        ("phase_y", "phase_x", "swapped?"),
+        ("phase_x", "phase_x", "both name 'phase_x'"),
+        (None, "gray_x", "give it as --x"),
+    ],
+)
+def test_decode_refuses_a_sequence_on_the_wrong_axis(tmp_path, capsys, x, y, message) -> None:
+    ideal_lab(tmp_path)
+    args = ["procams", "decode", "--lab", tmp_path / "lab.json", "--out", tmp_path / "map.npz"]
+    args += ["--x", x] if x else []
+    args += ["--y", y] if y else []
+    code, out, err = cli(capsys, *args)
+    assert code == 2 and message in err and "Traceback" not in err
+    assert not (tmp_path / "map.npz").exists()
+    code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "lab.json", "--x", "phase_x", "--y",
+                         "phase_y", "--out", tmp_path / "map.npz")  # fmt: skip
+    assert code == 0, err
+
+
+# ------------------------------------------------------------------ item 6, 10, 12: lab manifests
+def manifest_with(folder, sequence: dict, **top) -> None:
+    for name in ("a.png", "b.png", "c.png", "d.png"):
+        write_rgb_png(folder / name, np.zeros((4, 4, 3)))
+    data = {"format": "edofproj-lab-captures", "version": 1, "projector": {"height": 40, "width": 48},
+            "sequences": [sequence]} | top  # fmt: skip
+    (folder / "lab.json").write_text(json.dumps(data), encoding="utf-8")
+
+
+GRAY = {"name": "g", "kind": "gray-code", "axis": "x", "planes": 2, "files": {"list": ["a.png", "b.png"]}}
+
+
+@pytest.mark.parametrize(
+    ("sequence", "top", "message"),
+    [
+        (GRAY | {"files": {"list": ["a.png", "a.png"]}}, {}, "a.png more than once"),
+        (GRAY | {"planes": 7.5}, {}, "'planes' must be a whole number, got 7.5"),
+        (GRAY, {"version": 2}, "version 2 is not one this edofproj reads"),
+        (
+            {"name": "p", "kind": "phase-shift", "axis": "x", "periods": [1, float("nan")], "steps": 2,
+             "files": {"list": ["a.png", "b.png", "c.png", "d.png"]}},
+            {},
+            "a period count must be a whole number, got nan",
+        ),
+        (
+            {"name": "d", "kind": "dots", "spacing_px": [12, 12], "origin_px": [50, 0], "files": {"list": ["a.png"]}},
+            {},
+            "outside the 48x40 projector",
+        ),
+    ],
+)  # fmt: skip
+def test_a_lab_manifest_that_breaks_its_format_is_refused(tmp_path, capsys, sequence, top, message) -> None:
+    manifest_with(tmp_path, sequence, **top)
+    code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "lab.json", "--x", sequence["name"],
+                         "--out", tmp_path / "map.npz")  # fmt: skip
+    assert code == 2 and message in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_link_out_of_the_lab_folder_is_refused(tmp_path, capsys) -> None:
+    lab, outside = tmp_path / "lab", tmp_path / "elsewhere"
+    lab.mkdir(), outside.mkdir()
+    manifest_with(lab, GRAY)
+    write_rgb_png(outside / "secret.png", np.zeros((4, 4, 3)))
+    (lab / "b.png").unlink()
+    (lab / "b.png").symlink_to(outside / "secret.png")
+    code, out, err = cli(
+        capsys, "procams", "decode", "--lab", lab / "lab.json", "--x", "g", "--out", tmp_path / "m.npz"
+    )
+    assert code == 2 and "leads outside the manifest's folder" in err
+    (lab / "b.png").unlink()
+    (lab / "sub").symlink_to(outside, target_is_directory=True)  # a linked folder, globbed
+    manifest_with(lab, GRAY | {"files": {"folder": "sub", "glob": "*.png"}, "planes": 1})
+    code, out, err = cli(
+        capsys, "procams", "decode", "--lab", lab / "lab.json", "--x", "g", "--out", tmp_path / "m.npz"
+    )
+    assert code == 2 and "leads outside the manifest's folder" in err
+
+
+def test_a_deeply_nested_manifest_is_one_line(tmp_path, capsys) -> None:
+    (tmp_path / "lab.json").write_text("[" * 100000 + "]" * 100000, encoding="utf-8")
+    code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "lab.json", "--x", "g",
+                         "--out", tmp_path / "m.npz")  # fmt: skip
+    assert code == 2 and "nested too deeply" in err and "Traceback" not in err
+
+
+def test_a_manifest_that_is_a_folder_or_a_fifo_says_so(tmp_path, capsys) -> None:
+    import os
+
+    (tmp_path / "lab.json").mkdir()
+    code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "lab.json", "--x", "g",
+                         "--out", tmp_path / "m.npz")  # fmt: skip
+    assert code == 2 and "is a folder" in err
+    os.mkfifo(tmp_path / "fifo.json")  # reading it would block: refused from its type
+    code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "fifo.json", "--x", "g",
+                         "--out", tmp_path / "m.npz")  # fmt: skip
+    assert code == 2 and "not a regular file" in err

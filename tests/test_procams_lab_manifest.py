@@ -58,7 +58,14 @@ def test_step_major_order_is_put_in_profile_order(tmp_path) -> None:
         ({"name": "g", "kind": "gray-code", "axis": "x", "planes": 6, "files": {"list": ["a.png"]}}, "needs 6 files"),
         ({"name": "g", "kind": "gray-code", "axis": "z", "planes": 2, "files": {"list": ["a", "b"]}}, "axis 'z'"),
         (
-            {"name": "p", "kind": "phase-shift", "axis": "x", "periods": [4], "steps": 4, "files": {"list": ["a"] * 4}},
+            {
+                "name": "p",
+                "kind": "phase-shift",
+                "axis": "x",
+                "periods": [4],
+                "steps": 4,
+                "files": {"list": ["a", "b", "c", "d"]},
+            },
             "start at 1",
         ),
         ({"name": "q", "kind": "hologram", "files": {"list": ["a"]}}, "unknown kind"),

@@ -32,6 +32,8 @@ of its files, and the projector's size, so that the structured-light commands (`
 from __future__ import annotations
 
 import json
+import math
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
@@ -43,6 +45,8 @@ from .structured_light import axis_length, check_phase_plan, gray_code_bits
 
 LAB_FORMAT = "edofproj-lab-captures"
 LAB_MANIFEST_NAME = "lab.json"
+MAX_MANIFEST_BYTES = 16 * 2**20
+"""Largest lab manifest read (a manifest lists files; it is kilobytes)."""
 KINDS = ("phase-shift", "gray-code", "dots", "black", "white")
 CHANNELS = {"mean": None, "red": 0, "green": 1, "blue": 2}
 
@@ -87,20 +91,58 @@ def _relative(path: str, what: str) -> str:
     return str(p)
 
 
+def _whole(value, what: str) -> int:
+    """``value`` as an int: a JSON integer, or a number with no fractional part; one line otherwise
+    (``7.5``, ``NaN``, ``true``, a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{what} must be a whole number, got {json.dumps(value)}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise ValueError(f"{what} must be a whole number, got {value}")
+    return int(value)
+
+
+def _finite(value, what: str) -> float:
+    """``value`` as a finite float; one line otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{what} must be a finite number, got {json.dumps(value)}")
+    return float(value)
+
+
+def _inside(root: Path, relative: str, what: str) -> str:
+    """``relative`` unless ``root / relative``, its links followed, leaves ``root`` (a symbolic link
+    inside the folder that points outside it)."""
+    base = root.resolve()
+    target = (root / relative).resolve()
+    if target != base and base not in target.parents:
+        raise ValueError(f"{what} '{relative}' leads outside the manifest's folder (a link to '{target}'): "
+                         "copy the capture into the folder")  # fmt: skip
+    return relative
+
+
 def _files(item: dict, root: Path) -> list[str]:
     spec = item.get("files")
+    name = item.get("name")
     if not isinstance(spec, dict):
-        raise ValueError(f"sequence '{item.get('name')}' needs 'files': {{'list': [...]}} or {{'folder', 'glob'}}")
+        raise ValueError(f"sequence '{name}' needs 'files': {{'list': [...]}} or {{'folder', 'glob'}}")
     if "list" in spec:
-        return [_relative(f, "file") for f in spec["list"]]
-    folder = _relative(spec.get("folder", "."), "folder") if spec.get("folder", ".") != "." else "."
-    pattern = str(spec.get("glob", "*"))
-    if "/" in pattern or ".." in pattern:
-        raise ValueError(f"glob '{pattern}' must match names inside its folder")
-    base = root / folder
-    if not base.is_dir():
-        raise ValueError(f"folder '{folder}' of sequence '{item.get('name')}' does not exist under '{root}'")
-    return [str(PurePosixPath(folder) / p.name) for p in sorted(base.glob(pattern)) if p.is_file()]
+        if not isinstance(spec["list"], list):
+            raise ValueError(f"sequence '{name}': 'files': {{'list': ...}} must be a list of file names")
+        files = [_inside(root, _relative(f, "file"), "file") for f in spec["list"]]
+    else:
+        folder = _relative(spec.get("folder", "."), "folder") if spec.get("folder", ".") != "." else "."
+        pattern = str(spec.get("glob", "*"))
+        if "/" in pattern or ".." in pattern:
+            raise ValueError(f"glob '{pattern}' must match names inside its folder")
+        base = root / folder
+        if not base.is_dir():
+            raise ValueError(f"folder '{folder}' of sequence '{name}' does not exist under '{root}'")
+        _inside(root, folder, "folder")
+        files = [str(PurePosixPath(folder) / p.name) for p in sorted(base.glob(pattern)) if p.is_file()]
+        files = [_inside(root, f, "file") for f in files]
+    repeated = sorted({f for f in files if files.count(f) > 1})
+    if repeated:
+        raise ValueError(f"sequence '{name}' lists {', '.join(repeated)} more than once: each capture is one frame")
+    return files
 
 
 @dataclass
@@ -147,10 +189,31 @@ class LabManifest:
         path = Path(path)
         base = Path(root) if root is not None else path.parent
         try:
+            mode = path.stat().st_mode
+        except FileNotFoundError:
+            raise EdofprojError(f"lab manifest '{path}' does not exist") from None
+        except OSError as exc:
+            raise EdofprojError(f"cannot read lab manifest '{path}': {exc.strerror or exc}") from None
+        if stat.S_ISDIR(mode):
+            raise EdofprojError(
+                f"lab manifest '{path}' is a folder: give the manifest file in it (e.g. {path / LAB_MANIFEST_NAME})"
+            )
+        if not stat.S_ISREG(mode):
+            raise EdofprojError(
+                f"lab manifest '{path}' is not a regular file (a FIFO, a socket or a device): give a lab.json file"
+            )
+        if path.stat().st_size > MAX_MANIFEST_BYTES:
+            raise EdofprojError(f"lab manifest '{path}' is {path.stat().st_size} bytes: a manifest is a small "
+                                f"JSON file (at most {MAX_MANIFEST_BYTES // 2**20} MiB)")  # fmt: skip
+        try:
             data = json.loads(path.read_text(encoding="utf-8"))
             if not isinstance(data, dict) or data.get("format") != LAB_FORMAT:
                 raise ValueError(f"not a lab manifest (format '{LAB_FORMAT}')")
-            H, W = int(data["projector"]["height"]), int(data["projector"]["width"])
+            version = data.get("version", 1)
+            if isinstance(version, bool) or version != 1:
+                raise ValueError(f"version {json.dumps(version)} is not one this edofproj reads (1)")
+            H = _whole(data["projector"]["height"], "projector height")
+            W = _whole(data["projector"]["width"], "projector width")
             if not (2 <= H <= 32768 and 2 <= W <= 32768):
                 raise ValueError(f"projector size {W}x{H} is not 2..32768 px per side")
             channel = str(data.get("channel", "mean"))
@@ -162,7 +225,11 @@ class LabManifest:
                 raise ValueError("sequence names repeat")
         except FileNotFoundError:
             raise EdofprojError(f"lab manifest '{path}' does not exist") from None
-        except (OSError, ValueError, KeyError, TypeError, EdofprojError) as exc:
+        except RecursionError:
+            raise EdofprojError(f"cannot read lab manifest '{path}': it is nested too deeply to be one") from None
+        except KeyError as exc:
+            raise EdofprojError(f"cannot read lab manifest '{path}': it lacks {exc}") from None
+        except (OSError, ValueError, TypeError, EdofprojError) as exc:
             raise EdofprojError(f"cannot read lab manifest '{path}': {exc}") from None
         return cls(projector_hw=(H, W), sequences=sequences, channel=channel, root=base)
 
@@ -184,22 +251,35 @@ def _sequence(item: dict, root: Path, projector_hw: tuple[int, int]) -> Sequence
             raise ValueError(f"sequence '{seq.name}' needs 'axis' ('x' or 'y')")
         length = axis_length(projector_hw, seq.axis)
     if kind == "phase-shift":
-        seq.periods = [int(p) for p in item["periods"]]
-        seq.steps = int(item["steps"])
+        if not isinstance(item["periods"], list):
+            raise ValueError(f"sequence '{seq.name}': 'periods' must be a list of whole numbers")
+        seq.periods = [_whole(p, f"sequence '{seq.name}': a period count") for p in item["periods"]]
+        seq.steps = _whole(item["steps"], f"sequence '{seq.name}': 'steps'")
         seq.order = str(item.get("order", "period-major"))
         if seq.order not in ("period-major", "step-major"):
             raise ValueError(f"order '{seq.order}' is not 'period-major' or 'step-major'")
         check_phase_plan(length, seq.periods, seq.steps)
         want = len(seq.periods) * seq.steps
     elif kind == "gray-code":
-        seq.planes = int(item.get("planes", gray_code_bits(length)))
+        seq.planes = _whole(item.get("planes", gray_code_bits(length)), f"sequence '{seq.name}': 'planes'")
+        if not isinstance(item.get("inverse", False), bool):
+            raise ValueError(f"sequence '{seq.name}': 'inverse' must be true or false")
         seq.inverse = bool(item.get("inverse", False))
         if not 1 <= seq.planes <= gray_code_bits(length):
             raise ValueError(f"'{seq.name}' gives {seq.planes} planes; a {length}-px axis has {gray_code_bits(length)}")
         want = seq.planes * (2 if seq.inverse else 1)
     elif kind == "dots":
-        sy, sx = (int(v) for v in item["spacing_px"])
-        oy, ox = (float(v) for v in item.get("origin_px", (0, 0)))
+        spacing, origin = item["spacing_px"], item.get("origin_px", [0, 0])
+        if not (isinstance(spacing, list) and len(spacing) == 2 and isinstance(origin, list) and len(origin) == 2):
+            raise ValueError(f"sequence '{seq.name}': 'spacing_px' and 'origin_px' are [along y, along x] pairs")
+        sy, sx = (_whole(v, f"sequence '{seq.name}': 'spacing_px'") for v in spacing)
+        oy, ox = (_finite(v, f"sequence '{seq.name}': 'origin_px'") for v in origin)
+        H, W = projector_hw
+        if not (0 <= oy <= H - 1 and 0 <= ox <= W - 1):
+            raise ValueError(f"sequence '{seq.name}': the first dot, origin_px [{oy:g}, {ox:g}] ([y, x]), is "
+                             f"outside the {W}x{H} projector: it is a pixel [0..{H - 1}, 0..{W - 1}]")  # fmt: skip
+        if sy < 1 or sx < 1:
+            raise ValueError(f"sequence '{seq.name}': 'spacing_px' {[sy, sx]} must be at least 1 px")
         seq.spacing_px, seq.origin_px = (sy, sx), (oy, ox)
         want = len(seq.files)
     if len(seq.files) != want:

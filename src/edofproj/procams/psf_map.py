@@ -147,6 +147,8 @@ class DotGrid:
         if sy < 4 or sx < 4:
             raise EdofprojError(f"a dot spacing of {sx}x{sy} px leaves the dots' PSFs overlapping (at least 4 px)")
         oy, ox = origin_px
+        if not (0 <= oy <= H - 1 and 0 <= ox <= W - 1):
+            raise EdofprojError(f"the first dot, origin_px ({oy:g}, {ox:g}) (y, x), is outside the {W}x{H} projector")
         return cls((sy, sx), (float(oy), float(ox)), int((H - 1 - oy) // sy) + 1, int((W - 1 - ox) // sx) + 1)
 
     @property

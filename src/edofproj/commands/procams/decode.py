@@ -67,6 +67,19 @@ def run(args) -> int:
     if args.x is None and args.y is None:
         raise EdofprojError("give --x, --y or both: the sequences to decode")
     lab = LabManifest.load(args.lab, args.root)
+    if args.x is not None and args.x == args.y:
+        raise EdofprojError(
+            f"--x and --y both name '{args.x}': give the sequence that codes the columns as --x and the one "
+            "that codes the rows as --y"
+        )
+    for option, name, axis in (("--x", args.x, "x"), ("--y", args.y, "y")):
+        declared = lab.sequence(name).axis if name else None
+        if name and declared is not None and declared != axis:
+            what = {"x": "columns", "y": "rows"}
+            raise EdofprojError(
+                f"{option} {name}: the lab manifest declares '{name}' on axis '{declared}' (it codes the projector's "
+                f"{what[declared]}): give it as --{declared}" + (" (--x and --y swapped?)" if args.x and args.y else "")
+            )
     kinds = {lab.sequence(name).kind for name in (args.x, args.y) if name}
     for option, value, kind in (("--planes", args.planes, "gray-code"), ("--periods", args.periods, "phase-shift")):
         if value is not None and kind not in kinds:
