@@ -218,3 +218,41 @@ def test_a_manifest_that_is_a_folder_or_a_fifo_says_so(tmp_path, capsys) -> None
     code, out, err = cli(capsys, "procams", "decode", "--lab", tmp_path / "fifo.json", "--x", "g",
                          "--out", tmp_path / "m.npz")  # fmt: skip
     assert code == 2 and "not a regular file" in err
+
+
+# ------------------------------------------------------------------ items 8, 12: predict's inputs
+def predict_inputs(folder) -> list:
+    """A map (identity camera, 48x64 projector), an image, its capture and black and white captures."""
+    from edofproj.procams.structured_light import AxisDecoding
+
+    H, W = 48, 64
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    ones = np.ones((H, W), bool)
+    x = AxisDecoding(u, ones, np.full((H, W), 0.1), np.full((H, W), 0.9))
+    y = AxisDecoding(v, ones, np.full((H, W), 0.1), np.full((H, W), 0.9))
+    CorrespondenceMap.from_decodings(x, y, (H, W)).save(
+        folder / "map.npz", dark=np.full((H, W), 0.1, np.float32), bright=np.full((H, W), 0.9, np.float32)
+    )
+    image = profiles_to_images(gray_code_profiles(W), (H, W), "x")[3]
+    for name, values in (("image", image), ("capture", 0.1 + 0.8 * image), ("black", np.full((H, W), 0.1)),
+                         ("white", np.full((H, W), 0.9))):  # fmt: skip
+        write_rgb_png(folder / f"{name}.png", np.repeat(values[..., None], 3, -1))
+    return ["procams", "predict", "--map", folder / "map.npz", "--image", folder / "image.png",
+            "--capture", folder / "capture.png"]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--offset-px", "1e30", "0"], "moves every camera pixel off the 64x48 projector"),
+        (["--offset-px", "nan", "0"], "is not two finite numbers"),
+        (["--black", "{white}", "--white", "{black}"], "swapped?"),
+    ],
+)
+def test_predict_refuses_what_it_cannot_use(tmp_path, capsys, extra, message) -> None:
+    args = predict_inputs(tmp_path)
+    extra = [e.format(white=tmp_path / "white.png", black=tmp_path / "black.png") for e in extra]
+    code, out, err = cli(capsys, *args, *extra)
+    assert code == 2 and message in err and "Traceback" not in err, err
+    code, out, err = cli(capsys, *args, "--black", tmp_path / "black.png", "--white", tmp_path / "white.png")
+    assert code == 0 and float(out.split("PSNR ")[1].split(" dB")[0]) > 40.0, err

@@ -73,6 +73,13 @@ def run(args) -> int:
             f"no dark and bright levels of the map's {corr.camera_hw[1]}x{corr.camera_hw[0]} camera "
             "(a map from 'edofproj procams decode', or --black and --white captures of that size)"
         )
+    if args.black is not None and corr.valid.any():
+        lift = float(np.median((stored["bright"] - stored["dark"])[corr.valid]))
+        if lift <= 0:
+            raise EdofprojError(
+                f"the --white capture is not brighter than the --black one over the map's valid pixels (median "
+                f"white - black {lift * 255:+.1f}/255): swapped? --black is the projector's black field, --white its white"
+            )
     if args.no_blur and not args.psf_map:
         raise EdofprojError("--no-blur registers with a PSF map's offset: give --psf-map (or --offset-px without it)")
     psf_map = PSFMap.load(args.psf_map) if args.psf_map else None
