@@ -211,3 +211,15 @@ def test_a_design_file_behind_another_aperture_is_refused(tmp_path, capsys):
     run = write_run(tmp_path / "pico", projector_config("pico-1080p"))
     assert main(["psf", "--doe", str(run / "doe.npz"), "--out", str(tmp_path / "p.npz")]) == 2
     assert "made for a 5 mm aperture" in capsys.readouterr().err
+
+
+def test_a_design_file_without_its_projector_says_so(tmp_path, recwarn):
+    from edofproj.errors import ProjectorWarning
+
+    run = write_run(tmp_path / "paper", projector_config("paper-800x600"))
+    out = str(tmp_path / "p.npz")
+    assert main(["psf", "--doe", str(run / "doe.npz"), "--depth-mm", "500", "--out", out]) == 0
+    assert [w for w in recwarn if issubclass(w.category, ProjectorWarning)]  # the default projector, said
+    recwarn.clear()
+    assert main(["psf", "--doe", str(run / "doe.npz"), "--config", str(run / "config.yaml"), "--out", out]) == 0
+    assert not [w for w in recwarn if issubclass(w.category, ProjectorWarning)]

@@ -35,6 +35,11 @@ class ConfigConversionWarning(UserWarning):
     """A configuration in an older format was read by converting it; the message says what changed."""
 
 
+class ProjectorWarning(UserWarning):
+    """A design is simulated with a projector that was not read from its run (a design file without
+    ``--config``: :mod:`edofproj.runs.projector`)."""
+
+
 class RecoveryWarning(UserWarning):
     """edofproj recovered from an earlier fault (a stale lock taken over, temporary files of an
     interrupted write removed, a corrupt checkpoint skipped); the message says what it did."""

@@ -9,18 +9,20 @@ A command given a run -- or a design file -- simulates it with that projector, n
 * ``--config C`` with a run: ``C`` only where it describes the same projector, else the command is
   refused with the keys that differ (:func:`edofproj.config.config_on_run`);
 * two runs at once (``plot-psf --doe A --doe B``): they must share one projector;
-* a design ``.npz`` file without a run: the configuration given (``--config``, else the defaults),
-  refused when the file's aperture is not that configuration's (:func:`check_design_aperture`).
+* a design ``.npz`` file without a run: the configuration given (``--config``, else the defaults, with a
+  :class:`ProjectorWarning` saying so), refused when the file's aperture is not that configuration's
+  (:func:`check_design_aperture`).
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..builtin_runs import resolve_run_dir
 from ..config import Config, config_on_run, describe_differences, load_config, projector_differences
-from ..errors import EdofprojError
+from ..errors import EdofprojError, ProjectorWarning
 from .directory import CONFIG_NAME, saved_config
 
 #: Design names of ``--doe`` that are not files or runs (:data:`edofproj.doe.factory.DOE_CHOICES`).
@@ -48,8 +50,17 @@ def config_for_designs(
     """The configuration with which a command simulates the designs ``specs`` (``--doe`` values: design
     names, design files, run directories): the run's own projector when one is a run (see the module),
     else ``config_arg`` (None: the defaults); ``overrides`` (``section.key=value``) apply last."""
+    specs = list(specs)
     runs = [(spec, path) for spec in specs if (path := run_of(spec)) is not None]
     if not runs:
+        files = [spec for spec in specs if spec is not None and spec not in _DESIGN_NAMES]
+        if files and config_arg is None:  # a design file holds its heights and aperture, not its projector
+            warnings.warn(
+                f"{option} '{files[0]}' is a design file, not a run: it is simulated with the default projector "
+                "(aperture, focus, throw ratio, pixels, spectra); give --config of its projector, or its run directory",
+                ProjectorWarning,
+                stacklevel=2,
+            )
         return load_config(config_arg, list(overrides))
     first_spec, first_dir = runs[0]
     for spec, path in runs[1:]:
