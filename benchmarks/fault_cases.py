@@ -341,6 +341,207 @@ class Cases:
         )
         self.row("12", "PSF file with 2 PSFs and 1 depth", f"exit {code}: {line}")
 
+    # -- issue 60 (round four), the procams lab path: items 3, 4, 6, 8, 9, 10, 12 ------------------
+    # Inputs are written with NumPy and OpenCV only, so that the same case runs against any source tree.
+    def _lab_dir(self, name: str) -> Path:
+        folder = self.work / name
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        return folder
+
+    @staticmethod
+    def _write_grey(path: Path, image) -> None:
+        import cv2
+
+        cv2.imwrite(str(path), np.rint(np.clip(image, 0, 1) * 255).astype(np.uint8))
+
+    @staticmethod
+    def _lab_json(folder: Path, sequences, hw=(48, 64), name="lab.json", **top) -> Path:
+        import json
+
+        data = {"format": "edofproj-lab-captures", "version": 1, "projector": {"height": hw[0], "width": hw[1]},
+                "sequences": sequences} | top  # fmt: skip
+        (folder / name).write_text(json.dumps(data), encoding="utf-8")
+        return folder / name
+
+    @staticmethod
+    def _gray_planes(length: int) -> np.ndarray:
+        n = int(np.ceil(np.log2(length)))
+        c = np.arange(length)
+        g = c ^ (c >> 1)
+        return np.stack([(g >> (n - 1 - b)) & 1 for b in range(n)]).astype(float)  # (n, L)
+
+    @staticmethod
+    def _phase_frames(length: int, periods, steps: int) -> np.ndarray:
+        c = np.arange(length)
+        return np.stack([0.5 + 0.5 * np.cos(2 * np.pi * f * c / length + 2 * np.pi * k / steps)
+                         for f in periods for k in range(steps)])  # fmt: skip
+
+    def _frames(self, folder: Path, prefix: str, frames) -> list[str]:
+        names = []
+        for i, frame in enumerate(frames):
+            names.append(f"{prefix}_{i:02d}.png")
+            self._write_grey(folder / names[-1], frame)
+        return names
+
+    def _ideal_lab(self, folder: Path, hw=(48, 64)) -> Path:
+        """Phase shifts along x and y, an identity camera, captures between 0.1 and 0.9."""
+        H, W = hw
+        sequences = []
+        for axis, length, periods in (("x", W, [1, 4, 16]), ("y", H, [1, 4, 12])):
+            profiles = self._phase_frames(length, periods, 4)
+            images = [np.broadcast_to(p[None, :] if axis == "x" else p[:, None], hw) for p in profiles]
+            names = self._frames(folder, f"phase_{axis}", [0.1 + 0.8 * im for im in images])
+            sequences.append({"name": f"phase_{axis}", "kind": "phase-shift", "axis": axis, "periods": periods,
+                              "steps": 4, "files": {"list": names}})  # fmt: skip
+        for name, level in (("black", 0.1), ("white", 0.9)):
+            self._write_grey(folder / f"{name}.png", np.full(hw, level))
+        return self._lab_json(folder, sequences, hw)
+
+    @staticmethod
+    def _valid_share(path: Path, columns=None) -> str:
+        if not path.is_file():
+            return "no map written"
+        proj_x = np.load(path)["proj_x"]
+        valid = np.isfinite(proj_x) if columns is None else np.isfinite(proj_x[:, columns])
+        return f"{valid.mean():.1%} valid"
+
+    def case_lab3(self) -> None:
+        folder = self._lab_dir("lab3")
+        planes = self._gray_planes(256)  # (8, 256)
+        unlit, frames = 144, []
+        rng = np.random.default_rng(0)
+        for i, p in enumerate(planes):  # 36 % of the camera unlit; exposure and stray light vary on the projection
+            frame = np.full((32, unlit + 256), 0.06)
+            frame[:, unlit:] = (0.8 + 0.3 * i / len(planes)) * (0.06 + 0.6 * p[None, :]) + 0.2 * p.mean()
+            frames.append(frame + 0.004 * rng.standard_normal(frame.shape))
+        names = self._frames(folder, "gray", frames)
+        lab = self._lab_json(folder, [{"name": "gray", "kind": "gray-code", "axis": "x", "files": {"list": names}}],
+                             hw=(32, 256))  # fmt: skip
+        code, line = cli(["procams", "decode", "--lab", lab, "--x", "gray", "--out", folder / "map.npz"], self.work)
+        self.row("60.3", "`decode` of a Gray code with 36 % of the camera unlit",
+                 f"exit {code}; unlit part {self._valid_share(folder / 'map.npz', slice(0, unlit))}; {line}")  # fmt: skip
+        for kind in ("gray-code", "phase-shift"):
+            noise = self._lab_dir(f"lab3_{kind}")
+            count = 8 if kind == "gray-code" else 12
+            names = self._frames(noise, "noise", rng.uniform(0.05, 0.95, (count, 64, 256)))
+            seq = {"name": "s", "kind": kind, "axis": "x", "files": {"list": names}}
+            seq |= {"planes": 8} if kind == "gray-code" else {"periods": [1, 4, 16], "steps": 4}
+            lab = self._lab_json(noise, [seq], hw=(32, 256))
+            code, line = cli(["procams", "decode", "--lab", lab, "--x", "s", "--out", noise / "map.npz"], self.work)
+            self.row("60.3", f"`decode` of pure-noise {kind} captures",
+                     f"exit {code}; {self._valid_share(noise / 'map.npz')}; {line}")  # fmt: skip
+
+    def case_lab4(self) -> None:
+        folder = self._lab_dir("lab4")
+        lab = self._ideal_lab(folder)
+        for what, axes in (("`decode --x phase_y` (declared axis y)", ["--x", "phase_y"]),
+                           ("`decode --x phase_y --y phase_x` (swapped)", ["--x", "phase_y", "--y", "phase_x"])):  # fmt: skip
+            out = folder / "map.npz"
+            out.unlink(missing_ok=True)
+            code, line = cli(["procams", "decode", "--lab", lab, *axes, "--out", out], self.work)
+            self.row("60.4", what, f"exit {code}; {line}")
+
+    def case_lab6(self) -> None:
+        folder = self._lab_dir("lab6")
+        for name in ("a.png", "b.png"):
+            self._write_grey(folder / name, np.zeros((4, 4)))
+        gray = {"name": "g", "kind": "gray-code", "axis": "x", "planes": 2, "files": {"list": ["a.png", "b.png"]}}
+        outside = self._lab_dir("lab6_elsewhere")
+        self._write_grey(outside / "secret.png", np.zeros((4, 4)))
+        (folder / "link.png").symlink_to(outside / "secret.png")
+        for what, seq, top in (
+            ("lab manifest: the same file twice in one sequence", gray | {"files": {"list": ["a.png", "a.png"]}}, {}),
+            ('lab manifest: `"planes": 7.5`', gray | {"planes": 7.5}, {}),
+            ('lab manifest: `"version": 2`', gray, {"version": 2}),
+            ("lab manifest: a link in the folder to a file outside it", gray | {"files": {"list": ["a.png", "link.png"]}}, {}),
+        ):  # fmt: skip
+            lab = self._lab_json(folder, [seq], **top)
+            code, line = cli(["procams", "decode", "--lab", lab, "--x", "g", "--out", folder / "m.npz"], self.work)
+            self.row("60.6", what, f"exit {code}; {line}")
+
+    def case_lab8(self) -> None:
+        for level, what in ((0.0, "all-black"), (1.0, "all-white")):
+            folder = self._lab_dir(f"lab8_{what}")
+            names = self._frames(folder, "flat", np.full((6, 48, 64), level))
+            lab = self._lab_json(folder, [{"name": "g", "kind": "gray-code", "axis": "x", "files": {"list": names}}])
+            code, line = cli(["procams", "decode", "--lab", lab, "--x", "g", "--out", folder / "map.npz"], self.work)
+            self.row("60.8", f"`decode` of {what} Gray-code captures",
+                     f"exit {code}; {self._valid_share(folder / 'map.npz')}; {line}")  # fmt: skip
+        folder = self._lab_dir("lab8")
+        lab = self._ideal_lab(folder)
+        code, line = cli(["procams", "decode", "--lab", lab, "--x", "phase_x", "--y", "phase_y", "--out",
+                          folder / "map.npz"], self.work)  # fmt: skip
+        predict = ["procams", "predict", "--map", folder / "map.npz", "--image", folder / "phase_x_08.png",
+                   "--capture", folder / "phase_x_08.png", "--black", folder / "black.png", "--white", folder / "white.png"]  # fmt: skip
+        code, line = cli([*predict, "--offset-px", "1e30", "0"], self.work)
+        self.row("60.8", "`predict --offset-px 1e30 0`", f"exit {code}; {line}")
+        out = folder / "map2.npz"
+        code, line = cli(["procams", "decode", "--lab", lab, "--x", "phase_x", "--planes", 2, "--out", out], self.work)
+        self.row("60.8", "`decode --planes 2` on a phase-shift sequence", f"exit {code}; {line}")
+        code, line = cli([*predict, "--offset-px", "nan", "0"], self.work)
+        self.row("60.12", "`predict --offset-px nan 0`", f"exit {code}; {line}")
+        swapped = [*predict[:-4], "--black", folder / "white.png", "--white", folder / "black.png"]
+        code, line = cli(swapped, self.work)
+        self.row("60.12", "`predict` with `--black` and `--white` swapped", f"exit {code}; {line}")
+        code, line = cli(["procams", "decode", "--lab", lab, "--x", "phase_x", "--y", "phase_x", "--out",
+                          folder / "map3.npz"], self.work)  # fmt: skip
+        self.row("60.12", "`decode --x phase_x --y phase_x`", f"exit {code}; {line}")
+
+    def case_lab9(self) -> None:
+        folder = self._lab_dir("lab9")
+        lab = self._ideal_lab(folder)
+        cli(["procams", "decode", "--lab", lab, "--x", "phase_x", "--y", "phase_y", "--out", folder / "map.npz"],
+            self.work)  # fmt: skip
+        dots = np.zeros((48, 64))
+        dots[::8, ::8] = 1.0
+        self._write_grey(folder / "dots.png", 0.1 + 0.8 * dots)
+        import json
+
+        data = json.loads(lab.read_text())
+        data["sequences"].append({"name": "dots", "kind": "dots", "spacing_px": [8, 8], "origin_px": [60, 0],
+                                  "files": {"list": ["dots.png"]}})  # fmt: skip
+        lab.write_text(json.dumps(data))
+        code, line = cli(["procams", "psf-map", "--lab", lab, "--dots", "dots", "--map", folder / "map.npz",
+                          "--out", folder / "psf.npz"], self.work)  # fmt: skip
+        self.row("60.9", "`psf-map` with a dots `origin_px` [60, 0] below a 48-row projector", f"exit {code}; {line}")
+
+    def case_lab10(self) -> None:
+        folder = self._lab_dir("lab10")
+        (folder / "lab.json").write_text("[" * 100000 + "]" * 100000)
+        code, line = cli(["procams", "decode", "--lab", folder / "lab.json", "--x", "g", "--out", folder / "m.npz"],
+                         self.work)  # fmt: skip
+        self.row("60.10", "a lab.json nested 100000 deep", f"exit {code}; {line}")
+
+    def case_lab12(self) -> None:
+        folder = self._lab_dir("lab12")
+        (folder / "dir.json").mkdir()
+        os.mkfifo(folder / "fifo.json")
+        for what, lab in (("a lab file that is a folder", folder / "dir.json"),
+                          ("a lab file that is a FIFO", folder / "fifo.json"),
+                          ("a lab file that is a device (`/dev/zero`)", Path("/dev/zero"))):  # fmt: skip
+            proc = start(["procams", "decode", "--lab", lab, "--x", "g", "--out", folder / "m.npz"], self.work)
+            try:
+                _, err = proc.communicate(timeout=60)
+                outcome = f"exit {proc.returncode}; {last_line(err)}"
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+                outcome = "still reading after 60 s (killed)"
+            self.row("60.12", what, outcome)
+        for name in ("a.png", "b.png", "c.png", "d.png"):
+            self._write_grey(folder / name, np.zeros((4, 4)))
+        lab = folder / "nan.json"
+        lab.write_text('{"format": "edofproj-lab-captures", "version": 1, "projector": {"height": 40, "width": 48}, '
+                       '"sequences": [{"name": "p", "kind": "phase-shift", "axis": "x", "periods": [1, NaN], '
+                       '"steps": 2, "files": {"list": ["a.png", "b.png", "c.png", "d.png"]}}]}')  # fmt: skip
+        code, line = cli(["procams", "decode", "--lab", lab, "--x", "p", "--out", folder / "m.npz"], self.work)
+        self.row("60.12", "a lab manifest with a NaN period", f"exit {code}; {line}")
+
+
+LAB_PATH_CASES = ["lab3", "lab4", "lab6", "lab8", "lab9", "lab10", "lab12"]
+"""Issue 60's cases on the procams lab path (``--only lab3,...``)."""
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -350,7 +551,7 @@ def main() -> None:
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="edofproj-faults-"))
     work.mkdir(parents=True, exist_ok=True)
     cases = Cases(work)
-    chosen = [c for c in args.only.split(",") if c] or [str(i) for i in range(1, 13)]
+    chosen = [c for c in args.only.split(",") if c] or [str(i) for i in range(1, 13)] + LAB_PATH_CASES
     print("| case | what | outcome |\n| --- | --- | --- |")
     clock = time.perf_counter()
     for number in chosen:
