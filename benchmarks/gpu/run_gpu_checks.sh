@@ -29,7 +29,7 @@
 #            run.tar.NNN) into $OUT within what a loan brings back (8 files of 16 MB, 64 MB in all, counting
 #            what the steps before wrote); LOAN_RESUME=FOLDER/run.pack.json continues a packed run
 #            instead. Knobs: LOAN_S (540), LOAN_CONFIG (paper), LOAN_SET (space-separated KEY=VALUE
-#            overrides), LOAN_RESUME, LOAN_DEVICE (cuda), LOAN_METHODS (doe+net), LOAN_SETS (test,validation),
+#            overrides), LOAN_RESUME, LOAN_DEVICE (cuda), LOAN_METHODS (doe+net), LOAN_SETS (test,validation; empty: none),
 #            LOAN_ARGS (more options of loan.py)
 #
 # Knobs for a short loan (environment): BENCH_REPEATS (300), PAPER_STEPS (40), TESTS_TIMEOUT (420 s),
@@ -56,7 +56,7 @@ LOAN_SET=${LOAN_SET:-}
 LOAN_RESUME=${LOAN_RESUME:-}
 LOAN_DEVICE=${LOAN_DEVICE:-cuda}
 LOAN_METHODS=${LOAN_METHODS:-doe+net}
-LOAN_SETS=${LOAN_SETS:-test,validation}
+LOAN_SETS=${LOAN_SETS-test,validation}
 LOAN_ARGS=${LOAN_ARGS:-}
 REFERENCE_RUN=${REFERENCE_RUN:-builtin:cpu-doe-net}
 BENCH_REPEATS=${BENCH_REPEATS:-300}
