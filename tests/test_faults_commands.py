@@ -426,7 +426,7 @@ def test_the_depths_scored_are_the_ones_stated():
 def test_a_screen_depth_must_be_a_physical_one(value):
     from edofproj.optics.geometry import check_screen_depths_mm
 
-    with pytest.raises(EdofprojError, match=r"--depth-mm must be screen depths in \(0, 100000\] mm"):
+    with pytest.raises(EdofprojError, match=r"--depth-mm must be screen depths in \[1, 100000\] mm"):
         check_screen_depths_mm(value, "--depth-mm")
     assert check_screen_depths_mm([300, 100_000], "--depth-mm").tolist() == [300, 100_000]
 
@@ -441,7 +441,7 @@ def test_non_physical_depths_are_refused_before_any_work(tmp_path, capsys):
         ["evaluate", "builtin:cpu-doe-net", "--surface", "checker", "--depths-mm", "1e9", "--quiet"],
     ):
         line = run_error(capsys, argv + ["--out", str(tmp_path / "out.png")])
-        assert "must be screen depths in (0, 100000] mm, got 1e+09" in line, line
+        assert "must be screen depths in [1, 100000] mm, got 1e+09" in line, line
     assert not (tmp_path / "out.png").exists()
 
 

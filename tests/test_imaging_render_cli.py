@@ -127,12 +127,12 @@ def test_doe_lens_in_focus_is_nearly_sharp_and_defocus_blurs(tmp_path, image_fil
         (["--depth-index", 3], "--depth-index 3 is out of range"),
         ([], "holds 2 depths; choose one with --depth-index"),
         (["--depth-map", "WRONG_SHAPE"], "has shape (5, 5), expected the image's (H, W) = (24, 40)"),
-        (["--depth-map", "NEGATIVE"], "must be screen depths in (0, 100000] mm, got -1"),
-        (["--depth-map", "FAR"], "must be screen depths in (0, 100000] mm, got 1e+09: a depth beyond 100 m blurs"),
+        (["--depth-map", "NEGATIVE"], "must be screen depths in [1, 100000] mm, got -1"),
+        (["--depth-map", "FAR"], "must be screen depths in [1, 100000] mm, got 1e+09: a depth beyond 100 m blurs"),
         (["--depth-map", "OUTSIDE"], "spans 300.0-300.0 mm but the PSFs cover 400.0-600.0 mm"),
         (["--depth-mm", 500], "--depth-mm goes with --doe"),
         (["--far-mm", 500], "--far-mm needs --tilt-deg"),
-        (["--tilt-deg", 10, "--near-mm", -5], "--near-mm must be screen depths in (0, 100000] mm, got -5"),
+        (["--tilt-deg", 10, "--near-mm", -5], "--near-mm must be screen depths in [1, 100000] mm, got -5"),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_no_output(tmp_path, image_file, capsys, extra, message):

@@ -87,6 +87,10 @@ OUTPUT_OPTIONS = ("out", "preview", "figure", "plot", "csv", "patch_psfs", "proj
 #: writes ``--patch-psfs``, ``finetune`` reads them).
 READ_OPTIONS = {("finetune", "patch_psfs")}
 
+#: Options (their ``dest``) whose value names a file written when it starts with the prefix: a
+#: device spec (``--display file:shown.png`` writes every frame there).
+OUTPUT_SPECS = {"display": "file:"}
+
 
 def is_output_option(command: str, dest: str) -> bool:
     """Whether option ``dest`` of ``command`` (``"procams psf-map"``) names what it writes."""
@@ -119,7 +123,12 @@ def _refuse_outputs_over_arguments(parser: argparse.ArgumentParser, args: argpar
         value = getattr(args, action.dest, None)
         name = action.option_strings[0] if action.option_strings else str(action.metavar or action.dest.upper())
         for item in value if isinstance(value, list) else [value]:
-            if isinstance(item, (str, os.PathLike)) and os.fspath(item):
+            if not (isinstance(item, (str, os.PathLike)) and os.fspath(item)):
+                continue
+            prefix = OUTPUT_SPECS.get(action.dest)
+            if prefix is not None and os.fspath(item).startswith(prefix):
+                outputs.append((f"{name} {prefix}", os.fspath(item)[len(prefix) :]))
+            else:
                 (outputs if is_output_option(command, action.dest) else arguments).append((name, item))
     refuse_outputs_over_arguments(outputs, arguments)
     for option, path in outputs:

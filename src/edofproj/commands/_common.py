@@ -107,6 +107,11 @@ def parse_number_list(text: str, what: str) -> list[float]:
                 start, stop, step = pieces
                 if not all(np.isfinite(pieces)):
                     raise ValueError
+                if stop < start:
+                    raise EdofprojError(
+                        f"{what} '{part}' runs down from {start:g} to {stop:g}: a range is start:stop:step with "
+                        f"start <= stop, e.g. {stop:g}:{start:g}:{step:g}"
+                    )
                 n = int(np.floor((stop - start) / step + 1e-9)) + 1
                 if n > MAX_RANGE_VALUES:
                     raise EdofprojError(

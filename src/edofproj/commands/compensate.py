@@ -161,6 +161,7 @@ def run(args) -> int:
     if args.preview is not None:
         check_output_path(args.preview, args.bits)
     method = _build_method(args)
+    _check_image_memory(args.image, method.design.cfg.psf.window)
     target = read_image(args.image).unsqueeze(0)
     psf = None
     calibration = None
@@ -211,6 +212,26 @@ def run(args) -> int:
             f"uncompensated projection {_quality(loop.captured, target)}"
         )
     return 0
+
+
+def _check_image_memory(path: str, window: int) -> None:
+    """One line, before ``--image`` is decoded, when compensating it would not fit in memory: its size
+    from the header (:func:`edofproj.imaging.image_io.image_file_size`; unreadable: ``read_image`` says
+    why), the simulated screen (:func:`edofproj.imaging.projection.projection_bytes`) plus the network
+    (:data:`edofproj.compensation.registry.NETWORK_FRAME_BYTES_PER_PIXEL`)."""
+    from ..compensation.registry import NETWORK_FRAME_BYTES_PER_PIXEL
+    from ..imaging.image_io import image_file_size
+    from ..imaging.projection import projection_bytes
+    from ..limits import check_memory
+
+    size = image_file_size(path)
+    if size is not None:
+        H, W = size
+        check_memory(
+            projection_bytes(H, W, window) + NETWORK_FRAME_BYTES_PER_PIXEL * H * W,
+            f"compensating the {H}x{W} (height x width) image '{path}'",
+            "scale the image down to the projector's resolution first",
+        )
 
 
 def _build_method(args):
@@ -340,6 +361,7 @@ def run_batch(args) -> int:
 
     from ..application.offline import FolderSink, VideoSink, compensate_frames, is_video_path, open_frames
     from ..compensation.closed_loop import flat_screen
+    from ..compensation.registry import NETWORK_FRAME_BYTES_PER_PIXEL
     from ..compensation.surface_net import SurfaceAwareNet
     from ..imaging.projection import projection_bytes
     from ..limits import check_memory
@@ -407,9 +429,9 @@ def run_batch(args) -> int:
         screen = f"flat screen at {args.depth_mm:g} mm"
         _note_untrained_depths([args.depth_mm], cfg)
     check_memory(
-        args.batch * projection_bytes(H, W, cfg.psf.window, layers),
+        args.batch * (projection_bytes(H, W, cfg.psf.window, layers) + NETWORK_FRAME_BYTES_PER_PIXEL * H * W),
         f"compensating batches of {args.batch} frames of {H}x{W} (height x width)",
-        "lower --batch",
+        "lower --batch" if args.batch > 1 else "scale the frames down to the projector's resolution first",
     )
     sink = (
         VideoSink(args.out, args.fps or source.fps, source.size_hw, overwrite=args.overwrite)

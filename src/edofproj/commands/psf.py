@@ -42,10 +42,9 @@ def depths_from_args(depth_specs, cfg) -> np.ndarray:
         values = [v for spec in depth_specs for v in parse_number_list(spec, "--depth-mm")]
     else:
         values = list(np.linspace(cfg.psf.depth_min_mm, cfg.psf.depth_max_mm, 11))
-    depths_mm = np.asarray(values, dtype=float)
-    if np.any(depths_mm <= 0):
-        raise EdofprojError(f"--depth-mm values must be positive, got {depths_mm[depths_mm <= 0][0]:g}")
-    return depths_mm * 1e-3
+    from ..optics.geometry import check_screen_depths_mm
+
+    return check_screen_depths_mm(values, "--depth-mm") * 1e-3
 
 
 def design_config(args, specs):

@@ -14,6 +14,7 @@ parameter) into ``--out``, and prints the chosen value as the ``--set`` options 
 
 from __future__ import annotations
 
+import math
 import shlex
 import sys
 
@@ -50,6 +51,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..errors import EdofprojError
     from ..evaluation.classic_optics import (
+        CANDIDATE_SYNTAX,
         DEFAULT_CANDIDATES,
         current_candidate,
         parse_candidates,
@@ -63,7 +65,13 @@ def run(args) -> int:
     if args.config is None:
         args.config = "cpu"  # the preset the demo and the reference model are trained with
     cfg = config_from_args(args)
+    if args.values is not None and not args.values.strip():
+        raise EdofprojError(
+            f"--values is empty: give the {args.element} candidates ({CANDIDATE_SYNTAX[args.element]}), or leave "
+            "--values out for the default sweep"
+        )
     candidates = parse_candidates(args.element, args.values or DEFAULT_CANDIDATES[args.element])
+    refuse_unresolvable(cfg, args.element, candidates)
     depths = parse_number_list(args.depths_mm, "--depths-mm")
     sweep = sweep_classic_element(
         cfg,
@@ -89,3 +97,44 @@ def run(args) -> int:
         print("note: the chosen candidate lies at an end of the swept parameter; extend --values beyond it")
     print(f"wrote {files['summary']}, {files['table']} and {files['figure']}")
     return 0
+
+
+def _unresolved(cfg, kind: str, overrides) -> bool:
+    """Whether the element ``kind`` of ``cfg`` with ``overrides`` changes phase too fast for every pupil sampling
+    (its own rule, ``DOE.check_sampling``, at the finest sampling the search names)."""
+    from ..config import apply_overrides
+    from ..doe import build_doe
+    from ..errors import SamplingError
+    from ..optics.sampling import MAX_PUPIL_SAMPLES
+
+    doe = build_doe(apply_overrides(cfg, list(overrides)), kind)
+    try:
+        doe.check_sampling(cfg.optics.aperture_m / MAX_PUPIL_SAMPLES)
+    except SamplingError:
+        return True
+    return False
+
+
+def refuse_unresolvable(cfg, kind: str, candidates) -> None:
+    """One line, before any candidate is scored, for a candidate no pupil sampling resolves: for the
+    cubic plate, the largest strength that one does (bisection on alpha with the plate's own rule,
+    whose phase step grows with alpha); for the others, the candidate to change."""
+    from ..errors import EdofprojError
+    from ..optics.sampling import MAX_PUPIL_SAMPLES
+
+    for candidate in candidates:
+        if not _unresolved(cfg, kind, candidate.overrides):
+            continue
+        if kind != "cubic":
+            raise EdofprojError(
+                f"--values: the {kind} {candidate.label} changes phase faster than any pupil sampling up to "
+                f"{MAX_PUPIL_SAMPLES} resolves: bring its depths closer to the focus ({cfg.optics.focus_m * 1e3:g} mm)"
+            )
+        low, high = 0.0, float(candidate.value)
+        for _ in range(60):
+            middle = (low + high) / 2
+            low, high = (low, middle) if _unresolved(cfg, kind, (f"doe.cubic_waves={middle!r}",)) else (middle, high)
+        raise EdofprojError(
+            f"--values: a cubic alpha of {candidate.label} is more than any pupil sampling resolves (up to "
+            f"pupil_samples={MAX_PUPIL_SAMPLES}): the largest usable alpha is {math.floor(low * 100) / 100:g} waves; give values up to it"
+        )

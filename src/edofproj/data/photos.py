@@ -27,10 +27,9 @@ import numpy as np
 import skimage.data
 import torch
 from matplotlib import cbook
-from PIL import Image, UnidentifiedImageError
 
 from ..errors import EdofprojError
-from ..imaging.image_io import IMAGE_EXTENSIONS, read_image_array, to_unit_float
+from ..imaging.image_io import IMAGE_EXTENSIONS, image_file_size, read_image_array, to_unit_float
 
 FOLDER_CACHE_BYTES = 512 * 2**20  # decoded folder images kept in memory, at most this many bytes
 
@@ -206,13 +205,9 @@ def find_image_files(folder: str | Path) -> list[Path]:
 
 
 def probe_image_size(path: Path) -> tuple[int, int] | None:
-    """``(height, width)`` from the file header (Pillow, no decoding), or None if unreadable."""
-    try:
-        with Image.open(path) as picture:
-            width, height = picture.size
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError):
-        return None
-    return height, width
+    """``(height, width)`` from the file header (no decoding; any size, a huge one included), or None
+    if unreadable: :func:`edofproj.imaging.image_io.image_file_size`."""
+    return image_file_size(path)
 
 
 class FolderSource:

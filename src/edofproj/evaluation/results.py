@@ -199,7 +199,8 @@ class MetricsTable:
         """A table read from a CSV file whose first columns are ``keys``; the remaining columns are its
         metrics. ``method`` and ``image`` stay strings, every other column is read as a float. ``NA`` reads back
         as NaN. Raises :class:`~edofproj.errors.EdofprojError` if the file cannot be read, does not start
-        with ``keys`` or holds a value that is not a number."""
+        with ``keys``, holds a value that is not a number or repeats a key (two rows of one method, depth
+        and image)."""
         try:
             with open(path, newline="", encoding="utf-8") as handle:
                 text = handle.read()
@@ -215,11 +216,20 @@ class MetricsTable:
         if header[: len(keys)] != keys:
             raise EdofprojError(f"'{path}' is not a metrics table (columns {', '.join(header)})")
         table = cls(keys, header[len(keys) :])
+        first_line: dict[tuple, int] = {}  # each key (method, depth, image) is one score: a repeat is refused
         for line, row in enumerate(rows, start=2):
             try:
                 table.rows.append({k: (row[k] if k in ("method", "image") else _number(row[k])) for k in header})
             except (TypeError, ValueError):
                 raise EdofprojError(f"'{path}' line {line}: a value is not a number ({dict(row)})") from None
+            key = tuple(table.rows[-1][k] for k in keys)
+            if key in first_line:
+                named = ", ".join(f"{k} {row[k]}" for k in keys)
+                raise EdofprojError(
+                    f"'{path}' line {line} repeats line {first_line[key]} ({named}): a metrics table scores each "
+                    f"({', '.join(keys)}) once, and a repeat would be averaged in; remove the repeated row"
+                )
+            first_line[key] = line
         return table
 
 

@@ -357,7 +357,7 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
         except ValueError:
             raise EdofprojError(f"frame size '{part}' must look like HEIGHTxWIDTH, e.g. 600x800") from None
         if height < 1 or width < 1:
-            raise EdofprojError(f"frame size '{part}' must be positive")
+            raise EdofprojError(f"frame size '{part}' must be positive pixel counts HEIGHTxWIDTH, e.g. 600x800")
         sizes.append((height, width))
     if not sizes:
         raise EdofprojError("no frame sizes given (e.g. --sizes 256x256,600x800)")

@@ -11,7 +11,10 @@ A file that cannot be read gets one line from edofproj (:class:`~edofproj.errors
 and nothing from the libraries under it: OpenCV's log is silenced while it decodes, FFmpeg's own
 log (e.g. "moov atom not found") is off (``OPENCV_FFMPEG_LOGLEVEL=-8``, AV_LOG_QUIET, set unless
 the environment already sets it: OpenCV reads it once, when its FFmpeg backend first starts) and
-Pillow's warnings about damaged metadata are not shown.
+Pillow's warnings about damaged metadata are not shown. libpng writes its own ``libpng error: ...`` and
+``libpng warning: ...`` lines straight to the process's stderr (file descriptor 2), which no log
+level reaches: while OpenCV decodes, descriptor 2 is sent to a temporary file, and what it received
+is written back afterwards without libpng's lines (:func:`_without_libpng_lines`).
 
 OpenCV stores colour as BGR; the conversion to and from RGB happens here and nowhere else.
 """
@@ -76,6 +79,40 @@ def _quiet_opencv():
         cv2.utils.logging.setLogLevel(level)
 
 
+#: The lines libpng writes to descriptor 2 itself (its default error and warning handlers).
+LIBPNG_LINE_PREFIXES = (b"libpng error:", b"libpng warning:")
+
+
+@contextlib.contextmanager
+def _without_libpng_lines():
+    """Descriptor 2 (stderr) sent to a temporary file while the block runs, then what it received
+    written back less libpng's own lines (module docstring): other output is delayed, never lost."""
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no descriptor 2 (a detached process): nothing to silence
+        yield
+        return
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            kept = [
+                line for line in captured.read().splitlines(keepends=True) if not line.startswith(LIBPNG_LINE_PREFIXES)
+            ]
+            if kept:
+                os.write(2, b"".join(kept))
+
+
 #: Bytes per pixel of reading an image into a float tensor: the decoded 8/16-bit BGR pixels, their
 #: RGB copy, the float32 array and the tensor (16-bit worst case: 6 + 6 + 12 + 12).
 READ_BYTES_PER_PIXEL = 36
@@ -120,7 +157,7 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
             "scale the image down first",
         )
     raw = np.frombuffer(data, dtype=np.uint8)
-    with _quiet_opencv():
+    with _quiet_opencv(), _without_libpng_lines():
         pixels = cv2.imdecode(raw, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH) if raw.size else None
     if pixels is None or pixels.size == 0 or _jpeg_is_truncated(data):
         raise EdofprojError(f"cannot read image '{name}': not a readable PNG/JPEG/TIFF/BMP file or truncated")

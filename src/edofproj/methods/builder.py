@@ -250,8 +250,9 @@ class MethodBuilder:
             hint = " ".join(f"--set {o}" for o in spec.train_overrides)
             if self.explicit:
                 raise EdofprojError(
-                    f"method {spec.name} needs {reason} (train one: edofproj train --config "
-                    f"<config> --out {path} {hint})"
+                    f"method {spec.name} needs a trained run of its own, and there is none at '{path}': train one "
+                    f"(edofproj train --config <config> --out {path} {hint}) or give --baselines, the folder that "
+                    f"holds {spec.run_dir}/"
                 )
             self.notes.append(f"{spec.name} skipped: {reason}")
             return None

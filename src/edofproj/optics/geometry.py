@@ -9,7 +9,9 @@ one projector pixel on a screen at depth ``z`` is
 In pixel units the Fresnel/Hankel kernel ``J0(2 pi r rho / (lambda z))`` becomes
 ``J0(2 pi r rho_px / (lambda T W))``, independent of ``z``.
 
-A screen depth lies in ``(0, MAX_SCREEN_DEPTH_MM]`` (:func:`check_screen_depths_mm`): the defocus
+A screen depth lies in ``[MIN_SCREEN_DEPTH_MM, MAX_SCREEN_DEPTH_MM]`` (:func:`check_screen_depths_mm`). Nearer
+than 1 mm a screen would touch the projection lens (its aperture alone is millimetres wide): such a
+depth is a unit mistake (``1e-3`` for 1 m), not a screen. The defocus
 grows with ``|1/z - 1/v|``, which beyond 100 m differs from its value at infinity by less than
 0.01 m^-1 (0.5 % of ``1/v`` for a projector focused at 0.5 m), so a farther depth says nothing a
 100 m one does not, and is a unit mistake (``1e9`` for 1 m) rather than a screen.
@@ -24,20 +26,26 @@ import numpy as np
 
 from ..errors import EdofprojError
 
-#: The farthest screen depth a command takes (module docstring), mm.
-MAX_SCREEN_DEPTH_MM = 100_000.0
+#: The nearest and the farthest screen depth a command takes (module docstring), mm.
+MIN_SCREEN_DEPTH_MM, MAX_SCREEN_DEPTH_MM = 1.0, 100_000.0
 
 
 def check_screen_depths_mm(depths_mm, option: str) -> np.ndarray:
     """``depths_mm`` as a float array, or one line naming ``option`` unless every depth is a number in
-    ``(0, MAX_SCREEN_DEPTH_MM]`` (NaN allowed nowhere; depth maps mark 'nothing hit' before this)."""
+    ``[MIN_SCREEN_DEPTH_MM, MAX_SCREEN_DEPTH_MM]`` (NaN allowed nowhere; depth maps mark 'nothing hit'
+    before this)."""
     values = np.atleast_1d(np.asarray(depths_mm, dtype=float))
-    bad = values[~(np.isfinite(values) & (values > 0) & (values <= MAX_SCREEN_DEPTH_MM))]
+    bad = values[~(np.isfinite(values) & (values >= MIN_SCREEN_DEPTH_MM) & (values <= MAX_SCREEN_DEPTH_MM))]
     if values.size == 0 or bad.size:
         shown = f"{bad[0]:g}" if bad.size else "nothing"
+        if bad.size and 0 < bad[0] < MIN_SCREEN_DEPTH_MM:
+            why = f"a screen nearer than {MIN_SCREEN_DEPTH_MM:g} mm would touch the lens (depths are in mm: 500 for 0.5 m)"
+        elif bad.size and bad[0] <= 0:
+            why = "a depth is the screen's distance in front of the lens, in mm (500 for 0.5 m)"
+        else:
+            why = f"a depth beyond {MAX_SCREEN_DEPTH_MM / 1000:g} m blurs as one at infinity"
         raise EdofprojError(
-            f"{option} must be screen depths in (0, {MAX_SCREEN_DEPTH_MM:g}] mm, got {shown}: a depth beyond "
-            f"{MAX_SCREEN_DEPTH_MM / 1000:g} m blurs as one at infinity"
+            f"{option} must be screen depths in [{MIN_SCREEN_DEPTH_MM:g}, {MAX_SCREEN_DEPTH_MM:g}] mm, got {shown}: {why}"
         )
     return values
 
