@@ -197,3 +197,33 @@ def image_counts(counts: np.ndarray) -> np.ndarray:
         return counts.astype(np.float64)
     top = float(np.iinfo(counts.dtype).max) if np.issubdtype(counts.dtype, np.integer) else 1.0
     return np.round(counts.astype(np.float64) * (255.0 / top))
+
+
+def psf_map_blur(path, image_hw: tuple[int, int]) -> tuple[Blur, str]:
+    """The :data:`Blur` of the PSF map file ``path`` (:func:`.measured_blur.measured_blur`: each colour
+    its own map where the file has one, else the white map for all three) for images of ``image_hw``,
+    and a line naming it."""
+    import torch
+
+    from .measured_blur import measured_blur
+    from .psf_map import load_psf_maps
+
+    maps = load_psf_maps(path)
+    first = next(iter(maps.values()))
+    if tuple(first.projector_hw) != tuple(image_hw):
+        raise EdofprojError(
+            f"the PSF map '{path}' is of a {first.projector_hw[1]}x{first.projector_hw[0]} projector, "
+            f"the image {image_hw[1]}x{image_hw[0]}"
+        )
+    op = measured_blur(maps)
+
+    def blur(image: np.ndarray) -> np.ndarray:
+        x = torch.from_numpy(np.ascontiguousarray(np.moveaxis(np.asarray(image, np.float64) / 255.0, -1, 0)))
+        with torch.no_grad():
+            y = op(x[None])[0]
+        return np.moveaxis(y.numpy(), 0, -1) * 255.0
+
+    colours = [c for c in ("red", "green", "blue") if c in maps]
+    names = f"the maps of {', '.join(colours)}" + (" (the others the white map)" if len(colours) < 3 else "")
+    title = f"PSF map '{path}': " + (names if colours else f"its {next(iter(maps))} map for R, G and B")
+    return blur, title

@@ -34,6 +34,7 @@ def register(subparsers) -> None:
     p.add_argument("--compensation", required=True, nargs="+", metavar="COMP", help="compensation images to score")
     p.add_argument("--crop", default=None, metavar="y0,y1,x0,x1", help="rows y0..y1-1, columns x0..x1-1 (0-based)")
     blur = p.add_mutually_exclusive_group(required=True)
+    blur.add_argument("--psf-map", default=None, help="blur with this PSF map ('procams psf-map')")
     blur.add_argument("--dots", default=None, metavar="SEQ", help="blur with their kernels from this dot sequence")
     p.add_argument("--lab", default=None, help="--dots: the lab manifest (lab.json)")
     p.add_argument("--root", default=None, help="--dots: folder of the manifest's files (default: its folder)")
@@ -59,15 +60,23 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ...procams.capture_io import read_rgb_counts
-    from ...procams.protocol_score import Crop, image_counts, score_compensations
+    from ...procams.protocol_score import Crop, image_counts, psf_map_blur, score_compensations
 
-    if args.lab is None or args.map is None:
+    lab_options = ("--lab", args.lab), ("--map", args.map), ("--background", args.background), ("--root", args.root)
+    if args.psf_map is not None:
+        given = [name for name, value in lab_options if value is not None]
+        if given:
+            raise EdofprojError(f"{', '.join(given)} go with --dots (their kernels), not --psf-map")
+    elif args.lab is None or args.map is None:
         raise EdofprojError("--dots needs --lab (the manifest) and --map (the dot capture's decoded map)")
     original = image_counts(read_rgb_counts(args.image, what="--image"))
     compensations = [(Path(c).name, image_counts(read_rgb_counts(c, what="--compensation"))) for c in args.compensation]
     crop = Crop.parse(args.crop) if args.crop else Crop(0, original.shape[0], 0, original.shape[1])
     crop.check(original.shape[:2])
-    tables = _lab_blurs(args, original.shape[:2])
+    if args.psf_map is not None:
+        tables = [psf_map_blur(args.psf_map, original.shape[:2])[::-1]]
+    else:
+        tables = _lab_blurs(args, original.shape[:2])
     H, W = crop.y1 - crop.y0, crop.x1 - crop.x0
     print(f"crop rows {crop.y0}..{crop.y1 - 1}, columns {crop.x0}..{crop.x1 - 1} ({W}x{H} px, 3 colours)")
     width = max(len("normal projection"), *(len(name) for name, _ in compensations))
