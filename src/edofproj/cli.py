@@ -99,7 +99,7 @@ def is_output_option(command: str, dest: str) -> bool:
 
 def command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[str, argparse.ArgumentParser]:
     """The (sub)command ``args`` was parsed for: its name (``"procams psf-map"``) and its innermost parser."""
-    names = []
+    names: list[str] = []
     while True:
         sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
         name = getattr(args, sub.dest, None) if sub is not None else None
@@ -116,7 +116,8 @@ def _refuse_outputs_over_arguments(parser: argparse.ArgumentParser, args: argpar
     from .outputs import refuse_output_in_checkpoints, refuse_outputs_over_arguments
 
     command, leaf = command_parser(parser, args)
-    outputs, arguments = [], []
+    outputs: list[tuple[str, str | os.PathLike]] = []
+    arguments: list[tuple[str, str | os.PathLike]] = []
     for action in leaf._actions:
         if isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)):
             continue
