@@ -411,16 +411,21 @@ class Cases:
         planes = self._gray_planes(256)  # (8, 256)
         unlit, frames = 144, []
         rng = np.random.default_rng(0)
-        for i, p in enumerate(planes):  # 36 % of the camera unlit; exposure and stray light vary on the projection
+        offsets = np.random.default_rng(7).uniform(0.0, 0.25, len(planes))
+        for i, p in enumerate(planes):  # 36 % of the camera unlit; gain and dark level vary on the projection only
             frame = np.full((32, unlit + 256), 0.06)
-            frame[:, unlit:] = (0.8 + 0.3 * i / len(planes)) * (0.06 + 0.6 * p[None, :]) + 0.2 * p.mean()
+            frame[:, unlit:] = 0.06 + offsets[i] + (0.8 + 0.3 * i / len(planes)) * 0.6 * p[None, :]
             frames.append(frame + 0.004 * rng.standard_normal(frame.shape))
         names = self._frames(folder, "gray", frames)
         lab = self._lab_json(folder, [{"name": "gray", "kind": "gray-code", "axis": "x", "files": {"list": names}}],
                              hw=(32, 256))  # fmt: skip
         code, line = cli(["procams", "decode", "--lab", lab, "--x", "gray", "--out", folder / "map.npz"], self.work)
+        columns = ""
+        if (folder / "map.npz").is_file():
+            seen = np.load(folder / "map.npz")["proj_x"][:, :unlit]
+            columns = f" (decoded to columns {np.unique(seen[np.isfinite(seen)])[:3].tolist()})"
         self.row("60.3", "`decode` of a Gray code with 36 % of the camera unlit",
-                 f"exit {code}; unlit part {self._valid_share(folder / 'map.npz', slice(0, unlit))}; {line}")  # fmt: skip
+                 f"exit {code}; unlit part {self._valid_share(folder / 'map.npz', slice(0, unlit))}{columns}; {line}")  # fmt: skip
         for kind in ("gray-code", "phase-shift"):
             noise = self._lab_dir(f"lab3_{kind}")
             count = 8 if kind == "gray-code" else 12
@@ -539,8 +544,143 @@ class Cases:
         self.row("60.12", "a lab manifest with a NaN period", f"exit {code}; {line}")
 
 
+    # -- issue 60 (round four), outside the procams steps: items 1, 2, 5, 7, 8, 11, 12 -------------------
+    def case_r4_1(self) -> None:
+        import json
+
+        folder = self._lab_dir("r4_1")
+        lab = self._ideal_lab(folder)
+        cli(["procams", "decode", "--lab", lab, "--x", "phase_x", "--y", "phase_y", "--out", folder / "map.npz"],
+            self.work)  # fmt: skip
+        yy, xx = np.mgrid[0:48, 0:64]
+        dots = sum(np.exp(-((yy - y) ** 2 + (xx - x) ** 2) / 2.0) for y in range(4, 48, 8) for x in range(4, 64, 8))
+        self._write_grey(folder / "dots.png", 0.1 + 0.8 * dots)
+        data = json.loads(lab.read_text())
+        data["sequences"].append({"name": "dots", "kind": "dots", "spacing_px": [8, 8], "origin_px": [4, 4],
+                                  "files": {"list": ["dots.png"]}})  # fmt: skip
+        lab.write_text(json.dumps(data))
+        before = (folder / "dots.png").read_bytes()
+        code, line = cli(["procams", "psf-map", "--lab", lab, "--dots", "dots", "--map", folder / "map.npz",
+                          "--out", folder / "psf.npz", "--figure", folder / "dots.png"], self.work)  # fmt: skip
+        kept = "capture kept" if (folder / "dots.png").read_bytes() == before else "THE CAPTURE WAS REPLACED"
+        self.row("60.1", "`psf-map --figure` named like the dot capture it reads", f"exit {code}; {kept}; {line}")
+
+    def _run_copy(self, name: str) -> Path:
+        import subprocess as sp
+
+        run = self.work / name
+        shutil.rmtree(run, ignore_errors=True)
+        source = sp.run([sys.executable, "-c", "from edofproj.builtin_runs import builtin_run_dir as b; "
+                         "print(b('cpu-doe-net'))"], capture_output=True, text=True).stdout.strip()  # fmt: skip
+        shutil.copytree(source, run)
+        return run
+
+    def case_r4_2(self) -> None:
+        run = self._run_copy("r4_2_run")
+        last = run / "checkpoints" / "last.pt"
+        before = last.read_bytes()
+        code, line = cli(["export", run, "--format", "torchscript", "--height", 64, "--width", 64, "--out", last],
+                         self.work)  # fmt: skip
+        kept = "checkpoint kept" if last.read_bytes() == before else "THE CHECKPOINT WAS REPLACED"
+        self.row("60.2", "`export RUN --out RUN/checkpoints/last.pt`", f"exit {code}; {kept}; {line}")
+
+    def case_r4_5(self) -> None:
+        folder = self._lab_dir("r4_5")
+        header = "method,depth_mm,image,psnr,ssim,ms_ssim\n"
+        for seed in (0, 1):
+            rows = "".join(f"{m},{z},a.png,30,0.8{seed},0.9\n" for m in ("doe+net", "doe") for z in (300, 500))
+            (folder / f"e{seed}").mkdir()
+            (folder / f"e{seed}" / "metrics.csv").write_text(header + rows + "doe+net,300,a.png,30,0,0.9\n" * seed)
+        proc = start(["summarize", folder / "e0", folder / "e1"], self.work)
+        out, err = proc.communicate()
+        said = last_line(err) or next((r for r in out.splitlines() if r.startswith("| doe+net")), "")
+        self.row("60.5", "`summarize` of a metrics.csv with one (method, depth, image) row twice (SSIM 0)",
+                 f"exit {proc.returncode}; {said}")  # fmt: skip
+
+    def case_r4_7(self) -> None:
+        import signal
+
+        folder = self._lab_dir("r4_7")
+        out = folder / "net.pt"
+        args = ["export", "builtin:cpu-doe-net", "--format", "torchscript", "--height", 64, "--width", 64, "--out", out]
+        proc = start(args, self.work)
+        deadline = time.time() + 300  # the temporary file appears while the export writes
+        while time.time() < deadline and proc.poll() is None and not list(folder.glob(".net.pt.tmp-*")):
+            time.sleep(0.01)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        left = sorted(p.name for p in folder.glob(".net.pt.tmp-*"))
+        code, line = cli(args, self.work)
+        after = sorted(p.name for p in folder.glob(".net.pt.tmp-*"))
+        self.row("60.7", "`kill -9` during `export`, then `export` again into the same folder",
+                 f"temporary files after the kill: {len(left)}; next export exit {code}, temporary files then: "
+                 f"{len(after)}")  # fmt: skip
+
+    def case_r4_8(self) -> None:
+        proc = start(["tune-classic", "--element", "cubic", "--values", "", "--out", self.work / "r4_8"], self.work)
+        try:
+            _, err = proc.communicate(timeout=60)
+            outcome = f"exit {proc.returncode}; {last_line(err)}"
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+            outcome = f"still sweeping after 60 s (killed): {last_line(err)}"
+        self.row("60.8", '`tune-classic --element cubic --values ""`', outcome)
+
+    def case_r4_11(self) -> None:
+        import cv2
+
+        path = self.work / "huge.png"
+        if not path.is_file():
+            cv2.imwrite(str(path), np.zeros((20000, 20000), np.uint8))
+        code, line = cli(["compensate", "builtin:cpu-doe-net", "--image", path, "--depth-mm", 500, "--out",
+                          self.work / "r4_11.png"], self.work)  # fmt: skip
+        self.row("60.11", "20000x20000 PNG into `compensate --image` (4 GiB address-space limit)", f"exit {code}; {line}")
+        small = self.work / "r4_11_1000.png"
+        cv2.imwrite(str(small), np.zeros((1000, 1000, 3), np.uint8))
+        code, line = cli(["compensate", "builtin:cpu-doe-net", "--image", small, "--depth-mm", 500, "--out",
+                          self.work / "r4_11b.png"], self.work, {"EDOFPROJ_MEMORY_BYTES": "150e6"})  # fmt: skip
+        self.row("60.11", "1000x1000 image into `compensate --image` with 150 MB available", f"exit {code}; {line}")
+
+    def case_r4_12(self) -> None:
+        import cv2
+
+        image = self.image()
+        folder = self.work / "r4_12_show"
+        folder.mkdir(exist_ok=True)
+        cv2.imwrite(str(folder / "big.png"), np.zeros((1000, 1000, 3), np.uint8))
+        data = bytearray(cv2.imencode(".png", np.zeros((48, 64, 3), np.uint8))[1].tobytes())
+        data[data.find(b"IDAT") + 10] ^= 0xFF
+        (self.work / "damaged.png").write_bytes(bytes(data))
+        out = self.work / "r4_12.png"
+        for what, args, env in (
+            ("`compensate --method multifocal+net` without its run",
+             ["compensate", "builtin:cpu-doe-net", "--method", "multifocal+net", "--image", image, "--depth-mm", 500,
+              "--out", out], None),
+            ("`compensate --images` of a 1000x1000 image, `--batch 1`, 150 MB available",
+             ["compensate", "builtin:cpu-doe-net", "--images", folder, "--batch", 1, "--depth-mm", 500, "--out",
+              self.work / "r4_12_out"], {"EDOFPROJ_MEMORY_BYTES": "150e6"}),
+            ("`tune-classic --element cubic --values 1e9`",
+             ["tune-classic", "--element", "cubic", "--values", "1e9", "--out", self.work / "r4_12_t"], None),
+            ("`compensate --depth-mm 1e-9`",
+             ["compensate", "builtin:cpu-doe-net", "--image", image, "--depth-mm", "1e-9", "--out", out], None),
+            ("a damaged PNG into `render` (all of stderr)",
+             ["render", "--image", self.work / "damaged.png", "--doe", "lens", "--depth-mm", 500, "--out", out], None),
+            ("`bench --sizes -5x10`", ["bench", "--sizes", "-5x10"], None),
+            ("`evaluate --depths-mm 800:300:100`",
+             ["evaluate", "builtin:cpu-doe-net", "--depths-mm", "800:300:100", "--out", self.work / "r4_12_ev"], None),
+        ):  # fmt: skip
+            proc = start(args, self.work, env)
+            _, err = proc.communicate()
+            lines = [line.strip() for line in err.splitlines() if line.strip() and "%|" not in line]
+            said = " / ".join(lines) if "damaged" in what else last_line(err)
+            self.row("60.12", what, f"exit {proc.returncode}; {said[:300]}")
+
+
 LAB_PATH_CASES = ["lab3", "lab4", "lab6", "lab8", "lab9", "lab10", "lab12"]
 """Issue 60's cases on the procams lab path (``--only lab3,...``)."""
+ROUND_FOUR_CASES = ["r4_1", "r4_2", "r4_5", "r4_7", "r4_8", "r4_11", "r4_12"]
+"""Issue 60's cases outside the procams steps (``--only r4_1,...``)."""
 
 
 def main() -> None:
@@ -551,7 +691,7 @@ def main() -> None:
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="edofproj-faults-"))
     work.mkdir(parents=True, exist_ok=True)
     cases = Cases(work)
-    chosen = [c for c in args.only.split(",") if c] or [str(i) for i in range(1, 13)] + LAB_PATH_CASES
+    chosen = [c for c in args.only.split(",") if c] or [str(i) for i in range(1, 13)] + LAB_PATH_CASES + ROUND_FOUR_CASES
     print("| case | what | outcome |\n| --- | --- | --- |")
     clock = time.perf_counter()
     for number in chosen:

@@ -47,12 +47,14 @@ UNLIT = 144  # camera columns left of the projection
 def camera_view(images: np.ndarray, rng) -> np.ndarray:
     """``(n, 32, UNLIT + 256)`` captures: the projector images seen one to one right of ``UNLIT``
     columns the projector does not reach (a constant dark level and camera noise); on the
-    projection each frame has its own gain and a stray light that grows with the lit area (up to
-    0.2), which the unlit columns do not see."""
+    projection each frame has its own gain and its own dark level (an exposure that changes, stray
+    light from the projector: 0 to 0.25 above the unlit part's, as on a real rig), which the unlit
+    columns do not see."""
+    offsets = np.random.default_rng(7).uniform(0.0, 0.25, len(images))
     out = np.empty((len(images), PROJ_HW[0], UNLIT + PROJ_HW[1]))
     for i, image in enumerate(images):
         out[i, :, :UNLIT] = 0.06
-        out[i, :, UNLIT:] = (0.8 + 0.3 * i / len(images)) * (0.06 + 0.6 * image) + 0.2 * image.mean()
+        out[i, :, UNLIT:] = 0.06 + offsets[i] + (0.8 + 0.3 * i / len(images)) * 0.6 * image
         out[i] += 0.004 * rng.standard_normal(out[i].shape)
     return out
 
