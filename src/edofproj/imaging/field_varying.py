@@ -99,27 +99,34 @@ def project_field_varying(
 
 
 def low_rank_kernels(kernels: torch.Tensor, tolerance: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
-    """``kernels (N, K, K) ~= sum_m coefficients[:, m] basis[m]``: the truncated singular value
-    decomposition of the ``N x K^2`` matrix ``X`` of the kernels, keeping the fewest ``M`` components whose
+    """``kernels (N, Kh, Kw) ~= sum_m coefficients[:, m] basis[m]``: the truncated singular value
+    decomposition of the ``N x Kh Kw`` matrix ``X`` of the kernels, keeping the fewest ``M`` components whose
     dropped singular values ``sigma_m`` satisfy ``sqrt(sum_dropped sigma_m^2) <= tolerance * ||X||_F``
     (``tolerance = 0``: all above ``1e-12 sigma_0``, exact to rounding). Returns ``basis (M, K, K)`` (orthonormal)
     and ``coefficients (N, M)`` float64. With more kernels than taps (``N > K^2``) the right singular
     vectors are the eigenvectors of ``X^T X`` (a ``K^2 x K^2`` problem, whatever ``N``)."""
-    n, k = kernels.shape[0], kernels.shape[-1]
-    matrix = kernels.reshape(n, k * k).to(torch.float64)
-    if n <= k * k:
+    n, (kh, kw) = kernels.shape[0], kernels.shape[-2:]
+    taps = kh * kw
+    matrix = kernels.reshape(n, taps).to(torch.float64)
+    if n * taps <= 4_000_000:
         _, sigma, vh = torch.linalg.svd(matrix, full_matrices=False)
         energy, vectors = sigma**2, vh.T
-    else:
+    elif n > taps:  # the right singular vectors: eigenvectors of X^T X
         energy, vectors = torch.linalg.eigh(matrix.T @ matrix)
         energy, vectors = torch.flip(energy, (0,)).clamp_min(0.0), torch.flip(vectors, (1,))
+    else:  # the left ones, eigenvectors of X X^T; v_m = X^T u_m / sigma_m
+        energy, left = torch.linalg.eigh(matrix @ matrix.T)
+        energy, left = torch.flip(energy, (0,)).clamp_min(0.0), torch.flip(left, (1,))
+        keep = energy > 1e-14 * energy[0]  # the Gram matrix's rounding: smaller ones are noise
+        energy, left = energy[keep], left[:, keep]
+        vectors = (matrix.T @ left) / torch.sqrt(energy)
     rank = max(int((energy > 1e-24 * energy[0]).sum()), 1)  # the numerical rank (singular values > 1e-12 sigma_0)
     if float(tolerance) > 0:
         dropped = torch.flip(torch.cumsum(torch.flip(energy, (0,)), 0), (0,))  # dropped[m]: energy beyond m terms
         bound = float(tolerance) ** 2 * float(energy.sum())
         rank = next((m for m in range(1, len(energy)) if float(dropped[m]) <= bound), len(energy))
     basis = vectors[:, :rank]
-    return basis.T.reshape(rank, k, k), matrix @ basis
+    return basis.T.reshape(rank, kh, kw), matrix @ basis
 
 
 class FieldVaryingBlur:
@@ -176,6 +183,8 @@ class FieldVaryingBlur:
             raise EdofprojError(f"rank tolerance {rank_tolerance} must be in [0, 1)")
         self.height, self.width = int(image_hw[0]), int(image_hw[1])
         self.kernels = kernels
+        self.centres_y_px = np.asarray(centres_y_px, dtype=np.float64)
+        self.centres_x_px = np.asarray(centres_x_px, dtype=np.float64)
         wy = torch.as_tensor(hat_weights(centres_y_px, self.height))  # (Gy, H)
         wx = torch.as_tensor(hat_weights(centres_x_px, self.width))  # (Gx, W)
         bases, maps = [], []
