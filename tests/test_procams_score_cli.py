@@ -61,7 +61,7 @@ def test_delta_kernels_score_the_closed_form(rig, capsys):
     crop = (5, 36, 3, 48)  # inside the complete cells: rows < 36, columns < 48
     argv = ["procams", "score", *lab_args(root), "--background", "background"]
     argv += ["--image", str(root / "original.png"), "--compensation", str(root / "comp.png")]
-    argv += ["--crop", ",".join(map(str, crop))]
+    argv += ["--crop", ",".join(map(str, crop)), "--optimum", "3"]
     assert main(argv) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == "crop rows 5..35, columns 3..47 (45x31 px, 3 colours)"
@@ -75,6 +75,12 @@ def test_delta_kernels_score_the_closed_form(rig, capsys):
         assert comp[0] == "comp.png"
         assert float(comp[-2]) == pytest.approx(10 * math.log10(peak**2 / mse), abs=0.006)
         assert float(comp[-1]) == pytest.approx(math.sqrt(mse), abs=6e-4)
+        # under the identity, the least-squares optimum is the original itself
+        assert "least-squares optimum (3 it." in lines[t + 4] and lines[t + 4].split()[-3:] == [
+            "1.0000",
+            "inf",
+            "0.000",
+        ]
 
 
 def constant_map(sigma_x: float, sigma_y: float, channel: str) -> PSFMap:
@@ -138,6 +144,7 @@ def test_one_line_errors(rig, capsys):
     base = ["procams", "score", *images]
     assert "go with --dots" in run_error(capsys, [*base, "--psf-map", "x.npz", "--lab", str(root / "lab.json")])
     assert "needs --lab" in run_error(capsys, [*base, "--dots", "dots"])
+    assert "--optimum 0 must be" in run_error(capsys, [*base, *lab_args(root), "--optimum", "0"])
     assert "four integers" in run_error(capsys, [*base, *lab_args(root), "--crop", "1,2"])
     assert "not inside" in run_error(capsys, [*base, *lab_args(root), "--crop", "0,49,0,10"])
     assert "no sequence 'dotz'" in run_error(capsys, [*base, *lab_args(root)[:3], "dotz", *lab_args(root)[4:]])

@@ -165,6 +165,12 @@ class LabKernelField:
             out += self._orbit_sum(np.pad(self.orbit_values[k] * image, self.half_px), k, term)
         return out
 
+    def norm_bound(self) -> float:
+        """An upper bound of ``||A||_2``: ``sqrt(||A||_1 ||A||_inf)``, the largest column sum (``A^T 1``)
+        times the largest row sum (``A 1``; 1 for normalized kernels) of the non-negative ``A``."""
+        ones = np.ones(self.shape)
+        return float(np.sqrt(self.adjoint(ones).max() * self.apply(ones).max()))
+
 
 def kernel_field(dot_image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HALF_PX) -> LabKernelField:
     """Their kernel at every pixel (steps 2-3 of the module docstring) from the dot capture in projector

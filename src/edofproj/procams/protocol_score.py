@@ -178,17 +178,6 @@ def _row(name: str, blurred: np.ndarray, reference: np.ndarray, peak: float) -> 
     return ProtocolScore(name, matlab_ssim(blurred, reference)[0], psnr, math.sqrt(mse))
 
 
-def per_channel_blur(operators: Sequence[Callable[[np.ndarray], np.ndarray]]) -> Blur:
-    """A :data:`Blur` applying ``operators[c]`` ``(H, W) -> (H, W)`` to channel ``c`` (three of them)."""
-    if len(operators) != 3:
-        raise EdofprojError(f"an RGB blur needs three channel operators, got {len(operators)}")
-
-    def blur(image: np.ndarray) -> np.ndarray:
-        return np.stack([op(image[..., c]) for c, op in enumerate(operators)], axis=-1)
-
-    return blur
-
-
 def image_counts(counts: np.ndarray) -> np.ndarray:
     """An image file's integer counts ``(H, W, 3)`` (8- or 16-bit) as the 8-bit levels ``0..255`` that an
     8-bit projector shows (float64; a 16-bit file rounded to the nearest 8-bit level)."""
@@ -199,12 +188,78 @@ def image_counts(counts: np.ndarray) -> np.ndarray:
     return np.round(counts.astype(np.float64) * (255.0 / top))
 
 
-def psf_map_blur(path, image_hw: tuple[int, int]) -> tuple[Blur, str]:
-    """The :data:`Blur` of the PSF map file ``path`` (:func:`.measured_blur.measured_blur`: each colour
-    its own map where the file has one, else the white map for all three) for images of ``image_hw``,
-    and a line naming it."""
+@dataclass
+class ProtocolBlur:
+    """A measured blur as the protocol uses it: ``forward`` (``A``) and ``adjoint`` (``A^T``) on torch
+    ``(1, 3, H, W)`` float64 images in ``[0, 1]``, ``norm_bound >= ||A||_2`` per channel, and a line
+    naming it; :meth:`blur` is the :data:`Blur` on ``0..255`` arrays."""
+
+    title: str
+    forward: Callable
+    adjoint: Callable
+    norm_bound: np.ndarray
+
+    def blur(self, image: np.ndarray) -> np.ndarray:
+        import torch
+
+        x = torch.from_numpy(np.ascontiguousarray(np.moveaxis(np.asarray(image, np.float64) / 255.0, -1, 0)))
+        with torch.no_grad():
+            y = self.forward(x[None])[0]
+        return np.moveaxis(y.numpy(), 0, -1) * 255.0
+
+
+def least_squares_optimum(
+    original: np.ndarray, blur: ProtocolBlur, crop: Crop | None = None, iterations: int = 200
+) -> np.ndarray:
+    """The compensation that minimizes the protocol's squared error: ``x`` in ``[0, 1]`` minimizing
+    ``1/2 || M (A x - t) ||^2``, ``t`` the original ``(H, W, 3)`` in ``0..255`` divided by 255, ``M``
+    the crop, ``A`` the blur; by :func:`edofproj.compensation.constrained.box_least_squares` (monotone
+    FISTA, step ``1 / norm_bound^2``), ``iterations`` steps from ``t`` (``1/2`` outside the crop).
+    Returns ``255 x`` ``(H, W, 3)`` (not rounded)."""
     import torch
 
+    from ..compensation.constrained import box_least_squares
+
+    original = np.asarray(original, dtype=np.float64)
+    H, W = original.shape[:2]
+    crop = (crop or Crop(0, H, 0, W)).check((H, W))
+    mask = torch.zeros(1, 1, H, W, dtype=torch.float64)
+    mask[..., crop.y0 : crop.y1, crop.x0 : crop.x1] = 1.0
+    target = torch.from_numpy(np.ascontiguousarray(np.moveaxis(original / 255.0, -1, 0)))[None] * mask
+    bound = torch.as_tensor(np.asarray(blur.norm_bound, dtype=np.float64)).reshape(1, -1, 1, 1)
+    x = box_least_squares(
+        target,
+        lambda v: blur.forward(v) * mask,
+        lambda r: blur.adjoint(r * mask),
+        1.0 / bound.square(),
+        iterations=iterations,
+        start=target + (1 - mask) * 0.5,
+    )
+    return np.moveaxis(x[0].numpy(), 0, -1) * 255.0
+
+
+def lab_protocol_blur(fields: Sequence, title: str) -> ProtocolBlur:
+    """The :class:`ProtocolBlur` of three :class:`.lab_kernels.LabKernelField` (channel ``c`` blurred by
+    ``fields[c]``; the same field three times for their script's red kernels)."""
+    import torch
+
+    def each(method: str) -> Callable:
+        def apply(v):
+            planes = [getattr(f, method)(v[0, c].numpy()) for c, f in enumerate(fields)]
+            return torch.from_numpy(np.stack(planes))[None]
+
+        return apply
+
+    if len(fields) != 3:
+        raise EdofprojError(f"an RGB blur needs three kernel fields, got {len(fields)}")
+    bounds = {id(f): f.norm_bound() for f in fields}
+    return ProtocolBlur(title, each("apply"), each("adjoint"), np.array([bounds[id(f)] for f in fields]))
+
+
+def psf_map_protocol_blur(path, image_hw: tuple[int, int]) -> ProtocolBlur:
+    """The :class:`ProtocolBlur` of the PSF map file ``path`` (:func:`.measured_blur.measured_blur`:
+    each colour its own map where the file has one, else the white map for all three) for images of
+    ``image_hw``."""
     from .measured_blur import measured_blur
     from .psf_map import load_psf_maps
 
@@ -216,14 +271,8 @@ def psf_map_blur(path, image_hw: tuple[int, int]) -> tuple[Blur, str]:
             f"the image {image_hw[1]}x{image_hw[0]}"
         )
     op = measured_blur(maps)
-
-    def blur(image: np.ndarray) -> np.ndarray:
-        x = torch.from_numpy(np.ascontiguousarray(np.moveaxis(np.asarray(image, np.float64) / 255.0, -1, 0)))
-        with torch.no_grad():
-            y = op(x[None])[0]
-        return np.moveaxis(y.numpy(), 0, -1) * 255.0
-
     colours = [c for c in ("red", "green", "blue") if c in maps]
     names = f"the maps of {', '.join(colours)}" + (" (the others the white map)" if len(colours) < 3 else "")
     title = f"PSF map '{path}': " + (names if colours else f"its {next(iter(maps))} map for R, G and B")
-    return blur, title
+    bound = np.broadcast_to(np.asarray(op.norm_bound(), dtype=np.float64).reshape(-1), (3,)).copy()
+    return ProtocolBlur(title, op.forward, op.adjoint, bound)

@@ -18,7 +18,10 @@ applies them (the red channel's kernels for all three colours) or each colour it
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
+
+import numpy as np
 
 from ...errors import EdofprojError
 
@@ -55,12 +58,26 @@ def register(subparsers) -> None:
         choices=KERNEL_MODES,
         help="--dots: their script's (red kernels for R, G, B), per channel, or both tables (both)",
     )
+    p.add_argument(
+        "--optimum",
+        type=int,
+        default=None,
+        metavar="N",
+        help="also score the least-squares optimum under the same blur (N iterations of box-constrained FISTA)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ...procams.capture_io import read_rgb_counts
-    from ...procams.protocol_score import Crop, image_counts, psf_map_blur, score_compensations
+    from ...procams.protocol_score import (
+        Crop,
+        image_counts,
+        least_squares_optimum,
+        psf_map_protocol_blur,
+        score_compensations,
+        to_uint8,
+    )
 
     lab_options = ("--lab", args.lab), ("--map", args.map), ("--background", args.background), ("--root", args.root)
     if args.psf_map is not None:
@@ -73,16 +90,25 @@ def run(args) -> int:
     compensations = [(Path(c).name, image_counts(read_rgb_counts(c, what="--compensation"))) for c in args.compensation]
     crop = Crop.parse(args.crop) if args.crop else Crop(0, original.shape[0], 0, original.shape[1])
     crop.check(original.shape[:2])
+    if args.optimum is not None and args.optimum < 1:
+        raise EdofprojError(f"--optimum {args.optimum} must be >= 1 (iterations)")
     if args.psf_map is not None:
-        tables = [psf_map_blur(args.psf_map, original.shape[:2])[::-1]]
+        tables = [psf_map_protocol_blur(args.psf_map, original.shape[:2])]
     else:
         tables = _lab_blurs(args, original.shape[:2])
     H, W = crop.y1 - crop.y0, crop.x1 - crop.x0
     print(f"crop rows {crop.y0}..{crop.y1 - 1}, columns {crop.x0}..{crop.x1 - 1} ({W}x{H} px, 3 colours)")
     width = max(len("normal projection"), *(len(name) for name, _ in compensations))
-    for title, blur in tables:
-        rows = score_compensations(original, compensations, blur, crop)
-        print(f"blur: {title}")
+    for blur in tables:
+        scored = list(compensations)
+        if args.optimum is not None:
+            start = time.perf_counter()
+            optimum = least_squares_optimum(original, blur, crop, args.optimum)
+            seconds = time.perf_counter() - start
+            scored.append((f"least-squares optimum ({args.optimum} it., {seconds:.0f} s)", to_uint8(optimum)))
+        width = max(width, *(len(name) for name, _ in scored))
+        rows = score_compensations(original, scored, blur.blur, crop)
+        print(f"blur: {blur.title}")
         print(f"  {'':<{width}}  {'SSIM':>7}  {'PSNR (dB)':>9}  {'RMSE':>7}")
         for row in rows:
             print(f"  {row.name:<{width}}  {row.ssim:7.4f}  {row.psnr_db:9.2f}  {row.rmse:7.3f}")
@@ -90,12 +116,10 @@ def run(args) -> int:
 
 
 def _lab_blurs(args, hw):
-    import numpy as np
-
     from ...procams.capture_io import read_rgb_counts
     from ...procams.lab_kernels import capture_to_projector, kernel_field
     from ...procams.lab_manifest import LabManifest
-    from ...procams.protocol_score import per_channel_blur
+    from ...procams.protocol_score import lab_protocol_blur
     from ...procams.psf_map import DotGrid
     from ...procams.structured_light import CorrespondenceMap
 
@@ -121,7 +145,8 @@ def _lab_blurs(args, hw):
         background = read_rgb_counts(lab.root / back.files[0], what="background capture")
         if background.shape != capture.shape:
             raise EdofprojError(
-                f"the background capture is {background.shape[1]}x{background.shape[0]}, the dots' {capture.shape[1]}x{capture.shape[0]}"
+                f"the background capture is {background.shape[1]}x{background.shape[0]}, "
+                f"the dots' {capture.shape[1]}x{capture.shape[0]}"
             )
     if capture.dtype != np.uint8:
         raise EdofprojError("their kernels are defined on 8-bit captures; the dot capture is not 8-bit")
@@ -130,13 +155,9 @@ def _lab_blurs(args, hw):
     red = kernel_field(dots[..., 0], grid)
     tables = []
     if args.kernels in ("script", "both"):
-        tables.append(
-            (
-                "their kernels as their script applies them (the red channel's for R, G and B)",
-                per_channel_blur([red.apply] * 3),
-            )
-        )
+        title = "their kernels as their script applies them (the red channel's for R, G and B)"
+        tables.append(lab_protocol_blur([red] * 3, title))
     if args.kernels in ("per-channel", "both"):
         fields = [red] + [kernel_field(dots[..., c], grid) for c in (1, 2)]
-        tables.append(("their kernels, each colour its own", per_channel_blur([f.apply for f in fields])))
+        tables.append(lab_protocol_blur(fields, "their kernels, each colour its own"))
     return tables
