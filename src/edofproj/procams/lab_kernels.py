@@ -138,32 +138,54 @@ class LabKernelField:
             )
         return image
 
-    def _orbit_sum(self, padded: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
-        """``S_k x`` into ``out``: ``x`` (zero-padded by ``h``) shifted by each offset of orbit ``k``, summed."""
-        H, W = self.shape
+    def _pairs(self) -> list[tuple[int, int, int]]:
+        """``(i, j, k)`` for every ordered pair ``0 <= i, j <= h``: orbit ``k`` holds the offsets ``(+-i, +-j)``."""
         h = self.half_px
-        out[...] = 0.0
-        for dy, dx in orbits(h)[k]:
-            out += padded[h + dy : h + dy + H, h + dx : h + dx + W]
+        index = {pair: k for k, pair in enumerate((a, b) for a in range(h + 1) for b in range(a + 1))}
+        return [(i, j, index[max(i, j), min(i, j)]) for i in range(h + 1) for j in range(h + 1)]
+
+    def _along(self, padded: np.ndarray, i: int, axis: int) -> np.ndarray:
+        """``x(. + i) + x(. - i)`` along ``axis`` (``x`` itself for ``i = 0``) of an array zero-padded by
+        ``h`` along it, cut to the image's length there."""
+        h, n = self.half_px, self.shape[axis]
+        take = [slice(None), slice(None)]
+        take[axis] = slice(h + i, h + i + n)
+        out = padded[tuple(take)].copy()
+        if i:
+            take[axis] = slice(h - i, h - i + n)
+            out += padded[tuple(take)]
         return out
 
     def apply(self, image: np.ndarray) -> np.ndarray:
-        """``A x`` of a ``(H, W)`` image: each pixel its own kernel times its neighbourhood."""
-        padded = np.pad(self._check(image), self.half_px)
-        out, term = np.zeros(self.shape), np.empty(self.shape)
-        for k in range(len(self.orbit_values)):
-            self._orbit_sum(padded, k, term)
+        """``A x`` of a ``(H, W)`` image: each pixel its own kernel times its neighbourhood. An orbit's
+        offsets are ``(+-i, +-j)`` and ``(+-j, +-i)``, so ``S_k = C_j R_i + C_i R_j`` (``R_i``, ``C_j`` the
+        symmetric shifts along columns and rows; one term when ``i = j``), and the ``R_i x`` are shared.
+        Computed in the dtype of the orbit values."""
+        dtype = self.orbit_values.dtype
+        padded = np.pad(self._check(image).astype(dtype, copy=False), self.half_px)
+        rows = [self._along(padded, i, 0) for i in range(self.half_px + 1)]  # (H, W + 2h) each
+        out = np.zeros(self.shape, dtype)
+        for i, j, k in self._pairs():
+            term = self._along(rows[i], j, 1)
             term *= self.orbit_values[k]
             out += term
         return out
 
     def adjoint(self, image: np.ndarray) -> np.ndarray:
-        """``A^T y`` of a ``(H, W)`` image (``<A x, y> = <x, A^T y>``)."""
-        image = self._check(image)
-        out, term = np.zeros(self.shape), np.empty(self.shape)
-        for k in range(len(self.orbit_values)):
-            out += self._orbit_sum(np.pad(self.orbit_values[k] * image, self.half_px), k, term)
+        """``A^T y = sum_k S_k (w_k y)`` of a ``(H, W)`` image (``<A x, y> = <x, A^T y>``)."""
+        dtype = self.orbit_values.dtype
+        image = self._check(image).astype(dtype, copy=False)
+        out = np.zeros(self.shape, dtype)
+        weighted: dict[int, np.ndarray] = {}
+        for i, j, k in sorted(self._pairs(), key=lambda pair: pair[2]):
+            if k not in weighted:
+                weighted = {k: np.pad(self.orbit_values[k] * image, self.half_px)}
+            out += self._along(self._along(weighted[k], i, 0), j, 1)
         return out
+
+    def astype(self, dtype) -> "LabKernelField":
+        """The same kernels in another floating dtype (``float32``: half the memory and time)."""
+        return LabKernelField(self.orbit_values.astype(dtype), self.half_px)
 
     def norm_bound(self) -> float:
         """An upper bound of ``||A||_2``: ``sqrt(||A||_1 ||A||_inf)``, the largest column sum (``A^T 1``)

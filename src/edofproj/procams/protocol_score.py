@@ -192,12 +192,15 @@ def image_counts(counts: np.ndarray) -> np.ndarray:
 class ProtocolBlur:
     """A measured blur as the protocol uses it: ``forward`` (``A``) and ``adjoint`` (``A^T``) on torch
     ``(1, 3, H, W)`` float64 images in ``[0, 1]``, ``norm_bound >= ||A||_2`` per channel, and a line
-    naming it; :meth:`blur` is the :data:`Blur` on ``0..255`` arrays."""
+    naming it; :meth:`blur` is the :data:`Blur` on ``0..255`` arrays. ``solve_forward`` and
+    ``solve_adjoint`` (default: the same): a faster, less exact form for the optimum's iterations."""
 
     title: str
     forward: Callable
     adjoint: Callable
     norm_bound: np.ndarray
+    solve_forward: Callable | None = None
+    solve_adjoint: Callable | None = None
 
     def blur(self, image: np.ndarray) -> np.ndarray:
         import torch
@@ -210,12 +213,13 @@ class ProtocolBlur:
 
 def least_squares_optimum(
     original: np.ndarray, blur: ProtocolBlur, crop: Crop | None = None, iterations: int = 200
-) -> np.ndarray:
+) -> tuple[np.ndarray, float]:
     """The compensation that minimizes the protocol's squared error: ``x`` in ``[0, 1]`` minimizing
     ``1/2 || M (A x - t) ||^2``, ``t`` the original ``(H, W, 3)`` in ``0..255`` divided by 255, ``M``
     the crop, ``A`` the blur; by :func:`edofproj.compensation.constrained.box_least_squares` (monotone
     FISTA, step ``1 / norm_bound^2``), ``iterations`` steps from ``t`` (``1/2`` outside the crop).
-    Returns ``255 x`` ``(H, W, 3)`` (not rounded)."""
+    Returns ``255 x`` ``(H, W, 3)`` (not rounded) and the share of the objective's decrease that the
+    last tenth of the iterations made (small: converged)."""
     import torch
 
     from ..compensation.constrained import box_least_squares
@@ -227,33 +231,49 @@ def least_squares_optimum(
     mask[..., crop.y0 : crop.y1, crop.x0 : crop.x1] = 1.0
     target = torch.from_numpy(np.ascontiguousarray(np.moveaxis(original / 255.0, -1, 0)))[None] * mask
     bound = torch.as_tensor(np.asarray(blur.norm_bound, dtype=np.float64)).reshape(1, -1, 1, 1)
-    x = box_least_squares(
+    forward = blur.solve_forward or blur.forward
+    adjoint = blur.solve_adjoint or blur.adjoint
+    x, objective = box_least_squares(
         target,
-        lambda v: blur.forward(v) * mask,
-        lambda r: blur.adjoint(r * mask),
+        lambda v: forward(v) * mask,
+        lambda r: adjoint(r * mask),
         1.0 / bound.square(),
         iterations=iterations,
         start=target + (1 - mask) * 0.5,
+        return_objective=True,
     )
-    return np.moveaxis(x[0].numpy(), 0, -1) * 255.0
+    f = objective.reshape(len(objective), -1).sum(dim=1).numpy()
+    tail = f[-1 - max(iterations // 10, 1)] - f[-1] if iterations >= 1 else 0.0
+    share = float(tail / (f[0] - f[-1])) if f[0] > f[-1] else 0.0
+    return np.moveaxis(x[0].numpy(), 0, -1) * 255.0, share
 
 
 def lab_protocol_blur(fields: Sequence, title: str) -> ProtocolBlur:
     """The :class:`ProtocolBlur` of three :class:`.lab_kernels.LabKernelField` (channel ``c`` blurred by
-    ``fields[c]``; the same field three times for their script's red kernels)."""
+    ``fields[c]``; the same field three times for their script's red kernels); the optimum iterates
+    with float32 copies of the kernels."""
     import torch
 
-    def each(method: str) -> Callable:
+    def each(planes_fields: Sequence, method: str) -> Callable:
         def apply(v):
-            planes = [getattr(f, method)(v[0, c].numpy()) for c, f in enumerate(fields)]
-            return torch.from_numpy(np.stack(planes))[None]
+            planes = [getattr(f, method)(v[0, c].numpy()) for c, f in enumerate(planes_fields)]
+            return torch.from_numpy(np.stack(planes).astype(np.float64))[None]
 
         return apply
 
     if len(fields) != 3:
         raise EdofprojError(f"an RGB blur needs three kernel fields, got {len(fields)}")
     bounds = {id(f): f.norm_bound() for f in fields}
-    return ProtocolBlur(title, each("apply"), each("adjoint"), np.array([bounds[id(f)] for f in fields]))
+    fast = {id(f): f.astype(np.float32) for f in fields}
+    solve = [fast[id(f)] for f in fields]
+    return ProtocolBlur(
+        title,
+        each(fields, "apply"),
+        each(fields, "adjoint"),
+        np.array([bounds[id(f)] for f in fields]) * (1 + 1e-6),
+        each(solve, "apply"),
+        each(solve, "adjoint"),
+    )
 
 
 def psf_map_protocol_blur(path, image_hw: tuple[int, int]) -> ProtocolBlur:

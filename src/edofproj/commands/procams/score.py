@@ -103,9 +103,10 @@ def run(args) -> int:
         scored = list(compensations)
         if args.optimum is not None:
             start = time.perf_counter()
-            optimum = least_squares_optimum(original, blur, crop, args.optimum)
+            optimum, tail = least_squares_optimum(original, blur, crop, args.optimum)
             seconds = time.perf_counter() - start
-            scored.append((f"least-squares optimum ({args.optimum} it., {seconds:.0f} s)", to_uint8(optimum)))
+            name = f"least-squares optimum ({args.optimum} it., {seconds:.0f} s, last tenth {100 * tail:.2f} %)"
+            scored.append((name, to_uint8(optimum)))
         width = max(width, *(len(name) for name, _ in scored))
         rows = score_compensations(original, scored, blur.blur, crop)
         print(f"blur: {blur.title}")
