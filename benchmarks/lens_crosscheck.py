@@ -70,15 +70,17 @@ def optiland_pixel_psf(optic, field, wavelength_nm: float, rays: int, grid: int,
     return out
 
 
-def crosscheck(optic, fields, wavelengths_nm, samples: int = 128, cells: int = 8, window: int = 15, rays: int = 128):
+def crosscheck(optic, fields, wavelengths_nm, samples: int = 128, cells: int = 8, window: int = 31, rays: int = 128):
     """Rows ``(field, wavelength_nm, l1, strehl_engine_peak, ...)`` comparing the engine with Optiland.
 
     The projector geometry is chosen so that one pixel spans ``cells`` of Optiland's samples at
     every wavelength: Optiland's grid ``G = k lambda cells`` (``k`` per micrometre; an integer)
     spaces its samples ``lambda (rays - 1) / (G D) = (rays - 1) / (k D cells)`` radians, so the
-    pixel angle ``1 / (T W) = (rays - 1) / (k D)``."""
+    pixel angle is ``1 / (T W) = (rays - 1) / (k D)``. ``k = 400 (rays - 1) / 127`` keeps the
+    pixel at ``127 / (400 D)`` radians (0.032 mrad, 0.5 lambda/D at 550 nm for D = 10 mm) whatever
+    ``rays``: ``rays`` = 128, 255, 509 give ``k`` = 400, 800, 1600."""
     epd_m = entrance_pupil_diameter_mm(optic) * 1e-3
-    k = 400.0  # G / cells = k lambda[um] = 192, 220, 260 at 480, 550, 650 nm
+    k = 400.0 * (rays - 1) / 127  # G / cells = k lambda[um] = 192, 220, 260 at 480, 550, 650 nm for rays = 128
     throw_width = k * 1e6 * epd_m / (rays - 1)  # T W = 1 / pixel angle (rad^-1)
     geometry = ProjectorGeometry(
         aperture_diameter_m=epd_m, focus_distance_m=1.0, throw_ratio=throw_width / 1000.0, width_px=1000, height_px=1000
@@ -92,7 +94,7 @@ def crosscheck(optic, fields, wavelengths_nm, samples: int = 128, cells: int = 8
         for li, lam in enumerate(wavelengths_nm):
             grid = k * lam / 1000.0 * cells
             if abs(grid - round(grid)) > 1e-6:
-                raise ValueError(f"{lam} nm: Optiland's grid {grid} is not an integer; choose other wavelengths")
+                raise ValueError(f"{lam} nm: Optiland's grid {grid} is not an integer: choose rays = 127 j + 1")
             ref = optiland_pixel_psf(optic, field, lam, rays, int(round(grid)), cells, window)
             l1 = float(np.abs(ours[li] - ref).sum() / ref.sum())
             rows.append(
@@ -115,8 +117,8 @@ def main() -> None:
     ap.add_argument("--lens", default="cooke")
     ap.add_argument("--cells", type=int, default=8, help="Optiland samples per projector pixel")
     ap.add_argument("--samples", type=int, default=128, help="the engine's pupil samples M")
-    ap.add_argument("--rays", type=int, default=128, help="Optiland's pupil samples n")
-    ap.add_argument("--window", type=int, default=15)
+    ap.add_argument("--rays", type=int, default=128, help="Optiland's pupil samples n (127 j + 1)")
+    ap.add_argument("--window", type=int, default=31)
     args = ap.parse_args()
     t0 = time.perf_counter()
     optic = sample_lens(args.lens)
