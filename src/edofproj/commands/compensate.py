@@ -55,6 +55,7 @@ from pathlib import Path
 
 from ..errors import EdofprojError
 from ._common import RUN_HELP_SUFFIX, add_method_options, refuse_output_over, run_directory
+from ._compensate_psf_map import MAP_METHODS, add_psf_map_options, refuse_map_options, run_psf_map
 
 
 def register(subparsers) -> None:
@@ -63,8 +64,16 @@ def register(subparsers) -> None:
         help="compute the projector image for a target with a run's compensation method",
         description=__doc__.split("\n")[0],
     )
-    p.add_argument("run", metavar="RUN", type=run_directory, help="trained run directory" + RUN_HELP_SUFFIX)
+    p.add_argument(
+        "run",
+        metavar="RUN",
+        type=run_directory,
+        nargs="?",
+        default=None,
+        help="trained run directory" + RUN_HELP_SUFFIX + " (none with --psf-map, except for --method net)",
+    )
     add_method_options(p)
+    add_psf_map_options(p)
     targets = p.add_mutually_exclusive_group(required=True)
     targets.add_argument("--image", default=None, metavar="TARGET", help="the desired image (PNG/JPEG/TIFF)")
     targets.add_argument("--images", default=None, metavar="DIR", help="a folder of target images (with --depth-mm)")
@@ -125,6 +134,11 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    if args.psf_map is not None or args.method in MAP_METHODS:
+        return run_psf_map(args)  # the blur a PSF map measured (_compensate_psf_map.py)
+    if args.run is None:
+        raise EdofprojError("give RUN (a trained run directory), or --psf-map PSF_MAP for a measured blur")
+    refuse_map_options(args)
     refuse_outputs_over_inputs(args)
     if args.capture is None and args.depth_mm is None and args.depth_map is None:
         if args.surface_from_calib and args.image is not None:

@@ -1,4 +1,4 @@
-"""``edofproj finetune``: fine-tune a run's compensation network on measured PSFs (DOE fixed)."""
+"""``edofproj finetune``: fine-tune a run's compensation network on measured PSFs (DOE fixed), or on a PSF map."""
 
 from __future__ import annotations
 
@@ -25,6 +25,13 @@ def register(subparsers) -> None:
         help="per-patch PSF files ('estimate-psf --patch-psfs'), one per depth, instead of --psfs: "
         "each training sample draws a patch (field point)",
     )
+    p.add_argument(
+        "--psf-map",
+        default=None,
+        metavar="PSF_MAP",
+        help="a PSF map ('edofproj procams psf-map') instead of --psfs: each training sample draws one of the map's "
+        "node kernels (each colour its own where the map has one); then 'compensate --psf-map MAP --method net --run OUT'",
+    )
     p.add_argument("--steps", type=int, default=20, help="fine-tuning iterations (paper: 20)")
     p.add_argument(
         "--out", default=None, help="new run directory (default: RUN-finetuned; runs/NAME-finetuned for builtin:NAME)"
@@ -42,12 +49,12 @@ def run(args) -> int:
     from ..errors import EdofprojError
     from ..training.finetune import finetune
 
-    if (args.psfs is None) == (args.patch_psfs is None):
-        raise EdofprojError("give --psfs or --patch-psfs (one of them)")
+    if sum(x is not None for x in (args.psfs, args.patch_psfs, args.psf_map)) != 1:
+        raise EdofprojError("give --psfs, --patch-psfs or --psf-map (one of them)")
     run_path = Path(args.run.rstrip("/"))
     default_parent = Path("runs") if is_builtin_run_dir(run_path) else run_path.parent
     out = args.out or str(default_parent / (run_path.name + "-finetuned"))
-    psfs = [("--psfs", path) for path in args.psfs or args.patch_psfs]
+    psfs = [("--psfs", path) for path in args.psfs or args.patch_psfs or []] + [("--psf-map", args.psf_map)]
     refuse_output_over(out, "--out", psfs, runs=[("RUN", args.run)])
     result = finetune(
         args.run,
@@ -58,8 +65,16 @@ def run(args) -> int:
         batch_size=args.batch_size,
         seed=args.seed,
         per_patch=args.patch_psfs is not None,
+        psf_map=args.psf_map,
     )
     lo, hi = result.depth_range_m
+    if args.psf_map is not None:
+        print(
+            f"fine-tuned {result.steps} steps on the node kernels of the PSF map {args.psf_map}: "
+            f"loss {result.first_loss:.4g} -> {result.last_loss:.4g}; wrote {result.run_dir} "
+            f"(edofproj compensate --psf-map {args.psf_map} --method net --run {result.run_dir})"
+        )
+        return 0
     print(
         f"fine-tuned {result.steps} steps on measured PSFs at {lo * 1e3:.0f}-{hi * 1e3:.0f} mm: "
         f"loss {result.first_loss:.4g} -> {result.last_loss:.4g}; wrote {result.run_dir}"

@@ -14,6 +14,14 @@ each training sample draws one patch -- a field point -- uniformly, so the netwo
 PSFs across the image instead of their mean (a training crop is small against the field, so
 the PSF is taken as constant within it).
 
+**PSF maps** (``edofproj procams psf-map``: the blur a real projector shows across its image, a
+Gaussian per projector point): with ``psf_map`` the table holds the kernels of the map's nodes
+(:func:`edofproj.procams.measured_blur.measured_blur`, nodes ``MAP_NODE_SPACING_PX`` apart; each
+colour its own map where the file has one) as the patches of one nominal depth (the middle of the
+run's range: the map is one surface, not a depth), and each sample draws a node, so the network
+learns every blur the map holds; ``edofproj compensate --psf-map MAP --method net`` then gives it
+the map's field-varying projection of the target as its capture.
+
 Each step draws depths uniformly in the measured range and training crops, renders
 ``I* = project(I, PSF(z))``, and minimizes the run's loss on ``project(clamp(net(I, I*)), PSF(z))``,
 exactly as in joint training (:mod:`.end_to_end`). The result is a new run directory (the
@@ -42,12 +50,17 @@ from ..fileio import read_arrays, write_text_atomic
 from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
 from ..optics.psf_checks import validate_psf
+from ..procams.measured_blur import measured_blur
+from ..procams.psf_map import load_psf_maps
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
 from .losses import build_loss
 from .sampling import BatchShard, sample_depths_m, sample_images, sample_noise
 from .trainer import loss_terms, seed_everything
+
+MAP_NODE_SPACING_PX = 32
+"""Spacing (projector px) of the PSF map's nodes whose kernels a map fine-tuning draws from."""
 
 
 class MeasuredPSFTable(nn.Module):
@@ -118,6 +131,15 @@ class MeasuredPSFTable(nn.Module):
             )
         return cls(torch.stack(psfs), np.asarray(depths), seed)
 
+    @classmethod
+    def from_psf_map(cls, path, depth_m: float, seed: int = 0) -> "MeasuredPSFTable":
+        """The node kernels of a PSF map (``edofproj procams psf-map``; each colour its own map where
+        the file has one) as per-patch PSFs at one nominal depth ``depth_m``: each sample draws a node
+        (module docstring, **PSF maps**)."""
+        op = measured_blur(load_psf_maps(path), node_spacing_px=MAP_NODE_SPACING_PX, rank_tolerance=0.0)
+        kernels = op.kernels.reshape(-1, *op.kernels.shape[2:]).to(torch.float32)  # (P, C|1, K, K)
+        return cls(kernels.expand(-1, 3, -1, -1)[None].contiguous(), np.array([float(depth_m)]), seed)
+
     @property
     def depth_range_m(self) -> tuple[float, float]:
         return float(self.depths_m.min()), float(self.depths_m.max())
@@ -165,11 +187,13 @@ def finetune(
     seed: int | None = None,
     progress: bool = True,
     per_patch: bool = False,
+    psf_map=None,
 ) -> FinetuneResult:
     """Fine-tune the network of ``run_dir`` on measured PSFs; write a new run to ``out_dir``.
 
     ``per_patch``: ``psf_files`` are per-patch files (``estimate-psf --patch-psfs``) and each
-    sample draws a patch (module docstring).
+    sample draws a patch (module docstring). ``psf_map``: a PSF map file instead of ``psf_files``
+    (each sample draws a node of the map; module docstring).
 
     ``lr`` defaults to the run's ``train.lr_net`` times its final decay fraction (where its
     schedule ended); ``batch_size`` and ``seed`` default to the run's.
@@ -180,26 +204,33 @@ def finetune(
         raise EdofprojError(f"--lr {lr} must be a positive, finite learning rate")
     if batch_size is not None and batch_size < 1:
         raise EdofprojError(f"--batch-size {batch_size} must be >= 1")
-    if not psf_files:
-        raise EdofprojError("give at least one measured PSF file with --psfs")
+    if psf_map is not None and psf_files:
+        raise EdofprojError("give measured PSF files or a PSF map, not both")
+    if not psf_files and psf_map is None:
+        raise EdofprojError("give at least one measured PSF file with --psfs (or a PSF map with --psf-map)")
     out_dir = Path(out_dir)
     if out_dir.resolve() == Path(run_dir).resolve():
         raise EdofprojError("--out must differ from the run directory: fine-tuning never overwrites the run")
     with directory_lock(out_dir, "edofproj finetune", "--out"):
         check_new_run_dir(out_dir, hint="fine-tuning writes a new run directory: choose another --out")
-        return _finetune(run_dir, psf_files, out_dir, steps, lr, batch_size, seed, progress, per_patch)
+        return _finetune(run_dir, psf_files, out_dir, steps, lr, batch_size, seed, progress, per_patch, psf_map)
 
 
-def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, progress, per_patch) -> FinetuneResult:
+def _finetune(
+    run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, progress, per_patch, psf_map=None
+) -> FinetuneResult:
     trained = load_run(run_dir)
     table_seed = trained.cfg.train.seed if seed is None else seed
-    table = (
-        MeasuredPSFTable.from_patch_files(psf_files, table_seed)
-        if per_patch
-        else MeasuredPSFTable.from_files(psf_files)
-    )
+    if psf_map is not None:
+        nominal_m = 0.5e-3 * (trained.cfg.psf.depth_min_mm + trained.cfg.psf.depth_max_mm)
+        table = MeasuredPSFTable.from_psf_map(psf_map, nominal_m, table_seed)
+    elif per_patch:
+        table = MeasuredPSFTable.from_patch_files(psf_files, table_seed)
+    else:
+        table = MeasuredPSFTable.from_files(psf_files)
     cfg = trained.cfg
     z_min, z_max = table.depth_range_m
+    depth_range_mm = (cfg.psf.depth_min_mm, cfg.psf.depth_max_mm) if psf_map is not None else (z_min * 1e3, z_max * 1e3)
     train_cfg = dataclasses.replace(
         cfg.train,
         batch_size=cfg.train.batch_size if batch_size is None else batch_size,
@@ -211,7 +242,7 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
         cfg,
         train=train_cfg,
         name=f"{cfg.name}-finetuned",
-        psf=dataclasses.replace(cfg.psf, depth_min_mm=z_min * 1e3, depth_max_mm=z_max * 1e3),
+        psf=dataclasses.replace(cfg.psf, depth_min_mm=depth_range_mm[0], depth_max_mm=depth_range_mm[1]),
     )
     cfg.check_memory()  # a training step of --batch-size crops, before it is drawn
     seed_everything(cfg.train.seed)
@@ -267,8 +298,9 @@ def _finetune(run_dir, psf_files, out_dir: Path, steps, lr, batch_size, seed, pr
             "net": net.state_dict(),
             "doe": {},
             "finetuned_from": str(run_dir),
-            "measured_psfs": [str(p) for p in psf_files],
-            "per_patch": bool(per_patch),
+            "measured_psfs": [str(p) for p in psf_files or []],
+            "per_patch": bool(per_patch or psf_map is not None),
+            "psf_map": None if psf_map is None else str(psf_map),
             "measured_depths_m": table.depths_m.tolist(),
         },
     )
