@@ -209,3 +209,30 @@ def test_psf_map_figure_scales_by_the_interior_and_wraps_the_angle(tmp_path) -> 
     assert angle["cmap"] == "twilight" and (angle["vmin"], angle["vmax"]) == (-90.0, 90.0)
     cmap = matplotlib.colormaps[angle["cmap"]]
     assert np.allclose(cmap(0.0), cmap(1.0), atol=0.02)  # cyclic: -90 and +90 deg are one direction
+
+
+def test_predict_uses_the_channels_own_map(tmp_path, capsys) -> None:
+    """A per-colour PSF map file: ``predict --channel red`` registers (and blurs) with the red map,
+    whose offset differs from the white one's (a lateral colour shift); ``--channel mean`` with the white."""
+    from edofproj.procams.capture_io import write_rgb_png
+    from edofproj.procams.psf_map import save_psf_maps
+
+    tx, ty = camera_points()
+    dark, bright = np.full(tx.shape, 0.05), np.full(tx.shape, 0.85)
+    CorrespondenceMap(tx, ty, (H, W)).save(tmp_path / "map.npz", dark=dark.astype(np.float32),
+                                           bright=bright.astype(np.float32))  # fmt: skip
+    white, red = flat_psf_map(1.0, 1.5, (0.25, 0.5)), flat_psf_map(1.2, 1.8, (-0.5, 0.75))
+    red.channel = "red"
+    save_psf_maps(tmp_path / "psf.npz", [red, white])
+    image = profiles_to_images(gray_code_profiles(W), (H, W), "x")[-3]
+    write_rgb_png(tmp_path / "image.png", np.repeat(image[..., None], 3, -1))
+    write_rgb_png(
+        tmp_path / "capture.png",
+        np.repeat((0.1 + 0.7 * sample_at_map(image, CorrespondenceMap(tx, ty, (H, W))))[..., None], 3, -1),
+    )
+    for channel, where in (("red", "-0.50, +0.75"), ("mean", "+0.25, +0.50"), ("green", "+0.25, +0.50")):
+        code, out, err = run_cli(capsys, "procams", "predict", "--map", tmp_path / "map.npz", "--psf-map",
+                                 tmp_path / "psf.npz", "--image", tmp_path / "image.png", "--capture",
+                                 tmp_path / "capture.png", "--channel", channel)  # fmt: skip
+        assert code == 0, err
+        assert f"o = ({where})" in out, (channel, out)

@@ -29,7 +29,12 @@ def register(subparsers) -> None:
     p.add_argument("--capture", required=True, help="its capture")
     p.add_argument("--black", default=None, help="a capture of the black field (dark level; default: the map's)")
     p.add_argument("--white", default=None, help="a capture of the white field (bright level; default: the map's)")
-    p.add_argument("--channel", default="mean", choices=("mean", "red", "green", "blue"), help="grey from (mean)")
+    p.add_argument(
+        "--channel",
+        default="mean",
+        choices=("mean", "red", "green", "blue"),
+        help="grey from (mean); a per-colour PSF map's map of that colour",
+    )
     p.add_argument(
         "--offset-px",
         type=float,
@@ -52,7 +57,7 @@ def run(args) -> int:
     from ...procams.capture_io import read_rgb, write_rgb_png
     from ...procams.lab_manifest import to_grey
     from ...procams.prediction import predict_capture
-    from ...procams.psf_map import PSFMap
+    from ...procams.psf_map import load_psf_maps
     from ...procams.structured_light import CorrespondenceMap
 
     inputs = [("--map", args.map), ("--psf-map", args.psf_map), ("--image", args.image), ("--capture", args.capture)]
@@ -82,7 +87,10 @@ def run(args) -> int:
             )
     if args.no_blur and not args.psf_map:
         raise EdofprojError("--no-blur registers with a PSF map's offset: give --psf-map (or --offset-px without it)")
-    psf_map = PSFMap.load(args.psf_map) if args.psf_map else None
+    psf_map = None
+    if args.psf_map:  # the --channel's own map where the file has one (registration and blur), else its white one
+        maps = load_psf_maps(args.psf_map)
+        psf_map = maps.get(args.channel, maps.get("mean", next(iter(maps.values()))))
     image = to_grey(read_rgb(args.image, what="projector image"), args.channel)
     capture = to_grey(read_rgb(args.capture, what="capture"), args.channel)
     offset = tuple(args.offset_px) if args.offset_px is not None else None
