@@ -259,3 +259,13 @@ def test_the_lens_tutorial_chooses_the_best_worst_case(tmp_path):
     focus = [float(r["energy_3x3"]) for r in rows if float(r["alpha_waves"]) == 0 and float(r["depth_mm"]) == 1000]
     assert min(focus) > 0.9
     assert summary["entrance_pupil_mm"] == pytest.approx(10.0)
+
+
+def test_without_optiland_a_prescription_is_refused_with_the_install_hint(tmp_path, monkeypatch):
+    import sys
+
+    lens = tmp_path / "lens.zmx"
+    lens.write_text("VERS 240000 3 0\n")
+    monkeypatch.setitem(sys.modules, "optiland", None)  # import optiland -> ImportError
+    with pytest.raises(EdofprojError, match=r"needs Optiland, which is not installed: install the lens extra"):
+        load_prescription(lens)

@@ -37,7 +37,7 @@ def test_the_psf_page_states_the_default_wavelength_sampling():
 
 def test_every_recorded_output_is_included_by_its_page():
     recorded = sorted(p.stem for p in (TUTORIALS / "output").glob("*.txt"))
-    assert recorded == ["export_for_lithography", "procams_measure_psf", "psf_designs"]
+    assert recorded == ["export_for_lithography", "lens_doe", "procams_measure_psf", "psf_designs"]
     for name in recorded:
         page = (TUTORIALS / f"{name}.md").read_text(encoding="utf-8")
         assert f'```text\n--8<-- "docs/tutorials/output/{name}.txt"\n```' in page, name

@@ -52,7 +52,7 @@ def run_tutorial(name: str, out: Path, *extra: str) -> dict:
 
 def test_every_tutorial_has_a_page_that_includes_it():
     scripts = sorted(TUTORIALS.glob("*.py"))
-    assert len(scripts) == 5
+    assert len(scripts) == 6
     index = (TUTORIALS / "index.md").read_text(encoding="utf-8")
     for script in scripts:
         page = script.with_suffix(".md")
@@ -93,7 +93,7 @@ def test_psf_designs(tmp_path):
 
 #: Tutorials whose page includes the script's recorded default-size output
 #: (``docs/tutorials/output/<name>.txt``, the last line -- where it wrote, the time -- left out).
-RECORDED_OUTPUTS = ["psf_designs", "export_for_lithography", "procams_measure_psf"]
+RECORDED_OUTPUTS = ["psf_designs", "export_for_lithography", "procams_measure_psf", "lens_doe"]
 
 
 @pytest.mark.parametrize("name", RECORDED_OUTPUTS)
