@@ -648,7 +648,7 @@ class Cases:
         image = self.image()
         folder = self.work / "r4_12_show"
         folder.mkdir(exist_ok=True)
-        cv2.imwrite(str(folder / "big.png"), np.zeros((1000, 1000, 3), np.uint8))
+        cv2.imwrite(str(folder / "big.png"), np.zeros((1400, 1400, 3), np.uint8))
         data = bytearray(cv2.imencode(".png", np.zeros((48, 64, 3), np.uint8))[1].tobytes())
         data[data.find(b"IDAT") + 10] ^= 0xFF
         (self.work / "damaged.png").write_bytes(bytes(data))
@@ -657,7 +657,7 @@ class Cases:
             ("`compensate --method multifocal+net` without its run",
              ["compensate", "builtin:cpu-doe-net", "--method", "multifocal+net", "--image", image, "--depth-mm", 500,
               "--out", out], None),
-            ("`compensate --images` of a 1000x1000 image, `--batch 1`, 150 MB available",
+            ("`compensate --images` of a 1400x1400 image, `--batch 1`, 150 MB available",
              ["compensate", "builtin:cpu-doe-net", "--images", folder, "--batch", 1, "--depth-mm", 500, "--out",
               self.work / "r4_12_out"], {"EDOFPROJ_MEMORY_BYTES": "150e6"}),
             ("`tune-classic --element cubic --values 1e9`",

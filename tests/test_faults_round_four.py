@@ -76,6 +76,17 @@ def test_export_into_the_runs_checkpoints_is_refused_and_its_checkpoint_kept(tmp
     assert last.read_bytes() == before and [p.name for p in last.parent.iterdir()] == ["last.pt"]
 
 
+def test_bench_csv_over_the_runs_config_is_refused(tmp_path, capsys):
+    """``bench --run RUN --csv RUN/config.yaml`` replaced the run's configuration with its timings."""
+    run = tmp_path / "run"
+    shutil.copytree(builtin_run_dir("cpu-doe-net"), run)
+    before = (run / "config.yaml").read_bytes()
+    argv = ["bench", "--run", run, "--sizes", "64x64", "--repeats", 1, "--warmup", 0, "--no-onnx"]
+    line = error_line(capsys, [*argv, "--csv", run / "config.yaml"])
+    assert "--csv" in line and "is the input --run's config.yaml" in line, line
+    assert (run / "config.yaml").read_bytes() == before
+
+
 #: An export that stops, blocked, once its temporary file is written (then the test kills it).
 BLOCKED_EXPORT = textwrap.dedent(
     """

@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import EdofprojError
-from ._common import RUN_HELP_SUFFIX, add_method_options, parse_name_list, run_directory
+from ._common import RUN_HELP_SUFFIX, add_method_options, parse_name_list, refuse_output_over, run_directory
 
 METHODS = ("wiener", "unet", "onlineprodeb", "cls")
 DEFAULT_SIZES = "256x256,600x800,768x1024"
@@ -113,6 +113,9 @@ def run(args) -> int:
     from ..fileio import write_text_atomic
     from ..machine import instruction_sets
 
+    refuse_output_over(
+        args.csv, "--csv", [("--baselines", args.baselines)], runs=[("--run", args.run)], file_output=True
+    )
     sizes = timing.parse_sizes(args.sizes)
     for height, width in sizes:  # every size is refused before the first is timed
         check_frame_memory(height, width, f"a {height}x{width} frame", "use smaller --sizes")
