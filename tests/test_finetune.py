@@ -12,11 +12,9 @@ from edofproj.optics.psf_bank import simulator_from_config
 from edofproj.runs import load_run
 from edofproj.training.finetune import MeasuredPSFTable, finetune
 from edofproj.training.trainer import train
-from tiny_configs import TINY_LENS_FINETUNE
+from tiny_configs import TINY_LENS_TRAINED_STEPS, tiny_lens_trained
 
 pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
-
-TINY = TINY_LENS_FINETUNE
 
 
 def test_measured_table_interpolates_linearly_in_inverse_depth():
@@ -29,14 +27,15 @@ def test_measured_table_interpolates_linearly_in_inverse_depth():
         table([1.2])
 
 
+@pytest.mark.arithmetic
 def test_finetuning_on_measured_psfs_improves_compensation(tmp_path):
     """A network trained for 450-550 mm meets a projector measured at 300-400 mm (strong blur):
     fine-tuning on the measured PSFs raises SSIM of the compensated projection on held-out images."""
-    cfg = apply_overrides(Config(), TINY)
+    cfg = apply_overrides(Config(), tiny_lens_trained())
     run_dir = tmp_path / "run"
     train(cfg, run_dir, progress=False)
 
-    measured_cfg = apply_overrides(Config(), TINY)
+    measured_cfg = apply_overrides(Config(), tiny_lens_trained())
     sim = simulator_from_config(measured_cfg)
     with torch.no_grad():
         bank = sim.bank(None, [0.3, 0.35, 0.4])
@@ -62,6 +61,6 @@ def test_finetuning_on_measured_psfs_improves_compensation(tmp_path):
     print(f"SSIM before {before:.4f} after {after:.4f}")
     assert after > before + 0.01, (before, after)
     # the original run is untouched and a second fine-tune into the same place is refused
-    assert load_run(run_dir).step == 4
+    assert load_run(run_dir).step == TINY_LENS_TRAINED_STEPS
     with pytest.raises(EdofprojError, match="not empty"):
         finetune(run_dir, [tmp_path / "measured.npz"], tmp_path / "tuned", steps=1, progress=False)

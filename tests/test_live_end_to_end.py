@@ -27,9 +27,10 @@ from edofproj.procams.virtual import VirtualProCams, simulate_captures
 from edofproj.runs import load_run
 from edofproj.training.finetune import finetune
 from edofproj.training.trainer import train
-from tiny_configs import TINY_LENS_FINETUNE
+from tiny_configs import tiny_lens_trained
 
-pytestmark = pytest.mark.slow  # captures, calibrates, trains and fine-tunes
+# captures, calibrates, trains and fine-tunes; what the network learns depends on the arithmetic
+pytestmark = pytest.mark.slow
 
 WINDOW = 21
 DEPTH_M = 0.35
@@ -40,9 +41,10 @@ def run_cli(*args: str) -> None:
     assert main([str(a) for a in args]) == 0
 
 
+@pytest.mark.arithmetic
 def test_patterns_capture_calibrate_estimate_finetune_live(tmp_path, capsys):
     torch.set_num_threads(1)
-    cfg = apply_overrides(Config(), TINY_LENS_FINETUNE + [f"psf.window={WINDOW}"])
+    cfg = apply_overrides(Config(), tiny_lens_trained() + [f"psf.window={WINDOW}"])
     true_psf = simulator_from_config(cfg).bank(None, [DEPTH_M]).psf[0].double().numpy()
 
     # the virtual rig, written as a 'procams simulate' folder (a few patterns suffice for its ground truth)

@@ -18,18 +18,18 @@ from edofproj.procams.virtual import VirtualProCams
 from edofproj.runs import load_run
 from edofproj.training.finetune import finetune
 from edofproj.training.trainer import train
-from tiny_configs import TINY_LENS_FINETUNE
+from tiny_configs import tiny_lens_trained
 
 pytestmark = pytest.mark.slow  # trains or runs the CLI in a subprocess
 
 WINDOW = 21
 DEPTHS_M = (0.3, 0.37)
-TINY = TINY_LENS_FINETUNE + [f"psf.window={WINDOW}"]
 
 
+@pytest.mark.arithmetic
 def test_psfs_measured_through_the_virtual_procams_improve_the_network(tmp_path):
     torch.set_num_threads(1)
-    cfg = apply_overrides(Config(), TINY)
+    cfg = apply_overrides(Config(), tiny_lens_trained() + [f"psf.window={WINDOW}"])
     true = simulator_from_config(cfg).bank(None, list(DEPTHS_M))
     manifest, images = build_pattern_set(PatternSpec(width=128, height=96, dot_grid=(6, 8), color_levels=4, seed=0))
     measured_files = []
