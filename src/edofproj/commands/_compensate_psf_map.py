@@ -52,7 +52,7 @@ def add_psf_map_options(parser) -> None:
     )
     parser.add_argument("--nsr", type=float, default=None, help="with --psf-map: the Wiener NSR (default: tuned)")
     parser.add_argument(
-        "--iterations", type=int, default=None, help="with --psf-map --method cls: solver iterations (default 40)"
+        "--iterations", type=int, default=None, help="with --psf-map --method cls: solver iterations (default 20)"
     )
 
 
@@ -123,15 +123,19 @@ class MapCompensator:
         self.hw = (self.op.height, self.op.width)
         self.colours = "per colour" if self.op.channels == 3 else "one map for every colour"
         self.network = None
+        self.wiener = None
         self.nsr = args.nsr
         if args.method == "net":
             from ..methods.map_network import MapNetwork
 
             self.network = MapNetwork(run, self.op)
-        elif self.nsr is None:
+        else:
+            from ..compensation.field_varying import FieldVaryingWiener
             from ..procams.map_compensation import tune_map_nsr
 
-            self.nsr = tune_map_nsr(self.op)
+            if self.nsr is None:
+                self.nsr = tune_map_nsr(self.op)
+            self.wiener = FieldVaryingWiener(self.op, self.nsr)
 
     def compensate(self, target):
         """``(x (1, 3, H, W), note)`` for one target ``(1, 3, H, W)``."""
@@ -144,7 +148,9 @@ class MapCompensator:
             with torch.inference_mode():
                 x = self.network(target)
             return x, f"{time.perf_counter() - start:.2f} s"
-        result = compensate_with_map(target, self.op, self.args.method, nsr=self.nsr, iterations=self.args.iterations)
+        result = compensate_with_map(
+            target, self.op, self.args.method, iterations=self.args.iterations, wiener=self.wiener
+        )
         note = f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
         if self.args.method == "cls":
             note += f"; {result.convergence()}"

@@ -35,7 +35,7 @@ from ..imaging.field_varying import FieldVaryingBlur, hat_weights, low_rank_kern
 from .constrained import box_least_squares
 from .wiener import checked_nsr, padding_for
 
-DEFAULT_CLS_ITERATIONS = 40
+DEFAULT_CLS_ITERATIONS = 20
 """FISTA iterations of :func:`field_varying_cls` by default."""
 WIENER_NODE_SPACING_PX = 48
 """Least spacing (px) of the nodes that get their own Wiener filter (the blur's nodes, thinned)."""
@@ -71,7 +71,7 @@ class FieldVaryingWiener:
         op: FieldVaryingBlur,
         nsr: float,
         node_spacing_px: float = WIENER_NODE_SPACING_PX,
-        rank_tolerance: float = 1e-3,
+        rank_tolerance: float = 1e-2,
         haze: bool = True,
         pad: bool = True,
         frame_px: int | tuple[int, int] | None = None,

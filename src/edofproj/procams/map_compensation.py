@@ -35,7 +35,8 @@ NSR_TUNING_CROPS = 8
 class MapCompensation:
     """What one compensation did: the projector image ``image (B, C, H, W)`` in [0, 1], the method,
     the Wiener NSR, the blur's rank (convolutions per application), the CLS objective per iteration
-    ``objective (iterations + 1, B)`` (empty for ``wiener``) and the seconds it took (set-up apart)."""
+    ``objective (iterations + 1, B)`` (empty for ``wiener``) and the seconds it took (the Wiener
+    filter's set-up included unless it was given; the blur's and the NSR's excluded)."""
 
     image: torch.Tensor
     method: str
@@ -90,11 +91,14 @@ def compensate_with_map(
     method: str,
     nsr: float | None = None,
     iterations: int | None = None,
+    wiener=None,
 ) -> MapCompensation:
     """The projector image for ``target (B, C, H, W)`` in [0, 1] under the blur ``op``, by ``method``
     (``wiener`` or ``cls``; module docstring). ``nsr``: the Wiener NSR (default: tuned,
     :func:`tune_map_nsr`); ``iterations``: CLS iterations (default
-    :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS`)."""
+    :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS`); ``wiener``: a
+    :class:`~edofproj.compensation.field_varying.FieldVaryingWiener` of ``op`` set up before (for
+    several images; its NSR is then the one used)."""
     from ..compensation.field_varying import DEFAULT_CLS_ITERATIONS, FieldVaryingWiener, field_varying_cls
 
     if method not in MAP_METHODS:
@@ -107,12 +111,14 @@ def compensate_with_map(
     iterations = DEFAULT_CLS_ITERATIONS if iterations is None else int(iterations)
     if iterations < 0:
         raise EdofprojError(f"iterations={iterations} must be >= 0")
+    if wiener is not None:
+        nsr = wiener.nsr
     nsr = tune_map_nsr(op) if nsr is None else float(nsr)
     if not (np.isfinite(nsr) and nsr >= 0):
         raise EdofprojError(f"NSR={nsr} must be a finite number >= 0")
     start = time.perf_counter()
     with torch.no_grad():
-        x = FieldVaryingWiener(op, nsr)(target)
+        x = (wiener or FieldVaryingWiener(op, nsr))(target)
         objective = torch.zeros(0)
         if method == "cls":
             x, objective = field_varying_cls(target, op, iterations, start=x, return_objective=True)

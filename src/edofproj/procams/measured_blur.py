@@ -34,7 +34,7 @@ from .psf_map import PSFMap, psf_maps_for_rgb
 
 DEFAULT_NODE_SPACING_PX = 16
 """Spacing (projector px) of the nodes whose kernels are interpolated."""
-DEFAULT_RANK_TOLERANCE = 1e-3
+DEFAULT_RANK_TOLERANCE = 1e-2
 """Relative error (Frobenius, all node kernels) of the low-rank form of the node kernels."""
 
 
