@@ -111,4 +111,4 @@ def test_the_summary_names_the_training_and_the_scored_range(pico):
         depths_mm=[800.0, 2500.0],
     )
     text = overview(ev)[0].text
-    assert "trained over 780-2500 mm" in text and "scored over 800-2500 mm" in text
+    assert "training depth range 780-2500 mm" in text and "scored depth range 800-2500 mm" in text

@@ -39,7 +39,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    cfg = load_config(None)
+    cfg = load_config(None, ["doe.design_wavelength_nm=550"])  # the paper's design wavelength
 
     # 1. The design file. A trained run already holds one (RUN/doe.npz); here we tabulate the
     #    axicon of the default configuration on 1024 rings (--small: 256).

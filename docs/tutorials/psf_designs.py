@@ -55,7 +55,7 @@ def main() -> None:
             "spectrum.wavelength_step_nm=80",
         ]
         depths_mm = np.array([300.0, 500.0, 800.0])
-    cfg = load_config(None, overrides)
+    cfg = load_config(None, ["doe.design_wavelength_nm=550"] + overrides)  # the paper's design wavelength
     depths_m = depths_mm * 1e-3
 
     # 2. One simulator per propagation engine: the radial engine for the radially symmetric designs,

@@ -179,7 +179,7 @@ def clean_room_lines(report: dict) -> list[str]:
     lines = [
         "## For the clean room",
         "",
-        f"* Substrate: {sub['material']} wafer, {sub['diameter_mm']:g} mm diameter x {sub['thickness_mm']:g} mm thick, "
+        f"* Substrate: {str(sub['material']).replace('_', ' ')} wafer, {sub['diameter_mm']:g} mm diameter x {sub['thickness_mm']:g} mm thick, "
         f"{sub['edge_exclusion_mm']:g} mm edge exclusion: {sub['dies']} dies.",
         f"* Die: {die['die_mm']:g} x {die['die_mm']:g} mm, centred on the optical axis; outline (dicing line) on GDS "
         f"layer {die['die_gds_layer']}.",

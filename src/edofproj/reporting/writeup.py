@@ -60,9 +60,9 @@ def overview(ev) -> list:
         Paragraph(
             f"Run **{run.run_dir}** (step {run.step}): {ev.designs['run'].description if 'run' in ev.designs else run.doe.describe()}. "
             f"Projector: aperture {ev.cfg.optics.aperture_mm:g} mm, in focus at v = {ev.cfg.optics.focus_mm:g} mm, "
-            f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; trained over "
-            f"{format_span_mm(ev.cfg.psf.depth_min_mm, ev.cfg.psf.depth_max_mm)} mm (psf.depth_min_mm-psf.depth_max_mm), "
-            f"scored over {format_span_mm(lo, hi)} mm (the means and worst depths of the tables)."
+            f"throw ratio {ev.cfg.optics.throw_ratio:g}, {ev.cfg.optics.width_px} px wide; training depth range "
+            f"{format_span_mm(ev.cfg.psf.depth_min_mm, ev.cfg.psf.depth_max_mm)} mm (psf.depth_min_mm-psf.depth_max_mm); "
+            f"scored depth range {format_span_mm(lo, hi)} mm (the means and worst depths of the tables)."
         ),
         Paragraph(
             f"Scored on {len(ev.images)} {IMAGE_SET_LABELS.get(ev.image_set, 'held-out')} image(s) ({images}) "
