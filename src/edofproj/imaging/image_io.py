@@ -118,8 +118,9 @@ def _without_libpng_lines():
 READ_BYTES_PER_PIXEL = 36
 
 
-def image_size_from_header(data: bytes) -> tuple[int, int] | None:
-    """``(height, width)`` read from the file header alone (no pixels decoded), or None."""
+def _size_from_header(source) -> tuple[int, int] | None:
+    """``(height, width)`` that Pillow reads from the header of ``source`` (a path or a binary file),
+    decoding no pixels and reading no more of the file than the header, or None."""
     from PIL import Image  # start-up: `edofproj --help` loads this module; Pillow costs ~40 ms
 
     limit = Image.MAX_IMAGE_PIXELS
@@ -127,7 +128,7 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # e.g. "Corrupt EXIF data": OpenCV decides below
-            with Image.open(io.BytesIO(data)) as picture:
+            with Image.open(source) as picture:
                 width, height = picture.size
     except Exception:  # noqa: BLE001 - any header Pillow cannot read: OpenCV decides below
         return None
@@ -136,14 +137,19 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
     return int(height), int(width)
 
 
+def image_size_from_header(data: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` read from the file header alone (no pixels decoded), or None."""
+    return _size_from_header(io.BytesIO(data))
+
+
 def image_file_size(path: str | os.PathLike) -> tuple[int, int] | None:
-    """``(height, width)`` of an image file from its header (None when it cannot be read)."""
+    """``(height, width)`` of an image file from its header (None when it cannot be read): the one
+    header reader of the image files every command and data source reads."""
     try:
         with open(path, "rb") as handle:
-            head = handle.read(1 << 20)
+            return _size_from_header(handle)
     except OSError:
         return None
-    return image_size_from_header(head)
 
 
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
