@@ -216,6 +216,28 @@ def test_one_huge_image_to_compensate_is_refused_from_its_header(tmp_path, capsy
     assert "batches of 1 frames" in line and "lower --batch" not in line and "scale the frames down" in line, line
 
 
+def test_one_huge_image_on_a_scene_is_refused_from_its_header(tmp_path, capsys, monkeypatch):
+    """``scene render --image`` had no memory check either: with 250 MB available a 1000x1000 image reads
+    (36 MB) and the lens's PSFs fit (175 MiB), its projection on the scene's 8 depth layers does not."""
+    monkeypatch.setenv("EDOFPROJ_MEMORY_BYTES", str(250e6))
+    target = image(tmp_path / "big.png", (1000, 1000))
+    argv = [
+        "scene",
+        "render",
+        "--scene",
+        "sphere_wall",
+        "--doe",
+        "lens",
+        "--image",
+        target,
+        "--out",
+        tmp_path / "s.png",
+    ]
+    line = error_line(capsys, argv)
+    assert "rendering the 1000x1000 (height x width) image" in line and "scale the image down" in line, line
+    assert not (tmp_path / "s.png").exists()
+
+
 # ----------------------------------------------------------------------------- one line that says what to do (12)
 
 

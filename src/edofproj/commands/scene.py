@@ -92,6 +92,23 @@ def run_list(args) -> int:
     return 0
 
 
+def _check_image_memory(path: str, cfg) -> None:
+    """One line, before ``--image`` is decoded, when rendering it would not fit in memory: its size from
+    the header, the projection on ``imaging.depth_layers`` layers
+    (:func:`edofproj.imaging.projection.projection_bytes`, a lower bound), as ``render`` checks."""
+    from ..imaging.image_io import image_file_size
+    from ..imaging.projection import projection_bytes
+    from ..limits import check_memory
+
+    size = image_file_size(path)
+    if size is not None:
+        check_memory(
+            projection_bytes(size[0], size[1], cfg.psf.window, int(cfg.imaging.depth_layers)),
+            f"rendering the {size[0]}x{size[1]} (height x width) image '{path}' on the scene",
+            "scale the image down first",
+        )
+
+
 def run_render(args) -> int:
     from pathlib import Path
 
@@ -136,6 +153,7 @@ def run_render(args) -> int:
         cfg = config_for_designs(args.config, args.overrides, [args.doe])  # a run's --doe: its own projector
     geometry = ProjectorGeometry.from_config(cfg.optics)
     scene = load_scene(args.scene, geometry)
+    _check_image_memory(args.image, cfg)
     image = read_image(args.image)[None]
     height, width = image.shape[-2:]
     cast = cast_scene(scene, height, width, geometry)
