@@ -111,6 +111,7 @@ def pitch_m(cfg: Config, depths_m) -> np.ndarray:
     return np.asarray(depths_m) / (cfg.optics.throw_ratio * cfg.optics.width_px)
 
 
+@pytest.mark.slow  # the matrix: three projectors, every command
 def test_psf_of_a_run_is_simulated_with_the_runs_projector(projector_run, tmp_path, capsys):
     name, cfg, run = projector_run
     out = tmp_path / "psf.npz"
@@ -123,6 +124,7 @@ def test_psf_of_a_run_is_simulated_with_the_runs_projector(projector_run, tmp_pa
     assert data["psf"].shape[-1] == cfg.psf.window
 
 
+@pytest.mark.slow  # the matrix: three projectors, every command
 def test_plot_psf_and_psf_plot_use_the_runs_projector(projector_run, tmp_path, monkeypatch, capsys):
     name, cfg, run = projector_run
     import edofproj.reporting.psf_plots as plots
@@ -140,6 +142,7 @@ def test_plot_psf_and_psf_plot_use_the_runs_projector(projector_run, tmp_path, m
         assert np.allclose(bank.wavelengths_m, expected_wavelengths_m(cfg))
 
 
+@pytest.mark.slow  # the matrix: three projectors, every command
 def test_render_of_a_run_matches_its_psf(projector_run, tmp_path, capsys):
     """``render --doe RUN`` blurs with the PSF that ``psf --doe RUN`` writes at that depth (the run's projector)."""
     import torch
@@ -163,6 +166,7 @@ def test_render_of_a_run_matches_its_psf(projector_run, tmp_path, capsys):
     assert np.abs(rendered - expected).max() < 2e-4  # 16-bit rounding and the PSF file's float32
 
 
+@pytest.mark.slow  # the matrix: three projectors, every command
 def test_tolerance_and_export_doe_use_the_runs_projector(projector_run, tmp_path, capsys):
     name, cfg, run = projector_run
     out = tmp_path / "tol"
