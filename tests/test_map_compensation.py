@@ -19,9 +19,9 @@ from edofproj.procams.psf_map import PSFMap, covariance
 H, W = 49, 65  # nodes every 8 px fall on whole pixels: 0, 8, ..., 48 and 0, ..., 64
 
 
-def synthetic_map(sigma_scale: float = 1.0, channel: str = "mean", constant: bool = False) -> PSFMap:
-    """A tilted-screen-like map on dots every 8 px: widths grow along x, the ellipse turns along y."""
-    xs, ys = np.arange(0.0, W, 8.0), np.arange(0.0, H, 8.0)
+def synthetic_map(sigma_scale: float = 1.0, channel: str = "mean", constant: bool = False, step: float = 8.0) -> PSFMap:
+    """A tilted-screen-like map on dots every ``step`` px: widths grow along x, the ellipse turns along y."""
+    xs, ys = np.arange(0.0, W, step), np.arange(0.0, H, step)
     cov = np.empty((len(ys), len(xs), 2, 2))
     for i, y in enumerate(ys):
         for j, x in enumerate(xs):
@@ -133,3 +133,13 @@ def test_bad_requests_are_refused_in_one_line():
     assert isinstance(op, FieldVaryingBlur)
     with pytest.raises(EdofprojError):
         field_varying_cls(torch.zeros(3, H, W), op)
+
+
+def test_an_edge_fit_at_the_largest_width_does_not_set_the_window():
+    psf_map = synthetic_map(step=2.0)  # 25 x 33 dots
+    psf_map.cov[0, 0] = covariance(20.0, 20.0, 0.0)  # one dot at the edge ran to MAX_SIGMA_PX
+    op = measured_blur(psf_map, node_spacing_px=8)
+    widths = np.sqrt(np.linalg.eigvalsh(psf_map.cov)[..., -1]).ravel()
+    assert op.kernels.shape[-1] == 2 * int(np.ceil(4 * np.quantile(widths, 0.99))) + 1 < 2 * 80 + 1
+    assert np.quantile(widths, 0.99) <= np.sort(widths)[-2]  # the outlier's width is not the window's
+    np.testing.assert_allclose(op.kernels.sum(dim=(-1, -2)).numpy(), 1.0, atol=1e-12)  # the cut kernel renormalized

@@ -6,8 +6,10 @@ point. The blur of a projector image ``u`` is taken as the source form of
 :class:`edofproj.imaging.field_varying.FieldVaryingBlur`: nodes on a uniform grid over the projector
 image (``node_spacing_px`` apart, the first and last rows and columns included), node ``g`` with the
 kernel ``h_g`` = the Gaussian of covariance ``S(node)`` sampled at integer offsets out to ``4 sigma``
-and normalized to 1 (:func:`.prediction.gaussian_kernel`), each pixel's PSF interpolated bilinearly
-between the kernels of the nodes around it:
+and normalized to 1 (:func:`.prediction.gaussian_kernel`; the window is at most ``4 sigma`` of the
+map's 99th-percentile width, :func:`window_radius_px`: the rare wider kernel, a fit at the edge of
+the projection, is cut there), each pixel's PSF interpolated bilinearly between the kernels of the
+nodes around it:
 
     (A u)(y) = sum_x u(x) h(y - x; x),       h(.; x) = sum_g w_g(x) h_g.
 
@@ -36,6 +38,8 @@ DEFAULT_NODE_SPACING_PX = 16
 """Spacing (projector px) of the nodes whose kernels are interpolated."""
 DEFAULT_RANK_TOLERANCE = 1e-2
 """Relative error (Frobenius, all node kernels) of the low-rank form of the node kernels."""
+WINDOW_QUANTILE = 0.99
+"""The kernels' common window is ``4 sigma`` of this quantile of the map's widths (:func:`window_radius_px`)."""
 
 
 def node_centres_px(size_px: int, spacing_px: int) -> np.ndarray:
@@ -46,19 +50,36 @@ def node_centres_px(size_px: int, spacing_px: int) -> np.ndarray:
     return np.linspace(0.0, float(size_px - 1), count)
 
 
-def node_kernels(psf_map: PSFMap, centres_y_px: np.ndarray, centres_x_px: np.ndarray) -> np.ndarray:
+def node_kernels(
+    psf_map: PSFMap, centres_y_px: np.ndarray, centres_x_px: np.ndarray, radius_px: int | None = None
+) -> np.ndarray:
     """``(Gy, Gx, K, K)`` float64: the Gaussian of the map's covariance at every node (module docstring),
-    each out to its own ``4 sigma``, zero-padded to the largest."""
+    each out to its own ``4 sigma``, zero-padded to the largest; ``radius_px`` caps the window's
+    radius (``K = 2 radius + 1``; a wider Gaussian is cut there and renormalized)."""
     yy, xx = np.meshgrid(centres_y_px, centres_x_px, indexing="ij")
     cov = psf_map.covariance_at(xx, yy)  # (Gy, Gx, 2, 2)
     kernels = [[gaussian_kernel(cov[i, j]) for j in range(len(centres_x_px))] for i in range(len(centres_y_px))]
     size = max(k.shape[0] for row in kernels for k in row)
+    if radius_px is not None:
+        size = min(size, 2 * int(radius_px) + 1)
     out = np.zeros((len(centres_y_px), len(centres_x_px), size, size))
     for i, row in enumerate(kernels):
         for j, k in enumerate(row):
+            if k.shape[0] > size:
+                c = (k.shape[0] - size) // 2
+                k = k[c : c + size, c : c + size] / k[c : c + size, c : c + size].sum()
             m = (size - k.shape[0]) // 2
             out[i, j, m : m + k.shape[0], m : m + k.shape[0]] = k
     return out
+
+
+def window_radius_px(planes, quantile: float = WINDOW_QUANTILE) -> int:
+    """``ceil(4 sigma)`` of the ``quantile`` of the maps' largest widths (the major axes of their
+    covariances over every grid point): the window every node kernel gets. A fit that ran to the
+    largest width :data:`.psf_map.MAX_SIGMA_PX` (a dot at the projection's edge) would otherwise set a
+    window of ``160 px`` for the whole map, and with it the work of every application."""
+    widths = np.concatenate([np.sqrt(np.linalg.eigvalsh(p.cov)[..., -1]).ravel() for p in planes])
+    return int(np.ceil(4.0 * float(np.quantile(widths, quantile))))
 
 
 def measured_blur(
@@ -80,7 +101,8 @@ def measured_blur(
     if any(tuple(p.projector_hw) != hw for p in planes):
         raise EdofprojError("the PSF maps are for projectors of different sizes")
     cy, cx = node_centres_px(hw[0], node_spacing_px), node_centres_px(hw[1], node_spacing_px)
-    per_plane = [node_kernels(p, cy, cx) for p in planes]
+    radius = window_radius_px(planes)
+    per_plane = [node_kernels(p, cy, cx, radius) for p in planes]
     size = max(k.shape[-1] for k in per_plane)
     kernels = np.zeros((len(cy), len(cx), len(planes), size, size))
     for c, k in enumerate(per_plane):
