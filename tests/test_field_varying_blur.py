@@ -101,3 +101,23 @@ def test_bad_shapes_are_refused_in_one_line():
     op = FieldVaryingBlur(k, [0, 9], [0, 9], (10, 10))
     with pytest.raises(EdofprojError, match="set up for"):
         op(torch.ones(1, 1, 10, 11))
+
+
+def test_the_randomized_basis_of_many_kernels_keeps_the_tolerance():
+    # 5000 kernels of 31 x 31 taps (past the exact decomposition's size): Gaussians of varied widths and angles
+    rng = np.random.default_rng(4)
+    y, x = np.mgrid[-15:16, -15:16]
+    kernels = []
+    for _ in range(5000):
+        a, b, t = rng.uniform(0.5, 3.0), rng.uniform(0.5, 3.0), rng.uniform(0, np.pi)
+        c, s = np.cos(t), np.sin(t)
+        u, v = c * x + s * y, -s * x + c * y
+        k = np.exp(-0.5 * (u**2 / a**2 + v**2 / b**2))
+        kernels.append(k / k.sum())
+    kernels = torch.from_numpy(np.stack(kernels))
+    basis, coefficients = low_rank_kernels(kernels, 1e-2)
+    approx = torch.einsum("nm,mkl->nkl", coefficients, basis)
+    assert float(torch.linalg.norm(approx - kernels) / torch.linalg.norm(kernels)) <= 1e-2
+    torch.testing.assert_close(
+        basis.reshape(len(basis), -1) @ basis.reshape(len(basis), -1).T, torch.eye(len(basis), dtype=torch.float64)
+    )

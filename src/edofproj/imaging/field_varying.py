@@ -109,6 +109,11 @@ def low_rank_kernels(kernels: torch.Tensor, tolerance: float = 0.0) -> tuple[tor
     n, (kh, kw) = kernels.shape[0], kernels.shape[-2:]
     taps = kh * kw
     matrix = kernels.reshape(n, taps).to(torch.float64)
+    if float(tolerance) > 0 and n * taps > 4_000_000:
+        truncated = _randomized_low_rank(matrix, float(tolerance))
+        if truncated is not None:
+            basis = truncated
+            return basis.T.reshape(basis.shape[1], kh, kw), matrix @ basis
     if n * taps <= 4_000_000:
         _, sigma, vh = torch.linalg.svd(matrix, full_matrices=False)
         energy, vectors = sigma**2, vh.T
@@ -128,6 +133,23 @@ def low_rank_kernels(kernels: torch.Tensor, tolerance: float = 0.0) -> tuple[tor
         rank = next((m for m in range(1, len(energy)) if float(dropped[m]) <= bound), len(energy))
     basis = vectors[:, :rank]
     return basis.T.reshape(rank, kh, kw), matrix @ basis
+
+
+def _randomized_low_rank(matrix: torch.Tensor, tolerance: float, most: int = 64) -> torch.Tensor | None:
+    """Orthonormal right vectors ``V (taps, M)`` of a large ``matrix`` whose projection keeps it within
+    ``tolerance`` (relative Frobenius), by the randomized SVD (:func:`torch.svd_lowrank`, at most
+    ``most`` vectors); None when ``most`` do not reach it. The error is computed exactly,
+    ``||X - X V V^T||^2 = ||X||^2 - ||X V||^2``, not estimated."""
+    generator_state = torch.random.get_rng_state()
+    torch.manual_seed(0)  # the same basis for the same kernels, run after run
+    try:
+        _, _, v = torch.svd_lowrank(matrix, q=min(most, *matrix.shape), niter=4)
+    finally:
+        torch.random.set_rng_state(generator_state)
+    kept = torch.cumsum(((matrix @ v) ** 2).sum(dim=0), 0)
+    total = float((matrix**2).sum())
+    enough = torch.nonzero(total - kept <= tolerance**2 * total).flatten()
+    return None if enough.numel() == 0 else v[:, : int(enough[0]) + 1]
 
 
 class FieldVaryingBlur:
