@@ -842,6 +842,9 @@ def from_dict(cls: type, data: dict, prefix: str = "") -> Any:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{prefix.rstrip('.') or 'config'} must be a mapping, got {data!r}")
+    if cls is Config and isinstance(data.get("evaluation"), dict) and "tilt_span_mm" in data["evaluation"]:
+        data = {**data, "evaluation": dict(data["evaluation"])}  # converted on a copy: the caller's mapping stays
+        _convert_tilt_span(data, OpticsConfig.focus_mm)
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
     kwargs = {}
@@ -1029,8 +1032,6 @@ def _load_file(file: Path, chain: tuple[Path, ...]) -> Config:
         raise ConfigError(f"config '{file}' is not valid YAML: {str(exc).splitlines()[0]}") from None
     if isinstance(data, dict) and "base" in data:
         return _load_on_base(file, data, chain)
-    if isinstance(data, dict):
-        _convert_tilt_span(data, OpticsConfig.focus_mm)
     if isinstance(data, dict) and "net" in data:
         data["net"], note = convert_flat_net(data["net"])
         if note:  # once per file and process (Python's default warning filter)

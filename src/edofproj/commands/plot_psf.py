@@ -46,7 +46,7 @@ def run(args) -> int:
     depths_m = depths_from_args(args.depth_mm, cfg)
     panels = []
     for spec in specs:
-        doe = build_design(cfg, spec)
+        doe = build_design(cfg, spec, args.config)
         sim = simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))
         panels.append((design_label(spec), doe, sim.bank(doe, depths_m)))
     plot_psf_comparison(panels, args.out)

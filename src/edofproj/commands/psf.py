@@ -56,14 +56,16 @@ def design_config(args, specs):
     return config_for_designs(args.config, overrides, specs)
 
 
-def build_design(cfg, spec):
-    """:func:`edofproj.doe.build_doe`, refusing a design file made for another aperture than ``cfg``'s."""
+def build_design(cfg, spec, config_arg=None):
+    """:func:`edofproj.doe.build_doe`, refusing a design file made for another aperture than ``cfg``'s and
+    saying so when a design file is simulated without ``--config`` (``config_arg``)."""
     from ..doe import build_doe
-    from ..runs.projector import check_design_aperture
+    from ..runs.projector import check_design_aperture, warn_default_projector
 
     doe = build_doe(cfg, spec)
     if spec is not None and doe.name == "file":
         check_design_aperture(doe, cfg, spec)
+        warn_default_projector(spec, config_arg)
     return doe
 
 
@@ -115,7 +117,7 @@ def run(args) -> int:
     for option in ("--out", "--plot"):
         output = getattr(args, option[2:])
         refuse_output_over(output, option, [("--config", args.config)], runs=[("--doe", args.doe)], file_output=True)
-    doe = build_design(cfg, args.doe)
+    doe = build_design(cfg, args.doe, args.config)
     engine = cfg.psf.engine
     if not doe.radially_symmetric and engine == "radial":
         if args.engine == "radial":

@@ -227,7 +227,7 @@ def run(args) -> int:
         else:
             from .psf import build_design
 
-            doe = build_design(cfg, args.doe)
+            doe = build_design(cfg, args.doe, args.config)
             simulator = simulator_for(cfg, doe)
             if depth_map_m is not None:
                 layers = int(cfg.imaging.depth_layers)

@@ -10,7 +10,7 @@ A command given a run -- or a design file -- simulates it with that projector, n
   refused with the keys that differ (:func:`edofproj.config.config_on_run`);
 * two runs at once (``plot-psf --doe A --doe B``): they must share one projector;
 * a design ``.npz`` file without a run: the configuration given (``--config``, else the defaults, with a
-  :class:`ProjectorWarning` saying so), refused when the file's aperture is not that configuration's
+  :func:`warn_default_projector` saying so), refused when the file's aperture is not that configuration's
   (:func:`check_design_aperture`).
 """
 
@@ -53,14 +53,6 @@ def config_for_designs(
     specs = list(specs)
     runs = [(spec, path) for spec in specs if (path := run_of(spec)) is not None]
     if not runs:
-        files = [spec for spec in specs if spec is not None and spec not in _DESIGN_NAMES]
-        if files and config_arg is None:  # a design file holds its heights and aperture, not its projector
-            warnings.warn(
-                f"{option} '{files[0]}' is a design file, not a run: it is simulated with the default projector "
-                "(aperture, focus, throw ratio, pixels, spectra); give --config of its projector, or its run directory",
-                ProjectorWarning,
-                stacklevel=2,
-            )
         return load_config(config_arg, list(overrides))
     first_spec, first_dir = runs[0]
     for spec, path in runs[1:]:
@@ -71,6 +63,20 @@ def config_for_designs(
                 f"({describe_differences(differences)}): compare designs of one projector"
             )
     return config_on_run(first_dir / CONFIG_NAME, config_arg, list(overrides), f"the run {option} '{first_spec}'")
+
+
+def warn_default_projector(spec: str | None, config_arg: str | None, option: str = "--doe") -> None:
+    """A :class:`~edofproj.errors.ProjectorWarning` when ``spec`` is a design file (not a design name, not a run)
+    simulated without ``--config``: the file holds its heights and aperture, not its projector. Called when the
+    design is built, after the command's inputs have been read (a bad input fails in one line, alone)."""
+    if config_arg is not None or spec is None or spec in _DESIGN_NAMES or run_of(spec) is not None:
+        return
+    warnings.warn(
+        f"{option} '{spec}' is a design file, not a run: it is simulated with the default projector "
+        "(aperture, focus, throw ratio, pixels, spectra); give --config of its projector, or its run directory",
+        ProjectorWarning,
+        stacklevel=2,
+    )
 
 
 def check_design_aperture(doe, cfg: Config, spec: str) -> None:
