@@ -57,7 +57,7 @@ def test_cls_writes_a_projector_image_whose_blur_is_the_target(lab, capsys, bits
 def test_wiener_on_a_folder(lab, capsys):
     out = lab / "show_out"
     code = main(["compensate", "--psf-map", str(lab / "map.npz"), "--images", str(lab / "show"),
-                 "--method", "wiener", "--nsr", "3e-3", "--out", str(out)])  # fmt: skip
+                 "--method", "wiener", "--nsr", "3e-3", "--rank-tolerance", "0.03", "--out", str(out)])  # fmt: skip
     assert code == 0
     assert sorted(p.name for p in out.iterdir()) == ["a.png", "b.png"]
     assert "2 images" in capsys.readouterr().out
@@ -71,6 +71,7 @@ def test_wiener_on_a_folder(lab, capsys):
         (["--method", "net"], "--method net needs the run"),
         (["--method", "wiener", "--iterations", "5"], "--iterations goes with --method cls"),
         (["--nsr", "-1"], "NSR"),
+        (["--rank-tolerance", "2"], "rank tolerance"),
     ],
 )
 def test_bad_requests_end_in_one_line(lab, capsys, extra, message):

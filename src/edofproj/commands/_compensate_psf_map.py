@@ -52,6 +52,13 @@ def add_psf_map_options(parser) -> None:
     )
     parser.add_argument("--nsr", type=float, default=None, help="with --psf-map: the Wiener NSR (default: tuned)")
     parser.add_argument(
+        "--rank-tolerance",
+        type=float,
+        default=None,
+        help="with --psf-map: relative error allowed in the blur's and the Wiener filter's node kernels, written in "
+        "a few basis kernels (default 0.01; larger: fewer FFTs per step, faster)",
+    )
+    parser.add_argument(
         "--iterations", type=int, default=None, help="with --psf-map --method cls: solver iterations (default 20)"
     )
 
@@ -114,12 +121,13 @@ class MapCompensator:
     """The map's blur and the method, set up once for every image."""
 
     def __init__(self, args, run) -> None:
-        from ..procams.measured_blur import measured_blur
+        from ..procams.measured_blur import DEFAULT_RANK_TOLERANCE, measured_blur
         from ..procams.psf_map import load_psf_maps
 
         self.args = args
         maps = load_psf_maps(args.psf_map)
-        self.op = measured_blur(maps)
+        tolerance = DEFAULT_RANK_TOLERANCE if args.rank_tolerance is None else float(args.rank_tolerance)
+        self.op = measured_blur(maps, rank_tolerance=tolerance)
         self.hw = (self.op.height, self.op.width)
         self.colours = "per colour" if self.op.channels == 3 else "one map for every colour"
         self.network = None
@@ -135,7 +143,7 @@ class MapCompensator:
 
             if self.nsr is None:
                 self.nsr = tune_map_nsr(self.op)
-            self.wiener = FieldVaryingWiener(self.op, self.nsr)
+            self.wiener = FieldVaryingWiener(self.op, self.nsr, rank_tolerance=tolerance)
 
     def compensate(self, target):
         """``(x (1, 3, H, W), note)`` for one target ``(1, 3, H, W)``."""
@@ -197,14 +205,13 @@ class MapCompensator:
 
 
 def refuse_map_options(args) -> None:
-    """On the run path: ``--run``, ``--nsr``, ``--iterations`` belong to ``--psf-map``; the default method is the run's."""
+    """On the run path: ``--run``, ``--nsr``, ``--iterations``, ``--rank-tolerance`` belong to ``--psf-map``;
+    the default method is the run's."""
     from ..methods.catalogue import OURS  # no torch: plain data
 
-    given = [
-        o
-        for o, v in (("--run", args.run_option), ("--nsr", args.nsr), ("--iterations", args.iterations))
-        if v is not None
-    ]
+    options = (("--run", args.run_option), ("--nsr", args.nsr), ("--iterations", args.iterations))
+    options += (("--rank-tolerance", args.rank_tolerance),)
+    given = [o for o, v in options if v is not None]
     if given:
         raise EdofprojError(f"{', '.join(given)} go(es) with --psf-map")
     args.method = args.method or OURS
