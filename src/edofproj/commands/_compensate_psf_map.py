@@ -209,8 +209,8 @@ def refuse_map_options(args) -> None:
     the default method is the run's."""
     from ..methods.catalogue import OURS  # no torch: plain data
 
-    options = (("--run", args.run_option), ("--nsr", args.nsr), ("--iterations", args.iterations))
-    options += (("--rank-tolerance", args.rank_tolerance),)
+    options = [("--run", args.run_option), ("--nsr", args.nsr), ("--iterations", args.iterations)]
+    options.append(("--rank-tolerance", args.rank_tolerance))
     given = [o for o, v in options if v is not None]
     if given:
         raise EdofprojError(f"{', '.join(given)} go(es) with --psf-map")
