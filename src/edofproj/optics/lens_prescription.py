@@ -227,7 +227,24 @@ def lens_pupil(optic, field: tuple[float, float], wavelengths_nm, samples: int) 
             inten[k][inside] = np.nan_to_num(i, nan=0.0)
     if not np.any(inten > 0):
         raise EdofprojError(f"every ray at lens field ({hx:g}, {hy:g}) is vignetted")
+    for k in range(len(lams)):
+        opd[k] = _fill_blocked(opd[k], inside)
     return LensPupil(opd_um=opd, intensity=inten, wavelengths_nm=tuple(lams), field_point=(hx, hy))
+
+
+def _fill_blocked(opd: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """The OPD at blocked rays inside the pupil (NaN) set to the nearest traced ray's: no light
+    passes there (``I = 0``), and a continuous phase keeps the engine's sampling check (the phase
+    step between neighbouring samples) about the light that does pass."""
+    from scipy import ndimage
+
+    blocked = inside & ~np.isfinite(opd)
+    if not blocked.any():
+        return opd
+    _, (rows, cols) = ndimage.distance_transform_edt(~np.isfinite(opd), return_indices=True)
+    filled = opd.copy()
+    filled[blocked] = opd[rows[blocked], cols[blocked]]
+    return filled
 
 
 def projector_to_lens_field(field_xy, width_px: int, height_px: int) -> np.ndarray:
