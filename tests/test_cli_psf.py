@@ -69,7 +69,7 @@ def test_monochromatic_psf_has_one_channel(tmp_path):
     "args, message",
     [
         (["--aperture-mm", "0"], "aperture_mm"),
-        (["--depth-mm", "-5"], "positive"),
+        (["--depth-mm", "-5"], "in [1, 100000] mm, got -5"),
         (["--window", "8"], "odd"),
         (["--window", "1"], "odd"),
         (["--wavelength-nm", "1200"], "350-1000"),
