@@ -9,9 +9,17 @@ import pytest
 import torch
 
 from edofproj.compensation.unet import CompensationUNet
+from edofproj.imaging.convolution import fast_fft_length, fft_shape
 from edofproj.imaging.projection import project
-from edofproj.methods.guard import DisplayGuard, GuardedNetworkCompensation, guard_depths_m, predicted_ssim
-from edofproj.metrics import ssim
+from edofproj.methods.guard import (
+    DisplayGuard,
+    GuardedNetwork,
+    GuardedNetworkCompensation,
+    guard_depths_m,
+    guard_tiles,
+    predicted_ssim,
+)
+from edofproj.metrics import gaussian_window, ssim, ssim_map
 from synthetic_psfs import gaussian_psfs
 
 PSFS = gaussian_psfs([0.8, 2.0, 3.5])
@@ -79,3 +87,72 @@ def test_the_guard_sends_the_better_of_two_known_inputs():
 def test_the_guard_refuses_a_network_without_a_linear_base():
     with pytest.raises(ValueError, match="linear base"):
         GuardedNetworkCompensation(CompensationUNet([4, 8]), PSFS)
+
+
+def textured(height: int, width: int, seed: int = 3) -> torch.Tensor:
+    generator = torch.Generator().manual_seed(seed)
+    return torch.nn.functional.avg_pool2d(torch.rand(2, 3, height + 4, width + 4, generator=generator), 5, 1)
+
+
+def test_the_tiles_lie_in_the_ssim_map_apart_and_within_their_budget():
+    """At 600x800 with a 33-px PSF: tiles inside the (H - 2r) x (W - 2r) map, none overlapping, their
+    FFT grids within ``work_fraction`` of the whole frame's; a small frame is scored whole."""
+    radius = gaussian_window().numel() // 2
+    for fraction in (0.06, 0.15, 0.3):
+        tiles = guard_tiles(600, 800, 33, 32, fraction)
+        assert len(tiles) >= 1
+        occupied = torch.zeros(600 - 2 * radius, 800 - 2 * radius, dtype=torch.int32)
+        for top, left in tiles:
+            assert top >= 0 and left >= 0 and top + 32 <= occupied.shape[0] and left + 32 <= occupied.shape[1]
+            occupied[top : top + 32, left : left + 32] += 1
+        assert int(occupied.max()) == 1
+        tile_grid = fast_fft_length(32 + 2 * radius + 2 * 16)
+        whole = fft_shape((600, 800), (33, 33))
+        assert len(tiles) * tile_grid**2 <= fraction * whole[0] * whole[1]
+    assert guard_tiles(72, 72, 15) == []
+
+
+@pytest.mark.parametrize("scramble", [0.3, 1.0])
+def test_the_tiled_margin_is_the_whole_frames_ssim_map_averaged_over_the_tiles(scramble):
+    """Computed independently: each depth's flat-screen display of the whole frame
+    (:func:`project`), its local SSIM map (:func:`ssim_map`), averaged over the tiles' pixels and the
+    depths; the tiled rule sends the input with the larger estimate."""
+    net = safe_net(scramble)
+    guarded = GuardedNetwork(net, PSFS).eval()
+    guarded.work_fraction = 0.5
+    target = textured(150, 210)
+    captured = project(target, PSFS[1:2])
+    tiles = guarded.tiles_for(150, 210)
+    assert len(tiles) >= 2
+    radius, side = gaussian_window().numel() // 2, guarded.tile_px
+
+    def estimate(v: torch.Tensor) -> torch.Tensor:
+        per_depth = []
+        for psf in PSFS:
+            local = ssim_map(project(v, psf[None]), target)
+            pixels = [local[:, radius + t : radius + t + side, radius + c : radius + c + side] for t, c in tiles]
+            per_depth.append(torch.stack(pixels).mean(dim=(0, 2, 3)))
+        return torch.stack(per_depth).mean(0)
+
+    with torch.no_grad():
+        shown, margin = guarded.decide(target, captured)
+        raw, base = net(target, captured), net.linear_base(target)
+    torch.testing.assert_close(margin, estimate(raw) - estimate(base), atol=1e-6, rtol=0)
+    for i in range(len(target)):
+        torch.testing.assert_close(shown[i], base[i] if margin[i] < 0 else raw[i], atol=0, rtol=0)
+
+
+def test_the_guard_keeps_the_networks_linear_filter_output():
+    """The network computes ``E(I)`` for ``x = E(I) + c``; the guard uses that output instead of
+    filtering the target a second time (one call of the filter per frame)."""
+    net = safe_net(0.3)
+    guarded = GuardedNetwork(net, PSFS).eval()
+    calls = []
+    net.linear_base.register_forward_hook(lambda module, args, output: calls.append(output))
+    target = images()
+    with torch.no_grad():
+        shown, margin = guarded.decide(target, project(target, PSFS[1:2]))
+    assert len(calls) == 1
+    raw = net(target, project(target, PSFS[1:2]))
+    for i in range(len(target)):
+        torch.testing.assert_close(shown[i], calls[0][i] if margin[i] < 0 else raw[i], atol=0, rtol=0)

@@ -265,3 +265,29 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["export", str(tmp_path / "empty"), "--format", "tflite"])
     assert exit_info.value.code == 2
+
+
+def test_a_guarded_export_stores_no_transfer_function_per_pixel(tmp_path):
+    """The file does not grow with the frame's area: exported at 64x96 and at 192x288 (9x the pixels),
+    the two files differ by less than half of one transfer function on the larger frame's FFT grid
+    (what storing any per-pixel transfer function would add). Both match PyTorch; the larger is
+    decided on the guard's tiles."""
+    pytest.importorskip("onnxscript")
+    from edofproj.imaging.convolution import fft_shape
+    from edofproj.methods.guard import GuardedNetwork
+    from synthetic_psfs import gaussian_psfs
+
+    torch.manual_seed(4)
+    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
+    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
+    torch.nn.init.normal_(safe.head.weight, std=0.3)
+    guarded = GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    assert guarded.tiles_for(64, 96) == [] and len(guarded.tiles_for(192, 288)) >= 1
+    sizes = []
+    for height, width in ((64, 96), (192, 288)):
+        path = tmp_path / f"guarded_{height}x{width}.onnx"
+        assert export_network(guarded, path, "onnx", height=height, width=width) <= 1e-4
+        sizes.append(path.stat().st_size)
+    rows, cols = fft_shape((192 + 12, 288 + 12), (13, 13))  # the linear filter's: reflect-padded by its radius
+    one_transfer_function = 4 * 3 * 2 * cols * (rows // 2 + 1)  # float32, 3 colours, complex half spectrum
+    assert sizes[1] - sizes[0] < one_transfer_function / 2, (sizes, one_transfer_function)

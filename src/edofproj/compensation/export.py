@@ -19,11 +19,15 @@ and FFT sizes follow the frame size in Python, so the file is for *one* frame si
   and in float32 it left errors of 1e-3 after the demo's network (2e-6 in double, at the same
   cost). With the matrix products ONNX Runtime takes 0.7-1.0x PyTorch's time, and the files differ
   from PyTorch by at most 4e-6 after the reference network (docs/experiments/2026-11-27-onnx-speed.md);
-* everything computed from the weights alone (a kernel's or a PSF's transfer function, the radial
-  filter's gains on the frequency grid, the DFT matrices) is folded into constants (initializers)
-  when the file is written (:func:`fold_weight_constants`): ONNX Runtime computes nothing per
-  frame, nor per session, that does not depend on the frame. The file grows with the frame size
-  (the guarded reference network at 600x800: 32 MB).
+* what is computed from the weights alone is folded into constants (initializers) when the file
+  is written (:func:`fold_weight_constants`) only up to :data:`FOLD_SIZE_LIMIT` elements: a
+  transfer function on a small grid (the display guard's tiles), the radial filter's gains on a
+  small frame. A transfer function on the frame's grid (``3 x 2 x Gw x (Gh/2 + 1)`` values, the
+  linear filter's at 1080x1920: 27 MB; with the guard's former whole-frame projections, 117 MB) is
+  not stored: the graph computes it from the kernel (``K x K`` values) with the same matrix DFT as
+  the frame's, one more forward transform of three channels per frame. The file holds the weights,
+  the kernels and the DFT matrices (``O(N sqrt N)`` values per axis of length ``N``): its size does
+  not grow with the frame's area.
 
 TorchScript (``torch.jit``) is deprecated in recent PyTorch releases in favour of
 ``torch.export``; it is kept because C++/LibTorch deployments still load it. Loading the
@@ -130,6 +134,7 @@ def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width:
                 input_names=list(INPUT_NAMES),
                 output_names=[OUTPUT_NAME],
                 verbose=False,
+                optimize=False,  # folded here, within FOLD_SIZE_LIMIT (the exporter's own limit is 512 x 512)
             )
             if program is None:
                 raise EdofprojError("torch.onnx.export returned no ONNX program")
@@ -142,8 +147,10 @@ def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width:
         torch_logger.setLevel(level)
 
 
-#: Elements of the largest tensor folded into a constant (a transfer function of a 4k frame's grid fits).
-FOLD_SIZE_LIMIT = 1 << 26
+#: Elements of the largest tensor folded into a constant: a transfer function on a display guard's
+#: tile grid fits (3 PSFs x 3 colours x 2 x 75 x 38 = 51,300 values), one on a frame's grid does not
+#: (module docstring): the file stays small, and its size independent of the frame's area.
+FOLD_SIZE_LIMIT = 1 << 16
 
 
 #: Operators left unfolded: they fill a tensor of a given shape (``torch.empty`` and broadcasts), whose
@@ -156,10 +163,10 @@ def fold_weight_constants(model) -> None:
 
     Equal constants become one, and equal computations on the same inputs one (the guard's linear
     filter of the target is the network's; the projections at the guard's depths share the
-    transform of their input). Then every node whose inputs are all constants is replaced by its
-    value (onnxscript's constant folding, with size limits raised to :data:`FOLD_SIZE_LIMIT`
-    elements so that whole transfer functions are folded), except tensors filled from a shape
-    (:data:`UNFOLDED_OPERATORS`)."""
+    transform of their input). Then every node whose inputs are all constants and whose output has
+    at most :data:`FOLD_SIZE_LIMIT` elements is replaced by its value (onnxscript's constant
+    folding), except tensors filled from a shape (:data:`UNFOLDED_OPERATORS`): a larger tensor
+    computed from the weights (a transfer function on the frame's grid) stays a computation."""
     import onnx_ir  # optional: the export extra (a dependency of onnxscript)
     from onnx_ir.passes.common import (
         CommonSubexpressionEliminationPass,
