@@ -156,3 +156,25 @@ def test_the_guard_keeps_the_networks_linear_filter_output():
     raw = net(target, project(target, PSFS[1:2]))
     for i in range(len(target)):
         torch.testing.assert_close(shown[i], calls[0][i] if margin[i] < 0 else raw[i], atol=0, rtol=0)
+
+
+def test_a_tiled_margin_near_a_tie_is_decided_on_the_whole_frame(monkeypatch):
+    """Within the band the whole frame's margin (:func:`predicted_ssim`) decides; outside it the tiles'."""
+    import edofproj.methods.guard as guard_module
+
+    net = safe_net(0.3)
+    guarded = GuardedNetwork(net, PSFS).eval()
+    guarded.work_fraction = 0.5
+    target = textured(150, 210)
+    captured = project(target, PSFS[1:2])
+    with torch.no_grad():
+        raw, base = net(target, captured), net.linear_base(target)
+        whole = predicted_ssim(raw, target, PSFS) - predicted_ssim(base, target, PSFS)
+        monkeypatch.setattr(guard_module, "GUARD_MARGIN_BAND", 0.0)
+        tiled = guarded.decide(target, captured)[1]
+        monkeypatch.setattr(guard_module, "GUARD_MARGIN_BAND", float(tiled.abs().max()) * 2)
+        shown, margin = guarded.decide(target, captured)
+    assert not torch.allclose(tiled, whole, atol=1e-6, rtol=0)
+    torch.testing.assert_close(margin, whole, atol=1e-6, rtol=0)
+    for i in range(len(target)):
+        torch.testing.assert_close(shown[i], base[i] if whole[i] < 0 else raw[i], atol=0, rtol=0)
