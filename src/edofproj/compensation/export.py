@@ -200,7 +200,11 @@ def _write_torchscript(net: torch.nn.Module, path: Path, height: int, width: int
 def _run_onnx(path: Path):
     import onnxruntime  # optional: the export extra
 
-    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    options = onnxruntime.SessionOptions()
+    # no arena and no pre-planned memory pattern: a 1080x1920 frame's intermediates are freed as they die
+    options.enable_cpu_mem_arena = False
+    options.enable_mem_pattern = False
+    session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     declared = {i.name for i in session.get_inputs()}  # an input the network ignores is pruned
 
     def run(target, captured):
