@@ -186,7 +186,13 @@ def run_preset(preset: str, steps: int, threads: int, overrides: list[str]) -> d
     from edofproj.training import losses
     from edofproj.training.trainer import train
 
-    overrides = overrides + [f"train.steps={steps}", f"train.checkpoint_every={steps}", f"train.threads={threads}"]
+    # a learning-rate warm-up does not change a step's cost, and one longer than the timed steps is refused
+    overrides = overrides + [
+        f"train.steps={steps}",
+        f"train.checkpoint_every={steps}",
+        f"train.threads={threads}",
+        "train.warmup_steps=0",
+    ]
     extra, notes = substitutions(preset, overrides)
     cfg = load_config(preset, overrides + extra)
     if cfg.loss.perceptual == "dists" and cfg.loss.beta > 0:

@@ -95,3 +95,10 @@ def test_resume_before_the_first_checkpoint_says_the_length_changes(tmp_path, ti
     assert main(["train", "--config", str(long), "--out", str(run), "--resume", "--stop-after", "1", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "--resume changes the run's train.steps 3 -> 4" in out
+
+
+def test_a_first_phase_warm_up_longer_than_the_phase_is_refused():
+    """The realtime preset warms its learning rate up over 300 steps: 100 steps would end inside it."""
+    with pytest.raises(ConfigError, match=r"train.warmup_steps=300 is longer than its phase, train.steps=100"):
+        load_config("realtime", ["train.steps=100"])
+    assert load_config("realtime", ["train.steps=100", "train.warmup_steps=10"]).train.warmup_steps == 10

@@ -555,6 +555,12 @@ class TrainConfig:
             raise ConfigError("train.lr_final_fraction must be in (0, 1]")
         if self.warmup_steps < 0:
             raise ConfigError(f"train.warmup_steps={self.warmup_steps} must be >= 0")
+        if self.warmup_steps > self.steps:
+            raise ConfigError(
+                f"train.warmup_steps={self.warmup_steps} is longer than its phase, train.steps={self.steps}: "
+                "the learning rate would never reach its peak; give a shorter train.warmup_steps "
+                f"(e.g. --set train.warmup_steps={self.steps // 10})"
+            )
         if self.grad_clip < 0:
             raise ConfigError("train.grad_clip must be >= 0 (0 disables clipping)")
         if self.noise_sigma < 0:
