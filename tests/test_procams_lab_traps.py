@@ -7,8 +7,11 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import pytest
+from scipy import ndimage
 
 from edofproj.cli import main
+from edofproj.errors import EdofprojError
 from edofproj.procams.prediction import blur, predict_capture, sample_at_map
 from edofproj.procams.psf_map import PSFMap, covariance
 from edofproj.procams.structured_light import CorrespondenceMap, gray_code_profiles, profiles_to_images
@@ -236,3 +239,35 @@ def test_predict_uses_the_channels_own_map(tmp_path, capsys) -> None:
                                  tmp_path / "capture.png", "--channel", channel)  # fmt: skip
         assert code == 0, err
         assert f"o = ({where})" in out, (channel, out)
+
+
+# ------------------------------------------------------------------ another blur model, same registration
+def test_prediction_takes_any_blur_of_the_projector_image() -> None:
+    """A projector whose blur is a 1x7 box along the columns (no Gaussian): predicted with that box
+    as ``light_blur`` the capture is reproduced (> 60 dB) at the PSF map's registration; with the
+    PSF map's Gaussian (another width and shape) or without blur it is not (< 40 dB); the identity
+    as ``light_blur`` is the prediction without blur, to rounding."""
+    tx, ty = camera_points()
+    truth = CorrespondenceMap(tx, ty, (H, W))
+    psf_map = flat_psf_map(0.6, 0.6, OFFSET)
+    image = profiles_to_images(gray_code_profiles(W), (H, W), "x")[-3]  # 8-px stripes
+
+    def box(u: np.ndarray) -> np.ndarray:
+        return ndimage.uniform_filter1d(u, 7, axis=1, mode="constant")
+
+    dark, bright = np.full(tx.shape, 0.05), np.full(tx.shape, 0.85)
+    capture = dark + (bright - dark) * sample_at_map(box(image), truth)
+    px, py = tx + OFFSET[0], ty + OFFSET[1]
+    inside = (px >= -0.5) & (px <= W - 0.5) & (py >= -0.5) & (py <= H - 0.5)
+    corr = CorrespondenceMap(np.where(inside, px, np.nan), np.where(inside, py, np.nan), (H, W))
+    common = dict(psf_map=psf_map, flat_filter_px=1)
+    with_box = predict_capture(image, capture, corr, dark, bright, light_blur=box, **common)
+    gaussian = predict_capture(image, capture, corr, dark, bright, **common)
+    none = predict_capture(image, capture, corr, dark, bright, blur_psf=False, **common)
+    identity = predict_capture(image, capture, corr, dark, bright, light_blur=lambda u: u, **common)
+    assert with_box.offset_px == gaussian.offset_px == OFFSET
+    assert with_box.psnr_db > 60.0 and abs(with_box.gain - 1.0) < 1e-3
+    assert gaussian.psnr_db < 40.0 and none.psnr_db < 40.0
+    assert identity.psnr_db == pytest.approx(none.psnr_db, abs=1e-9)
+    with pytest.raises(EdofprojError, match="turned"):
+        predict_capture(image, capture, corr, dark, bright, light_blur=lambda u: u[:-1], **common)

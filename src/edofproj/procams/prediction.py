@@ -32,6 +32,10 @@ The model of one capture ``C`` of projector image ``u`` (grey, ``(H, W)`` in ``[
 (:func:`registration_offset`): the given offset, else the PSF map's, else none; ``blur_psf=False``
 predicts without blur at the PSF map's registration, so that the two differ by the blur alone.
 
+**Another blur.** ``light_blur``, any operator ``(H, W) -> (H, W)`` on the projector image (another
+blur model, e.g. the per-pixel kernels of :mod:`.lab_kernels`), replaces ``K *`` above at the same
+registration, so that two blur models of one projector can be compared on the same capture.
+
 Scores over the valid region (:func:`score`): PSNR ``10 log10(top^2 / mean (C - C_hat)^2)`` and SSIM
 (:func:`skimage.metrics.structural_similarity`, its map averaged over the region).
 """
@@ -39,6 +43,7 @@ Scores over the valid region (:func:`score`): PSNR ``10 log10(top^2 / mean (C - 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -235,11 +240,13 @@ def predict_capture(
     offset_px: tuple[float, float] | None = None,
     flat_filter_px: int = 11,
     blur_psf: bool = True,
+    light_blur: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Prediction:
     """The module docstring's model for a grey projector image ``(H, W)`` in ``[0, 1]`` and a grey
     capture ``(Hc, Wc)`` in image units, scored over ``region`` (default: the map's valid pixels
     where ``B > D``). ``offset_px``: ``o`` (:func:`registration_offset`); ``blur_psf`` False: the
-    PSF map registers but does not blur."""
+    PSF map registers but does not blur; ``light_blur``: the blur of the projector image ``(H, W) ->
+    (H, W)`` used instead of the PSF map's (module docstring)."""
     capture = np.asarray(capture, dtype=np.float64)
     if capture.shape != corr.camera_hw:
         raise EdofprojError(
@@ -253,7 +260,12 @@ def predict_capture(
             f"{W}x{H} projector: an offset is a few px (the PSF map's estimate, or 0 0 for a Gray-code map)"
         )
     light = np.asarray(projector_image, dtype=np.float64)
-    if psf_map is not None and blur_psf:
+    if light_blur is not None:
+        blurred = np.asarray(light_blur(light), dtype=np.float64)
+        if blurred.shape != light.shape:
+            raise EdofprojError(f"the blur turned a {light.shape} projector image into {blurred.shape}")
+        light = blurred
+    elif psf_map is not None and blur_psf:
         light = blur(light, psf_map)
     seen = sample_at_map(light, corr, offset_px)
     if flat_filter_px > 1:
