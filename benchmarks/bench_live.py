@@ -163,6 +163,28 @@ def print_stages_alone(calibration, frame_counts: np.ndarray, target: np.ndarray
     print(f"  {'show_target f^-1(I)':<26} {'after':<7} {'cached per target: 0':>19}")
 
 
+def virtual_rig(
+    cfg,
+    height: int,
+    width: int,
+    depth_mm: float = 400.0,
+    window: int = 21,
+    camera_scale: float = 1.5,
+    supersampling: int = 2,
+):
+    """``(rig, calibration, target)``: ``VirtualProCams.example`` at the projector size ``height x width``
+    with the lens PSF of ``cfg`` at ``depth_mm``, its ideal calibration (tables built) and the first test
+    image of ``cfg.data`` as an ``(H, W, 3)`` float array (module docstring)."""
+    psf = simulator_from_config(cfg, window=window).bank(build_doe(cfg, "lens"), [depth_mm * 1e-3]).psf
+    rig = VirtualProCams.example(
+        (height, width), psf[0].double().numpy(), camera_scale=camera_scale, supersampling=supersampling
+    )
+    calibration = rig.ideal_calibration()
+    _ = calibration.rectifier, calibration.inverse_table
+    target = build_test_images(cfg.data, size=(height, width))[0][1].numpy().transpose(1, 2, 0).copy()
+    return rig, calibration, target
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--size", default="600x800", help="projector HEIGHTxWIDTH (600x800)")
@@ -195,19 +217,15 @@ def main() -> int:
     module = net  # what runs on the GPU, without the wrapper that copies its images there and back
     if device.type != "cpu":
         net = NetworkOnDevice(net, device)
-    psf = simulator_from_config(cfg, window=args.window).bank(build_doe(cfg, "lens"), [args.depth_mm * 1e-3]).psf
-    rig = VirtualProCams.example(
-        (height, width), psf[0].double().numpy(), camera_scale=args.camera_scale, supersampling=args.supersampling
-    )
     start = time.perf_counter()
-    calibration = rig.ideal_calibration()
-    _ = calibration.rectifier, calibration.inverse_table
+    rig, calibration, target = virtual_rig(
+        cfg, height, width, args.depth_mm, args.window, args.camera_scale, args.supersampling
+    )
     setup_s = time.perf_counter() - start
-    target = build_test_images(cfg.data, size=(height, width))[0][1].numpy().transpose(1, 2, 0).copy()
     print(
         f"live loop, {width}x{height} projector, camera {rig.camera_hw[1]}x{rig.camera_hw[0]} "
         f"(x{args.supersampling} sub-samples), {torch.get_num_threads()} PyTorch thread(s), network "
-        f"'{args.run or args.config}'; calibration tables built in {setup_s:.2f} s "
+        f"'{args.run or args.config}'; rig, calibration tables and target built in {setup_s:.2f} s "
         f"(inverse response: {type(calibration.inverse_table).__name__}); network on {device}"
         + (f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "")
     )

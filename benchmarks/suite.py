@@ -1,0 +1,441 @@
+"""The benchmark suite: named cases, one runner, one output format, comparable across commits.
+
+    python benchmarks/suite.py [--cases a,b] [--repeats N] [--out results.json]
+    python benchmarks/suite.py --list
+    python benchmarks/suite.py compare BASE.json NEW.json      # or the .csv files
+
+Each **case** measures one thing a user or the README quotes, with the library code the one-off scripts
+of ``benchmarks/`` use (nothing is re-implemented here):
+
+* ``training-step-1t``, ``training-step-2t``: one training step of the ``cpu`` preset (its session built
+  as ``edofproj train`` builds it, the substitutions of ``bench_training.py`` for what a fresh clone
+  lacks), on one and on two torch threads; wall and process-CPU milliseconds per step.
+* ``shipped-600x800``, ``shipped-1080p``: the shipped method ``doe+net`` of ``builtin:cpu-doe-net`` per
+  3-channel frame, through :meth:`Method.frame_function` (the object ``compensate`` and ``live`` call:
+  the network behind its display guard), with FFT Wiener (PyTorch, cached filter, 33x33 disk PSF, as
+  ``edofproj bench``) in the same rounds, interleaved in a rotating order (``bench_realtime.py``'s
+  ``interleaved_ms``), on 2 threads; the ratio is the median of the per-round ratios.
+* ``live-loop``: the pipelined loop of ``edofproj live builtin:cpu-doe-net`` at 600x800 on the simulated
+  devices of ``bench_live.py`` (in-memory display; a camera returning a ready virtual capture, then the
+  virtual ProCams simulating every capture), one PyTorch/OpenCV thread per stage as ``bench_live.py``.
+
+The demo's stages are not a case: they need a finished demo (training, 8-14 minutes on 2 cores) and
+take about 5 minutes after it; ``benchmarks/demo_later_stages.py`` times them on a demo folder.
+
+**Output.** One row per (case, metric): ``case, metric, value, unit, repeats, median, min, commit, date,
+torch, threads, isa, load1`` where ``value`` is the median of ``repeats`` samples, ``commit`` the
+checkout's ``git describe --always --dirty``, ``date`` UTC ISO 8601, ``isa`` the CPU's instruction sets
+(:func:`edofproj.machine.instruction_sets`) and ``load1`` the one-minute load average when the case
+started. ``--out results.json`` writes ``{"format": 1, "rows": [...]}`` and the same rows to
+``results.csv`` beside it (atomically); the rows are printed as a table in any case.
+
+**compare** prints per (case, metric) found in both files NEW's median / BASE's median (above 1: slower
+for ``ms``, faster for ``frames/s``), the commits and instruction sets of each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+FORMAT = 1
+#: The columns of a result row, in order.
+FIELDS = (
+    "case", "metric", "value", "unit", "repeats", "median", "min",
+    "commit", "date", "torch", "threads", "isa", "load1",
+)  # fmt: skip
+SHIPPED_RUN = "builtin:cpu-doe-net"
+
+
+@dataclass
+class Measurement:
+    """Samples of one metric of a case (one per repeat, in ``unit``) and the threads it ran on."""
+
+    metric: str
+    samples: list[float]
+    unit: str
+    threads: int
+
+
+@dataclass
+class Context:
+    """What a case runs with: samples per metric, the wall clock and the process-CPU clock (seconds)."""
+
+    repeats: int
+    clock: Callable[[], float] = time.perf_counter
+    cpu_clock: Callable[[], float] = time.process_time
+
+
+@dataclass
+class Case:
+    name: str
+    description: str
+    run: Callable[[Context], list[Measurement]]
+    default_repeats: int
+
+
+@dataclass
+class Machine:
+    """What every row names: the checkout, the date, torch, the CPU's instruction sets."""
+
+    commit: str
+    date: str
+    torch: str
+    isa: str
+    load1: Callable[[], float] = field(default=lambda: os.getloadavg()[0])
+
+
+def this_machine() -> Machine:
+    import torch
+
+    from edofproj.machine import instruction_sets
+
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(HERE), "describe", "--always", "--dirty"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    return Machine(
+        commit=commit or "unknown",
+        date=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        torch=torch.__version__,
+        isa=instruction_sets(),
+    )
+
+
+def timed(function: Callable[[], object], ctx: Context, warmup: int = 1) -> tuple[list[float], list[float]]:
+    """Wall and process-CPU milliseconds of ``ctx.repeats`` calls of ``function`` after ``warmup`` calls."""
+    for _ in range(warmup):
+        function()
+    wall, cpu = [], []
+    for _ in range(ctx.repeats):
+        start, cpu_start = ctx.clock(), ctx.cpu_clock()
+        function()
+        wall.append(1e3 * (ctx.clock() - start))
+        cpu.append(1e3 * (ctx.cpu_clock() - cpu_start))
+    return wall, cpu
+
+
+def _script(name: str):
+    """A sibling script of ``benchmarks/`` as a module (its functions reused, its ``main`` not run)."""
+    if str(HERE) not in sys.path:
+        sys.path.insert(0, str(HERE))
+    return __import__(name)
+
+
+# ---- cases -------------------------------------------------------------------------------------------
+
+
+def training_step(threads: int) -> Callable[[Context], list[Measurement]]:
+    """One training step of the ``cpu`` preset on ``threads`` torch threads (module docstring)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import warnings
+
+        import torch
+
+        from edofproj.config import load_config
+        from edofproj.training.distributed import setup_process_group
+        from edofproj.training.trainer import _Session
+
+        bench_training = _script("bench_training")
+        torch.set_num_threads(threads)
+        warnings.simplefilter("ignore")
+        extra, _ = bench_training.substitutions("cpu", [])
+        cfg = load_config("cpu", extra)
+        with tempfile.TemporaryDirectory() as tmp:
+            session = _Session(cfg, Path(tmp) / "run", setup_process_group("cpu"))
+            wall, cpu = timed(session.train_step, ctx, warmup=2)
+        precision = bench_training.precision_that_runs(cfg)
+        return [
+            Measurement(f"step wall ({precision})", wall, "ms", threads),
+            Measurement(f"step process CPU ({precision})", cpu, "ms", threads),
+        ]
+
+    return run
+
+
+def shipped(height: int, width: int, threads: int = 2) -> Callable[[Context], list[Measurement]]:
+    """The shipped ``doe+net`` per frame against FFT Wiener in the same rounds (module docstring)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import torch
+
+        from edofproj.evaluation import timing
+        from edofproj.methods.builder import build_method
+
+        torch.set_num_threads(threads)
+        frame_function = _script("bench_shipped_methods").frame_function
+        interleaved_ms = _script("bench_realtime").interleaved_ms
+        method = build_method(SHIPPED_RUN, "doe+net")
+        module = method.frame_function(None)  # what compensate and live call: the network behind its guard
+        module.to(memory_format=torch.channels_last)  # type: ignore[attr-defined]  (live's layout)
+        frames = {
+            "doe+net": frame_function(module, height, width),
+            "fft-wiener": timing.wiener_torch_case(timing.disk_psf(33), 1e-3, "cpu").build(height, width),
+        }
+        times = interleaved_ms(frames, ctx.repeats, warmup=1)
+        ratios = [n / w for n, w in zip(times["doe+net"], times["fft-wiener"], strict=True)]
+        return [
+            Measurement("doe+net (shipped, guard included)", times["doe+net"], "ms", threads),
+            Measurement("FFT Wiener (PyTorch, cached filter)", times["fft-wiener"], "ms", threads),
+            Measurement("doe+net / FFT Wiener", ratios, "ratio", threads),
+        ]
+
+    return run
+
+
+def live_loop(height: int = 600, width: int = 800, threads: int = 1) -> Callable[[Context], list[Measurement]]:
+    """The live loop of the shipped method on simulated devices (module docstring)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import cv2
+        import torch
+
+        from edofproj.application.live import run_live
+        from edofproj.methods.builder import build_method
+        from edofproj.procams.devices.cameras import VirtualCamera
+        from edofproj.procams.devices.displays import MemoryDisplay
+
+        bench_live = _script("bench_live")
+        torch.set_num_threads(threads)
+        cv2.setNumThreads(threads)
+        method = build_method(SHIPPED_RUN)
+        net = method.frame_function(None)
+        rig, calibration, target = bench_live.virtual_rig(method.design.cfg, height, width)
+        display = MemoryDisplay()
+        display.show(calibration.inverse_table.apply(torch.from_numpy(target)).numpy())
+        camera = bench_live.InstantCamera(VirtualCamera(rig, display).grab_native())
+        run_live(net, calibration, MemoryDisplay(), camera, [("warm-up", target)] * 2)
+        instant = run_live(net, calibration, MemoryDisplay(), camera, [("target", target)] * ctx.repeats)
+        display = MemoryDisplay()
+        virtual = run_live(net, calibration, display, VirtualCamera(rig, display), [("target", target)] * ctx.repeats)
+        return [
+            Measurement("instant camera: frames/s", [instant.fps], "frames/s", threads),
+            Measurement(
+                "instant camera: compensate stage", [1e3 * s for s in instant.stage_s["compensate"]], "ms", threads
+            ),
+            Measurement("instant camera: latency", [1e3 * s for s in instant.latency_s], "ms", threads),
+            Measurement("virtual ProCams: frames/s", [virtual.fps], "frames/s", threads),
+            Measurement("virtual ProCams: capture stage", [1e3 * s for s in virtual.stage_s["capture"]], "ms", threads),
+            Measurement("virtual ProCams: latency", [1e3 * s for s in virtual.latency_s], "ms", threads),
+        ]
+
+    return run
+
+
+CASES: dict[str, Case] = {
+    case.name: case
+    for case in (
+        Case("training-step-1t", "one step of the cpu preset, 1 thread", training_step(1), 10),
+        Case("training-step-2t", "one step of the cpu preset, 2 threads", training_step(2), 10),
+        Case("shipped-600x800", "shipped doe+net and FFT Wiener per 600x800 frame, 2 threads", shipped(600, 800), 10),
+        Case("shipped-1080p", "shipped doe+net and FFT Wiener per 1080x1920 frame, 2 threads", shipped(1080, 1920), 3),
+        Case("live-loop", "live loop of the shipped method at 600x800, simulated devices", live_loop(), 6),
+    )
+}
+
+
+# ---- runner and format -------------------------------------------------------------------------------
+
+
+def rows_of(case: str, measurements: Sequence[Measurement], machine: Machine, load1: float) -> list[dict]:
+    """One result row (:data:`FIELDS`) per measurement."""
+    rows = []
+    for m in measurements:
+        if not m.samples:
+            continue
+        median = float(statistics.median(m.samples))
+        rows.append(
+            {
+                "case": case,
+                "metric": m.metric,
+                "value": median,
+                "unit": m.unit,
+                "repeats": len(m.samples),
+                "median": median,
+                "min": float(min(m.samples)),
+                "commit": machine.commit,
+                "date": machine.date,
+                "torch": machine.torch,
+                "threads": m.threads,
+                "isa": machine.isa,
+                "load1": round(float(load1), 2),
+            }
+        )
+    return rows
+
+
+def run_cases(
+    names: Sequence[str],
+    repeats: int | None,
+    machine: Machine,
+    cases: dict[str, Case] = CASES,
+    ctx_clocks: dict | None = None,
+) -> list[dict]:
+    """Run each named case (``repeats`` samples, or the case's default) and return its rows."""
+    rows: list[dict] = []
+    for name in names:
+        case = cases[name]
+        ctx = Context(repeats=repeats or case.default_repeats, **(ctx_clocks or {}))
+        load1 = machine.load1()
+        rows += rows_of(name, case.run(ctx), machine, load1)
+    return rows
+
+
+def csv_text(rows: Sequence[dict]) -> str:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=FIELDS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return out.getvalue()
+
+
+def write_results(path: Path, rows: Sequence[dict]) -> Path:
+    """``path`` (JSON) and the same rows as CSV beside it; returns the CSV's path."""
+    from edofproj.fileio import write_text_atomic
+
+    csv_path = path.with_suffix(".csv")
+    write_text_atomic(path, json.dumps({"format": FORMAT, "rows": list(rows)}, indent=1) + "\n")
+    write_text_atomic(csv_path, csv_text(rows))
+    return csv_path
+
+
+def read_results(path: Path) -> list[dict]:
+    """The rows of a results file, JSON or CSV (numbers as floats); a one-line error if unreadable."""
+    from edofproj.errors import EdofprojError
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise EdofprojError(f"cannot read '{path}': {exc.strerror or exc}") from None
+    try:
+        if path.suffix == ".csv":
+            rows = list(csv.DictReader(io.StringIO(text)))
+        else:
+            rows = json.loads(text)["rows"]
+        for row in rows:
+            row["median"] = float(row["median"])
+            row["case"], row["metric"], row["unit"] = str(row["case"]), str(row["metric"]), str(row["unit"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise EdofprojError(
+            f"'{path}' is not a results file of benchmarks/suite.py ({type(exc).__name__}: {exc})"
+        ) from None
+    return rows
+
+
+def compare_rows(base: Sequence[dict], new: Sequence[dict]) -> list[tuple[str, str, str, float, float, float]]:
+    """``(case, metric, unit, base median, new median, new / base)`` for each (case, metric) in both, in NEW's order."""
+    index = {(r["case"], r["metric"]): r for r in base}
+    out = []
+    for row in new:
+        old = index.get((row["case"], row["metric"]))
+        if old is None:
+            continue
+        ratio = row["median"] / old["median"] if old["median"] else float("nan")
+        out.append((row["case"], row["metric"], row["unit"], old["median"], row["median"], ratio))
+    return out
+
+
+def format_table(rows: Sequence[dict]) -> str:
+    lines = [
+        "| case | metric | median | min | unit | repeats | threads |",
+        "| --- | --- | ---: | ---: | --- | ---: | ---: |",
+    ]
+    lines += [
+        f"| {r['case']} | {r['metric']} | {r['median']:.4g} | {r['min']:.4g} | {r['unit']} | {r['repeats']} | {r['threads']} |"
+        for r in rows
+    ]
+    return "\n".join(lines)
+
+
+def _header(rows: Sequence[dict]) -> str:
+    if not rows:
+        return "(no rows)"
+    commits = sorted({str(r["commit"]) for r in rows})
+    isas = sorted({str(r["isa"]) for r in rows})
+    return f"commit {', '.join(commits)}; torch {rows[0]['torch']}; CPU {' | '.join(isas)}"
+
+
+def compare_main(argv: Sequence[str]) -> int:
+    parser = argparse.ArgumentParser(prog="suite.py compare", description="NEW / BASE per case and metric")
+    parser.add_argument("base", type=Path)
+    parser.add_argument("new", type=Path)
+    args = parser.parse_args(argv)
+    base, new = read_results(args.base), read_results(args.new)
+    print(f"base: {args.base}: {_header(base)}")
+    print(f"new:  {args.new}: {_header(new)}")
+    print("| case | metric | unit | base | new | new / base |")
+    print("| --- | --- | --- | ---: | ---: | ---: |")
+    pairs = compare_rows(base, new)
+    for case, metric, unit, old, now, ratio in pairs:
+        print(f"| {case} | {metric} | {unit} | {old:.4g} | {now:.4g} | {ratio:.3f} |")
+    if not pairs:
+        print("(no case and metric in both files)")
+    return 0
+
+
+def run_main(argv: Sequence[str]) -> int:
+    from edofproj.errors import EdofprojError
+
+    parser = argparse.ArgumentParser(prog="suite.py", description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=None, help=f"comma-separated case names (default: all: {', '.join(CASES)})")
+    parser.add_argument("--repeats", type=int, default=None, help="samples per metric (default: each case's own)")
+    parser.add_argument("--out", type=Path, default=None, help="results JSON (the CSV is written beside it)")
+    parser.add_argument("--list", action="store_true", help="list the cases and exit")
+    args = parser.parse_args(argv)
+    if args.list:
+        for case in CASES.values():
+            print(f"{case.name:18s} {case.description} (default repeats {case.default_repeats})")
+        return 0
+    names = list(CASES) if args.cases is None else [n.strip() for n in args.cases.split(",") if n.strip()]
+    unknown = [n for n in names if n not in CASES]
+    if unknown or not names:
+        raise EdofprojError(
+            f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; the cases: {', '.join(CASES)}"
+        )
+    if args.repeats is not None and args.repeats < 1:
+        raise EdofprojError(f"--repeats must be at least 1, not {args.repeats}")
+    if args.out is not None and (args.out.suffix != ".json" or not args.out.parent.is_dir()):
+        raise EdofprojError(f"--out '{args.out}': a .json file in an existing folder")
+    machine = this_machine()
+    print(
+        f"suite: {', '.join(names)}; {_header([{'commit': machine.commit, 'isa': machine.isa, 'torch': machine.torch}])}"
+    )
+    rows = run_cases(names, args.repeats, machine)
+    print(format_table(rows))
+    if args.out is not None:
+        csv_path = write_results(args.out, rows)
+        print(f"wrote {args.out} and {csv_path}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from edofproj.errors import EdofprojError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv[:1] == ["compare"]:
+            return compare_main(argv[1:])
+        return run_main(argv)
+    except EdofprojError as exc:
+        print(f"suite.py: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

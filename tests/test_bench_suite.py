@@ -1,0 +1,118 @@
+"""``benchmarks/suite.py``: the runner writes its format (every field, the CPU's instruction sets) from a
+tiny case timed by a fake clock, and ``compare`` divides the right medians; nothing here depends on speed."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from edofproj.machine import instruction_sets
+
+SCRIPT = Path(__file__).parents[1] / "benchmarks" / "suite.py"
+
+
+@pytest.fixture(scope="module")
+def suite():
+    spec = importlib.util.spec_from_file_location("bench_suite", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_suite"] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules["bench_suite"]
+
+
+class FakeClock:
+    """Seconds that advance by the next of ``steps`` at each read (a call's duration is known exactly)."""
+
+    def __init__(self, steps):
+        self.now, self.steps = 0.0, list(steps)
+
+    def __call__(self) -> float:
+        self.now += self.steps.pop(0) if self.steps else 0.0
+        return self.now
+
+
+def tiny_case(suite, calls: list[int]):
+    def run(ctx):
+        wall, cpu = suite.timed(lambda: calls.append(1), ctx, warmup=1)
+        return [suite.Measurement("call", wall, "ms", 1), suite.Measurement("call cpu", cpu, "ms", 1)]
+
+    return suite.Case("tiny", "a call that appends to a list", run, 3)
+
+
+def test_the_runner_writes_every_field_with_the_cpus_instruction_sets(suite, tmp_path):
+    calls: list[int] = []
+    # each timed call reads the wall clock twice: start then end; the durations are 5, 2 and 9 ms
+    wall = FakeClock([0.0, 0.005, 0.0, 0.002, 0.0, 0.009])
+    cpu = FakeClock([0.0, 0.001, 0.0, 0.001, 0.0, 0.004])
+    machine = suite.Machine(
+        commit="abc1234", date="2026-11-29T08:00:00+00:00", torch="2.13.0", isa=instruction_sets(), load1=lambda: 1.5
+    )
+    rows = suite.run_cases(
+        ["tiny"], None, machine, {"tiny": tiny_case(suite, calls)}, {"clock": wall, "cpu_clock": cpu}
+    )
+    assert len(calls) == 1 + 3  # one warm-up, the case's default repeats
+    out = tmp_path / "results.json"
+    csv_path = suite.write_results(out, rows)
+    data = json.loads(out.read_text())
+    assert data["format"] == suite.FORMAT
+    first = data["rows"][0]
+    assert tuple(first) == suite.FIELDS
+    assert first["case"] == "tiny" and first["metric"] == "call" and first["unit"] == "ms"
+    assert first["repeats"] == 3 and first["threads"] == 1
+    assert (
+        first["median"] == pytest.approx(5.0)
+        and first["value"] == pytest.approx(5.0)
+        and first["min"] == pytest.approx(2.0)
+    )
+    assert data["rows"][1]["median"] == pytest.approx(1.0) and data["rows"][1]["min"] == pytest.approx(1.0)
+    assert first["commit"] == "abc1234" and first["torch"] == "2.13.0" and first["load1"] == 1.5
+    assert first["isa"] == instruction_sets() and first["isa"].split()[0]  # the machine, then its sets
+    with open(csv_path, newline="") as handle:
+        table = list(csv.DictReader(handle))
+    assert tuple(table[0]) == suite.FIELDS
+    assert [(r["case"], r["metric"], float(r["median"]), r["isa"]) for r in table] == [
+        (r["case"], r["metric"], r["median"], r["isa"]) for r in data["rows"]
+    ]
+
+
+def known_rows(suite, medians: dict[tuple[str, str], float], commit: str) -> list[dict]:
+    machine = suite.Machine(commit=commit, date="2026-11-29T08:00:00+00:00", torch="2.13.0", isa="x86_64 AVX2 FMA")
+    rows = []
+    for (case, metric), value in medians.items():
+        rows += suite.rows_of(case, [suite.Measurement(metric, [value, 2 * value, value / 2], "ms", 2)], machine, 0.0)
+    return rows
+
+
+def test_compare_divides_new_by_base_per_case_and_metric_from_either_format(suite, tmp_path, capsys):
+    base = known_rows(suite, {("a", "x"): 10.0, ("a", "y"): 4.0, ("gone", "x"): 1.0}, "base")
+    new = known_rows(suite, {("a", "y"): 6.0, ("a", "x"): 5.0, ("added", "x"): 3.0}, "new")
+    suite.write_results(tmp_path / "base.json", base)
+    suite.write_results(tmp_path / "new.json", new)
+    for b, n in (("base.json", "new.json"), ("base.csv", "new.csv"), ("base.json", "new.csv")):
+        pairs = suite.compare_rows(suite.read_results(tmp_path / b), suite.read_results(tmp_path / n))
+        assert [(c, m, r) for c, m, _, _, _, r in pairs] == [
+            ("a", "y", pytest.approx(1.5)),
+            ("a", "x", pytest.approx(0.5)),
+        ]
+    assert suite.main(["compare", str(tmp_path / "base.json"), str(tmp_path / "new.json")]) == 0
+    printed = capsys.readouterr().out
+    assert "| a | y | ms | 4 | 6 | 1.500 |" in printed and "| a | x | ms | 10 | 5 | 0.500 |" in printed
+    assert "gone" not in printed and "added" not in printed
+
+
+def test_bad_input_is_one_line_and_a_nonzero_exit(suite, tmp_path, capsys):
+    (tmp_path / "junk.json").write_text("{}")
+    assert suite.main(["compare", str(tmp_path / "junk.json"), str(tmp_path / "junk.json")]) == 2
+    assert suite.main(["compare", str(tmp_path / "absent.json"), str(tmp_path / "junk.json")]) == 2
+    assert suite.main(["--cases", "no-such-case"]) == 2
+    assert suite.main(["--cases", "tiny", "--out", str(tmp_path / "r.txt")]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 4 and all(line.startswith("suite.py: error: ") for line in errors)
+    assert not (tmp_path / "r.txt").exists()
