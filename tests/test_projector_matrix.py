@@ -7,7 +7,8 @@ written without training (``config.yaml`` + ``doe.npz``). Each command that take
 its design is run in-process; its output is checked against closed forms: the pixel pitch at depth
 ``z`` is ``z / (T W)``, the wavelengths are the run's ``min:step:max``, the depths lie in the run's range.
 Commands that load a trained run's checkpoint (evaluate, compensate, export, bench, live, finetune,
-scene --run) read its configuration through :func:`edofproj.runs.load_run`.
+scene --run) read its configuration through :func:`edofproj.runs.load_run`; ``compensate`` and
+``evaluate`` are run on each projector's run trained for one step (``trained_run``).
 """
 
 from __future__ import annotations
@@ -185,6 +186,57 @@ def test_tolerance_and_export_doe_use_the_runs_projector(projector_run, tmp_path
     assert main(["export-doe", str(run), "--out", str(fab)]) == 0, capsys.readouterr().err
     fab_report = json.loads((fab / "fab_report.json").read_text())
     assert fab_report["aperture_radius_um"] == pytest.approx(cfg.optics.aperture_mm * 500)
+
+
+@pytest.fixture(scope="module")
+def trained_run(projector_run, tmp_path_factory):
+    """``projector_run``'s projector trained for one step (a checkpoint, so that the commands that load a
+    trained run take it): a small network on small crops, nothing of the projector changed."""
+    name, cfg, run = projector_run
+    out = tmp_path_factory.mktemp(name) / "trained"
+    small = ["train.steps=1", "train.checkpoint_every=1", "net.widths=[4,8]", "data.crop=32", "train.batch_size=1"]
+    args = ["train", "--config", str(run / "config.yaml"), "--out", str(out), "--quiet"]
+    assert main(args + [a for o in small + ["train.validate_every=0"] for a in ("--set", o)]) == 0
+    return name, cfg, out
+
+
+@pytest.mark.slow  # the matrix: three projectors, every command
+def test_compensate_simulates_the_runs_projector(trained_run, tmp_path, capsys):
+    """``compensate RUN --method doe --preview``: the simulated projection is the target blurred by the
+    PSF that ``psf --doe RUN`` writes at that depth (the run's projector, its pitch z / (T W))."""
+    import torch
+
+    from edofproj.imaging import project, read_image, write_image
+
+    name, cfg, run = trained_run
+    z_mm = PROJECTORS[name][1][0]
+    image = tmp_path / "in.png"
+    write_image(str(image), torch.from_numpy(np.random.default_rng(1).random((3, 40, 48))).float(), bits=16)
+    preview = tmp_path / "shown.png"
+    args = ["compensate", str(run), "--method", "doe", "--image", str(image), "--depth-mm", f"{z_mm:g}"]
+    assert main(args + ["--out", str(tmp_path / "o.png"), "--preview", str(preview), "--bits", "16"]) == 0
+    psf = tmp_path / "psf.npz"
+    assert main(["psf", "--doe", str(run), "--depth-mm", f"{z_mm:g}", "--out", str(psf)]) == 0
+    data = np.load(psf)
+    assert np.allclose(data["pixel_pitch_m"], pitch_m(cfg, data["depths_m"]), rtol=1e-9)
+    expected = project(read_image(str(image))[None].double(), torch.from_numpy(data["psf"]).double())[0]
+    assert np.abs(read_image(str(preview)).numpy() - expected.clamp(0, 1).numpy()).max() < 2e-4
+    capsys.readouterr()
+
+
+@pytest.mark.slow  # the matrix: three projectors, every command
+def test_evaluate_scores_the_runs_depths_and_tilted_range(trained_run, tmp_path, capsys):
+    import csv
+
+    name, cfg, run = trained_run
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(run), "--methods", "doe", "--out", str(out), "--quiet"]) == 0
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert sorted({float(r["depth_mm"]) for r in rows}) == sorted(cfg.evaluation.depths_mm)
+    tilted = list(csv.DictReader((out / "tilted_metrics.csv").open()))
+    near, far = PROJECTORS[name][1]
+    assert {(float(r["near_mm"]), float(r["far_mm"])) for r in tilted} == {(near, far)}  # the scored range
+    capsys.readouterr()
 
 
 @pytest.mark.parametrize("command", ["psf", "plot-psf", "render", "tolerance", "export-doe"])
