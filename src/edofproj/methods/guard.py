@@ -86,7 +86,7 @@ def guard_choice(
 
 #: A tiled margin ``|S_tiles(x) - S_tiles(E(I))|`` below this is decided on the whole frame instead
 #: (:meth:`GuardedNetwork.decide`): on the validation and test images at 600x800 every tiled decision
-#: that differed from the whole frame's had a tiled margin below 5e-4
+#: that differed from the whole frame's had a tiled margin of at most 5.6e-4
 #: (docs/experiments/2026-11-29-cheap-guard-and-1080p-export.md).
 GUARD_MARGIN_BAND = 1e-3
 
