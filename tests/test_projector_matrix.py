@@ -279,3 +279,24 @@ def test_a_design_file_without_its_projector_says_so(tmp_path, recwarn):
     recwarn.clear()
     assert main(["psf", "--doe", str(run / "doe.npz"), "--config", str(run / "config.yaml"), "--out", out]) == 0
     assert not [w for w in recwarn if issubclass(w.category, ProjectorWarning)]
+
+
+def test_render_psf_file_on_a_tilted_screen_takes_the_files_throw(tmp_path, capsys):
+    """``render --psf FILE --tilt-deg``: the far edge's depth follows the throw the PSF file was simulated
+    for (its pitch q(z) = z / (T W)), not the default projector's: far = near (1 + u t) / (1 - u t) with
+    u = (w - 1) / (2 T W), t = tan(tilt), for the pico's T W = 1.2 x 1920."""
+    import torch
+
+    from edofproj.imaging import write_image
+    from edofproj.optics.psf_bank import PSFBank, simulator_from_config
+
+    cfg = projector_config("pico-1080p")
+    bank = simulator_from_config(cfg).bank(None, [0.8, 1.6])
+    assert isinstance(bank, PSFBank)
+    bank.save(tmp_path / "psf.npz")
+    image = tmp_path / "in.png"
+    write_image(str(image), torch.full((3, 40, 48), 0.5))
+    args = ["render", "--psf", str(tmp_path / "psf.npz"), "--image", str(image), "--tilt-deg", "30"]
+    assert main(args + ["--near-mm", "800", "--out", str(tmp_path / "r.png")]) == 0
+    u, t = (48 - 1) / (2 * 1.2 * 1920), np.tan(np.radians(30))
+    assert f"800.0-{800 * (1 + u * t) / (1 - u * t):.1f} mm" in capsys.readouterr().out

@@ -197,6 +197,15 @@ def run(args) -> int:
             screen += f", {np.isnan(depth_map_m).mean():.0%} of pixels hit nothing"
     elif args.tilt_deg is not None:
         geometry = ProjectorGeometry.from_config(cfg.optics)
+        if args.psf is not None:
+            # the PSF file's pixel pitch q(z) = z / (T W) fixes the throw the file was simulated for
+            from dataclasses import replace
+
+            from ..optics.psf_bank import PSFBank
+
+            bank_for_throw = PSFBank.load(args.psf)
+            throw_width = float(bank_for_throw.depths_m[0]) / float(bank_for_throw.pixel_pitch_m[0])
+            geometry = replace(geometry, throw_ratio=throw_width / geometry.width_px)
         near_m = args.near_mm * 1e-3
         far_m = (
             args.far_mm * 1e-3
@@ -205,9 +214,14 @@ def run(args) -> int:
         )
         depth_map_m = tilted_plane_depth_map(height, width, args.tilt_deg, near_m, far_m)
         implied = tilted_plane_tilt_deg(near_m, far_m, width, geometry)
+        throw = (
+            f"the PSF file's pitch, T W = {geometry.throw_width_m:.0f} px"
+            if args.psf is not None
+            else f"throw ratio {geometry.throw_ratio:g}"
+        )
         screen = (
             f"plane tilted {args.tilt_deg:g} deg, {near_m * 1e3:.1f}-{far_m * 1e3:.1f} mm "
-            f"(with throw ratio {cfg.optics.throw_ratio:g} these depths mean a tilt of {implied:.1f} deg)"
+            f"(with {throw}, these depths mean a tilt of {implied:.1f} deg)"
         )
 
     with torch.no_grad():
