@@ -300,3 +300,24 @@ def test_render_psf_file_on_a_tilted_screen_takes_the_files_throw(tmp_path, caps
     assert main(args + ["--near-mm", "800", "--out", str(tmp_path / "r.png")]) == 0
     u, t = (48 - 1) / (2 * 1.2 * 1920), np.tan(np.radians(30))
     assert f"800.0-{800 * (1 + u * t) / (1 - u * t):.1f} mm" in capsys.readouterr().out
+
+
+def test_scene_render_and_procams_simulate_say_a_design_file_uses_the_default_projector(tmp_path, recwarn):
+    import torch
+
+    from edofproj.errors import ProjectorWarning
+    from edofproj.imaging import write_image
+
+    run = write_run(tmp_path / "paper", projector_config("paper-800x600"))
+    design = str(run / "doe.npz")
+    image = tmp_path / "in.png"
+    write_image(str(image), torch.full((3, 24, 32), 0.5))
+    scene = ["scene", "render", "--scene", "sphere_wall", "--doe", design, "--image", str(image)]
+    assert main(scene + ["--out", str(tmp_path / "s.png")]) == 0
+    assert [w for w in recwarn if issubclass(w.category, ProjectorWarning)]
+    recwarn.clear()
+    patterns = ["procams", "patterns", "--width", "32", "--height", "24", "--dots", "2x2", "--color-levels", "2"]
+    assert main(patterns + ["--out", str(tmp_path / "pat")]) == 0
+    simulate = ["procams", "simulate", "--patterns", str(tmp_path / "pat"), "--depth-mm", "500", "--doe", design]
+    assert main(simulate + ["--out", str(tmp_path / "cap")]) == 0
+    assert [w for w in recwarn if issubclass(w.category, ProjectorWarning)]

@@ -115,13 +115,13 @@ def run_render(args) -> int:
     import numpy as np
     import torch
 
-    from ..doe import build_doe
     from ..errors import EdofprojError
     from ..fileio import atomic_path
     from ..imaging import read_image, write_image
     from ..imaging.image_io import check_output_path
     from ..optics.geometry import ProjectorGeometry
     from ..scenes import cast_scene, check_scene_depth_range, load_scene, render_scene
+    from .psf import build_design
     from .render import simulator_for
 
     check_output_path(args.out, args.bits)
@@ -160,7 +160,7 @@ def run_render(args) -> int:
     check_scene_depth_range(
         cast, cfg.psf.depth_min_m, cfg.psf.depth_max_m, "the PSFs (psf.depth_min_mm-psf.depth_max_mm)"
     )
-    doe = build_doe(cfg, args.doe) if trained is None else trained.doe
+    doe = build_design(cfg, args.doe, args.config) if trained is None else trained.doe
     simulator = simulator_for(cfg, doe)
     reference = cfg.optics.focus_mm * 1e-3 if args.falloff else None
     psf_for_depths = lambda depths: simulator(doe, depths)  # noqa: E731

@@ -80,10 +80,10 @@ def _simulated_psf(args, cfg, depth_m: float) -> np.ndarray:
         return bank.psf[index].double().numpy()
     import torch
 
-    from ...doe import build_doe
     from ...optics.psf_bank import design_engine
+    from ..psf import build_design
 
-    doe = build_doe(cfg, args.doe)
+    doe = build_design(cfg, args.doe, args.config)
     with torch.no_grad():
         return (
             simulator_from_config(cfg, engine=design_engine(doe, cfg.psf.engine))(doe, np.array([depth_m]))[0]
