@@ -74,6 +74,8 @@ def test_the_runner_writes_every_field_with_the_cpus_instruction_sets(suite, tmp
     assert data["rows"][1]["median"] == pytest.approx(1.0) and data["rows"][1]["min"] == pytest.approx(1.0)
     assert first["commit"] == "abc1234" and first["torch"] == "2.13.0" and first["load1"] == 1.5
     assert first["isa"] == instruction_sets() and first["isa"].split()[0]  # the machine, then its sets
+    throughput = suite.rows_of("tiny", [suite.Measurement("frames/s", [2.5], "frames/s", 1, count=6)], machine, 0.0)
+    assert throughput[0]["repeats"] == 6 and throughput[0]["median"] == 2.5  # one figure over 6 frames
     with open(csv_path, newline="") as handle:
         table = list(csv.DictReader(handle))
     assert tuple(table[0]) == suite.FIELDS
