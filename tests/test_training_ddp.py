@@ -101,7 +101,17 @@ def test_torchrun_with_one_process_joins_the_group_and_equals_the_plain_run(tmp_
 def test_two_processes_train_both_phases_as_one_process_does(tmp_path):
     """A run of two phases under torchrun: every rank reads the DOE file rank 0 wrote at the phase boundary
     (after a barrier), and the second phase's network ends where a single process's does."""
-    cfg = tiny_config("net.linear_base=ensemble", "net.linear_radius=11", "train.refit_steps=3", "train.refit_warmup_steps=1")
+    # Adam moves a parameter whose gradient is about 0 by up to the learning rate either way, so where the
+    # two reductions round such a gradient apart the runs part by up to 2 lr a step: with the refit's rate
+    # at 1e-5 the bound below checks where the phase starts (the DOE file read, the network built on it),
+    # which a stale DOE would move by far more
+    cfg = tiny_config(
+        "net.linear_base=ensemble",
+        "net.linear_radius=11",
+        "train.refit_steps=3",
+        "train.refit_warmup_steps=1",
+        "train.refit_lr_net=1e-5",
+    )
     done = torchrun(cfg, tmp_path, 2, "ddp")
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.count("steps 0 -> 6 of 6") == 1
@@ -111,4 +121,4 @@ def test_two_processes_train_both_phases_as_one_process_does(tmp_path):
     single = load_checkpoint(tmp_path / "single" / "checkpoints" / "last.pt")
     assert ddp["phase"] == single["phase"] == "refit" and ddp["replica_max_difference"] == 0.0
     for key, value in single["net"].items():
-        torch.testing.assert_close(ddp["net"][key], value, rtol=0, atol=1e-5)
+        torch.testing.assert_close(ddp["net"][key], value, rtol=0, atol=3e-5)
