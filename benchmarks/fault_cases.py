@@ -543,7 +543,6 @@ class Cases:
         code, line = cli(["procams", "decode", "--lab", lab, "--x", "p", "--out", folder / "m.npz"], self.work)
         self.row("60.12", "a lab manifest with a NaN period", f"exit {code}; {line}")
 
-
     # -- issue 60 (round four), outside the procams steps: items 1, 2, 5, 7, 8, 11, 12 -------------------
     def case_r4_1(self) -> None:
         import json
@@ -635,7 +634,9 @@ class Cases:
             cv2.imwrite(str(path), np.zeros((20000, 20000), np.uint8))
         code, line = cli(["compensate", "builtin:cpu-doe-net", "--image", path, "--depth-mm", 500, "--out",
                           self.work / "r4_11.png"], self.work)  # fmt: skip
-        self.row("60.11", "20000x20000 PNG into `compensate --image` (4 GiB address-space limit)", f"exit {code}; {line}")
+        self.row(
+            "60.11", "20000x20000 PNG into `compensate --image` (4 GiB address-space limit)", f"exit {code}; {line}"
+        )
         small = self.work / "r4_11_1000.png"
         cv2.imwrite(str(small), np.zeros((1000, 1000, 3), np.uint8))
         code, line = cli(["compensate", "builtin:cpu-doe-net", "--image", small, "--depth-mm", 500, "--out",
@@ -691,7 +692,9 @@ def main() -> None:
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="edofproj-faults-"))
     work.mkdir(parents=True, exist_ok=True)
     cases = Cases(work)
-    chosen = [c for c in args.only.split(",") if c] or [str(i) for i in range(1, 13)] + LAB_PATH_CASES + ROUND_FOUR_CASES
+    chosen = [c for c in args.only.split(",") if c] or [
+        str(i) for i in range(1, 13)
+    ] + LAB_PATH_CASES + ROUND_FOUR_CASES
     print("| case | what | outcome |\n| --- | --- | --- |")
     clock = time.perf_counter()
     for number in chosen:

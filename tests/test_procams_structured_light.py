@@ -101,7 +101,9 @@ def test_ideal_codes_decode_exactly_and_held_out_planes_give_stripe_centres() ->
     ok = coarse.valid[1]
     assert ok.sum() >= length - 2 * width - 4  # the stripes dark or lit in all 4 planes are not decodable
     assert np.array_equal(coarse.coordinate[1, ok], expected[ok])
-    phase = 0.1 + 0.8 * np.repeat(phase_shift_profiles(length, [1, 4, 16], 4)[:, None, :], 3, axis=1)  # 0 and 1 read as clipped
+    phase = 0.1 + 0.8 * np.repeat(
+        phase_shift_profiles(length, [1, 4, 16], 4)[:, None, :], 3, axis=1
+    )  # 0 and 1 read as clipped
     decoded = decode_phase_shift(phase, [1, 4, 16], 4, length, min_modulation=0.1)
     assert np.allclose(decoded.coordinate[1], c, atol=1e-9)
 
