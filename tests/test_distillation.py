@@ -86,6 +86,7 @@ def test_the_term_enters_the_training_loss_with_its_weight(tmp_path):
                 f"train.teacher={REFERENCE}",
                 f"train.teacher_weight={weight}",
                 "train.steps=1",
+                "train.warmup_steps=0",  # the logged loss is the step's, before its update
                 "train.threads=1",
                 "train.psf_table_depths=8",
                 "data.crop=48",

@@ -74,6 +74,8 @@ def train_command(run: Path, overrides: list[str], steps: int, device: str) -> l
         "train.validate_every=0",
         "train.batch_size=16",
         "train.keep_checkpoints=2",
+        # the preset's warm-up (300 of 6,000 steps) scaled to shorter runs (a probe): no phase shorter than it
+        f"train.warmup_steps={min(300, steps // 20)}",
         *overrides,
         f"train.steps={steps}",
         f"train.checkpoint_every={max(steps // 4, 1)}",
