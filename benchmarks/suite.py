@@ -19,8 +19,12 @@ of ``benchmarks/`` use (nothing is re-implemented here):
   devices of ``bench_live.py`` (in-memory display; a camera returning a ready virtual capture, then the
   virtual ProCams simulating every capture), one PyTorch/OpenCV thread per stage as ``bench_live.py``.
 
-The demo's stages are not a case: they need a finished demo (training, 8-14 minutes on 2 cores) and
-take about 5 minutes after it; ``benchmarks/demo_later_stages.py`` times them on a demo folder.
+* ``demo``, ``demo-quick``: ``edofproj demo`` (``--quick``) into a temporary folder, the wall and CPU seconds of
+  each of its stages (training, evaluation, timing, 3-D scene, textured surface, report; CPU: the process and its
+  training processes), ``doe+net``'s mean and worst SSIM and, for the full demo, the largest difference of its
+  scores from the README's results table. Run only when named (``--cases demo``: 8-15 minutes on 2 cores); for
+  an AVX2-only CPU's figures on a wider one, set the limits of :mod:`edofproj.machine` in the environment.
+  ``benchmarks/demo_later_stages.py`` times the stages after training on a finished demo's folder.
 
 **Output.** One row per (case, metric): ``case, metric, value, unit, repeats, median, min, commit, date,
 torch, threads, isa, load1`` where ``value`` is the median of ``repeats`` samples, ``commit`` the
@@ -87,6 +91,8 @@ class Case:
     description: str
     run: Callable[[Context], list[Measurement]]
     default_repeats: int
+    #: run when no ``--cases`` are given (False: only when named, e.g. the minutes-long demo)
+    by_default: bool = True
 
 
 @dataclass
@@ -240,6 +246,133 @@ def live_loop(height: int = 600, width: int = 800, threads: int = 1) -> Callable
     return run
 
 
+#: The demo's stages, each begun by the first progress event (``start`` or ``note``) whose text starts so
+#: (:func:`edofproj.application.demo.run_demo`'s announcements); a stage ends where the next one begins.
+DEMO_STAGES = (
+    ("training", "stage 1/4 training"),
+    ("evaluation", "stage 2/4 evaluation"),
+    ("timing", "stage 3/4 timing"),
+    ("scene", "scene "),
+    ("surface", "textured surface "),
+    ("report", "stage 4/4 report"),
+)
+#: The README's results table: the demo's rows, and the largest difference it states between runs of the demo
+#: on different CPUs (its text: "on the AMD EPYC by 0.0017").
+README = HERE.parent / "README.md"
+README_TOLERANCE = 0.0017
+
+
+def tree_cpu_seconds() -> float:
+    """User + system CPU seconds of this process and of its children that have ended (the demo's training
+    processes, once it has waited for them)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def demo_stage_seconds(
+    events: Sequence[tuple[str, float, float]], end: tuple[float, float]
+) -> dict[str, tuple[float, float]]:
+    """``{stage: (wall s, CPU s)}`` of :data:`DEMO_STAGES` from the demo's progress ``events`` ``(text, wall,
+    cpu)`` in order and the clocks at its ``end``; a stage the events never begin is left out, and ``total``
+    spans the first stage's beginning to the end."""
+    begins: list[tuple[str, float, float]] = []
+    for stage, prefix in DEMO_STAGES:
+        found = next(((wall, cpu) for text, wall, cpu in events if text.startswith(prefix)), None)
+        if found is not None:
+            begins.append((stage, *found))
+    out = {}
+    for (stage, wall, cpu), nxt in zip(begins, [*[(w, c) for _, w, c in begins[1:]], end]):
+        out[stage] = (nxt[0] - wall, nxt[1] - cpu)
+    if begins:
+        out["total"] = (end[0] - begins[0][1], end[1] - begins[0][2])
+    return out
+
+
+def readme_demo_rows(text: str) -> dict[str, dict[str, float]]:
+    """``{method: {column: value}}`` of the README's results table (between its ``demo-results`` markers):
+    ``ssim`` (mean SSIM 300-800 mm), ``ssim_worst``, ``psnr``, ``psnr_worst``, ``de2000`` (mean CIEDE2000)."""
+    start, end = text.index("--8<-- [start:demo-results]"), text.index("--8<-- [end:demo-results]")
+    rows = {}
+    for line in text[start:end].splitlines():
+        cells = [c.strip().replace("*", "") for c in line.strip().strip("|").split("|")]
+        if len(cells) != 7 or not cells[2][:1].isdigit():
+            continue
+        method = cells[0].split(" ")[0]
+        values = [float(c.split(" ")[0]) for c in cells[2:]]
+        rows[method] = dict(zip(("ssim", "ssim_worst", "psnr", "psnr_worst", "de2000"), values))
+    return rows
+
+
+def demo_table_differences(
+    table, range_mm: tuple[float, float], readme: dict[str, dict[str, float]]
+) -> dict[str, float]:
+    """Largest absolute difference between a demo's scores (``table``: its
+    :class:`~edofproj.evaluation.results.MetricsTable`) and the README's rows, per column group: ``ssim`` (mean
+    and worst SSIM), ``psnr`` (dB), ``de2000``; over the methods in both (NaN where none is)."""
+    lo, hi = range_mm
+    worst = {"ssim": float("nan"), "psnr": float("nan"), "de2000": float("nan")}
+    for method in set(readme) & set(table.methods()):
+        ours = {}
+        for metric in ("ssim", "psnr", "de2000"):
+            stats = table.range_stats(method, metric, lo, hi)
+            ours[metric], ours[f"{metric}_worst"] = stats.mean, stats.worst
+        for column, value in readme[method].items():
+            group = column.split("_")[0]
+            difference = abs(ours[column] - value)
+            worst[group] = difference if worst[group] != worst[group] else max(worst[group], difference)
+    return worst
+
+
+def demo(quick: bool = False) -> Callable[[Context], list[Measurement]]:
+    """``edofproj demo`` (``--quick``) as a user runs it, into a temporary folder: the wall and CPU seconds of
+    each stage (:data:`DEMO_STAGES`; CPU: this process and the training processes, :func:`tree_cpu_seconds`),
+    ``doe+net``'s mean and worst SSIM over 300-800 mm and, for the full demo, the largest difference of
+    its scores from the README's table (:func:`demo_table_differences`; the README states
+    :data:`README_TOLERANCE`). The demo decides by the time it measures which optional baselines it trains:
+    on a loaded machine its rows of those may be the shipped runs' instead (its report says which)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        from edofproj.application.demo import OURS, run_demo
+        from edofproj.progress import StageProgress
+
+        class Recorder(StageProgress):
+            def __init__(self) -> None:
+                super().__init__("demo", enabled=False)
+                self.events: list[tuple[str, float, float]] = []
+
+            def start(self, stage: str, total: float, later_s: float = 0.0, detail: str = "") -> None:
+                self.events.append((stage, ctx.clock(), tree_cpu_seconds()))
+                super().start(stage, total, later_s, detail)
+
+            def note(self, message: str) -> None:
+                self.events.append((message, ctx.clock(), tree_cpu_seconds()))
+                super().note(message)
+
+        stages: dict[str, list[float]] = {}
+        quality: dict[str, list[float]] = {}
+        for _ in range(ctx.repeats):
+            recorder = Recorder()
+            with tempfile.TemporaryDirectory() as tmp:
+                result = run_demo(Path(tmp) / "demo", quick=quick, progress=recorder)
+                end = (ctx.clock(), tree_cpu_seconds())
+            for stage, (wall, cpu) in demo_stage_seconds(recorder.events, end).items():
+                stages.setdefault(f"{stage} wall", []).append(wall)
+                stages.setdefault(f"{stage} CPU (process tree)", []).append(cpu)
+            table, range_mm = result.evaluation.table, result.evaluation.range_mm
+            stats = table.range_stats(OURS, "ssim", *range_mm)
+            quality.setdefault(f"{OURS} mean SSIM", []).append(stats.mean)
+            quality.setdefault(f"{OURS} worst SSIM", []).append(stats.worst)
+            if not quick:
+                readme = readme_demo_rows(README.read_text(encoding="utf-8"))
+                for group, difference in demo_table_differences(table, range_mm, readme).items():
+                    quality.setdefault(f"largest |difference| from the README table: {group}", []).append(difference)
+        return [Measurement(metric, samples, "s", 2) for metric, samples in stages.items()] + [
+            Measurement(metric, samples, "score", 2) for metric, samples in quality.items()
+        ]
+
+    return run
+
+
 CASES: dict[str, Case] = {
     case.name: case
     for case in (
@@ -248,6 +381,8 @@ CASES: dict[str, Case] = {
         Case("shipped-600x800", "shipped doe+net and FFT Wiener per 600x800 frame, 2 threads", shipped(600, 800), 10),
         Case("shipped-1080p", "shipped doe+net and FFT Wiener per 1080x1920 frame, 2 threads", shipped(1080, 1920), 3),
         Case("live-loop", "live loop of the shipped method at 600x800, simulated devices", live_loop(), 6),
+        Case("demo-quick", "edofproj demo --quick: seconds per stage (about a minute)", demo(quick=True), 1),
+        Case("demo", "edofproj demo: seconds per stage, scores against the README (8-15 minutes)", demo(), 1, False),
     )
 }
 
@@ -395,7 +530,13 @@ def run_main(argv: Sequence[str]) -> int:
     from edofproj.errors import EdofprojError
 
     parser = argparse.ArgumentParser(prog="suite.py", description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", default=None, help=f"comma-separated case names (default: all: {', '.join(CASES)})")
+    parser.add_argument(
+        "--cases",
+        default=None,
+        help="comma-separated case names (default: all but "
+        + ", ".join(name for name, case in CASES.items() if not case.by_default)
+        + ")",
+    )
     parser.add_argument("--repeats", type=int, default=None, help="samples per metric (default: each case's own)")
     parser.add_argument("--out", type=Path, default=None, help="results JSON (the CSV is written beside it)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
@@ -404,7 +545,8 @@ def run_main(argv: Sequence[str]) -> int:
         for case in CASES.values():
             print(f"{case.name:18s} {case.description} (default repeats {case.default_repeats})")
         return 0
-    names = list(CASES) if args.cases is None else [n.strip() for n in args.cases.split(",") if n.strip()]
+    default = [name for name, case in CASES.items() if case.by_default]
+    names = default if args.cases is None else [n.strip() for n in args.cases.split(",") if n.strip()]
     unknown = [n for n in names if n not in CASES]
     if unknown or not names:
         raise EdofprojError(

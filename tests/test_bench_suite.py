@@ -118,3 +118,62 @@ def test_bad_input_is_one_line_and_a_nonzero_exit(suite, tmp_path, capsys):
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 4 and all(line.startswith("suite.py: error: ") for line in errors)
     assert not (tmp_path / "r.txt").exists()
+
+
+def test_demo_stages_are_cut_at_the_progress_events_that_begin_them(suite):
+    """Each stage runs from its announcement to the next stage's (the last to the end); the progress lines
+    between (the evaluation's own stages, notes) are inside the stage; CPU is cut the same way."""
+    events = [
+        ("plan: trains doe+net", 0.5, 0.1),
+        ("stage 1/4 training", 1.0, 1.0),
+        ("stage 2/4 evaluation", 11.0, 21.0),
+        ("flat-screen sweep", 12.0, 23.0),
+        ("stage 3/4 timing", 16.0, 30.0),
+        ("scene sphere_wall", 17.0, 32.0),
+        ("textured surface brick", 19.5, 36.0),
+        ("stage 4/4 report", 20.0, 37.0),
+    ]
+    seconds = suite.demo_stage_seconds(events, (23.0, 40.0))
+    assert seconds == {
+        "training": (10.0, 20.0),
+        "evaluation": (5.0, 9.0),
+        "timing": (1.0, 2.0),
+        "scene": (2.5, 4.0),
+        "surface": (0.5, 1.0),
+        "report": (3.0, 3.0),
+        "total": (22.0, 39.0),
+    }
+    # a demo run without the timing stage: the evaluation ends where the scene begins
+    without = suite.demo_stage_seconds([e for e in events if e[0] != "stage 3/4 timing"], (23.0, 40.0))
+    assert "timing" not in without and without["evaluation"] == (6.0, 11.0)
+
+
+def test_the_readme_table_is_read_and_a_demo_is_compared_with_it(suite):
+    """The README's rows as printed (bold marks and worst depths dropped); a demo table whose per-depth means
+    give doe+net's printed row exactly differs by 0, one moved by a known amount by that amount."""
+    from edofproj.evaluation.results import MetricsTable
+
+    rows = suite.readme_demo_rows(suite.README.read_text(encoding="utf-8"))
+    assert len(rows) >= 10 and all(len(v) == 5 for v in rows.values())
+    ours = rows["doe+net"]
+    text = suite.README.read_text(encoding="utf-8")
+    assert f"**{ours['ssim']:.4f}**" in text and f"**{ours['ssim_worst']:.4f}** (800)" in text
+
+    def table(shift: float) -> MetricsTable:
+        # two depths in range: the mean of their scores and the lower one give the row's mean and worst
+        t = MetricsTable(("method", "depth_mm", "image"), ("psnr", "ssim", "de2000"))
+        mean = {m: ours[m] for m in ("ssim", "psnr", "de2000")}
+        worst = {"ssim": ours["ssim_worst"], "psnr": ours["psnr_worst"]}
+        for depth, sign in ((300.0, -1), (800.0, 1)):
+            values = {m: mean[m] for m in mean}
+            values["ssim"] = worst["ssim"] if sign > 0 else 2 * mean["ssim"] - worst["ssim"]
+            values["psnr"] = worst["psnr"] if sign < 0 else 2 * mean["psnr"] - worst["psnr"]
+            values["ssim"] += shift
+            t.add(method="doe+net", depth_mm=depth, image="a", **values)
+        t.add(method="not-in-readme", depth_mm=300.0, image="a", psnr=1.0, ssim=0.0, de2000=9.0)
+        return t
+
+    exact = suite.demo_table_differences(table(0.0), (300.0, 800.0), rows)
+    assert exact == pytest.approx({"ssim": 0.0, "psnr": 0.0, "de2000": 0.0}, abs=1e-12)
+    moved = suite.demo_table_differences(table(0.003), (300.0, 800.0), rows)
+    assert moved["ssim"] == pytest.approx(0.003) and moved["psnr"] == pytest.approx(0.0, abs=1e-12)
