@@ -291,3 +291,44 @@ def test_a_guarded_export_stores_no_transfer_function_per_pixel(tmp_path):
     rows, cols = fft_shape((192 + 12, 288 + 12), (13, 13))  # the linear filter's: reflect-padded by its radius
     one_transfer_function = 4 * 3 * 2 * cols * (rows // 2 + 1)  # float32, 3 colours, complex half spectrum
     assert sizes[1] - sizes[0] < one_transfer_function * 8 / 9, (sizes, one_transfer_function)
+
+
+def test_a_guarded_export_decides_on_the_whole_frame_only_in_a_branch(tmp_path, monkeypatch):
+    """The whole frame's decision is the ``then`` graph of an ``If`` node (ONNX Runtime runs it only where
+    the tiled margin is near a tie), not a computation of every frame: the main graph holds no SSIM
+    filter of the whole frame. With the band at 1 (every frame decided whole) and at 0 (never), the
+    file's output equals the guarded module's on frames it was not verified on."""
+    pytest.importorskip("onnxscript")
+    import onnx
+
+    from edofproj.methods import guard
+    from synthetic_psfs import gaussian_psfs
+
+    torch.manual_seed(4)
+    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
+    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
+    torch.nn.init.normal_(safe.head.weight, std=0.3)
+    guarded = guard.GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    height, width = 192, 288
+    assert len(guarded.tiles_for(height, width)) >= 1
+    for band in (1.0, 0.0):
+        monkeypatch.setattr(guard, "GUARD_MARGIN_BAND", band)
+        path = tmp_path / f"guarded_{band}.onnx"
+        assert export_network(guarded, path, "onnx", height=height, width=width) <= 1e-4
+        graph = onnx.load(str(path)).graph
+        (branch,) = [node for node in graph.node if node.op_type == "If"]
+        then_graph = next(a.g for a in branch.attribute if a.name == "then_branch")
+        side = height - 2 * 5  # the SSIM map's rows (11-px Gaussian window)
+        whole_frame_filters = [n for n in then_graph.node if n.op_type == "Conv"]
+        assert whole_frame_filters, "the whole frame's SSIM filter is in the branch"
+        shapes = onnx.shape_inference.infer_shapes(onnx.load(str(path))).graph.value_info
+        assert not [
+            v.name for v in shapes if [d.dim_value for d in v.type.tensor_type.shape.dim][-2:] == [side, width - 10]
+        ]
+        session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        for seed in (11, 12):
+            target, captured = inputs(height, width, seed)
+            with torch.no_grad():
+                reference = guarded(target, captured)
+            exported = session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
+            assert np.abs(exported - reference.numpy()).max() < 1e-4

@@ -147,7 +147,9 @@ class SSIMReference:
         """Local SSIM and contrast-structure maps of ``pred`` (as :func:`_ssim_maps`).
 
         Without gradients (scores: the evaluation, a display guard) the same arithmetic runs in
-        place, in buffers of its own (:meth:`_maps_in_place`: the same values to the last bit)."""
+        place, in buffers of its own (:meth:`_maps_in_place`: the same values to the last bit); not
+        in an export (``torch.export`` or a trace), where writes into a buffer become ONNX
+        ``ScatterND`` copies and ``torch.cond`` refuses them."""
         batch = self.target.shape[0]
         repeats = pred.shape[0] // batch
         if pred.shape[1:] != self.target.shape[1:] or repeats * batch != pred.shape[0]:
@@ -155,7 +157,8 @@ class SSIMReference:
                 f"ssim needs two (B, C, H, W) batches of the same shape, got {tuple(pred.shape)} and "
                 f"{tuple(self.target.shape)}"
             )
-        if not (torch.is_grad_enabled() and (pred.requires_grad or self.target.requires_grad)):
+        exporting = torch.jit.is_tracing() or torch.compiler.is_compiling()
+        if not (exporting or (torch.is_grad_enabled() and (pred.requires_grad or self.target.requires_grad))):
             return self._maps_in_place(pred, repeats)
         channels = pred.shape[1]
         # (k, B, C, H, W) against the target's (B, C, H, W): broadcast, never copied k times

@@ -27,7 +27,16 @@ and FFT sizes follow the frame size in Python, so the file is for *one* frame si
   not stored: the graph computes it from the kernel (``K x K`` values) with the same matrix DFT as
   the frame's, one more forward transform of three channels per frame. The file holds the weights,
   the kernels and the DFT matrices (``O(N sqrt N)`` values per axis of length ``N``): its size does
-  not grow with the frame's area.
+  not grow with the frame's area;
+* a module with :func:`export_parts` (a network behind its display guard) is one graph with a
+  branch: the guard's decision on the whole frame is the ``then`` graph of an ONNX ``If`` node, run
+  only for a frame whose tiled decision is too close to call, as in PyTorch. The verification runs
+  the file, and a copy of it with the ``If``'s branches swapped, on the same frame: both branches are
+  checked against PyTorch.
+
+The verification's ONNX Runtime session plans no reuse of buffers and folds no constants (with
+them the check of a 1080x1920 guarded file needed 3.3 GB; without, ``export`` at that size peaks
+at 1.9 GB, docs/experiments/2026-11-29-export-1080p.md).
 
 TorchScript (``torch.jit``) is deprecated in recent PyTorch releases in favour of
 ``torch.export``; it is kept because C++/LibTorch deployments still load it. Loading the
@@ -39,6 +48,7 @@ from __future__ import annotations
 import copy
 import importlib
 import logging
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -119,7 +129,27 @@ def _write_onnx(net: torch.nn.Module, path: Path, height: int, width: int) -> No
 
 
 def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width: int) -> None:
-    """``torch.export`` -> ONNX (the FFTs become ``DFT`` nodes) for one ``height x width`` frame."""
+    """``torch.export`` -> ONNX (the FFTs as matrix products) for one ``height x width`` frame; a
+    module with :func:`export_parts` as one graph with its branch in an ``If`` node."""
+    parts = export_parts(net, height, width)
+    if parts is not None:
+        import onnx  # optional: the export extra
+
+        onnx.save(_conditional_model(parts, height, width), str(path))
+        return
+    _exported_program(net, _example_inputs(height, width, 0), INPUT_NAMES, (OUTPUT_NAME,)).save(str(path))
+
+
+def export_parts(net: torch.nn.Module, height: int, width: int):
+    """``(head, branch, tail)`` of a module exported with a branch (``net.export_parts(height, width)``,
+    e.g. a network behind its display guard: :meth:`GuardedNetwork.export_parts`), else None."""
+    parts = getattr(net, "export_parts", None)
+    return parts(height, width) if callable(parts) else None
+
+
+def _exported_program(module: torch.nn.Module, inputs: tuple, input_names, output_names):
+    """``torch.onnx.export(dynamo=True)`` of ``module`` on ``inputs``, constants folded within
+    :data:`FOLD_SIZE_LIMIT` (:func:`fold_weight_constants`): the ``ONNXProgram``."""
     torch_logger = logging.getLogger("torch")
     level = torch_logger.level
     torch_logger.setLevel(logging.ERROR)  # notes about unrelated operator libraries (e.g. torchvision)
@@ -127,24 +157,128 @@ def _write_onnx_fixed_size(net: torch.nn.Module, path: Path, height: int, width:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
             program = torch.onnx.export(
-                net,
-                _example_inputs(height, width, 0),
+                module,
+                inputs,
                 dynamo=True,
-                opset_version=max(ONNX_OPSET, 18),
-                input_names=list(INPUT_NAMES),
-                output_names=[OUTPUT_NAME],
+                opset_version=FIXED_SIZE_OPSET,
+                input_names=list(input_names),
+                output_names=list(output_names),
                 verbose=False,
                 optimize=False,  # folded here, within FOLD_SIZE_LIMIT (the exporter's own limit is 512 x 512)
             )
             if program is None:
                 raise EdofprojError("torch.onnx.export returned no ONNX program")
             fold_weight_constants(program.model)
-            program.save(str(path))
+            return program
+    except EdofprojError:
+        raise
     except Exception as exc:  # noqa: BLE001 - the exporter's errors are many and long
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise EdofprojError(f"ONNX export through torch.export failed: {first}") from None
     finally:
         torch_logger.setLevel(level)
+
+
+FIXED_SIZE_OPSET = max(ONNX_OPSET, 18)
+
+#: The values a conditional export's three parts share (graph inputs and outputs keep these names).
+HEAD_OUTPUTS = ("network_input", "filter_input", "margin", "take_branch")
+BRANCH_INPUTS = ("target", "network_input", "filter_input")
+TAIL_INPUTS = ("network_input", "filter_input", "chosen_margin")
+
+
+def _conditional_model(parts, height: int, width: int):
+    """One ONNX model of ``(head, branch, tail)`` (:func:`export_parts`) at ``height x width``:
+
+        x, e, m, take = head(target, captured);  m' = branch(target, x, e) if take else m;  tail(x, e, m')
+
+    Each part is exported on its own (:func:`_exported_program`); the branch's nodes become the
+    ``then`` graph of an ``If`` node (ONNX Runtime runs them only when ``take``), its weights the
+    outer graph's, and initializers equal in value across the parts are stored once."""
+    import onnx  # optional: the export extra
+
+    head, branch, tail = parts
+    target, captured = _example_inputs(height, width, 0)
+    with torch.no_grad():
+        x, e, margin, _ = head(target, captured)
+    protos = [
+        _exported_program(head, (target, captured), INPUT_NAMES, HEAD_OUTPUTS).model_proto,
+        _exported_program(branch, (target, x, e), BRANCH_INPUTS, ("whole_margin",)).model_proto,
+        _exported_program(tail, (x, e, margin), TAIL_INPUTS, (OUTPUT_NAME,)).model_proto,
+    ]
+    shared = {*INPUT_NAMES, *HEAD_OUTPUTS, *TAIL_INPUTS, OUTPUT_NAME}
+    seen: dict[tuple, str] = {}
+    initializers: list = []
+    parts_nodes: list[list] = []
+    value_info: list = []
+    for prefix, proto in zip(("head/", "branch/", "tail/"), protos, strict=True):
+        graph = proto.graph
+        alias: dict[str, str] = {}
+        for tensor in graph.initializer:
+            key = (tensor.data_type, tuple(tensor.dims), onnx.numpy_helper.to_array(tensor).tobytes())
+            if key in seen:
+                alias[tensor.name] = seen[key]
+                continue
+            seen[key] = alias[tensor.name] = prefix + tensor.name
+            tensor.name = alias[tensor.name]
+            initializers.append(tensor)
+
+        def rename(name: str, prefix=prefix, alias=alias) -> str:
+            return name if not name or name in shared else alias.get(name, prefix + name)
+
+        for node in graph.node:
+            if any(a.type in (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS) for a in node.attribute):
+                raise EdofprojError(f"conditional export: part {prefix[:-1]} has a subgraph node ({node.op_type})")
+            node.input[:] = [rename(n) for n in node.input]
+            node.output[:] = [rename(n) for n in node.output]
+            node.name = prefix + node.name
+        for info in graph.value_info:
+            info.name = rename(info.name)
+        parts_nodes.append(list(graph.node))
+        value_info.extend(graph.value_info if prefix != "branch/" else [])
+    head_graph, branch_graph, tail_graph = (p.graph for p in protos)
+    branch_output = onnx.ValueInfoProto()
+    branch_output.CopyFrom(branch_graph.output[0])
+    branch_output.name = "branch/whole_margin"
+    then_graph = onnx.helper.make_graph(parts_nodes[1], "whole_frame", [], [branch_output])
+    else_output = onnx.ValueInfoProto()
+    else_output.CopyFrom(branch_graph.output[0])
+    else_output.name = "margin_kept"
+    else_graph = onnx.helper.make_graph(
+        [onnx.helper.make_node("Identity", ["margin"], ["margin_kept"])], "tiles", [], [else_output]
+    )
+    choose = onnx.helper.make_node(
+        "If", ["take_branch"], ["chosen_margin"], name="branch", then_branch=then_graph, else_branch=else_graph
+    )
+    graph = onnx.helper.make_graph(
+        [*parts_nodes[0], choose, *parts_nodes[2]],
+        "conditional",
+        list(head_graph.input),
+        list(tail_graph.output),
+        initializer=initializers,
+        value_info=value_info,
+    )
+    model = onnx.helper.make_model(graph, opset_imports=list(protos[0].opset_import))
+    model.ir_version = protos[0].ir_version
+    return model
+
+
+def _swapped_branches(model):
+    """A copy of a conditional ``model`` (:func:`_conditional_model`) whose ``If`` takes the other branch:
+    the verification runs both."""
+    import onnx
+
+    swapped = onnx.ModelProto()
+    swapped.CopyFrom(model)
+    for node in swapped.graph.node:
+        if node.op_type == "If":
+            graphs = {a.name: a for a in node.attribute}
+            then_graph, else_graph = onnx.GraphProto(), onnx.GraphProto()
+            then_graph.CopyFrom(graphs["then_branch"].g)
+            else_graph.CopyFrom(graphs["else_branch"].g)
+            graphs["then_branch"].g.CopyFrom(else_graph)
+            graphs["else_branch"].g.CopyFrom(then_graph)
+    return swapped
 
 
 #: Elements of the largest tensor folded into a constant: a transfer function on a display guard's
@@ -201,10 +335,17 @@ def _run_onnx(path: Path):
     import onnxruntime  # optional: the export extra
 
     options = onnxruntime.SessionOptions()
-    # no arena and no pre-planned memory pattern: a 1080x1920 frame's intermediates are freed as they die
+    # no arena, no pre-planned memory pattern and no planned reuse of a dead tensor's buffer by a later
+    # one of its size (which holds the buffer in between: 2.6 GB instead of 1.05 GB for the guarded
+    # network at 1080x1920): a frame's intermediates are freed as they die; no constant folding: ONNX
+    # Runtime would compute the transfer functions on the frame's grid when the session is made
+    # (2.3 GB more at 1080x1920), which only pays off over many frames
     options.enable_cpu_mem_arena = False
     options.enable_mem_pattern = False
-    session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    options.enable_mem_reuse = False
+    session = onnxruntime.InferenceSession(
+        str(path), options, providers=["CPUExecutionProvider"], disabled_optimizers=["ConstantFolding"]
+    )
     declared = {i.name for i in session.get_inputs()}  # an input the network ignores is pruned
 
     def run(target, captured):
@@ -256,17 +397,45 @@ def export_network(
         writer, runner = (_write_onnx, _run_onnx) if format == "onnx" else (_write_torchscript, _run_torchscript)
         writer(net, tmp, height, width)
         if verify:
-            run_exported = runner(tmp)
             worst = 0.0
-            for seed, (h, w) in enumerate(verification_sizes(height, width, fixed_size), start=1):
-                target, captured = _example_inputs(h, w, seed)
-                with torch.inference_mode():
-                    reference = net(target, captured).numpy()
-                difference = float(np.max(np.abs(run_exported(target, captured) - reference)))
-                worst = max(worst, difference)
-                if not difference <= TOLERANCE:
-                    raise EdofprojError(
-                        f"the {format} export differs from PyTorch by {difference:.3g} (> {TOLERANCE:g}) "
-                        f"at {h}x{w}; nothing written"
-                    )
+            checks = [(tmp, net, size) for size in verification_sizes(height, width, fixed_size)]
+            parts = export_parts(net, height, width) if fixed_size else None
+            with tempfile.TemporaryDirectory(prefix="edofproj-export-") as folder:
+                if parts is not None:  # the file's other branch, checked on the same frame
+                    import onnx
+
+                    swapped = Path(folder) / "swapped.onnx"
+                    onnx.save(_swapped_branches(onnx.load(str(tmp))), str(swapped))
+                    checks.append((swapped, _OtherBranch(parts), (height, width)))
+                for file, reference_module, (h, w) in checks:
+                    run_exported = runner(file)
+                    target, captured = _example_inputs(h, w, 1)
+                    with torch.inference_mode():
+                        reference = reference_module(target, captured).numpy()
+                    difference = float(np.max(np.abs(run_exported(target, captured) - reference)))
+                    del run_exported, reference
+                    worst = max(worst, difference)
+                    if not difference <= TOLERANCE:
+                        branch = " (the branch the frame does not take)" if file != tmp else ""
+                        raise EdofprojError(
+                            f"the {format} export differs from PyTorch by {difference:.3g} (> {TOLERANCE:g}) "
+                            f"at {h}x{w}{branch}; nothing written"
+                        )
     return worst
+
+
+class _OtherBranch(torch.nn.Module):
+    """PyTorch's result of :func:`export_parts` with the branch *not* taken where the module takes it
+    and taken where it does not: the reference of :func:`_swapped_branches`' file."""
+
+    def __init__(self, parts) -> None:
+        super().__init__()
+        self.head, self.branch, self.tail = parts
+
+    def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
+        network_input, filter_input, margin, take = self.head(target, captured)
+        if bool(take):
+            chosen = margin
+        else:
+            chosen = self.branch(target, network_input, filter_input)
+        return self.tail(network_input, filter_input, chosen)

@@ -267,9 +267,9 @@ class GuardedNetwork(torch.nn.Module):
         """``(x_shown, margin)`` for the network's input and its filter's: :func:`tiled_guard_choice` on
         :meth:`tiles_for` the frame; :func:`guard_choice` (the whole frame) where it has no tiles, or
         where a tiled margin is within :data:`GUARD_MARGIN_BAND` of zero (the sample too close to a tie
-        to stand for the whole map: the whole frame decides; a batch, all of it). Exported, the graph
-        computes both margins and chooses as this does (``torch.cond`` cannot trace the FFT grid's
-        choice), so the file pays the whole frame's decision on every frame."""
+        to stand for the whole map: the whole frame decides; a batch, all of it). Traced (TorchScript),
+        the graph computes both margins and chooses as this does; an ONNX file runs the whole frame's
+        decision in a branch (:meth:`export_parts`)."""
         network_input, filter_input = self._network_and_filter(target, captured)
         tiles = self.tiles_for(target.shape[-2], target.shape[-1])
         screens = self._screens_for(target)
@@ -287,6 +287,54 @@ class GuardedNetwork(torch.nn.Module):
 
     def forward(self, target: torch.Tensor, captured: torch.Tensor) -> torch.Tensor:
         return self.decide(target, captured)[0]
+
+    def export_parts(self, height: int, width: int) -> tuple[torch.nn.Module, torch.nn.Module, torch.nn.Module] | None:
+        """:meth:`decide` at ``height x width`` as three modules for an ONNX file with the whole frame's
+        decision in a branch (an ``If`` node, :func:`edofproj.compensation.export.export_network`):
+
+        * head ``(target, captured) -> (x, E(I), tiled margin, near_tie)``;
+        * branch ``(target, x, E(I)) -> margin`` of the whole frame (:func:`guard_choice`), run only
+          where ``near_tie`` (:data:`GUARD_MARGIN_BAND`);
+        * tail ``(x, E(I), margin) -> x_shown``.
+
+        None where the frame has no tiles (it is decided whole: there is nothing to branch on)."""
+        if not self.tiles_for(height, width):
+            return None
+        return _GuardHead(self), _GuardWhole(self), _GuardTail()
+
+
+class _GuardHead(torch.nn.Module):
+    """The network, its filter and the tiled margin (:meth:`GuardedNetwork.export_parts`)."""
+
+    def __init__(self, guarded: GuardedNetwork) -> None:
+        super().__init__()
+        self.guarded = guarded
+
+    def forward(self, target: torch.Tensor, captured: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        guarded = self.guarded
+        network_input, filter_input = guarded._network_and_filter(target, captured)
+        tiles = guarded.tiles_for(target.shape[-2], target.shape[-1])
+        psfs: torch.Tensor = guarded.psfs.contiguous()  # type: ignore[operator]  # a registered buffer
+        margin = tiled_guard_choice(target, network_input, filter_input, psfs, tiles, guarded.tile_px)[1]
+        return network_input, filter_input, margin, (margin.abs() < GUARD_MARGIN_BAND).any()
+
+
+class _GuardWhole(torch.nn.Module):
+    """The whole frame's margin (:meth:`GuardedNetwork.export_parts`)."""
+
+    def __init__(self, guarded: GuardedNetwork) -> None:
+        super().__init__()
+        self.guarded = guarded
+
+    def forward(self, target: torch.Tensor, network_input: torch.Tensor, filter_input: torch.Tensor) -> torch.Tensor:
+        return guard_choice(target, network_input, filter_input, self.guarded._screens_for(target))[1]
+
+
+class _GuardTail(torch.nn.Module):
+    """``x`` where ``margin >= 0``, else ``E(I)`` (:meth:`GuardedNetwork.export_parts`)."""
+
+    def forward(self, network_input: torch.Tensor, filter_input: torch.Tensor, margin: torch.Tensor) -> torch.Tensor:
+        return torch.where((margin < 0).view(-1, 1, 1, 1), filter_input, network_input)
 
 
 def network_filter(net: torch.nn.Module) -> LinearBase | None:
