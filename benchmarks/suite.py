@@ -19,6 +19,13 @@ of ``benchmarks/`` use (nothing is re-implemented here):
   devices of ``bench_live.py`` (in-memory display; a camera returning a ready virtual capture, then the
   virtual ProCams simulating every capture), one PyTorch/OpenCV thread per stage as ``bench_live.py``.
 
+* ``export-1080p``: ``edofproj export builtin:cpu-doe-net --height 1080 --width 1920`` in a child process: its
+  peak resident memory (``ru_maxrss`` of that child), CPU and wall seconds and the file's size.
+* ``onnx-600x800-1t`` ... ``onnx-1080p-2t``: the shipped method per frame in PyTorch and in ONNX Runtime (the file
+  ``export`` writes for the size), alternate frames in one process (``bench_onnx.py``), on 1 or 2 threads: the
+  per-pair ratio ONNX Runtime / PyTorch of wall and of process-CPU time, and which way the guard decided the
+  random frame; ``onnx-1080p-whole-2t`` with every frame decided on the whole frame (the file's ``If`` branch).
+
 * ``demo``, ``demo-quick``: ``edofproj demo`` (``--quick``) into a temporary folder, the wall and CPU seconds of
   each of its stages (training, evaluation, timing, 3-D scene, textured surface, report; CPU: the process and its
   training processes), ``doe+net``'s mean and worst SSIM and, for the full demo, the largest difference of its
@@ -373,6 +380,94 @@ def demo(quick: bool = False) -> Callable[[Context], list[Measurement]]:
     return run
 
 
+def export_memory(height: int = 1080, width: int = 1920) -> Callable[[Context], list[Measurement]]:
+    """``edofproj export builtin:cpu-doe-net --height H --width W`` in a child process, once per repeat: its
+    peak resident memory (the child's own ``ru_maxrss``, from ``os.wait4``), CPU and wall seconds, the file."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        peaks, cpus, walls, sizes = [], [], [], []
+        for _ in range(ctx.repeats):
+            with tempfile.TemporaryDirectory() as tmp:
+                out = Path(tmp) / "net.onnx"
+                command = [sys.executable, "-m", "edofproj.cli", "export", SHIPPED_RUN, "--out", str(out)]
+                command += ["--height", str(height), "--width", str(width)]
+                start = ctx.clock()
+                with open(Path(tmp) / "log", "w") as log:
+                    child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+                    _, status, usage = os.wait4(child.pid, 0)
+                    child.returncode = os.waitstatus_to_exitcode(status)
+                walls.append(ctx.clock() - start)
+                if child.returncode != 0:
+                    raise RuntimeError(f"edofproj export failed: {(Path(tmp) / 'log').read_text().strip()[-300:]}")
+                peaks.append(usage.ru_maxrss / 1e6)  # kB -> GB
+                cpus.append(usage.ru_utime + usage.ru_stime)
+                sizes.append(out.stat().st_size / 1e6)
+        return [
+            Measurement("export peak RSS", peaks, "GB", 2),
+            Measurement("export file", sizes, "MB", 2),
+            Measurement("export process CPU", cpus, "s", 2),
+            Measurement("export wall", walls, "s", 2),
+        ]
+
+    return run
+
+
+_EXPORTED: dict[tuple, Path] = {}
+
+
+def onnx_vs_torch(
+    height: int, width: int, threads: int, whole_frame: bool = False
+) -> Callable[[Context], list[Measurement]]:
+    """The shipped ``doe+net`` (network behind its guard) per frame in PyTorch and in ONNX Runtime (its file
+    as ``edofproj export`` writes it for the frame size, once per process), alternate frames in one process
+    (``bench_onnx.py``'s ``interleaved_ms``), on ``threads`` threads. ``whole_frame``: the guard's band set to
+    cover every margin, so that each frame is decided on the whole frame (a frame too close to call; the
+    ONNX file's ``If`` branch), else the random frame's own decision (``branch`` 1: the whole frame)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import torch
+
+        from edofproj.compensation.export import export_network
+        from edofproj.evaluation import timing
+        from edofproj.methods import guard
+
+        bench_onnx = _script("bench_onnx")
+        torch.set_num_threads(threads)
+        band = guard.GUARD_MARGIN_BAND
+        if whole_frame:
+            guard.GUARD_MARGIN_BAND = float("inf")
+        try:
+            net = bench_onnx.build("cpu-guarded").eval()
+            key = (height, width, whole_frame)
+            if key not in _EXPORTED:
+                folder = Path(tempfile.mkdtemp(prefix="suite-onnx-"))
+                _EXPORTED[key] = folder / f"guarded-{height}x{width}.onnx"
+                export_network(net, _EXPORTED[key], "onnx", height, width)
+            frame = [timing._random_frame(height, width, "cpu", seed) for seed in (0, 1)]  # the cases' frame
+            with torch.inference_mode():
+                took_branch = float(bool(net.export_parts(height, width)[0](*frame)[3]))
+            torch_frame = timing.network_torch_case(net, "doe+net").build(height, width)
+            onnx_frame = timing.network_onnx_case(str(_EXPORTED[key]), "doe+net", "cpu", threads).build(height, width)
+            (onnx_ms, onnx_cpu), (torch_ms, torch_cpu) = bench_onnx.interleaved_ms(
+                onnx_frame, torch_frame, ctx.repeats, 1
+            )
+        finally:
+            guard.GUARD_MARGIN_BAND = band
+        return [
+            Measurement("ONNX Runtime / PyTorch, wall", [o / t for o, t in zip(onnx_ms, torch_ms)], "ratio", threads),
+            Measurement(
+                "ONNX Runtime / PyTorch, process CPU", [o / t for o, t in zip(onnx_cpu, torch_cpu)], "ratio", threads
+            ),
+            Measurement("PyTorch wall", torch_ms, "ms", threads),
+            Measurement("ONNX Runtime wall", onnx_ms, "ms", threads),
+            Measurement("PyTorch process CPU", torch_cpu, "ms", threads),
+            Measurement("ONNX Runtime process CPU", onnx_cpu, "ms", threads),
+            Measurement("decided on the whole frame (1) or its tiles (0)", [took_branch], "flag", threads),
+        ]
+
+    return run
+
+
 CASES: dict[str, Case] = {
     case.name: case
     for case in (
@@ -381,6 +476,46 @@ CASES: dict[str, Case] = {
         Case("shipped-600x800", "shipped doe+net and FFT Wiener per 600x800 frame, 2 threads", shipped(600, 800), 10),
         Case("shipped-1080p", "shipped doe+net and FFT Wiener per 1080x1920 frame, 2 threads", shipped(1080, 1920), 3),
         Case("live-loop", "live loop of the shipped method at 600x800, simulated devices", live_loop(), 6),
+        Case(
+            "export-1080p",
+            "edofproj export of the shipped method at 1080x1920: peak memory, file",
+            export_memory(),
+            1,
+            False,
+        ),
+        Case(
+            "onnx-600x800-1t",
+            "shipped doe+net per 600x800 frame, ONNX Runtime / PyTorch, 1 thread",
+            onnx_vs_torch(600, 800, 1),
+            6,
+        ),
+        Case(
+            "onnx-600x800-2t",
+            "shipped doe+net per 600x800 frame, ONNX Runtime / PyTorch, 2 threads",
+            onnx_vs_torch(600, 800, 2),
+            6,
+        ),
+        Case(
+            "onnx-1080p-1t",
+            "shipped doe+net per 1080x1920 frame, ONNX Runtime / PyTorch, 1 thread",
+            onnx_vs_torch(1080, 1920, 1),
+            3,
+            False,
+        ),
+        Case(
+            "onnx-1080p-2t",
+            "shipped doe+net per 1080x1920 frame, ONNX Runtime / PyTorch, 2 threads",
+            onnx_vs_torch(1080, 1920, 2),
+            3,
+            False,
+        ),
+        Case(
+            "onnx-1080p-whole-2t",
+            "as onnx-1080p-2t, every frame decided on the whole frame",
+            onnx_vs_torch(1080, 1920, 2, True),
+            3,
+            False,
+        ),
         Case("demo-quick", "edofproj demo --quick: seconds per stage (about a minute)", demo(quick=True), 1),
         Case("demo", "edofproj demo: seconds per stage, scores against the README (8-15 minutes)", demo(), 1, False),
     )
