@@ -8,7 +8,8 @@ The blur is the map's (:mod:`edofproj.procams.measured_blur`: a Gaussian of the 
 at every node of the projector image, interpolated between nodes; each colour its own map where the
 file has one); the methods are :mod:`edofproj.procams.map_compensation`'s (``wiener``: the
 field-varying Wiener filter, NSR tuned on training crops unless ``--nsr``; ``cls``: box-constrained
-least squares with the exact blur, from the Wiener estimate, ``--iterations`` steps) and ``net``: the
+least squares with the exact blur, ``--iterations`` projected quasi-Newton steps from the target, or
+from the Wiener estimate with ``--nsr``) and ``net``: the
 network of a run fine-tuned on the map (``edofproj finetune RUN --psf-map MAP``), given the target and
 the map's simulated projection of it. Images are at the map's projector size (height x width);
 outputs 8- or 16-bit PNG/TIFF, written atomically; a folder of outputs appears only when complete.
@@ -25,6 +26,9 @@ from ._common import refuse_output_over, run_directory
 MAP_METHODS = ("wiener", "cls", "net")
 """``--method`` values that go with ``--psf-map``."""
 DEFAULT_MAP_METHOD = "cls"
+DEFAULT_CLS_ITERATIONS = 14
+"""``--iterations`` by default: :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS` (a test
+holds them equal; this module imports no torch before it must)."""
 
 
 def add_psf_map_options(parser) -> None:
@@ -50,7 +54,13 @@ def add_psf_map_options(parser) -> None:
         type=run_directory,
         help="with --psf-map --method net: the run fine-tuned on the map (or give it as RUN)",
     )
-    parser.add_argument("--nsr", type=float, default=None, help="with --psf-map: the Wiener NSR (default: tuned)")
+    parser.add_argument(
+        "--nsr",
+        type=float,
+        default=None,
+        help="with --psf-map: the Wiener NSR (wiener: default tuned; cls: start from the Wiener estimate with it "
+        "instead of the target)",
+    )
     parser.add_argument(
         "--rank-tolerance",
         type=float,
@@ -59,7 +69,10 @@ def add_psf_map_options(parser) -> None:
         "a few basis kernels (default 0.01; larger: fewer FFTs per step, faster)",
     )
     parser.add_argument(
-        "--iterations", type=int, default=None, help="with --psf-map --method cls: solver iterations (default 20)"
+        "--iterations",
+        type=int,
+        default=None,
+        help=f"with --psf-map --method cls: solver iterations (default {DEFAULT_CLS_ITERATIONS})",
     )
 
 
@@ -137,7 +150,7 @@ class MapCompensator:
             from ..methods.map_network import MapNetwork
 
             self.network = MapNetwork(run, self.op)
-        else:
+        elif args.method == "wiener" or self.nsr is not None:  # cls without --nsr starts from the target
             from ..compensation.field_varying import FieldVaryingWiener
             from ..procams.map_compensation import tune_map_nsr
 
@@ -159,7 +172,12 @@ class MapCompensator:
         result = compensate_with_map(
             target, self.op, self.args.method, iterations=self.args.iterations, wiener=self.wiener
         )
-        note = f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
+        start = "from the target" if result.nsr is None else f"from Wiener, NSR {result.nsr:.3g}"
+        note = (
+            f"{start}, {result.seconds:.2f} s"
+            if self.args.method == "cls"
+            else f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
+        )
         if self.args.method == "cls":
             note += f"; {result.convergence()}"
         return result.image, note

@@ -18,10 +18,13 @@ the blur, written in a low-rank basis (:func:`edofproj.imaging.field_varying.low
 difference from the filter on the whole frame is the Wiener kernel's tail beyond ``Q / 2`` pixels.
 
 **Constrained least squares.** :func:`field_varying_cls` minimizes ``1/2 ||A x - t||^2`` subject to
-``0 <= x <= 1`` with the exact operator and its adjoint, by the project's solver
-(:func:`.constrained.box_least_squares`, monotone FISTA, step ``1 / L`` with ``L`` Schur's bound on
-``||A||^2``), from a start (e.g. the Wiener estimate) for a fixed number of iterations; it reports the
-objective at every iteration, so convergence is visible, not assumed.
+``0 <= x <= 1`` with the exact operator and its adjoint, from a start (default the target clamped to
+the box) for a fixed number of iterations, each one application of ``A`` and one of ``A^T``, by
+projected quasi-Newton steps with an exact line search (:func:`.box_quasi_newton.box_quasi_newton`,
+``method="lbfgs"``, the default) or by the project's first-order solver
+(:func:`.constrained.box_least_squares`: ``"fista"``, monotone FISTA, or ``"pgd"``, step ``1 / L`` with
+``L`` Schur's bound on ``||A||^2``); it reports the objective at every iteration, so convergence is
+visible, not assumed.
 """
 
 from __future__ import annotations
@@ -32,11 +35,14 @@ import torch
 from ..errors import EdofprojError
 from ..imaging.convolution import optical_transfer_function
 from ..imaging.field_varying import FieldVaryingBlur, hat_weights, low_rank_kernels
-from .constrained import box_least_squares
+from .box_quasi_newton import box_quasi_newton
+from .constrained import SOLVERS, box_least_squares
 from .wiener import checked_nsr, padding_for
 
-DEFAULT_CLS_ITERATIONS = 20
-"""FISTA iterations of :func:`field_varying_cls` by default."""
+DEFAULT_CLS_ITERATIONS = 14
+"""Iterations of :func:`field_varying_cls` by default (``lbfgs``)."""
+CLS_METHODS = ("lbfgs", *SOLVERS)
+"""Solvers of :func:`field_varying_cls`: projected quasi-Newton (default), monotone FISTA, projected gradient."""
 WIENER_NODE_SPACING_PX = 48
 """Least spacing (px) of the nodes that get their own Wiener filter (the blur's nodes, thinned)."""
 
@@ -148,14 +154,19 @@ def field_varying_cls(
     op: FieldVaryingBlur,
     iterations: int = DEFAULT_CLS_ITERATIONS,
     start: torch.Tensor | None = None,
-    method: str = "fista",
+    method: str = "lbfgs",
     return_objective: bool = False,
 ):
     """``argmin_{0 <= x <= 1} 1/2 ||A x - t||^2`` (module docstring) for ``target (B, C, H, W)``;
-    ``start`` the first iterate (default ``clamp(t, 0, 1)``). Returns ``x``, or ``(x, objective
-    (iterations + 1, B))`` with ``return_objective``."""
+    ``start`` the first iterate (default ``clamp(t, 0, 1)``), ``method`` one of :data:`CLS_METHODS`.
+    Returns ``x``, or ``(x, objective (iterations + 1, B))`` with ``return_objective``."""
     if target.ndim != 4:
         raise EdofprojError(f"target must be (B, C, H, W), got {tuple(target.shape)}")
+    if method not in CLS_METHODS:
+        raise EdofprojError(f"unknown constrained solver '{method}' (known: {', '.join(CLS_METHODS)})")
+    if method == "lbfgs":
+        x, objective = box_quasi_newton(target, op.forward, op.adjoint, iterations, start)
+        return (x, objective) if return_objective else x
     lipschitz = op.norm_bound().to(target.device, target.dtype) ** 2 * 1.000001
     step = (1.0 / lipschitz.clamp_min(1e-12)).view(1, -1, 1, 1)
     return box_least_squares(target, op.forward, op.adjoint, step, iterations, method, start, return_objective)

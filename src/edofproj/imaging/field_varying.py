@@ -32,6 +32,11 @@ import torch
 from ..errors import EdofprojError
 from .convolution import convolve_same, fft_shape, optical_transfer_function
 
+BATCH_ELEMENTS = 1 << 23
+"""Real samples (frames x padded pixels) :class:`FieldVaryingBlur` transforms in one batched FFT call on the CPU:
+32 MiB in float32, the largest block the C library's allocator reuses instead of mapping fresh pages (whose
+faults cost as much system time as the transforms)."""
+
 
 def field_centres_px(field_coords, size_px: int) -> np.ndarray:
     """Pixel coordinates of normalized field coordinates: -1 is the outer edge of the first
@@ -222,6 +227,7 @@ class FieldVaryingBlur:
         self.coefficients = torch.stack([_pad_rank(m, rank) for m in maps])
         self.grid = fft_shape((self.height, self.width), (k, k))
         self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._buffer: tuple[tuple, torch.Tensor] | None = None
 
     @property
     def rank(self) -> int:
@@ -255,6 +261,8 @@ class FieldVaryingBlur:
         """``A x = sum_m e_m (*) (c_m . x)``: ``x (B, C, H, W)`` -> ``(B, C, H, W)``."""
         self._check(x)
         maps, otf = self._parts(x)
+        if _on_scipy(x):
+            return self._forward_batched(x, maps, otf)
         spectrum = None
         for m in range(self.rank):
             term = _rfft2(x * maps[:, m], self.grid) * otf[:, m]
@@ -268,10 +276,41 @@ class FieldVaryingBlur:
         maps, otf = self._parts(y)
         spectrum = _rfft2(y, self.grid)
         out = torch.zeros_like(y)
+        if _on_scipy(y):
+            for first, last in self._chunks(y):
+                products = spectrum[:, :, None] * otf[None, :, first:last].conj()  # (B, C, m, Gh, Gw/2+1)
+                spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
+                for m in range(last - first):
+                    out.addcmul_(spread[:, :, m], maps[:, first + m])
+            return out
         for m in range(self.rank):
             spread = _irfft2(spectrum * otf[:, m].conj(), self.grid)[..., : self.height, : self.width]
             out.addcmul_(spread, maps[:, m])
         return out
+
+    def _chunks(self, like: torch.Tensor) -> list[tuple[int, int]]:
+        """Ranges of basis indices transformed together: at most :data:`BATCH_ELEMENTS` real samples a batch."""
+        per_term = like.shape[0] * like.shape[1] * self.grid[0] * self.grid[1]
+        size = max(1, BATCH_ELEMENTS // per_term)
+        return [(first, min(first + size, self.rank)) for first in range(0, self.rank, size)]
+
+    def _forward_batched(self, x: torch.Tensor, maps: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` on the CPU outside autograd: the products ``c_m . x`` of a chunk of terms written
+        into one zero-padded frame buffer (kept between calls: its padding stays zero) and transformed by one
+        multi-threaded :func:`scipy.fft.rfft2` call; the spectra weighted by the transfer functions and summed."""
+        spectrum = None
+        for first, last in self._chunks(x):
+            shape = (x.shape[0], x.shape[1], last - first, *self.grid)
+            key = (shape, x.dtype)
+            if self._buffer is None or self._buffer[0] != key:
+                self._buffer = (key, torch.zeros(shape, dtype=x.dtype))
+            frames = self._buffer[1]
+            torch.mul(x[:, :, None], maps[None, :, first:last], out=frames[..., : self.height, : self.width])
+            terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
+            chunk = terms.mul_(otf[None, :, first:last]).sum(dim=2)
+            spectrum = chunk if spectrum is None else spectrum.add_(chunk)
+        assert spectrum is not None
+        return _irfft2(spectrum, self.grid)[..., : self.height, : self.width]
 
     __call__ = forward
 
