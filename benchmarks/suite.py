@@ -412,6 +412,66 @@ def export_memory(height: int = 1080, width: int = 1920) -> Callable[[Context], 
     return run
 
 
+def synthetic_psf_map_lab(folder: Path, height: int = 1140, width: int = 912) -> tuple[Path, Path]:
+    """A PSF map of a ``height x width`` projector on dots every 12 px with widths like a measured V-groove's
+    (minor 0.7-1.6 px, major 1.3-5 px, growing away from the centre column; the angle turning down the image)
+    and a target with edges and texture, written to ``folder``: ``(map.npz, target.png)``."""
+    import numpy as np
+    import torch
+
+    from edofproj.imaging.image_io import write_image
+    from edofproj.procams.psf_map import PSFMap, covariance
+
+    xs, ys = np.arange(0.0, width, 12.0), np.arange(0.0, height, 12.0)
+    t = np.abs(xs - width / 2) / (width / 2)
+    cov = np.array([[covariance(1.3 + 3.7 * u**2, 0.7 + 0.9 * u, 1.2 * y / height - 0.6) for u in t] for y in ys])
+    psf_map = PSFMap(xs=xs, ys=ys, cov=cov, offset_px=np.zeros(2), fitted=np.ones(cov.shape[:2], bool),
+                     projector_hw=(height, width))  # fmt: skip
+    psf_map.save(folder / "map.npz")
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:height, 0:width]
+    texture = rng.random((3, height // 8 + 1, width // 8 + 1)).repeat(8, axis=1).repeat(8, axis=2)[:, :height, :width]
+    checks = ((yy // 48 + xx // 48) % 2).astype(float)
+    image = np.clip(0.15 + 0.5 * checks + 0.3 * texture, 0.0, 1.0)
+    write_image(folder / "target.png", torch.from_numpy(image).float(), bits=8)
+    return folder / "map.npz", folder / "target.png"
+
+
+def compensate_psf_map(height: int = 1140, width: int = 912) -> Callable[[Context], list[Measurement]]:
+    """``edofproj compensate --psf-map MAP --image TARGET --method cls`` on :func:`synthetic_psf_map_lab`'s
+    files in a child process, once per repeat: its wall and CPU (user + system) seconds, peak memory and the
+    objective it reached (printed: ``objective A -> B``)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import re
+
+        walls, cpus, peaks, objectives = [], [], [], []
+        with tempfile.TemporaryDirectory() as tmp:
+            psf_map, target = synthetic_psf_map_lab(Path(tmp), height, width)
+            for _ in range(ctx.repeats):
+                command = [sys.executable, "-m", "edofproj.cli", "compensate", "--psf-map", str(psf_map)]
+                command += ["--image", str(target), "--method", "cls", "--out", str(Path(tmp) / "out.png")]
+                start = ctx.clock()
+                child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                _, status, usage = os.wait4(child.pid, 0)
+                walls.append(ctx.clock() - start)
+                printed = child.stdout.read() if child.stdout else ""
+                if os.waitstatus_to_exitcode(status) != 0:
+                    raise RuntimeError(f"edofproj compensate --psf-map failed: {printed.strip()[-300:]}")
+                cpus.append(usage.ru_utime + usage.ru_stime)
+                peaks.append(usage.ru_maxrss / 1e6)  # kB -> GB
+                found = re.search(r"objective \S+ -> (\S+) in", printed)
+                objectives.append(float(found.group(1)) if found else float("nan"))
+        return [
+            Measurement("compensate --psf-map cls wall", walls, "s", 2),
+            Measurement("compensate --psf-map cls CPU (user + system)", cpus, "s", 2),
+            Measurement("compensate --psf-map cls peak RSS", peaks, "GB", 2),
+            Measurement("compensate --psf-map cls final objective", objectives, "objective", 2),
+        ]
+
+    return run
+
+
 _EXPORTED: dict[tuple, Path] = {}
 
 
@@ -515,6 +575,12 @@ CASES: dict[str, Case] = {
             onnx_vs_torch(1080, 1920, 2, True),
             3,
             False,
+        ),
+        Case(
+            "compensate-psf-map-cls",
+            "edofproj compensate --psf-map --method cls, 1140x912, synthetic map (V-groove-like widths), child process",
+            compensate_psf_map(),
+            2,
         ),
         Case("demo-quick", "edofproj demo --quick: seconds per stage (about a minute)", demo(quick=True), 1),
         Case("demo", "edofproj demo: seconds per stage, scores against the README (8-15 minutes)", demo(), 1, False),
