@@ -29,7 +29,7 @@ blurs of :mod:`edofproj.compensation.field_varying` it reaches in about 12 itera
 objective monotone FISTA reaches in 20.
 
 Shapes: ``target (B, C, H, W)``; the problem of all images is solved as one (the objective is their
-sum; each image's is reported). Vectors are the target's dtype; inner products accumulate in float64.
+sum; each image's is reported). Vectors and inner products are in the target's dtype.
 """
 
 from __future__ import annotations
@@ -45,13 +45,14 @@ DEFAULT_MEMORY = 5
 
 
 def _dot(a: torch.Tensor, b: torch.Tensor) -> float:
-    """``sum(a * b)`` over every element, accumulated in float64."""
-    return float(torch.sum(a * b, dtype=torch.float64))
+    """``sum(a * b)`` over every element (one BLAS dot product in the tensors' dtype)."""
+    return float(torch.vdot(a.reshape(-1), b.reshape(-1)))
 
 
 def _per_image(residual: torch.Tensor) -> torch.Tensor:
-    """``1/2 ||r||^2`` per image ``(B,)`` float64."""
-    return 0.5 * torch.sum(residual.flatten(1).to(torch.float64) ** 2, dim=1)
+    """``1/2 ||r||^2`` per image ``(B,)`` float64 (the sum of squares accumulated pairwise)."""
+    flat = residual.flatten(1)
+    return 0.5 * torch.linalg.vecdot(flat, flat).to(torch.float64)
 
 
 def box_quasi_newton(

@@ -228,6 +228,7 @@ class FieldVaryingBlur:
         self.grid = fft_shape((self.height, self.width), (k, k))
         self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
         self._buffer: tuple[tuple, torch.Tensor] | None = None
+        self._conjugates: tuple[torch.Tensor, torch.Tensor] | None = None
 
     @property
     def rank(self) -> int:
@@ -277,8 +278,9 @@ class FieldVaryingBlur:
         spectrum = _rfft2(y, self.grid)
         out = torch.zeros_like(y)
         if _on_scipy(y):
+            conjugate = self._conjugate(otf)
             for first, last in self._chunks(y):
-                products = spectrum[:, :, None] * otf[None, :, first:last].conj()  # (B, C, m, Gh, Gw/2+1)
+                products = spectrum[:, :, None] * conjugate[None, :, first:last]  # (B, C, m, Gh, Gw/2+1)
                 spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
                 for m in range(last - first):
                     out.addcmul_(spread[:, :, m], maps[:, first + m])
@@ -287,6 +289,12 @@ class FieldVaryingBlur:
             spread = _irfft2(spectrum * otf[:, m].conj(), self.grid)[..., : self.height, : self.width]
             out.addcmul_(spread, maps[:, m])
         return out
+
+    def _conjugate(self, otf: torch.Tensor) -> torch.Tensor:
+        """``conj(otf)`` materialized, kept for the transfer functions ``otf`` of :meth:`_parts`."""
+        if self._conjugates is None or self._conjugates[0] is not otf:
+            self._conjugates = (otf, otf.conj().resolve_conj())
+        return self._conjugates[1]
 
     def _chunks(self, like: torch.Tensor) -> list[tuple[int, int]]:
         """Ranges of basis indices transformed together: at most :data:`BATCH_ELEMENTS` real samples a batch."""
@@ -307,8 +315,11 @@ class FieldVaryingBlur:
             frames = self._buffer[1]
             torch.mul(x[:, :, None], maps[None, :, first:last], out=frames[..., : self.height, : self.width])
             terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
-            chunk = terms.mul_(otf[None, :, first:last]).sum(dim=2)
-            spectrum = chunk if spectrum is None else spectrum.add_(chunk)
+            for j in range(last - first):
+                if spectrum is None:
+                    spectrum = terms[:, :, j] * otf[:, first + j]
+                else:
+                    spectrum.addcmul_(terms[:, :, j], otf[:, first + j])
         assert spectrum is not None
         return _irfft2(spectrum, self.grid)[..., : self.height, : self.width]
 
