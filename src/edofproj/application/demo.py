@@ -13,7 +13,9 @@ Stages (each shown with its ETA by :class:`~edofproj.progress.StageProgress`):
    refit phase alone), so that the comparison measures the optics; ``lens_onlineprodeb``, another
    architecture, its own recipe (:data:`OWN_RECIPE_STEPS`). A baseline that does not fit is taken from the run the package ships for it
    (:data:`BUILTIN_BASELINES`: the same preset and steps, trained beforehand), and the report says
-   which runs were trained here and which were shipped; ``retrain_baselines`` trains them all;
+   which runs were trained here and which were shipped; ``retrain_baselines`` trains them all. Once a
+   worker has no run left to train while another still trains, the cubic plate's PSFs for the evaluation are
+   simulated on the core it leaves free (:class:`DesignPrefetch`);
 2. **evaluation** -- :func:`~edofproj.evaluation.pipeline.evaluate_run` of ``doe_net`` with the
    others as baselines, on the held-out built-in photographs: the evaluation's default methods
    (:func:`demo_methods`), the classic elements' linear baselines (``X+wiener``, ``X+ensemble``) among them,
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,9 +55,9 @@ from ..evaluation.pipeline import Evaluation, design_depths_m, evaluate_run, is_
 from ..evaluation.scenes import evaluate_scenes
 from ..evaluation.surfaces import evaluate_surfaces
 from ..fileio import read_arrays
-from ..methods.builder import PreparedMethod, require_trained_run
+from ..methods.builder import MethodBuilder, PreparedMethod, require_trained_run
 from ..methods.catalogue import CLASSIC_ELEMENTS, OURS, method_spec, select_methods
-from ..methods.designs import DEPTH_KEY_RESOLUTION_M
+from ..methods.designs import DEPTH_KEY_RESOLUTION_M, OpticalDesign
 from ..progress import StageProgress, format_duration
 from ..reporting.claims import Claim, ssim_claims, wall_time_claim
 from ..reporting.document import Figure, Heading, Paragraph, Table
@@ -253,16 +256,82 @@ TIMING_CASE_BUDGET_S = 5.0
 REPORT_MARGIN_S = 15.0
 
 
+def design_evaluation_depths_m(cfg, methods: Sequence[str], design: str) -> np.ndarray:
+    """The distinct depths (m) at which the evaluation of ``methods`` and its report simulate ``design`` (a
+    :attr:`~edofproj.methods.catalogue.MethodSpec.design`): the union of its methods' depths
+    (:func:`~edofproj.evaluation.pipeline.design_depths_m`) and the PSF figure's
+    (:func:`~edofproj.reporting.writeup.psf_figure_depths_m`); none without a method of it."""
+    compensations = {method_spec(m).compensation for m in methods if method_spec(m).design == design}
+    if not compensations:
+        return np.zeros(0)
+    depths_m = np.concatenate([design_depths_m(cfg, compensations), psf_figure_depths_m(cfg)])
+    return np.unique(np.round(depths_m / DEPTH_KEY_RESOLUTION_M)) * DEPTH_KEY_RESOLUTION_M
+
+
+class DesignPrefetch:
+    """The cubic plate's PSFs (the slow 2-D engine: about 1-2 s a depth on one core) simulated on a thread while a
+    training worker waits for the others, at the depths the evaluation will ask for
+    (:func:`design_evaluation_depths_m`), one depth at a time, with one torch thread.
+
+    :meth:`start` begins (``ours_run``'s ``config.yaml``: the configuration the evaluation opens; nothing is
+    done when it is absent or no evaluated method uses the plate); :meth:`finish` stops it after the depth at
+    hand (training is over: the evaluation then simulates the remaining depths itself, on every core), restores
+    torch's threads and returns the design for :func:`~edofproj.evaluation.pipeline.evaluate_run`'s
+    ``designs``, which takes it only if it was built with the evaluation's own configuration
+    (:meth:`~edofproj.methods.builder.MethodBuilder.adopt`). A PSF does not depend on the threads that
+    computed it nor on the depths simulated with it, so the scores are those of an evaluation that simulates
+    every depth itself."""
+
+    KIND = "cubic"
+
+    def __init__(self, ours_run: Path, methods: Sequence[str]) -> None:
+        self.ours_run = Path(ours_run)
+        self.methods = list(methods)
+        self.design: OpticalDesign | None = None
+        self.simulated = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._threads = torch.get_num_threads()
+
+    def start(self) -> None:
+        if self._thread is not None or not (self.ours_run / "config.yaml").is_file():
+            return
+        cfg = saved_config(self.ours_run)
+        depths_m = design_evaluation_depths_m(cfg, self.methods, self.KIND)
+        if not len(depths_m):
+            return
+        self._threads = torch.get_num_threads()
+        self._thread = threading.Thread(target=self._simulate, args=(cfg, depths_m), daemon=True)
+        self._thread.start()
+
+    def _simulate(self, cfg, depths_m: np.ndarray) -> None:
+        torch.set_num_threads(1)  # the free core only: the other still trains
+        try:
+            design = MethodBuilder(None, cfg, self.ours_run.parent, explicit=False).classic_design(self.KIND)
+            for depth_m in depths_m:
+                if self._stop.is_set():
+                    break
+                design.psf([depth_m])
+                self.simulated += 1
+            self.design = design
+        except EdofprojError:  # e.g. a sampling the plate refuses: the evaluation meets it and says so
+            self.design = None
+
+    def finish(self) -> list[OpticalDesign]:
+        if self._thread is None:
+            return []
+        self._stop.set()
+        self._thread.join()
+        torch.set_num_threads(self._threads)
+        return [self.design] if self.design is not None else []
+
+
 def cubic_evaluation_depths(cfg, methods: Sequence[str]) -> int:
     """Depths at which the evaluation of ``methods`` and its report simulate the cubic plate (the slow 2-D
     engine): the cubic methods share one design (:class:`~edofproj.methods.builder.MethodBuilder`), simulated
     at the union of their depths (:func:`~edofproj.evaluation.pipeline.design_depths_m`) and the PSF
     figure's (:func:`~edofproj.reporting.writeup.psf_figure_depths_m`); 0 without a cubic method."""
-    compensations = {method_spec(m).compensation for m in methods if method_spec(m).design == "cubic"}
-    if not compensations:
-        return 0
-    depths_m = np.concatenate([design_depths_m(cfg, compensations), psf_figure_depths_m(cfg)])
-    return len(np.unique(np.round(depths_m / DEPTH_KEY_RESOLUTION_M)))
+    return len(design_evaluation_depths_m(cfg, methods, "cubic"))
 
 
 def evaluation_seconds(settings: DemoSettings, cfg, methods: Sequence[str]) -> float:
@@ -714,6 +783,8 @@ def run_demo(
         total_s = time.perf_counter() - clock + measured.planned_seconds + measured.later_seconds() + REPORT_MARGIN_S
         progress.note(prediction_note(total_s, budget, measured.reference_rate_s(), cfg))
 
+    # the cubic plate's PSFs for the evaluation, on the core a training worker leaves free at the end
+    prefetch = DesignPrefetch(out / OURS_RUN_DIR, planned)
     trainer = ParallelTrainer(
         jobs,
         training_config,
@@ -724,12 +795,16 @@ def run_demo(
         reference_rate_s(cfg),
         later_s=later,
         on_measured=predict_on_this_machine,
+        on_idle_worker=prefetch.start,
     )
     trainer.plan()  # before any training: the baselines predicted not to fit are named now
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.note(plan_line(jobs))
     progress.start("stage 1/4 training", trainer.total_work(), later_s=later)
-    trainer.run()
+    try:
+        trainer.run()
+    finally:
+        simulated = prefetch.finish()
     use_builtin_baselines(jobs, list(settings.overrides) + list(overrides), training_config)
     progress.finish(", ".join(f"{j.method}: {j.status}" for j in jobs))
 
@@ -738,7 +813,12 @@ def run_demo(
     trained = {j.method for j in jobs if j.status in ("done", "built-in")}
     eval_methods = [m for m in planned if not method_spec(m).needs_separate_run or m in trained]
     evaluation = evaluate_run(
-        out / OURS_RUN_DIR, out_dir=out, methods=eval_methods, baselines_dir=out, progress=progress
+        out / OURS_RUN_DIR,
+        out_dir=out,
+        methods=eval_methods,
+        baselines_dir=out,
+        progress=progress,
+        designs=simulated,
     )
     for job in jobs:
         if job.status not in ("done", "built-in"):

@@ -123,6 +123,7 @@ class ParallelTrainer:
         default_rate_s: float = 0.1,
         later_s: float = 0.0,
         on_measured: Callable[["ParallelTrainer"], None] | None = None,
+        on_idle_worker: Callable[[], None] | None = None,
     ) -> None:
         self.jobs = list(jobs)
         self.config = config
@@ -133,6 +134,9 @@ class ParallelTrainer:
         self.default_rate_s = default_rate_s
         self.later_s = later_s
         self.on_measured = on_measured
+        #: called once, the first time a worker slot is free with no job left to start while others still run
+        #: (it must return at once: e.g. start a thread that does later work on the free core)
+        self.on_idle_worker = on_idle_worker
         self.calibrated = False
         #: predicted seconds from the last :meth:`plan` until the last job it keeps ends
         self.planned_seconds = 0.0
@@ -343,7 +347,8 @@ class ParallelTrainer:
     def run(self) -> list[TrainingJob]:
         """Train the jobs: :meth:`plan` them, then keep up to ``workers`` processes running (starting the
         next job that :meth:`next_job` allows), poll them every ``POLL_S`` seconds, :meth:`calibrate` and
-        report progress, until no job runs or may start. Returns the jobs with their final status and notes. On any
+        report progress, until no job runs or may start; the first time a worker is left without a job while
+        others run, call ``on_idle_worker``. Returns the jobs with their final status and notes. On any
         exception (a failed required job, Ctrl-C) the processes are stopped and the exception re-raised."""
         self.plan()
         try:
@@ -357,6 +362,9 @@ class ParallelTrainer:
                     running.append(job)
                 if not running:
                     break
+                if len(running) < self.workers and self.on_idle_worker is not None:
+                    idle, self.on_idle_worker = self.on_idle_worker, None
+                    idle()
                 time.sleep(POLL_S)
                 for job in running:
                     self.poll(job)

@@ -192,6 +192,7 @@ def evaluate_run(
     device: str | torch.device = "cpu",
     timing: bool = True,
     validation: bool = False,
+    designs: Sequence[OpticalDesign] = (),
 ) -> Evaluation:
     """Evaluate the run in ``run_dir`` (module docstring); files go to ``out_dir`` (default: the run).
 
@@ -199,7 +200,8 @@ def evaluate_run(
     simulated on the CPU, and the tables do not depend on the device beyond float32 rounding.
     ``timing``: time each method's compensation of one frame (the first image, at the in-focus
     depth; :func:`.timing.time_methods`). ``validation``: score the built-in validation set
-    (:mod:`edofproj.data.validation`) instead of the test images."""
+    (:mod:`edofproj.data.validation`) instead of the test images. ``designs``: optical designs already
+    simulated with this evaluation's configuration, their cached PSFs reused (:meth:`MethodBuilder.adopt`)."""
     clock = time.perf_counter()
     specs = select_methods(methods)  # unknown names fail before any work
     if depths_mm is not None:
@@ -238,6 +240,7 @@ def evaluate_run(
 
     progress.start("preparing methods", len(specs), detail="PSFs, Wiener NSR tuning, networks")
     builder = opened.method_builder(baselines_dir, explicit=bool(methods), device=device)
+    builder.adopt(designs)
     prepared = builder.build_all(specs, progress)
     builder.notes.extend(image_notes + asked)
     for note in builder.notes:

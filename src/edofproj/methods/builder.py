@@ -184,6 +184,17 @@ class MethodBuilder:
         self._build_doe = build_doe
         self._train_images: torch.Tensor | None = None
 
+    def adopt(self, designs: Sequence[OpticalDesign]) -> list[str]:
+        """Take ``designs`` (e.g. simulated while the demo trained) as the designs of their keys, with the PSFs
+        they cached, where each was made with this builder's configuration and device and its key is not yet
+        built; returns the keys taken (the others are ignored: this builder simulates its own)."""
+        taken = []
+        for design in designs:
+            if design.key not in self.designs and design.cfg == self.cfg and design.device == self.device:
+                self.designs[design.key] = design
+                taken.append(design.key)
+        return taken
+
     def design(self, key: str, label: str, doe) -> OpticalDesign:
         if key not in self.designs:
             self.designs[key] = OpticalDesign(key, label, doe, self.cfg, self.device)
