@@ -332,3 +332,39 @@ def test_a_guarded_export_decides_on_the_whole_frame_only_in_a_branch(tmp_path, 
                 reference = guarded(target, captured)
             exported = session.run(None, {"target": target.numpy(), "captured": captured.numpy()})[0]
             assert np.abs(exported - reference.numpy()).max() < 1e-4
+
+
+def test_a_wrong_branch_the_frame_does_not_take_is_refused(tmp_path, monkeypatch):
+    """The verification runs both branches of a guarded file on its frame: with the band at 0 the frame
+    is decided on tiles, and a file whose whole-frame branch returns the negated margin (the opposite
+    decision) is refused with a one-line error naming that branch, and nothing is written."""
+    pytest.importorskip("onnxscript")
+    import onnx
+
+    from edofproj.compensation import export
+    from edofproj.methods import guard
+    from synthetic_psfs import gaussian_psfs
+
+    torch.manual_seed(4)
+    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
+    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
+    torch.nn.init.normal_(safe.head.weight, std=0.3)
+    guarded = guard.GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    monkeypatch.setattr(guard, "GUARD_MARGIN_BAND", 0.0)
+    joined = export._conditional_model
+
+    def negated_branch(parts, height, width):
+        model = joined(parts, height, width)
+        (branch,) = [node for node in model.graph.node if node.op_type == "If"]
+        then_graph = next(a.g for a in branch.attribute if a.name == "then_branch")
+        result = then_graph.output[0].name
+        then_graph.node.append(onnx.helper.make_node("Neg", [result], [result + "_negated"]))
+        then_graph.output[0].name = result + "_negated"
+        return model
+
+    monkeypatch.setattr(export, "_conditional_model", negated_branch)
+    path = tmp_path / "guarded.onnx"
+    with pytest.raises(EdofprojError, match="the branch the frame does not take") as error:
+        export_network(guarded, path, "onnx", height=192, width=288)
+    assert "\n" not in str(error.value)
+    assert not path.exists() and list(tmp_path.iterdir()) == []
