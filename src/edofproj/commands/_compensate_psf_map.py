@@ -8,8 +8,8 @@ The blur is the map's (:mod:`edofproj.procams.measured_blur`: a Gaussian of the 
 at every node of the projector image, interpolated between nodes; each colour its own map where the
 file has one); the methods are :mod:`edofproj.procams.map_compensation`'s (``wiener``: the
 field-varying Wiener filter, NSR tuned on training crops unless ``--nsr``; ``cls``: box-constrained
-least squares with the exact blur, ``--iterations`` projected quasi-Newton steps from the target, or
-from the Wiener estimate with ``--nsr``) and ``net``: the
+least squares with the exact blur, ``--iterations`` projected quasi-Newton steps from the Wiener
+estimate) and ``net``: the
 network of a run fine-tuned on the map (``edofproj finetune RUN --psf-map MAP``), given the target and
 the map's simulated projection of it. Images are at the map's projector size (height x width);
 outputs 8- or 16-bit PNG/TIFF, written atomically; a folder of outputs appears only when complete.
@@ -26,7 +26,7 @@ from ._common import refuse_output_over, run_directory
 MAP_METHODS = ("wiener", "cls", "net")
 """``--method`` values that go with ``--psf-map``."""
 DEFAULT_MAP_METHOD = "cls"
-DEFAULT_CLS_ITERATIONS = 14
+DEFAULT_CLS_ITERATIONS = 12
 """``--iterations`` by default: :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS` (a test
 holds them equal; this module imports no torch before it must)."""
 
@@ -58,8 +58,7 @@ def add_psf_map_options(parser) -> None:
         "--nsr",
         type=float,
         default=None,
-        help="with --psf-map: the Wiener NSR (wiener: default tuned; cls: start from the Wiener estimate with it "
-        "instead of the target)",
+        help="with --psf-map: the Wiener NSR (wiener, and cls's start; default: tuned)",
     )
     parser.add_argument(
         "--rank-tolerance",
@@ -150,7 +149,7 @@ class MapCompensator:
             from ..methods.map_network import MapNetwork
 
             self.network = MapNetwork(run, self.op)
-        elif args.method == "wiener" or self.nsr is not None:  # cls without --nsr starts from the target
+        else:
             from ..compensation.field_varying import FieldVaryingWiener
             from ..procams.map_compensation import tune_map_nsr
 
@@ -172,12 +171,7 @@ class MapCompensator:
         result = compensate_with_map(
             target, self.op, self.args.method, iterations=self.args.iterations, wiener=self.wiener
         )
-        start = "from the target" if result.nsr is None else f"from Wiener, NSR {result.nsr:.3g}"
-        note = (
-            f"{start}, {result.seconds:.2f} s"
-            if self.args.method == "cls"
-            else f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
-        )
+        note = f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
         if self.args.method == "cls":
             note += f"; {result.convergence()}"
         return result.image, note

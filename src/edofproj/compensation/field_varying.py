@@ -39,7 +39,7 @@ from .box_quasi_newton import box_quasi_newton
 from .constrained import SOLVERS, box_least_squares
 from .wiener import checked_nsr, padding_for
 
-DEFAULT_CLS_ITERATIONS = 14
+DEFAULT_CLS_ITERATIONS = 12
 """Iterations of :func:`field_varying_cls` by default (``lbfgs``)."""
 CLS_METHODS = ("lbfgs", *SOLVERS)
 """Solvers of :func:`field_varying_cls`: projected quasi-Newton (default), monotone FISTA, projected gradient."""

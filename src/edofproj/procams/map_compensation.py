@@ -11,9 +11,11 @@ colour its own map where the file has one). The methods are those of
   (the corners and the centre): one NSR for the whole map;
 * ``cls``: box-constrained least squares ``min ||A x - t||^2, 0 <= x <= 1`` with the exact operator,
   ``iterations`` projected quasi-Newton steps
-  (:func:`edofproj.compensation.field_varying.field_varying_cls`), started from the target clamped to
-  the box, or from the ``wiener`` estimate when an NSR (or a Wiener filter) is given; the objective at
-  every step is returned, so a caller can say how far it went.
+  (:func:`edofproj.compensation.field_varying.field_varying_cls`) from the ``wiener`` estimate (its
+  NSR tuned as above, or given); the objective at every step is returned, so a caller can say how far
+  it went. The start matters beyond the objective: from the target itself the same number of steps
+  reaches a lower objective under the map's blur but scores lower under another blur (a lab's own
+  kernels), the Wiener estimate's smoothness acting as a regularizer of the early-stopped solution.
 """
 
 from __future__ import annotations
@@ -36,13 +38,13 @@ NSR_TUNING_CROPS = 8
 @dataclass
 class MapCompensation:
     """What one compensation did: the projector image ``image (B, C, H, W)`` in [0, 1], the method,
-    the Wiener NSR (None: no Wiener filter was used, a ``cls`` started from the target), the blur's rank (convolutions per application), the CLS objective per iteration
+    the Wiener NSR, the blur's rank (convolutions per application), the CLS objective per iteration
     ``objective (iterations + 1, B)`` (empty for ``wiener``) and the seconds it took (the Wiener
     filter's set-up included unless it was given; the blur's and the NSR's excluded)."""
 
     image: torch.Tensor
     method: str
-    nsr: float | None
+    nsr: float
     rank: int
     seconds: float
     objective: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
@@ -96,8 +98,7 @@ def compensate_with_map(
     wiener=None,
 ) -> MapCompensation:
     """The projector image for ``target (B, C, H, W)`` in [0, 1] under the blur ``op``, by ``method``
-    (``wiener`` or ``cls``; module docstring). ``nsr``: the Wiener NSR (``wiener``: default tuned,
-    :func:`tune_map_nsr`; ``cls``: given, the start is the Wiener estimate, else the target);
+    (``wiener`` or ``cls``; module docstring). ``nsr``: the Wiener NSR (default tuned, :func:`tune_map_nsr`);
     ``iterations``: CLS iterations (default
     :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS`); ``wiener``: a
     :class:`~edofproj.compensation.field_varying.FieldVaryingWiener` of ``op`` set up before (for
@@ -116,16 +117,13 @@ def compensate_with_map(
         raise EdofprojError(f"iterations={iterations} must be >= 0")
     if wiener is not None:
         nsr = wiener.nsr
-    if nsr is None and method == "wiener":
-        nsr = tune_map_nsr(op)
-    if nsr is not None and not (np.isfinite(float(nsr)) and float(nsr) >= 0):
+    nsr = tune_map_nsr(op) if nsr is None else float(nsr)
+    if not (np.isfinite(nsr) and nsr >= 0):
         raise EdofprojError(f"NSR={nsr} must be a finite number >= 0")
     start = time.perf_counter()
     with torch.no_grad():
-        x = target.clamp(0.0, 1.0) if nsr is None else (wiener or FieldVaryingWiener(op, float(nsr)))(target)
+        x = (wiener or FieldVaryingWiener(op, nsr))(target)
         objective = torch.zeros(0)
         if method == "cls":
             x, objective = field_varying_cls(target, op, iterations, start=x, return_objective=True)
-    return MapCompensation(
-        x, method, None if nsr is None else float(nsr), op.rank, time.perf_counter() - start, objective
-    )
+    return MapCompensation(x, method, nsr, op.rank, time.perf_counter() - start, objective)
