@@ -106,7 +106,8 @@ class FieldVaryingWiener:
         wx = torch.as_tensor(hat_weights(op.centres_x_px[cols], self.width))
         bases, maps = [], []
         for c in range(channels):
-            basis, coefficients = low_rank_kernels(spatial[:, :, c].reshape(gy * gx, *q), rank_tolerance)
+            # Wiener kernels need more terms than the blur's (about 46 for a PSF map's): the larger sketch at once
+            basis, coefficients = low_rank_kernels(spatial[:, :, c].reshape(gy * gx, *q), rank_tolerance, (64,))
             bases.append(basis)
             maps.append(torch.einsum("iy,ijm,jx->myx", wy, coefficients.reshape(gy, gx, -1), wx))
         rank = max(b.shape[0] for b in bases)

@@ -104,18 +104,22 @@ def project_field_varying(
     return out + lost_mean if haze else out
 
 
-def low_rank_kernels(kernels: torch.Tensor, tolerance: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+def low_rank_kernels(
+    kernels: torch.Tensor, tolerance: float = 0.0, sketches: tuple[int, ...] = (32, 64)
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``kernels (N, Kh, Kw) ~= sum_m coefficients[:, m] basis[m]``: the truncated singular value
     decomposition of the ``N x Kh Kw`` matrix ``X`` of the kernels, keeping the fewest ``M`` components whose
     dropped singular values ``sigma_m`` satisfy ``sqrt(sum_dropped sigma_m^2) <= tolerance * ||X||_F``
     (``tolerance = 0``: all above ``1e-12 sigma_0``, exact to rounding). Returns ``basis (M, K, K)`` (orthonormal)
     and ``coefficients (N, M)`` float64. With more kernels than taps (``N > K^2``) the right singular
-    vectors are the eigenvectors of ``X^T X`` (a ``K^2 x K^2`` problem, whatever ``N``)."""
+    vectors are the eigenvectors of ``X^T X`` (a ``K^2 x K^2`` problem, whatever ``N``). Many large kernels
+    with a tolerance: the randomized basis of :func:`_randomized_low_rank`, sketches of ``sketches`` vectors
+    tried in turn (the first that reaches the tolerance), the exact decomposition if none does."""
     n, (kh, kw) = kernels.shape[0], kernels.shape[-2:]
     taps = kh * kw
     matrix = kernels.reshape(n, taps).to(torch.float64)
     if float(tolerance) > 0 and n * taps > 4_000_000:
-        for most in (32, 64):  # the smaller sketch first: half the work, and enough for the kernels of a PSF map
+        for most in sketches:
             sketched = _randomized_low_rank(matrix, float(tolerance), most)
             if sketched is not None:
                 return sketched.T.reshape(sketched.shape[1], kh, kw), matrix @ sketched
