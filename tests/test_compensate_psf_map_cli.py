@@ -70,6 +70,7 @@ def test_wiener_on_a_folder(lab, capsys):
         (["--method", "doe+net"], "does not go with --psf-map"),
         (["--method", "net"], "--method net needs the run"),
         (["--method", "wiener", "--iterations", "5"], "--iterations goes with --method cls"),
+        (["--method", "wiener", "--solver", "lbfgs"], "--solver goes with --method cls"),
         (["--nsr", "-1"], "NSR"),
         (["--rank-tolerance", "2"], "rank tolerance"),
     ],
@@ -125,3 +126,16 @@ def test_cls_by_default_runs_the_solvers_default_iterations_and_says_so(lab, cap
     assert f"in {field_varying.DEFAULT_CLS_ITERATIONS} iterations" in printed
     start, end = (float(v) for v in printed.split("objective ")[1].split(" in ")[0].split(" -> "))
     assert end < start
+
+
+def test_the_quasi_newton_solver_reaches_a_lower_objective_than_fista_in_as_many_steps(lab, capsys):
+    finals = {}
+    for solver in ("fista", "lbfgs"):
+        out = lab / f"{solver}.png"
+        code = main(["compensate", "--psf-map", str(lab / "map.npz"), "--image", str(lab / "target.png"),
+                     "--nsr", "1e-3", "--iterations", "8", "--solver", solver, "--out", str(out)])  # fmt: skip
+        assert code == 0
+        printed = capsys.readouterr().out
+        start, finals[solver] = (float(v) for v in printed.split("objective ")[1].split(" in ")[0].split(" -> "))
+        assert finals[solver] < start
+    assert finals["lbfgs"] < finals["fista"]

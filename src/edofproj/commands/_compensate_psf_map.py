@@ -8,8 +8,8 @@ The blur is the map's (:mod:`edofproj.procams.measured_blur`: a Gaussian of the 
 at every node of the projector image, interpolated between nodes; each colour its own map where the
 file has one); the methods are :mod:`edofproj.procams.map_compensation`'s (``wiener``: the
 field-varying Wiener filter, NSR tuned on training crops unless ``--nsr``; ``cls``: box-constrained
-least squares with the exact blur, ``--iterations`` projected quasi-Newton steps from the Wiener
-estimate) and ``net``: the
+least squares with the exact blur, ``--iterations`` steps of ``--solver`` from the Wiener estimate)
+and ``net``: the
 network of a run fine-tuned on the map (``edofproj finetune RUN --psf-map MAP``), given the target and
 the map's simulated projection of it. Images are at the map's projector size (height x width);
 outputs 8- or 16-bit PNG/TIFF, written atomically; a folder of outputs appears only when complete.
@@ -26,7 +26,9 @@ from ._common import refuse_output_over, run_directory
 MAP_METHODS = ("wiener", "cls", "net")
 """``--method`` values that go with ``--psf-map``."""
 DEFAULT_MAP_METHOD = "cls"
-DEFAULT_CLS_ITERATIONS = 12
+CLS_SOLVERS = ("fista", "lbfgs")
+"""``--solver`` values (:data:`edofproj.compensation.field_varying.CLS_METHODS` less ``pgd``)."""
+DEFAULT_CLS_ITERATIONS = 20
 """``--iterations`` by default: :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS` (a test
 holds them equal; this module imports no torch before it must)."""
 
@@ -73,6 +75,13 @@ def add_psf_map_options(parser) -> None:
         default=None,
         help=f"with --psf-map --method cls: solver iterations (default {DEFAULT_CLS_ITERATIONS})",
     )
+    parser.add_argument(
+        "--solver",
+        choices=CLS_SOLVERS,
+        default=None,
+        help="with --psf-map --method cls: fista (monotone FISTA, default) or lbfgs (projected quasi-Newton: "
+        "a lower objective under the map in fewer steps, a lower score under other kernels)",
+    )
 
 
 def refuse_other_options(args) -> None:
@@ -100,6 +109,8 @@ def refuse_other_options(args) -> None:
         raise EdofprojError(f"--method {args.method} computes from the PSF map alone: drop RUN/--run (it is for net)")
     if args.method != "cls" and args.iterations is not None:
         raise EdofprojError("--iterations goes with --method cls")
+    if args.method != "cls" and args.solver is not None:
+        raise EdofprojError("--solver goes with --method cls")
     if args.run is not None and args.run_option is not None:
         raise EdofprojError("give the run once: as RUN or as --run")
     if args.batch != 8 and args.images is None:
@@ -169,7 +180,12 @@ class MapCompensator:
                 x = self.network(target)
             return x, f"{time.perf_counter() - start:.2f} s"
         result = compensate_with_map(
-            target, self.op, self.args.method, iterations=self.args.iterations, wiener=self.wiener
+            target,
+            self.op,
+            self.args.method,
+            iterations=self.args.iterations,
+            wiener=self.wiener,
+            solver=self.args.solver or "fista",
         )
         note = f"NSR {result.nsr:.3g}, {result.seconds:.2f} s"
         if self.args.method == "cls":
@@ -223,6 +239,7 @@ def refuse_map_options(args) -> None:
 
     options = [("--run", args.run_option), ("--nsr", args.nsr), ("--iterations", args.iterations)]
     options.append(("--rank-tolerance", args.rank_tolerance))
+    options.append(("--solver", args.solver))
     given = [o for o, v in options if v is not None]
     if given:
         raise EdofprojError(f"{', '.join(given)} go(es) with --psf-map")
