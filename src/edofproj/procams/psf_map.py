@@ -12,19 +12,26 @@ covariance in projector pixels: its marginal widths along the projector's column
 ``sigma_x = sqrt(S_xx)`` and ``sigma_y = sqrt(S_yy)``; a tilted screen makes them differ, and a
 screen tilted about an oblique axis turns the ellipse (``theta``).
 
-**Censoring.** A saturated sample only says ``I >= top`` and a sample clipped to black only
-``I <= 0``: they enter the least-squares fit (:func:`scipy.optimize.least_squares`) as one-sided
-residuals, ``max(0, top - model)`` and ``max(0, model - 0)``, never as values. A dot whose core is
-saturated is then measured by its unsaturated flanks.
+**Censoring.** A censored sample is a bound at its own value, never a value: a sample ``v`` marked
+saturated (a grey value that averages a saturated channel, or is itself at the top) only says
+``I >= v``, one marked clipped (a channel it averages is clipped to black) only ``I <= v``; they enter
+the least-squares fit (:func:`scipy.optimize.least_squares`) as one-sided residuals
+``max(0, v - model)`` and ``max(0, model - v)``. A dot whose core is saturated is then measured by its
+unsaturated flanks. (A grey whose red channel saturates while green and blue do not is a lower bound
+at its own value, not at the top of the range: demanding the top there puts a false edge at the
+rim of the region where any channel saturates, and the Gaussian fitted across it is too narrow.)
 
 **The offset.** A rig whose phase-shift patterns put the phase origin elsewhere than pixel centre 0
 (e.g. 1-based columns) decodes ``P`` shifted by a constant. ``o`` is estimated, not assumed: every
 dot is first fitted with a free centre over a window of half the spacing, and ``o`` is the median
 of ``centre - d``; the dots are then fitted again about ``d + o``.
 
-**The map.** The fitted covariances on the dot grid, median-filtered over ``3 x 3`` dots (outliers),
-gaps filled from the nearest fitted dot; between dots the covariance is interpolated bilinearly
-(a convex combination of covariances is a covariance). :class:`PSFMap` is saved as ``.npz``
+**The map.** The fitted covariances on the dot grid, median-filtered over about ``180 x 180``
+projector px (:data:`DEFAULT_SMOOTH_PX`; :func:`smooth_covariances`: the medians of ``log sigma_x``, ``log sigma_y`` and the correlation
+``rho = S_xy / (sigma_x sigma_y)``, which always give a covariance; a blur that varies with the
+surface's depth changes over many dots, a single dot's fit scatters by its noise), gaps filled from
+the nearest fitted dot; between dots the covariance is interpolated bilinearly (a convex combination
+of covariances is a covariance). :class:`PSFMap` is saved as ``.npz``
 (format ``edofproj-procams-psf-map``); one file holds a map per colour (``mean`` for white dots,
 ``red``, ``green``, ``blue``), each fitted from that colour's dot capture on its own grid
 (:func:`save_psf_maps`, :func:`load_psf_maps`, :func:`psf_maps_for_rgb`).
@@ -97,9 +104,9 @@ def fit_dot(
     sigma0: float = 1.5,
 ) -> DotFit | None:
     """Fit the module docstring's model to samples at projector points ``(px, py)`` (1-D arrays)
-    with values ``values``; ``high`` marks saturated samples (at least ``top``), ``low`` samples
-    clipped to black (at most 0): both censored. None when the fit does not converge or the dot has
-    fewer than 8 uncensored samples."""
+    with values ``values``; ``high`` marks samples that are lower bounds at their own value
+    (saturated), ``low`` upper bounds at their own value (clipped to black): both censored. None
+    when the fit does not converge or the dot has fewer than 8 uncensored samples."""
     fitted = ~(high | low)
     if fitted.sum() < 8:
         return None
@@ -112,7 +119,9 @@ def fit_dot(
 
     def residuals(params: np.ndarray) -> np.ndarray:
         model = _model(params, px, py)
-        return np.where(high, np.maximum(0.0, top - model), np.where(low, np.maximum(0.0, model), model - values))
+        return np.where(
+            high, np.maximum(0.0, values - model), np.where(low, np.maximum(0.0, model - values), model - values)
+        )
 
     try:
         result = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", max_nfev=200)
@@ -381,6 +390,40 @@ def estimate_offset(fits: dict[int, DotFit]) -> np.ndarray:
     return np.median(np.stack([f.centre for f in fits.values()]), axis=0)
 
 
+def smooth_covariances(cov: np.ndarray, size: int) -> np.ndarray:
+    """``(rows, cols, 2, 2)``: the median over ``size x size`` grid points (NaN where not fitted,
+    ignored; NaN where none is) of ``log sigma_x``, ``log sigma_y`` and ``rho = S_xy / (sigma_x
+    sigma_y)``, put back together as ``S = [[sx^2, rho sx sy], [rho sx sy, sy^2]]`` (a covariance
+    whenever ``|rho| < 1``, unlike the component-wise median of ``S``)."""
+    cov = np.asarray(cov, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        log_sx, log_sy = 0.5 * np.log(cov[..., 0, 0]), 0.5 * np.log(cov[..., 1, 1])
+        rho = cov[..., 0, 1] / np.sqrt(cov[..., 0, 0] * cov[..., 1, 1])
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a neighbourhood without any fitted dot
+        for field in (log_sx, log_sy, rho):
+            out.append(ndimage.generic_filter(field, np.nanmedian, size=int(size), mode="constant", cval=np.nan))
+    sx, sy, r = np.exp(out[0]), np.exp(out[1]), np.clip(out[2], -0.99, 0.99)
+    smooth = np.empty_like(cov)
+    smooth[..., 0, 0], smooth[..., 1, 1] = sx * sx, sy * sy
+    smooth[..., 0, 1] = smooth[..., 1, 0] = r * sx * sy
+    return smooth
+
+
+DEFAULT_SMOOTH_PX = 180.0
+"""Width (projector px) of the median that smooths the fitted covariances over the grid
+(:func:`smooth_covariances`, :func:`smoothing_dots`)."""
+
+
+def smoothing_dots(smooth_px: float, step_px: float) -> int:
+    """The odd number of grid points nearest ``smooth_px / step_px`` (at least 1): the median's width
+    on a grid of points ``step_px`` apart."""
+    if not (math.isfinite(smooth_px) and smooth_px >= 0):
+        raise EdofprojError(f"a smoothing width of {smooth_px} px must be finite and >= 0")
+    return max(1, 2 * int(round(0.5 * (smooth_px / step_px - 1))) + 1)
+
+
 def measure_psf_map(
     capture: np.ndarray,
     corr: CorrespondenceMap,
@@ -391,12 +434,16 @@ def measure_psf_map(
     clipped: np.ndarray | None = None,
     channel: str = "mean",
     progress: StageProgress | None = None,
+    smooth_px: float = DEFAULT_SMOOTH_PX,
 ) -> tuple[PSFMap, dict[int, DotFit]]:
     """The PSF map from a grey dot capture ``(Hc, Wc)`` (image units) and the map of the same camera
-    pose. ``saturated``/``clipped``: the censored samples (default: at least ``top`` / at most 0);
-    ``channel``: the colour of the dots (:attr:`PSFMap.channel`); ``progress``: shows the two passes."""
+    pose. ``saturated``/``clipped``: the censored samples, bounds at their own values (default: at
+    least ``top`` / at most 0); ``channel``: the colour of the dots (:attr:`PSFMap.channel`);
+    ``smooth_px``: the width of the median over the map's grid in projector px (:func:`smoothing_dots`
+    of the map's grid step, :func:`smooth_covariances`; 0: none); ``progress``: shows the passes."""
     if not corr.is_complete:
         raise EdofprojError("a PSF map needs a decoded map with columns and rows")
+    smooth_dots = smoothing_dots(smooth_px, every * min(grid.spacing_px))
     capture = np.asarray(capture, dtype=np.float64)
     if capture.shape != corr.camera_hw:
         raise EdofprojError(f"the dot capture is {capture.shape[1]}x{capture.shape[0]}, the map's camera "
@@ -427,21 +474,11 @@ def measure_psf_map(
     xs, ys = grid.xs[cols[0] : cols[-1] + 1 : every], grid.ys[rows[0] : rows[-1] + 1 : every]
     if len(xs) < 2 or len(ys) < 2:
         raise EdofprojError(f"dots were fitted on {len(ys)}x{len(xs)} grid points only: at least 2x2 needed")
-    smooth = np.empty_like(cov)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a 3x3 neighbourhood without any fitted dot
-        for a in range(2):
-            for b in range(2):
-                smooth[..., a, b] = ndimage.generic_filter(
-                    cov[..., a, b], np.nanmedian, size=3, mode="nearest", cval=np.nan
-                )
+    smooth = smooth_covariances(cov, smooth_dots)
     missing = ~np.isfinite(smooth[..., 0, 0])
     if missing.any():
         _, (ny, nx) = ndimage.distance_transform_edt(missing, return_indices=True)
         smooth = smooth[ny, nx]
-    # the component-wise median of covariances need not be one: fall back to the raw fit there
-    bad = (np.linalg.det(smooth) <= 0) & fitted
-    smooth[bad] = cov[bad]
     psf_map = PSFMap(
         xs=xs, ys=ys, cov=smooth, offset_px=offset, fitted=fitted, projector_hw=corr.projector_hw, channel=channel
     )
@@ -452,8 +489,8 @@ def interior_dots(fitted: np.ndarray) -> np.ndarray:
     """``(rows, cols)``: the fitted dots at least two grid steps inside the fitted region (all 24
     neighbours within two steps fitted). A dot at the projection's edge (or the fitted region's, or
     the grid's) sees part of its light fall off the surface or outside the decoded map, and its fit
-    widens; the map's ``3 x 3`` median carries those widths one dot further in. Summaries and colour
-    scales leave both rings out."""
+    widens; near the edge the map's median window is half outside the fitted region and those widths
+    weigh more in it. Summaries and colour scales leave both rings out."""
     inner = ndimage.binary_erosion(np.asarray(fitted, bool), structure=np.ones((5, 5), bool), border_value=0)
     return np.asarray(inner & fitted)
 
