@@ -380,6 +380,21 @@ def demo(quick: bool = False) -> Callable[[Context], list[Measurement]]:
     return run
 
 
+def _child_run(command: list[str], log: Path, ctx: Context) -> tuple[float, float, float, str]:
+    """Run ``command`` as a child process, its output to the file ``log`` (no pipe to fill), and return its
+    wall seconds, CPU seconds (user + system) and peak resident memory in GB (the child's own ``ru_maxrss``,
+    from ``os.wait4``) and what it printed; a failure raises with the end of what it printed."""
+    start = ctx.clock()
+    with open(log, "w") as out:
+        child = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(child.pid, 0)
+    wall = ctx.clock() - start
+    printed = log.read_text()
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"edofproj {' '.join(command[3:5])} failed: {printed.strip()[-300:]}")
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1e6, printed  # ru_maxrss in kB
+
+
 def export_memory(height: int = 1080, width: int = 1920) -> Callable[[Context], list[Measurement]]:
     """``edofproj export builtin:cpu-doe-net --height H --width W`` in a child process, once per repeat: its
     peak resident memory (the child's own ``ru_maxrss``, from ``os.wait4``), CPU and wall seconds, the file."""
@@ -391,16 +406,10 @@ def export_memory(height: int = 1080, width: int = 1920) -> Callable[[Context], 
                 out = Path(tmp) / "net.onnx"
                 command = [sys.executable, "-m", "edofproj.cli", "export", SHIPPED_RUN, "--out", str(out)]
                 command += ["--height", str(height), "--width", str(width)]
-                start = ctx.clock()
-                with open(Path(tmp) / "log", "w") as log:
-                    child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-                    _, status, usage = os.wait4(child.pid, 0)
-                    child.returncode = os.waitstatus_to_exitcode(status)
-                walls.append(ctx.clock() - start)
-                if child.returncode != 0:
-                    raise RuntimeError(f"edofproj export failed: {(Path(tmp) / 'log').read_text().strip()[-300:]}")
-                peaks.append(usage.ru_maxrss / 1e6)  # kB -> GB
-                cpus.append(usage.ru_utime + usage.ru_stime)
+                wall, cpu, peak, _ = _child_run(command, Path(tmp) / "log", ctx)
+                walls.append(wall)
+                cpus.append(cpu)
+                peaks.append(peak)
                 sizes.append(out.stat().st_size / 1e6)
         return [
             Measurement("export peak RSS", peaks, "GB", 2),
@@ -451,15 +460,10 @@ def compensate_psf_map(height: int = 1140, width: int = 912) -> Callable[[Contex
             for _ in range(ctx.repeats):
                 command = [sys.executable, "-m", "edofproj.cli", "compensate", "--psf-map", str(psf_map)]
                 command += ["--image", str(target), "--method", "cls", "--out", str(Path(tmp) / "out.png")]
-                start = ctx.clock()
-                child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-                _, status, usage = os.wait4(child.pid, 0)
-                walls.append(ctx.clock() - start)
-                printed = child.stdout.read() if child.stdout else ""
-                if os.waitstatus_to_exitcode(status) != 0:
-                    raise RuntimeError(f"edofproj compensate --psf-map failed: {printed.strip()[-300:]}")
-                cpus.append(usage.ru_utime + usage.ru_stime)
-                peaks.append(usage.ru_maxrss / 1e6)  # kB -> GB
+                wall, cpu, peak, printed = _child_run(command, Path(tmp) / "log", ctx)
+                walls.append(wall)
+                cpus.append(cpu)
+                peaks.append(peak)
                 found = re.search(r"objective \S+ -> (\S+) in", printed)
                 objectives.append(float(found.group(1)) if found else float("nan"))
         return [

@@ -293,6 +293,18 @@ def test_a_guarded_export_stores_no_transfer_function_per_pixel(tmp_path):
     assert sizes[1] - sizes[0] < one_transfer_function * 8 / 9, (sizes, one_transfer_function)
 
 
+def _guarded_test_network():
+    """A small safe U-Net (random head, so its correction is not negligible) behind its display guard."""
+    from edofproj.methods import guard
+    from synthetic_psfs import gaussian_psfs
+
+    torch.manual_seed(4)
+    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
+    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
+    torch.nn.init.normal_(safe.head.weight, std=0.3)
+    return guard.GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+
+
 def test_a_guarded_export_decides_on_the_whole_frame_only_in_a_branch(tmp_path, monkeypatch):
     """The whole frame's decision is the ``then`` graph of an ``If`` node (ONNX Runtime runs it only where
     the tiled margin is near a tie), not a computation of every frame: the main graph holds no SSIM
@@ -302,13 +314,8 @@ def test_a_guarded_export_decides_on_the_whole_frame_only_in_a_branch(tmp_path, 
     import onnx
 
     from edofproj.methods import guard
-    from synthetic_psfs import gaussian_psfs
 
-    torch.manual_seed(4)
-    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
-    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
-    torch.nn.init.normal_(safe.head.weight, std=0.3)
-    guarded = guard.GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    guarded = _guarded_test_network()
     height, width = 192, 288
     assert len(guarded.tiles_for(height, width)) >= 1
     for band in (1.0, 0.0):
@@ -343,13 +350,8 @@ def test_a_wrong_branch_the_frame_does_not_take_is_refused(tmp_path, monkeypatch
 
     from edofproj.compensation import export
     from edofproj.methods import guard
-    from synthetic_psfs import gaussian_psfs
 
-    torch.manual_seed(4)
-    safe = CompensationUNet([4, 8], linear_radius=6, correction_bound=0.2, correction_highpass_px=4.0)
-    safe.linear_base.set_from_psfs(gaussian_psfs([0.8, 1.5, 2.5]), 0.01)
-    torch.nn.init.normal_(safe.head.weight, std=0.3)
-    guarded = guard.GuardedNetwork(safe.eval(), gaussian_psfs([0.8, 2.0, 3.5]))
+    guarded = _guarded_test_network()
     monkeypatch.setattr(guard, "GUARD_MARGIN_BAND", 0.0)
     joined = export._conditional_model
 
