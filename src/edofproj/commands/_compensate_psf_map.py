@@ -4,9 +4,9 @@
     edofproj compensate --psf-map MAP.npz --images DIR --method cls --out FOLDER
     edofproj compensate --psf-map MAP.npz --image TARGET --method net --run RUN --out PROJ.png
 
-The blur is the map's (:mod:`edofproj.procams.measured_blur`: a Gaussian of the measured covariance
-at every node of the projector image, interpolated between nodes; each colour its own map where the
-file has one); the methods are :mod:`edofproj.procams.map_compensation`'s (``wiener``: the
+The blur is the map's (:func:`edofproj.procams.measured_blur.map_file_blur`: a Gaussian of the measured
+covariance at every node of the projector image, or a kernel map's measured kernels, interpolated
+between nodes; each colour its own map where the file has one); the methods are :mod:`edofproj.procams.map_compensation`'s (``wiener``: the
 field-varying Wiener filter, NSR tuned on training crops unless ``--nsr``; ``cls``: box-constrained
 least squares with the exact blur, ``--iterations`` steps of ``--solver`` from the Wiener estimate)
 and ``net``: the
@@ -144,13 +144,11 @@ class MapCompensator:
     """The map's blur and the method, set up once for every image."""
 
     def __init__(self, args, run) -> None:
-        from ..procams.measured_blur import DEFAULT_RANK_TOLERANCE, measured_blur
-        from ..procams.psf_map import load_psf_maps
+        from ..procams.measured_blur import DEFAULT_RANK_TOLERANCE, map_file_blur
 
         self.args = args
-        maps = load_psf_maps(args.psf_map)
         tolerance = DEFAULT_RANK_TOLERANCE if args.rank_tolerance is None else float(args.rank_tolerance)
-        self.op = measured_blur(maps, rank_tolerance=tolerance)
+        self.op = map_file_blur(args.psf_map, rank_tolerance=tolerance)
         self.hw = (self.op.height, self.op.width)
         self.colours = "per colour" if self.op.channels == 3 else "one map for every colour"
         self.network = None

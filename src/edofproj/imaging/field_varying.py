@@ -233,6 +233,7 @@ class FieldVaryingBlur:
         self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
         self._buffer: tuple[tuple, torch.Tensor] | None = None
         self._conjugates: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._norm_bound: torch.Tensor | None = None
 
     @property
     def rank(self) -> int:
@@ -335,10 +336,12 @@ class FieldVaryingBlur:
         computed exactly)."""
         if bool((self.kernels < 0).any()):
             raise EdofprojError("Schur's bound here needs non-negative node kernels")
-        ones = torch.ones((1, self.channels, self.height, self.width), dtype=torch.float64)
-        rows = self.forward(ones).amax(dim=(0, 2, 3))
-        cols = self.adjoint(ones).amax(dim=(0, 2, 3))
-        return torch.sqrt(rows.clamp_min(0) * cols.clamp_min(0))
+        if self._norm_bound is None:  # computed once: every image compensated under this blur needs it
+            ones = torch.ones((1, self.channels, self.height, self.width), dtype=torch.float64)
+            rows = self.forward(ones).amax(dim=(0, 2, 3))
+            cols = self.adjoint(ones).amax(dim=(0, 2, 3))
+            self._norm_bound = torch.sqrt(rows.clamp_min(0) * cols.clamp_min(0))
+        return self._norm_bound.clone()
 
 
 def _on_scipy(tensor: torch.Tensor) -> bool:

@@ -277,22 +277,22 @@ def lab_protocol_blur(fields: Sequence, title: str) -> ProtocolBlur:
 
 
 def psf_map_protocol_blur(path, image_hw: tuple[int, int]) -> ProtocolBlur:
-    """The :class:`ProtocolBlur` of the PSF map file ``path`` (:func:`.measured_blur.measured_blur`:
-    each colour its own map where the file has one, else the white map for all three) for images of
-    ``image_hw``."""
-    from .measured_blur import measured_blur
-    from .psf_map import load_psf_maps
+    """The :class:`ProtocolBlur` of the PSF map file ``path``, Gaussian or kernel map
+    (:func:`.measured_blur.map_file_blur`: each colour its own map where the file has one, else the one
+    map for all three) for images of ``image_hw``."""
+    from .measured_blur import map_file_blur
 
-    maps = load_psf_maps(path)
-    first = next(iter(maps.values()))
-    if tuple(first.projector_hw) != tuple(image_hw):
+    op = map_file_blur(path)
+    if (op.height, op.width) != tuple(image_hw):
         raise EdofprojError(
-            f"the PSF map '{path}' is of a {first.projector_hw[1]}x{first.projector_hw[0]} projector, "
-            f"the image {image_hw[1]}x{image_hw[0]}"
+            f"the PSF map '{path}' is of a {op.width}x{op.height} projector, the image {image_hw[1]}x{image_hw[0]}"
         )
-    op = measured_blur(maps)
+    from ..fileio import read_arrays
+
+    stored = read_arrays(path, what="PSF map")
+    maps = [str(c) for c in np.atleast_1d(stored["channels"])] if "channels" in stored else ["mean"]
     colours = [c for c in ("red", "green", "blue") if c in maps]
     names = f"the maps of {', '.join(colours)}" + (" (the others the white map)" if len(colours) < 3 else "")
-    title = f"PSF map '{path}': " + (names if colours else f"its {next(iter(maps))} map for R, G and B")
+    title = f"PSF map '{path}': " + (names if colours else f"its {maps[0]} map for R, G and B")
     bound = np.broadcast_to(np.asarray(op.norm_bound(), dtype=np.float64).reshape(-1), (3,)).copy()
     return ProtocolBlur(title, op.forward, op.adjoint, bound)

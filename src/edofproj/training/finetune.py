@@ -50,8 +50,7 @@ from ..fileio import read_arrays, write_text_atomic
 from ..locking import directory_lock
 from ..optics.psf_bank import PSFBank
 from ..optics.psf_checks import validate_psf
-from ..procams.measured_blur import measured_blur
-from ..procams.psf_map import load_psf_maps
+from ..procams.measured_blur import map_file_blur
 from ..runs import CHECKPOINT_DIR, DOE_NAME, check_new_run_dir, load_run, write_run_config
 from ..runs.checkpoint import save_checkpoint
 from .end_to_end import EndToEndProjector
@@ -133,10 +132,10 @@ class MeasuredPSFTable(nn.Module):
 
     @classmethod
     def from_psf_map(cls, path, depth_m: float, seed: int = 0) -> "MeasuredPSFTable":
-        """The node kernels of a PSF map (``edofproj procams psf-map``; each colour its own map where
-        the file has one) as per-patch PSFs at one nominal depth ``depth_m``: each sample draws a node
+        """The node kernels of a PSF map (``edofproj procams psf-map``, Gaussian or kernel map; each colour
+        its own map where the file has one) as per-patch PSFs at one nominal depth ``depth_m``: each sample draws a node
         (module docstring, **PSF maps**)."""
-        op = measured_blur(load_psf_maps(path), node_spacing_px=MAP_NODE_SPACING_PX, rank_tolerance=0.0)
+        op = map_file_blur(path, node_spacing_px=MAP_NODE_SPACING_PX, rank_tolerance=0.0)
         kernels = op.kernels.reshape(-1, *op.kernels.shape[2:]).to(torch.float32)  # (P, C|1, K, K)
         return cls(kernels.expand(-1, 3, -1, -1)[None].contiguous(), np.array([float(depth_m)]), seed)
 

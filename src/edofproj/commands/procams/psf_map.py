@@ -2,6 +2,7 @@
 
     edofproj procams psf-map --lab lab.json --dots SEQ [SEQ ...] --map map.npz --out psf_map.npz [--figure psf_map.png]
     edofproj procams psf-map --lab lab.json --code GRAY --planes N --map map.npz [--like psf_map.npz] --out psf_b.npz
+    edofproj procams psf-map --lab lab.json --dots SEQ --background SEQ --map map.npz --model rank-profile --out kmap.npz
 
 Fits an anisotropic Gaussian (projector pixels) to every dot, saturated and black-clipped
 samples censored, estimates the decoded map's offset, and writes the map of covariances
@@ -12,6 +13,9 @@ Several ``--dots`` sequences of different colours (their ``channel`` in the lab 
 themselves through a sub-pixel map (``procams decode --edges``), per cell of projector points; the
 other components from the ``--like`` PSF map, else an isotropic Gaussian
 (:mod:`edofproj.procams.code_blur`).
+``--model rank-profile``: no shape is fitted; each dot's window gives its rank profile (the kernel
+estimator of Li et al., TII 2020) and every node of the map keeps the mean profile of the dots within
+``--smooth-px`` (a kernel map, :mod:`edofproj.procams.kernel_map`; 8-bit captures).
 """
 
 from __future__ import annotations
@@ -37,6 +41,13 @@ def register(subparsers) -> None:
     p.add_argument("--index", type=int, default=0, help="which of the sequence's captures (0: the first)")
     p.add_argument("--map", required=True, help="camera->projector map of the same camera pose ('procams decode')")
     p.add_argument("--every", type=int, default=1, metavar="N", help="fit every N-th dot in each direction (1)")
+    p.add_argument("--model", choices=("gaussian", "rank-profile"), default="gaussian",
+                   help="--dots: fit a Gaussian to every dot (default), or keep the dots' rank profiles (a kernel map)")  # fmt: skip
+    p.add_argument(
+        "--background", default=None, metavar="SEQ", help="--model rank-profile: a capture of the projector dark"
+    )
+    p.add_argument("--smooth-px", type=float, default=None, metavar="PX",
+                   help="--model rank-profile: side of the box of dots averaged at each node (180)")  # fmt: skip
     p.add_argument("--out", required=True, help="output PSF map .npz")
     p.add_argument("--figure", default=None, metavar="PNG", help="also draw sigma_x, sigma_y and the angle")
     p.set_defaults(func=run)
@@ -58,6 +69,8 @@ def run(args) -> int:
         return _from_code(args)
     if args.like is not None or args.planes is not None:
         raise EdofprojError("--like and --planes go with --code")
+    if args.model != "rank-profile" and (args.background is not None or args.smooth_px is not None):
+        raise EdofprojError("--background and --smooth-px go with --model rank-profile")
     if args.every < 1:
         raise EdofprojError(f"--every {args.every} must be >= 1")
     lab = LabManifest.load(args.lab, args.root)
@@ -74,6 +87,8 @@ def run(args) -> int:
         if not 0 <= args.index < len(seq.files):
             raise EdofprojError(f"--index {args.index} is not 0..{len(seq.files) - 1} (sequence '{seq.name}')")
     corr = CorrespondenceMap.load(args.map)
+    if args.model == "rank-profile":
+        return _rank_profile(args, lab, sequences, channels, corr)
     progress = StageProgress("psf-map")
     maps = []
     for seq, channel in zip(sequences, channels):
@@ -93,6 +108,41 @@ def run(args) -> int:
     save_psf_maps(args.out, maps)
     print(f"wrote {args.out}: {', '.join(m.channel for m in maps)}")
     return _write_figure(maps, args.figure)
+
+
+def _rank_profile(args, lab, sequences, channels, corr) -> int:
+    """``--model rank-profile``: the kernel map of the dot captures (module docstring)."""
+    from ...procams.capture_io import read_rgb_counts
+    from ...procams.kernel_map import DEFAULT_KERNEL_SMOOTH_PX, measure_kernel_map, summary
+    from ...procams.psf_map import DotGrid
+
+    if args.every != 1:
+        raise EdofprojError("--every goes with --model gaussian (a kernel map averages every dot)")
+    if args.figure:
+        raise EdofprojError("--figure draws a Gaussian map's widths and goes with --model gaussian")
+    smooth = DEFAULT_KERNEL_SMOOTH_PX if args.smooth_px is None else float(args.smooth_px)
+    grids = {(tuple(s.spacing_px), tuple(s.origin_px)) for s in sequences}
+    if len(grids) != 1:
+        raise EdofprojError("--model rank-profile takes dot sequences of one grid (spacing and origin)")
+    if tuple(corr.projector_hw) != tuple(lab.projector_hw):
+        raise EdofprojError(f"the map's projector {corr.projector_hw} is not the manifest's {lab.projector_hw}")
+    captures = [
+        (read_rgb_counts(lab.root / s.files[args.index], what="dot capture"), c) for s, c in zip(sequences, channels)
+    ]
+    background = None
+    if args.background is not None:
+        back = lab.sequence(args.background)
+        background = read_rgb_counts(lab.root / back.files[0], what="background capture")
+        if background.shape != captures[0][0].shape:
+            raise EdofprojError(f"the background capture is {background.shape[1]}x{background.shape[0]}, "
+                                f"the dots' {captures[0][0].shape[1]}x{captures[0][0].shape[0]}")  # fmt: skip
+    grid = DotGrid.covering(lab.projector_hw, sequences[0].spacing_px, sequences[0].origin_px)
+    kernel_map = measure_kernel_map(captures, corr, grid, background, smooth_px=smooth)
+    kernel_map.save(args.out)
+    o = kernel_map.offset_px
+    print(f"wrote {args.out}: kernel map of {', '.join(kernel_map.channels)} (rank profiles); map offset "
+          f"o = ({o[0]:+.2f}, {o[1]:+.2f}) projector px; {summary(kernel_map)}")  # fmt: skip
+    return 0
 
 
 def _from_code(args) -> int:

@@ -1,0 +1,254 @@
+"""A PSF map of measured kernels: each dot's rank profile, averaged over the dots around a node.
+
+The Gaussian PSF map (:mod:`.psf_map`) fits a shape to every dot; this map fits none. Around each dot
+of a capture brought into projector space (:func:`.lab_kernels.capture_to_projector`, 8-bit counts,
+the background subtracted) it takes the ``(2h + 1) x (2h + 1)`` window and its **rank profile**
+(:func:`.lab_kernels.rank_kernel`): the window's distinct levels in descending order placed on the
+kernel's rings, centre first, normalized to 1 -- the kernel estimator of Li et al. (IEEE TII 2020),
+whose scoring protocol blurs with it. One dot's profile depends on how many distinct grey levels its
+window holds, so single dots scatter; the map keeps, at each node ``g`` of a regular grid, the mean of
+the profiles of the seen dots within a box of ``smooth_px`` around it,
+
+    w_g = mean_{d : |y_d - y_g|, |x_d - x_g| <= smooth_px / 2,  window_d != 0} rank_profile(window_d),
+
+(a mean of descending profiles is descending, and normalized, so ``w_g`` is a kernel of the same
+kind), and the blur of a projector image interpolates the nodes' kernels bilinearly in the source
+form of :class:`edofproj.imaging.field_varying.FieldVaryingBlur` (:meth:`KernelMap.blur`).
+
+**What it is for, and what it is not.** A rank profile is not a fit of the PSF's shape: a dot
+exposed past saturation gives one level for its whole core, and the profile spreads over as many
+rings as the window has levels (module docstring of :mod:`.lab_kernels`). It is the model under which
+that lab scores compensations, and the one its own compensation uses; with it, edofproj's solvers can
+be compared with theirs on the same knowledge of the blur. Which model predicts a projector's
+captures better is measured, not assumed (the experiment records; ``procams predict`` takes the
+Gaussian map).
+
+**The offset.** The decoded map may see the projector shifted by a constant ``o`` (a 1-based phase
+origin). It is estimated as the median, over the seen dots, of the window's intensity centroid less
+the dot's position in a projection at ``o = 0``, corrected once by the same median in a projection at
+that estimate (a window cut by a whole-pixel misplacement pulls the first centroid towards the dot);
+the capture is then projected at ``o``. The projection rounds to whole pixels, so ``o`` is known to
+the pixel it rounds to, not finer.
+
+**Colours.** A white dot capture gives one map per camera channel (``red``, ``green``, ``blue``: the
+light of each primary as the camera's channel of that colour sees it); a colour's dot capture (its
+``channel`` in the lab manifest) gives that colour's map from the camera's channel of that colour.
+Saved as ``.npz``, format ``edofproj-procams-kernel-map``: ``kernels`` ``(C, Gy, Gx, K, K)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import EdofprojError
+from ..fileio import read_tagged_arrays, save_npz_atomic
+from .lab_kernels import DEFAULT_HALF_PX, capture_to_projector, orbit_window, rank_kernel
+from .psf_map import DotGrid
+from .structured_light import CorrespondenceMap
+
+KERNEL_MAP_FORMAT = "edofproj-procams-kernel-map"
+KERNEL_MAP_CHANNELS = ("mean", "red", "green", "blue")
+DEFAULT_KERNEL_SMOOTH_PX = 180.0
+"""Side (projector px) of the box of dots averaged at each node (the Gaussian map's smoothing)."""
+DEFAULT_KERNEL_NODE_SPACING_PX = 36
+"""Spacing (projector px) of the map's nodes."""
+_CAMERA_CHANNEL = {"red": 0, "green": 1, "blue": 2}
+
+
+@dataclass
+class KernelMap:
+    """Kernels ``(C, Gy, Gx, K, K)`` (each summing to 1) at nodes ``ys`` x ``xs`` (projector px) for the
+    colours ``channels`` (``C`` of them); ``dots`` ``(C, Gy, Gx)`` how many dots each node averaged;
+    ``offset_px`` ``(x, y)`` the decoded map's offset used; ``smooth_px`` the averaging box."""
+
+    xs: np.ndarray
+    ys: np.ndarray
+    kernels: np.ndarray
+    channels: tuple[str, ...]
+    dots: np.ndarray
+    offset_px: np.ndarray
+    projector_hw: tuple[int, int]
+    smooth_px: float
+
+    def blur(self, rank_tolerance: float = 0.0):
+        """The operator ``A`` on ``(B, 3, H, W)`` projector images: :class:`FieldVaryingBlur` of the nodes'
+        kernels, each colour its own map where the file has R, G and B, else one for every colour."""
+        import torch
+
+        from ..imaging.field_varying import FieldVaryingBlur
+
+        if set(self.channels) >= {"red", "green", "blue"}:
+            order = [self.channels.index(c) for c in ("red", "green", "blue")]
+        else:
+            order = [self.channels.index("mean") if "mean" in self.channels else 0]
+        kernels = np.moveaxis(self.kernels[order], 0, 2)  # (Gy, Gx, C, K, K)
+        return FieldVaryingBlur(torch.from_numpy(np.ascontiguousarray(kernels)), self.ys, self.xs,
+                                self.projector_hw, rank_tolerance)  # fmt: skip
+
+    def save(self, path) -> None:
+        """Write the map to ``path`` (``.npz``), atomically."""
+        save_npz_atomic(
+            path,
+            format=np.array(KERNEL_MAP_FORMAT),
+            projector_hw=np.array(self.projector_hw),
+            channels=np.array(self.channels),
+            xs=self.xs,
+            ys=self.ys,
+            kernels=self.kernels,
+            dots=self.dots,
+            offset_px=self.offset_px,
+            smooth_px=np.array(self.smooth_px),
+        )
+
+    @classmethod
+    def load(cls, path) -> "KernelMap":
+        """Read a map :meth:`save` wrote; one line for anything else or anything inconsistent."""
+        keys = ("projector_hw", "channels", "xs", "ys", "kernels", "dots", "offset_px", "smooth_px")
+        data = read_tagged_arrays(path, "kernel map", KERNEL_MAP_FORMAT, keys,
+                                  "make one with 'edofproj procams psf-map --model rank-profile'")  # fmt: skip
+        source = f"kernel map '{path}'"
+        channels = tuple(str(c) for c in np.atleast_1d(data["channels"]))
+        xs, ys, kernels = data["xs"].astype(np.float64), data["ys"].astype(np.float64), data["kernels"]
+        hw = data["projector_hw"]
+        if hw.shape != (2,) or not np.all(hw >= 2):
+            raise EdofprojError(f"{source} has a projector size of {hw.tolist()}")
+        if not channels or len(set(channels)) != len(channels) or any(c not in KERNEL_MAP_CHANNELS for c in channels):
+            raise EdofprojError(
+                f"{source} lists channels {list(channels)}: each one of {', '.join(KERNEL_MAP_CHANNELS)}"
+            )
+        if (
+            xs.ndim != 1
+            or ys.ndim != 1
+            or len(xs) < 2
+            or len(ys) < 2
+            or np.any(np.diff(xs) <= 0)
+            or np.any(np.diff(ys) <= 0)
+        ):
+            raise EdofprojError(f"{source} has node centres that are not two increasing lists")
+        k = kernels.shape[-1] if kernels.ndim == 5 else 0
+        if kernels.shape != (len(channels), len(ys), len(xs), k, k) or k % 2 == 0:
+            raise EdofprojError(f"{source} has kernels of shape {kernels.shape} for {len(channels)} colours and "
+                                f"{len(ys)}x{len(xs)} nodes (odd square kernels)")  # fmt: skip
+        if not np.all(np.isfinite(kernels)) or np.any(kernels < 0) or not np.allclose(kernels.sum((-1, -2)), 1.0):
+            raise EdofprojError(f"{source} has kernels that are not non-negative and normalized to 1")
+        return cls(xs, ys, kernels.astype(np.float64), channels, data["dots"].astype(np.int64),
+                   data["offset_px"].astype(np.float64), (int(hw[0]), int(hw[1])), float(data["smooth_px"]))  # fmt: skip
+
+
+def node_grid_px(size_px: int, spacing_px: float) -> np.ndarray:
+    """Nodes evenly from pixel 0 to pixel ``size_px - 1``, at most ``spacing_px`` apart (at least 2)."""
+    return np.linspace(0.0, size_px - 1.0, max(int(np.ceil((size_px - 1) / spacing_px)) + 1, 2))
+
+
+def dot_windows(image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HALF_PX) -> np.ndarray:
+    """``(rows, cols, 2h + 1, 2h + 1)``: the window around every dot of ``grid`` in a projector-space
+    image ``(H, W)`` (zero outside it)."""
+    padded = np.pad(np.asarray(image, dtype=np.float64), half_px)
+    ys, xs = np.round(grid.ys).astype(np.int64), np.round(grid.xs).astype(np.int64)
+    offsets = np.arange(2 * half_px + 1)
+    return padded[ys[:, None, None, None] + offsets[None, None, :, None], xs[None, :, None, None] + offsets]
+
+
+def centroid_offset_px(windows: np.ndarray) -> np.ndarray:
+    """``(x, y)``: the median over the seen dots of the window's intensity centroid less its centre."""
+    half = windows.shape[-1] // 2
+    total = windows.sum(axis=(-1, -2))
+    seen = total > 0
+    if not seen.any():
+        raise EdofprojError("no dot is seen in the capture (every window is black): check the map and the capture")
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    cx = (windows.sum(axis=-2) @ d)[seen] / total[seen]
+    cy = (windows.sum(axis=-1) @ d)[seen] / total[seen]
+    return np.array([np.median(cx), np.median(cy)])
+
+
+def box_mean_profiles(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_px: np.ndarray,
+                      xs_px: np.ndarray, box_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``(mean (Gy, Gx, n), count (Gy, Gx))``: the mean of the seen dots' ``profiles`` ``(rows, cols, n)``
+    within ``box_px`` (a square of that side) around each node; a node with none takes the mean of all."""
+    weights = seen.astype(np.float64)
+    sums = np.pad(np.cumsum(np.cumsum(profiles * weights[..., None], 0), 1), ((1, 0), (1, 0), (0, 0)))
+    counts = np.pad(np.cumsum(np.cumsum(weights, 0), 1), ((1, 0), (1, 0)))
+    half = box_px / 2.0
+    r0, r1 = np.searchsorted(grid.ys, ys_px - half, "left"), np.searchsorted(grid.ys, ys_px + half, "right")
+    c0, c1 = np.searchsorted(grid.xs, xs_px - half, "left"), np.searchsorted(grid.xs, xs_px + half, "right")
+
+    def box(table: np.ndarray) -> np.ndarray:
+        R0, R1, C0, C1 = r0[:, None], r1[:, None], c0[None, :], c1[None, :]
+        return table[R1, C1] - table[R0, C1] - table[R1, C0] + table[R0, C0]
+
+    total, count = box(sums), np.rint(box(counts))
+    overall = (profiles * weights[..., None]).sum((0, 1)) / weights.sum()
+    mean = np.where(count[..., None] > 0, total / np.maximum(count, 1)[..., None], overall)
+    return np.maximum(mean, 0.0), count.astype(np.int64)  # the running sums' differences round below 0
+
+
+def measure_kernel_map(
+    captures: list[tuple[np.ndarray, str]],
+    corr: CorrespondenceMap,
+    grid: DotGrid,
+    background: np.ndarray | None = None,
+    smooth_px: float = DEFAULT_KERNEL_SMOOTH_PX,
+    node_spacing_px: float = DEFAULT_KERNEL_NODE_SPACING_PX,
+    half_px: int = DEFAULT_HALF_PX,
+) -> KernelMap:
+    """The kernel map (module docstring) from 8-bit dot captures ``(Hc, Wc, 3)``, each with its colour
+    (``mean``: a white capture, one map per camera channel; ``red``/``green``/``blue``: that colour's),
+    all of the same grid and camera pose, and the decoded map ``corr`` of that pose."""
+    if smooth_px <= 0 or node_spacing_px < 1:
+        raise EdofprojError(
+            f"the averaging box ({smooth_px} px) must be > 0 and the node spacing ({node_spacing_px}) >= 1"
+        )
+    H, W = corr.projector_hw
+    names: list[str] = []
+    planes: list[np.ndarray] = []
+    for capture, colour in captures:
+        capture = np.asarray(capture)
+        if capture.dtype != np.uint8 or capture.ndim != 3 or capture.shape[-1] != 3:
+            raise EdofprojError("a rank profile is defined on 8-bit RGB captures; this dot capture is not one")
+        for name in ("red", "green", "blue") if colour == "mean" else (colour,):
+            if name in names:
+                raise EdofprojError(f"two dot captures give the '{name}' map: give one capture per colour")
+            names.append(name)
+            planes.append(capture[..., _CAMERA_CHANNEL[name]])
+    stack = np.stack(planes, axis=-1)
+    back = (
+        None
+        if background is None
+        else np.asarray(background, dtype=np.float64)[..., [_CAMERA_CHANNEL[n] for n in names]]
+    )
+    offset = np.zeros(2)
+    for _ in range(2):  # a window cut by a whole-pixel misplacement biases the centroid: once more from there
+        shifted = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back)
+        offset = offset + centroid_offset_px(dot_windows(shifted.sum(-1), grid, half_px))
+    image = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back) / 255.0
+    ys, xs = node_grid_px(H, node_spacing_px), node_grid_px(W, node_spacing_px)
+    kernels, counts = [], []
+    for c in range(len(names)):
+        windows = dot_windows(image[..., c], grid, half_px)
+        seen = windows.sum(axis=(-1, -2)) > 0
+        if not seen.any():
+            raise EdofprojError(f"no dot is seen in the '{names[c]}' channel: check the capture and the map")
+        profiles = rank_kernel(windows.reshape(-1, *windows.shape[-2:])).reshape(*windows.shape[:2], -1)
+        mean, count = box_mean_profiles(profiles, seen, grid, ys, xs, smooth_px)
+        window = orbit_window(mean, half_px)
+        kernels.append(window / window.sum(axis=(-1, -2), keepdims=True))
+        counts.append(count)
+    return KernelMap(xs, ys, np.stack(kernels), tuple(names), np.stack(counts), offset, (H, W), float(smooth_px))
+
+
+def summary(kernel_map: KernelMap) -> str:
+    """One line: per colour, the kernels' median RMS width ``sqrt(sum k r^2 / 2)`` (px) over the nodes."""
+    half = kernel_map.kernels.shape[-1] // 2
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    r2 = d[:, None] ** 2 + d[None, :] ** 2
+    parts = []
+    for name, k in zip(kernel_map.channels, kernel_map.kernels):
+        width = np.sqrt((k * r2).sum((-1, -2)) / 2.0)
+        parts.append(f"{name} {np.median(width):.2f} px")
+    nodes = f"{len(kernel_map.ys)}x{len(kernel_map.xs)} nodes"
+    return f"{nodes}, each the mean of the dots within {kernel_map.smooth_px:g} px; RMS width per axis: " + ", ".join(
+        parts
+    )
