@@ -12,7 +12,8 @@ import pytest
 
 from edofproj.cli import main
 from edofproj.errors import EdofprojError
-from edofproj.procams.kernel_map import KernelMap, measure_kernel_map
+from edofproj.procams.kernel_map import KernelMap, choose_smooth_px, measure_kernel_map
+from edofproj.procams.lab_kernels import orbits
 from edofproj.procams.measured_blur import map_file_blur
 from edofproj.procams.psf_map import DotGrid, PSFMap, save_psf_maps
 from edofproj.procams.structured_light import CorrespondenceMap
@@ -160,7 +161,8 @@ def lab(tmp_path):
 def test_the_command_writes_a_kernel_map_that_compensate_uses(lab, capsys):
     base = ["procams", "psf-map", "--lab", str(lab / "lab.json"), "--dots", "dots", "--map", str(lab / "map.npz")]
     assert main([*base, "--model", "rank-profile", "--background", "black", "--out", str(lab / "k.npz")]) == 0
-    assert "kernel map of red, green, blue" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "kernel map of red, green, blue" in out and "box by leave-one-out: " in out
     np.testing.assert_allclose(KernelMap.load(lab / "k.npz").kernels[0, 2, 2], expected_kernel(WIDE), atol=1e-12)
     target = np.full((H, W, 3), 128, np.uint8)
     cv2.imwrite(str(lab / "t.png"), target)
@@ -181,3 +183,20 @@ def test_the_command_writes_a_kernel_map_that_compensate_uses(lab, capsys):
         assert main([*base, *extra]) != 0
         assert message in capsys.readouterr().err
         assert not (lab / "x.npz").exists()
+
+
+def test_leave_one_out_picks_a_large_box_for_noise_and_a_small_one_for_a_fast_change():
+    grid = DotGrid.covering((12 * 40, 12 * 40), (S, S))
+    rng = np.random.default_rng(1)
+    seen = np.ones((grid.rows, grid.cols), bool)
+    base = expected_kernel(WIDE)[HALF, HALF:]  # any positive profile; only differences matter
+    flat = np.broadcast_to(np.resize(base, 21), (grid.rows, grid.cols, 21))
+    noisy = flat + rng.normal(0, 1e-3, flat.shape)  # one blur everywhere, each dot's estimate scattered
+    side, errors = choose_smooth_px([noisy], [seen], grid)
+    assert side == max(errors) == 15 * S
+    # i.i.d. scatter: the error of a box of N dots is sigma^2 (1 + 1 / (N - 1)) per value, in closed form
+    sizes = np.array([len(o) for o in orbits(HALF)])
+    assert errors[3 * S] == pytest.approx(1e-6 * sizes.sum() * (1 + 1 / 8), rel=0.1)
+    stripes = np.where((np.arange(grid.cols) // 2 % 2 == 0)[None, :, None], flat, 0.5 * flat)  # changes every 2 dots
+    side, _ = choose_smooth_px([stripes + rng.normal(0, 1e-5, flat.shape)], [seen], grid)
+    assert side == 3 * S

@@ -12,7 +12,9 @@ the profiles of the seen dots within a box of ``smooth_px`` around it,
     w_g = mean_{d : |y_d - y_g|, |x_d - x_g| <= smooth_px / 2,  window_d != 0} rank_profile(window_d),
 
 (a mean of descending profiles is descending, and normalized, so ``w_g`` is a kernel of the same
-kind), and the blur of a projector image interpolates the nodes' kernels bilinearly in the source
+kind). The box's side is chosen by **leave-one-out**: among boxes of 3 to 15 dot spacings, the one
+whose mean of the *other* dots predicts each dot's profile best (:func:`choose_smooth_px`; a surface
+whose blur changes fast gets a small box, a smooth one a large box). The blur of a projector image interpolates the nodes' kernels bilinearly in the source
 form of :class:`edofproj.imaging.field_varying.FieldVaryingBlur` (:meth:`KernelMap.blur`).
 
 **What it is for, and what it is not.** A rank profile is not a fit of the PSF's shape: a dot
@@ -38,7 +40,7 @@ Saved as ``.npz``, format ``edofproj-procams-kernel-map``: ``kernels`` ``(C, Gy,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -50,8 +52,6 @@ from .structured_light import CorrespondenceMap
 
 KERNEL_MAP_FORMAT = "edofproj-procams-kernel-map"
 KERNEL_MAP_CHANNELS = ("mean", "red", "green", "blue")
-DEFAULT_KERNEL_SMOOTH_PX = 180.0
-"""Side (projector px) of the box of dots averaged at each node (the Gaussian map's smoothing)."""
 DEFAULT_KERNEL_NODE_SPACING_PX = 36
 """Spacing (projector px) of the map's nodes."""
 _CAMERA_CHANNEL = {"red": 0, "green": 1, "blue": 2}
@@ -71,6 +71,8 @@ class KernelMap:
     offset_px: np.ndarray
     projector_hw: tuple[int, int]
     smooth_px: float
+    #: the leave-one-out error of every box side tried (px -> error) when the box was chosen; not saved
+    leave_one_out: dict = field(default_factory=dict)
 
     def blur(self, rank_tolerance: float = 0.0):
         """The operator ``A`` on ``(B, 3, H, W)`` projector images: :class:`FieldVaryingBlur` of the nodes'
@@ -164,10 +166,10 @@ def centroid_offset_px(windows: np.ndarray) -> np.ndarray:
     return np.array([np.median(cx), np.median(cy)])
 
 
-def box_mean_profiles(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_px: np.ndarray,
-                      xs_px: np.ndarray, box_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """``(mean (Gy, Gx, n), count (Gy, Gx))``: the mean of the seen dots' ``profiles`` ``(rows, cols, n)``
-    within ``box_px`` (a square of that side) around each node; a node with none takes the mean of all."""
+def _box_sums(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_px: np.ndarray, xs_px: np.ndarray,
+              box_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``(sum (Gy, Gx, n), count (Gy, Gx))`` of the seen dots' ``profiles`` ``(rows, cols, n)`` within a square
+    of side ``box_px`` around each point ``ys_px`` x ``xs_px`` (running sums over the dot grid)."""
     weights = seen.astype(np.float64)
     sums = np.pad(np.cumsum(np.cumsum(profiles * weights[..., None], 0), 1), ((1, 0), (1, 0), (0, 0)))
     counts = np.pad(np.cumsum(np.cumsum(weights, 0), 1), ((1, 0), (1, 0)))
@@ -179,10 +181,48 @@ def box_mean_profiles(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_
         R0, R1, C0, C1 = r0[:, None], r1[:, None], c0[None, :], c1[None, :]
         return table[R1, C1] - table[R0, C1] - table[R1, C0] + table[R0, C0]
 
-    total, count = box(sums), np.rint(box(counts))
-    overall = (profiles * weights[..., None]).sum((0, 1)) / weights.sum()
+    return box(sums), np.rint(box(counts))
+
+
+def box_mean_profiles(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_px: np.ndarray,
+                      xs_px: np.ndarray, box_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``(mean (Gy, Gx, n), count (Gy, Gx))``: the mean of the seen dots' ``profiles`` ``(rows, cols, n)``
+    within ``box_px`` (a square of that side) around each node; a node with none takes the mean of all."""
+    total, count = _box_sums(profiles, seen, grid, ys_px, xs_px, box_px)
+    overall = profiles[seen].mean(axis=0)
     mean = np.where(count[..., None] > 0, total / np.maximum(count, 1)[..., None], overall)
     return np.maximum(mean, 0.0), count.astype(np.int64)  # the running sums' differences round below 0
+
+
+def leave_one_out_error(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, box_px: float) -> float:
+    """How well a box of side ``box_px`` predicts a dot it has not seen: the mean over the seen dots (with
+    another seen dot in their box) of ``||k_d - mean_{d' != d in the box} k_d'||^2``, the kernels' squared
+    difference summed over the window (each ring's value counts once per offset on it)."""
+    from .lab_kernels import orbit_sizes
+
+    total, count = _box_sums(profiles, seen, grid, grid.ys, grid.xs, box_px)
+    usable = seen & (count > 1)
+    if not usable.any():
+        return float("inf")
+    others = (total[usable] - profiles[usable]) / (count[usable] - 1)[:, None]
+    sizes = orbit_sizes((int(np.sqrt(8 * profiles.shape[-1] + 1)) - 3) // 2)
+    return float(((others - profiles[usable]) ** 2 @ sizes).mean())
+
+
+SMOOTH_CANDIDATE_DOTS = (1, 2, 3, 4, 5, 7)
+"""Half-widths ``h`` (in dots) of the boxes :func:`choose_smooth_px` tries: sides of ``(2h + 1)`` dot spacings."""
+
+
+def choose_smooth_px(profiles: list[np.ndarray], seen: list[np.ndarray], grid: DotGrid) -> tuple[float, dict]:
+    """The box side (px) of :data:`SMOOTH_CANDIDATE_DOTS` with the least leave-one-out error summed over the
+    colours (:func:`leave_one_out_error`), and every candidate's error: the smoothing is chosen by how well
+    the map predicts the dots it leaves out, never by a compensation's score."""
+    step = float(max(grid.spacing_px))
+    errors = {
+        (2 * h + 1) * step: sum(leave_one_out_error(p, s, grid, (2 * h + 1) * step) for p, s in zip(profiles, seen))
+        for h in SMOOTH_CANDIDATE_DOTS
+    }
+    return min(errors, key=lambda side: errors[side]), errors
 
 
 def measure_kernel_map(
@@ -190,14 +230,16 @@ def measure_kernel_map(
     corr: CorrespondenceMap,
     grid: DotGrid,
     background: np.ndarray | None = None,
-    smooth_px: float = DEFAULT_KERNEL_SMOOTH_PX,
-    node_spacing_px: float = DEFAULT_KERNEL_NODE_SPACING_PX,
+    smooth_px: float | None = None,
+    node_spacing_px: float | None = None,
     half_px: int = DEFAULT_HALF_PX,
 ) -> KernelMap:
     """The kernel map (module docstring) from 8-bit dot captures ``(Hc, Wc, 3)``, each with its colour
     (``mean``: a white capture, one map per camera channel; ``red``/``green``/``blue``: that colour's),
-    all of the same grid and camera pose, and the decoded map ``corr`` of that pose."""
-    if smooth_px <= 0 or node_spacing_px < 1:
+    all of the same grid and camera pose, and the decoded map ``corr`` of that pose. ``smooth_px``: the
+    averaging box's side (default: chosen by :func:`choose_smooth_px`); ``node_spacing_px``: the nodes'
+    (default half the box, at least the dots' spacing, at most :data:`DEFAULT_KERNEL_NODE_SPACING_PX`)."""
+    if (smooth_px is not None and not smooth_px > 0) or (node_spacing_px is not None and not node_spacing_px >= 1):
         raise EdofprojError(
             f"the averaging box ({smooth_px} px) must be > 0 and the node spacing ({node_spacing_px}) >= 1"
         )
@@ -224,19 +266,28 @@ def measure_kernel_map(
         shifted = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back)
         offset = offset + centroid_offset_px(dot_windows(shifted.sum(-1), grid, half_px))
     image = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back) / 255.0
-    ys, xs = node_grid_px(H, node_spacing_px), node_grid_px(W, node_spacing_px)
-    kernels, counts = [], []
+    profiles, seen = [], []
     for c in range(len(names)):
         windows = dot_windows(image[..., c], grid, half_px)
-        seen = windows.sum(axis=(-1, -2)) > 0
-        if not seen.any():
+        seen.append(windows.sum(axis=(-1, -2)) > 0)
+        if not seen[-1].any():
             raise EdofprojError(f"no dot is seen in the '{names[c]}' channel: check the capture and the map")
-        profiles = rank_kernel(windows.reshape(-1, *windows.shape[-2:])).reshape(*windows.shape[:2], -1)
-        mean, count = box_mean_profiles(profiles, seen, grid, ys, xs, smooth_px)
+        profiles.append(rank_kernel(windows.reshape(-1, *windows.shape[-2:])).reshape(*windows.shape[:2], -1))
+    errors: dict[float, float] = {}
+    if smooth_px is None:
+        smooth_px, errors = choose_smooth_px(profiles, seen, grid)
+    if node_spacing_px is None:
+        node_spacing_px = min(max(smooth_px / 2.0, float(max(grid.spacing_px))), DEFAULT_KERNEL_NODE_SPACING_PX)
+    ys, xs = node_grid_px(H, node_spacing_px), node_grid_px(W, node_spacing_px)
+    kernels, counts = [], []
+    for p, s in zip(profiles, seen):
+        mean, count = box_mean_profiles(p, s, grid, ys, xs, smooth_px)
         window = orbit_window(mean, half_px)
         kernels.append(window / window.sum(axis=(-1, -2), keepdims=True))
         counts.append(count)
-    return KernelMap(xs, ys, np.stack(kernels), tuple(names), np.stack(counts), offset, (H, W), float(smooth_px))
+    kernel_map = KernelMap(xs, ys, np.stack(kernels), tuple(names), np.stack(counts), offset, (H, W), float(smooth_px))
+    kernel_map.leave_one_out = errors
+    return kernel_map
 
 
 def summary(kernel_map: KernelMap) -> str:

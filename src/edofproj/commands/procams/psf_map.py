@@ -15,7 +15,7 @@ other components from the ``--like`` PSF map, else an isotropic Gaussian
 (:mod:`edofproj.procams.code_blur`).
 ``--model rank-profile``: no shape is fitted; each dot's window gives its rank profile (the kernel
 estimator of Li et al., TII 2020) and every node of the map keeps the mean profile of the dots within
-``--smooth-px`` (a kernel map, :mod:`edofproj.procams.kernel_map`; 8-bit captures).
+``--smooth-px`` (default: the box that best predicts the dots it leaves out; a kernel map, :mod:`edofproj.procams.kernel_map`; 8-bit captures).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def register(subparsers) -> None:
         "--background", default=None, metavar="SEQ", help="--model rank-profile: a capture of the projector dark"
     )
     p.add_argument("--smooth-px", type=float, default=None, metavar="PX",
-                   help="--model rank-profile: side of the box of dots averaged at each node (180)")  # fmt: skip
+                   help="--model rank-profile: side of the box of dots averaged at each node (default: by leave-one-out)")  # fmt: skip
     p.add_argument("--out", required=True, help="output PSF map .npz")
     p.add_argument("--figure", default=None, metavar="PNG", help="also draw sigma_x, sigma_y and the angle")
     p.set_defaults(func=run)
@@ -113,14 +113,13 @@ def run(args) -> int:
 def _rank_profile(args, lab, sequences, channels, corr) -> int:
     """``--model rank-profile``: the kernel map of the dot captures (module docstring)."""
     from ...procams.capture_io import read_rgb_counts
-    from ...procams.kernel_map import DEFAULT_KERNEL_SMOOTH_PX, measure_kernel_map, summary
+    from ...procams.kernel_map import measure_kernel_map, summary
     from ...procams.psf_map import DotGrid
 
     if args.every != 1:
         raise EdofprojError("--every goes with --model gaussian (a kernel map averages every dot)")
     if args.figure:
         raise EdofprojError("--figure draws a Gaussian map's widths and goes with --model gaussian")
-    smooth = DEFAULT_KERNEL_SMOOTH_PX if args.smooth_px is None else float(args.smooth_px)
     grids = {(tuple(s.spacing_px), tuple(s.origin_px)) for s in sequences}
     if len(grids) != 1:
         raise EdofprojError("--model rank-profile takes dot sequences of one grid (spacing and origin)")
@@ -137,11 +136,14 @@ def _rank_profile(args, lab, sequences, channels, corr) -> int:
             raise EdofprojError(f"the background capture is {background.shape[1]}x{background.shape[0]}, "
                                 f"the dots' {captures[0][0].shape[1]}x{captures[0][0].shape[0]}")  # fmt: skip
     grid = DotGrid.covering(lab.projector_hw, sequences[0].spacing_px, sequences[0].origin_px)
-    kernel_map = measure_kernel_map(captures, corr, grid, background, smooth_px=smooth)
+    kernel_map = measure_kernel_map(captures, corr, grid, background, smooth_px=args.smooth_px)
     kernel_map.save(args.out)
     o = kernel_map.offset_px
     print(f"wrote {args.out}: kernel map of {', '.join(kernel_map.channels)} (rank profiles); map offset "
           f"o = ({o[0]:+.2f}, {o[1]:+.2f}) projector px; {summary(kernel_map)}")  # fmt: skip
+    if kernel_map.leave_one_out:
+        tried = ", ".join(f"{side:g} px {error:.3g}" for side, error in kernel_map.leave_one_out.items())
+        print(f"box by leave-one-out: {kernel_map.smooth_px:g} px (error of the left-out dots' kernels: {tried})")
     return 0
 
 
