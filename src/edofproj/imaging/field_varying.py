@@ -284,8 +284,8 @@ class FieldVaryingBlur:
     ``P_t`` adding the tile's light into the image on ``T_t`` grown by ``K // 2`` on every side (clipped to the
     image), computed on the tile's own grid (:func:`tile_grid`: the 'full' linear convolution, no
     wrap-around): exact for the (truncated) node kernels, the adjoint its exact transpose. Nearby nodes'
-    kernels span fewer directions than all of them (the benchmark suite's synthetic 1140 x 912 PSF map at
-    ``rank_tolerance = 1e-2``: 16 globally, 3 to 5 per tile of a 6 x 5 tiling), so the tiles' transforms, ``sum_t (M_t + 1)`` of about ``1 / (Ty Tx)`` of
+    kernels span fewer directions than all of them (a PSF map of a 1140 x 912 projector: 9 globally, 3 to 6
+    per tile of a 3 x 3 tiling), so the tiles' transforms, ``sum_t (M_t + 1)`` of about ``1 / (Ty Tx)`` of
     the image's area, cost less than the ``M + 1`` of the whole image. ``tiles=None`` chooses the tiling with
     the least ``sum_t (M_t + 1) |G_t| log2 |G_t|`` (``|G_t|`` the tile's grid area, ``M_t`` estimated by
     :meth:`_estimated_rank`, then computed only for the chosen tiling) among ``(1, 1)`` and the
