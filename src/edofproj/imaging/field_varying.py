@@ -558,17 +558,6 @@ class FieldVaryingBlur:
         """Ranges of tile ``index``'s basis indices transformed together when it is alone on its grid."""
         return [(first, last) for runs in self._term_chunks(like, [index]) for _, first, last in runs]
 
-    def _windows(self, runs: list[tuple[int, int, int]]) -> tuple:
-        """Where a batch of terms ``runs`` writes in its frames: runs of (tile offset, tile shape, frames)."""
-        layout: list[tuple[tuple[int, int], tuple[int, int], int]] = []
-        for t, first, last in runs:
-            tile = self.source_tiles[t]
-            if layout and layout[-1][:2] == (tile.offset, tile.shape):
-                layout[-1] = (tile.offset, tile.shape, layout[-1][2] + last - first)
-            else:
-                layout.append((tile.offset, tile.shape, last - first))
-        return tuple(layout)
-
     def _frames(self, shape: tuple[int, ...], dtype: torch.dtype, layout: tuple) -> torch.Tensor:
         """A zero-padded frame buffer of ``shape``: one block kept between calls (fresh pages cost as much as
         the transforms), zeroed unless its last use had the same ``shape`` and windows ``layout`` (whose
@@ -595,7 +584,7 @@ class FieldVaryingBlur:
             spectra: dict[int, torch.Tensor] = {}
             for runs in self._term_chunks(x, group):
                 count = sum(last - first for _, first, last in runs)
-                frames = self._frames((count, x.shape[0], x.shape[1], *grid), x.dtype, self._windows(runs))
+                frames = self._frames((count, x.shape[0], x.shape[1], *grid), x.dtype, tuple(runs))  # term first
                 j = 0
                 for t, first, last in runs:
                     tile, maps = self.source_tiles[t], parts[t][0]
