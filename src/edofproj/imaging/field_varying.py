@@ -527,11 +527,10 @@ class FieldVaryingBlur:
         return out
 
     def _conjugate(self, like: torch.Tensor, index: int) -> torch.Tensor:
-        """``conj(otf)`` of tile ``index`` materialized term-first, ``(M_t, C|1, Gh, Gw//2+1)``, kept per dtype and
-        device."""
+        """``conj(otf)`` of tile ``index`` materialized, kept per dtype and device."""
         key = (like.dtype, like.device)
         if key not in self._conjugates:
-            self._conjugates[key] = [otf.conj().transpose(0, 1).contiguous() for _, otf in self._parts(like)]
+            self._conjugates[key] = [otf.conj().resolve_conj() for _, otf in self._parts(like)]
         return self._conjugates[key][index]
 
     def _batch_size(self, like: torch.Tensor, grid: tuple[int, int]) -> int:
@@ -584,13 +583,13 @@ class FieldVaryingBlur:
             spectra: dict[int, torch.Tensor] = {}
             for runs in self._term_chunks(x, group):
                 count = sum(last - first for _, first, last in runs)
-                frames = self._frames((count, x.shape[0], x.shape[1], *grid), x.dtype, tuple(runs))  # term first
+                frames = self._frames((x.shape[0], x.shape[1], count, *grid), x.dtype, tuple(runs))
                 j = 0
                 for t, first, last in runs:
                     tile, maps = self.source_tiles[t], parts[t][0]
                     (y0, y1), (x0, x1), (oy, ox) = tile.rows, tile.cols, tile.offset
-                    window = frames[j : j + last - first, :, :, oy : oy + y1 - y0, ox : ox + x1 - x0]
-                    torch.mul(x[None, :, :, y0:y1, x0:x1], maps[:, first:last].transpose(0, 1)[:, None], out=window)
+                    window = frames[:, :, j : j + last - first, oy : oy + y1 - y0, ox : ox + x1 - x0]
+                    torch.mul(x[:, :, None, y0:y1, x0:x1], maps[None, :, first:last], out=window)
                     j += last - first
                 terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
                 j = 0
@@ -598,9 +597,9 @@ class FieldVaryingBlur:
                     otf = parts[t][1]
                     for m in range(first, last):
                         if t not in spectra:
-                            spectra[t] = terms[j] * otf[:, m]
+                            spectra[t] = terms[:, :, j] * otf[:, m]
                         else:
-                            spectra[t].addcmul_(terms[j], otf[:, m])
+                            spectra[t].addcmul_(terms[:, :, j], otf[:, m])
                         j += 1
             if len(self.source_tiles) == 1:
                 return _irfft2(spectra[group[0]], grid)[..., : self.height, : self.width]
@@ -609,10 +608,10 @@ class FieldVaryingBlur:
             size = self._batch_size(x, grid)
             for start in range(0, len(group), size):
                 batch = group[start : start + size]
-                light = _irfft2(torch.stack([spectra.pop(t) for t in batch]), grid)  # (tiles, B, C, Gh, Gw)
+                light = _irfft2(torch.stack([spectra.pop(t) for t in batch], dim=2), grid)
                 for j, t in enumerate(batch):
                     (oy0, oy1), (ox0, ox1) = self.source_tiles[t].out_rows, self.source_tiles[t].out_cols
-                    out[..., oy0:oy1, ox0:ox1] += light[j, ..., : oy1 - oy0, : ox1 - ox0]
+                    out[..., oy0:oy1, ox0:ox1] += light[:, :, j, : oy1 - oy0, : ox1 - ox0]
         assert out is not None
         return out
 
@@ -631,30 +630,30 @@ class FieldVaryingBlur:
                 size = self._batch_size(y, grid)
                 for start in range(0, len(group), size):
                     batch = group[start : start + size]
-                    frames = self._frames((len(batch), y.shape[0], y.shape[1], *grid), y.dtype, ("regions", *batch))
+                    frames = self._frames((y.shape[0], y.shape[1], len(batch), *grid), y.dtype, ("regions", *batch))
                     for j, t in enumerate(batch):
                         (oy0, oy1), (ox0, ox1) = self.source_tiles[t].out_rows, self.source_tiles[t].out_cols
-                        frames[j, ..., : oy1 - oy0, : ox1 - ox0] = y[..., oy0:oy1, ox0:ox1]
+                        frames[:, :, j, : oy1 - oy0, : ox1 - ox0] = y[..., oy0:oy1, ox0:ox1]
                     transformed = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
                     for j, t in enumerate(batch):
-                        spectra[t] = transformed[j]
+                        spectra[t] = transformed[:, :, j]
             for runs in self._term_chunks(y, group):
                 count = sum(last - first for _, first, last in runs)
                 first_spectrum = spectra[runs[0][0]]
-                products = first_spectrum.new_empty((count, y.shape[0], y.shape[1], *first_spectrum.shape[-2:]))
+                products = first_spectrum.new_empty((y.shape[0], y.shape[1], count, *first_spectrum.shape[-2:]))
                 j = 0
                 for t, first, last in runs:
-                    conjugate = self._conjugate(y, t)[first:last, None]  # (m, 1, C|1, Gh, Gw/2+1)
-                    torch.mul(spectra[t][None], conjugate, out=products[j : j + last - first])
+                    conjugate = self._conjugate(y, t)[None, :, first:last]
+                    torch.mul(spectra[t][:, :, None], conjugate, out=products[:, :, j : j + last - first])
                     j += last - first
-                spread = _irfft2(products, grid)  # (count, B, C, Gh, Gw)
+                spread = _irfft2(products, grid)  # (B, C, count, Gh, Gw)
                 j = 0
                 for t, first, last in runs:
                     tile, maps = self.source_tiles[t], parts[t][0]
                     (y0, y1), (x0, x1), (oy, ox) = tile.rows, tile.cols, tile.offset
                     target = out[..., y0:y1, x0:x1]
                     for m in range(first, last):
-                        target.addcmul_(spread[j, ..., oy : oy + y1 - y0, ox : ox + x1 - x0], maps[:, m])
+                        target.addcmul_(spread[:, :, j, oy : oy + y1 - y0, ox : ox + x1 - x0], maps[:, m])
                         j += 1
         return out
 
