@@ -171,25 +171,3 @@ def test_a_bad_tiling_is_refused_in_one_line():
     for tiles in [(0, 1), (1, 11), (2,)]:
         with pytest.raises(EdofprojError, match="tiles must be"):
             FieldVaryingBlur(k, [0, 9], [0, 9], (10, 10), tiles=tiles)
-
-
-@pytest.mark.parametrize("terms_per_batch", [1, 4])
-def test_batches_of_terms_across_tiles_are_the_same_operator(monkeypatch, terms_per_batch):
-    """On the CPU outside autograd the terms of the tiles that share a grid are transformed in batches
-    (``BATCH_ELEMENTS``), a batch running across tiles: the same operator as the dense sum, the adjoint its
-    transpose, and the kept frame buffer's padding zero call after call."""
-    import edofproj.imaging.field_varying as module
-
-    rng, hw, cy, cx, kernels = random_setup(3, seed=4)
-    op = FieldVaryingBlur(torch.from_numpy(kernels), cy, cx, hw, tiles=(3, 4))
-    area = max(tile.grid[0] * tile.grid[1] for tile in op.source_tiles)
-    monkeypatch.setattr(module, "BATCH_ELEMENTS", terms_per_batch * 2 * 3 * area)
-    assert any(len(group) > 1 for group in op._groups)  # tiles that share a grid, transformed together
-    dense = np.stack([dense_operator(kernels, cy, cx, hw, c) for c in range(3)])
-    x = torch.from_numpy(rng.random((2, 3, *hw)))
-    y = torch.from_numpy(rng.random((2, 3, *hw)))
-    expected_ax = np.einsum("cpq,bcq->bcp", dense, x.reshape(2, 3, -1).numpy()).reshape(2, 3, *hw)
-    expected_aty = np.einsum("cqp,bcq->bcp", dense, y.reshape(2, 3, -1).numpy()).reshape(2, 3, *hw)
-    for _ in range(2):
-        np.testing.assert_allclose(op(x).numpy(), expected_ax, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(op.adjoint(y).numpy(), expected_aty, rtol=0, atol=1e-12)

@@ -341,10 +341,6 @@ class FieldVaryingBlur:
         #: The source tiles, row-major (:class:`SourceTile`).
         self.source_tiles = [self._tile(rows, cols) for rows in _bands(self.height, tiles[0])
                              for cols in _bands(self.width, tiles[1])]  # fmt: skip
-        grids: dict[tuple[int, int], list[int]] = {}
-        for index, tile in enumerate(self.source_tiles):
-            grids.setdefault(tile.grid, []).append(index)
-        self._groups = list(grids.values())  # the tiles' indices by FFT grid: transformed together on the CPU
         self._cache: dict[tuple, list[tuple[torch.Tensor, torch.Tensor]]] = {}
         self._conjugates: dict[tuple, list[torch.Tensor]] = {}
         self._buffer: tuple[tuple, torch.Tensor] | None = None
@@ -485,21 +481,25 @@ class FieldVaryingBlur:
         """``A x = sum_t P_t sum_m e_tm (*) (c_tm . x|T_t)``: ``x (B, C, H, W)`` -> ``(B, C, H, W)``."""
         self._check(x)
         parts = self._parts(x)
-        if _on_scipy(x):
-            return self._forward_batched(x, parts)
+        scipy_path = _on_scipy(x)
         out = None
-        for tile, (maps, otf) in zip(self.source_tiles, parts):
+        for index, (tile, (maps, otf)) in enumerate(zip(self.source_tiles, parts)):
             (y0, y1), (x0, x1) = tile.rows, tile.cols
             (oy0, oy1), (ox0, ox1) = tile.out_rows, tile.out_cols
             sources = x[..., y0:y1, x0:x1]
-            oy, ox = tile.offset
-            pad = (ox, tile.grid[1] - ox - (x1 - x0), oy, tile.grid[0] - oy - (y1 - y0))
-            spectrum = None
-            for m in range(tile.rank):
-                term = torch.fft.rfft2(torch.nn.functional.pad(sources * maps[:, m], pad)) * otf[:, m]
-                spectrum = term if spectrum is None else spectrum.add_(term)
+            spectrum: torch.Tensor | None
+            if scipy_path:
+                spectrum = self._forward_batched(sources, maps, otf, tile, index)
+            else:
+                spectrum = None
+                oy, ox = tile.offset
+                pad = (ox, tile.grid[1] - ox - (x1 - x0), oy, tile.grid[0] - oy - (y1 - y0))
+                for m in range(tile.rank):
+                    framed = torch.nn.functional.pad(sources * maps[:, m], pad)
+                    term = torch.fft.rfft2(framed) * otf[:, m]
+                    spectrum = term if spectrum is None else spectrum.add_(term)
             assert spectrum is not None
-            light = torch.fft.irfft2(spectrum, s=tile.grid)[..., : oy1 - oy0, : ox1 - ox0]
+            light = _irfft2(spectrum, tile.grid)[..., : oy1 - oy0, : ox1 - ox0]
             if len(self.source_tiles) == 1:
                 return light
             if out is None:
@@ -512,57 +512,48 @@ class FieldVaryingBlur:
         """``(A^T y)|T_t = sum_m c_tm . (e_tm (x) P_t^T y)``, the exact transpose of :meth:`forward`."""
         self._check(y)
         parts = self._parts(y)
-        if _on_scipy(y):
-            return self._adjoint_batched(y, parts)
+        scipy_path = _on_scipy(y)
         out = torch.zeros_like(y)
-        for tile, (maps, otf) in zip(self.source_tiles, parts):
+        for index, (tile, (maps, otf)) in enumerate(zip(self.source_tiles, parts)):
             (y0, y1), (x0, x1) = tile.rows, tile.cols
             (oy0, oy1), (ox0, ox1) = tile.out_rows, tile.out_cols
             oy, ox = tile.offset
-            spectrum = torch.fft.rfft2(y[..., oy0:oy1, ox0:ox1], s=tile.grid)
+            spectrum = _rfft2(y[..., oy0:oy1, ox0:ox1], tile.grid)
             target = out[..., y0:y1, x0:x1]
+            if scipy_path:
+                conjugate = self._conjugate(y, index, otf)
+                for first, last in self._chunks(y, index):
+                    products = spectrum[:, :, None] * conjugate[None, :, first:last]  # (B, C, m, Gh, Gw/2+1)
+                    spread = _irfft2(products, tile.grid)[..., oy : oy + y1 - y0, ox : ox + x1 - x0]
+                    for m in range(last - first):
+                        target.addcmul_(spread[:, :, m], maps[:, first + m])
+                continue
             for m in range(tile.rank):
-                spread = torch.fft.irfft2(spectrum * otf[:, m].conj(), s=tile.grid)
-                target.addcmul_(spread[..., oy : oy + y1 - y0, ox : ox + x1 - x0], maps[:, m])
+                spread = _irfft2(spectrum * otf[:, m].conj(), tile.grid)[..., oy : oy + y1 - y0, ox : ox + x1 - x0]
+                target.addcmul_(spread, maps[:, m])
         return out
 
-    def _conjugate(self, like: torch.Tensor, index: int) -> torch.Tensor:
+    def _conjugate(self, like: torch.Tensor, index: int, otf: torch.Tensor) -> torch.Tensor:
         """``conj(otf)`` of tile ``index`` materialized, kept per dtype and device."""
         key = (like.dtype, like.device)
         if key not in self._conjugates:
-            self._conjugates[key] = [otf.conj().resolve_conj() for _, otf in self._parts(like)]
+            self._conjugates[key] = [otf_t.conj().resolve_conj() for _, otf_t in self._parts(like)]
         return self._conjugates[key][index]
 
-    def _batch_size(self, like: torch.Tensor, grid: tuple[int, int]) -> int:
-        """Frames of ``grid`` transformed in one call: at most :data:`BATCH_ELEMENTS` real samples."""
-        return max(1, BATCH_ELEMENTS // (like.shape[0] * like.shape[1] * grid[0] * grid[1]))
-
-    def _term_chunks(self, like: torch.Tensor, group: list[int]) -> list[list[tuple[int, int, int]]]:
-        """The terms ``(tile, m)`` of the tiles ``group`` (one grid) in batches of :meth:`_batch_size`, each batch a
-        list of runs ``(tile, first m, last m + 1)``."""
-        size = self._batch_size(like, self.source_tiles[group[0]].grid)
-        terms = [(t, m) for t in group for m in range(self.source_tiles[t].rank)]
-        chunks = []
-        for start in range(0, len(terms), size):
-            runs: list[tuple[int, int, int]] = []
-            for t, m in terms[start : start + size]:
-                if runs and runs[-1][0] == t:
-                    runs[-1] = (t, runs[-1][1], m + 1)
-                else:
-                    runs.append((t, m, m + 1))
-            chunks.append(runs)
-        return chunks
-
     def _chunks(self, like: torch.Tensor, index: int = 0) -> list[tuple[int, int]]:
-        """Ranges of tile ``index``'s basis indices transformed together when it is alone on its grid."""
-        return [(first, last) for runs in self._term_chunks(like, [index]) for _, first, last in runs]
+        """Ranges of tile ``index``'s basis indices transformed together: at most :data:`BATCH_ELEMENTS` real
+        samples a batch."""
+        tile = self.source_tiles[index]
+        per_term = like.shape[0] * like.shape[1] * tile.grid[0] * tile.grid[1]
+        size = max(1, BATCH_ELEMENTS // per_term)
+        return [(first, min(first + size, tile.rank)) for first in range(0, tile.rank, size)]
 
-    def _frames(self, shape: tuple[int, ...], dtype: torch.dtype, layout: tuple) -> torch.Tensor:
+    def _frames(self, shape: tuple[int, ...], dtype: torch.dtype, window: tuple) -> torch.Tensor:
         """A zero-padded frame buffer of ``shape``: one block kept between calls (fresh pages cost as much as
-        the transforms), zeroed unless its last use had the same ``shape`` and windows ``layout`` (whose
-        padding is then still zero)."""
+        the transforms), re-zeroed unless its last use was the same ``shape`` and ``window`` (whose padding is
+        then still zero)."""
         size = int(np.prod(shape))
-        key = (shape, dtype, layout)
+        key = (shape, dtype, window)
         if self._buffer is None or self._buffer[1].dtype != dtype or self._buffer[1].numel() < size:
             self._buffer = (key, torch.zeros(size, dtype=dtype))
             return self._buffer[1][:size].view(shape)
@@ -572,90 +563,27 @@ class FieldVaryingBlur:
             self._buffer = (key, self._buffer[1])
         return frames
 
-    def _forward_batched(self, x: torch.Tensor, parts: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
-        """:meth:`forward` on the CPU outside autograd: the products ``c_tm . x|T_t`` of a batch of terms (of the
-        tiles that share a grid) written into one zero-padded frame buffer and transformed by one multi-threaded
-        :func:`scipy.fft.rfft2` call; the spectra weighted by the transfer functions and summed per tile; the
-        tiles' spectra inverted together, their light added into the image."""
-        out = None
-        for group in self._groups:
-            grid = self.source_tiles[group[0]].grid
-            spectra: dict[int, torch.Tensor] = {}
-            for runs in self._term_chunks(x, group):
-                count = sum(last - first for _, first, last in runs)
-                frames = self._frames((x.shape[0], x.shape[1], count, *grid), x.dtype, tuple(runs))
-                j = 0
-                for t, first, last in runs:
-                    tile, maps = self.source_tiles[t], parts[t][0]
-                    (y0, y1), (x0, x1), (oy, ox) = tile.rows, tile.cols, tile.offset
-                    window = frames[:, :, j : j + last - first, oy : oy + y1 - y0, ox : ox + x1 - x0]
-                    torch.mul(x[:, :, None, y0:y1, x0:x1], maps[None, :, first:last], out=window)
-                    j += last - first
-                terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
-                j = 0
-                for t, first, last in runs:
-                    otf = parts[t][1]
-                    for m in range(first, last):
-                        if t not in spectra:
-                            spectra[t] = terms[:, :, j] * otf[:, m]
-                        else:
-                            spectra[t].addcmul_(terms[:, :, j], otf[:, m])
-                        j += 1
-            if len(self.source_tiles) == 1:
-                return _irfft2(spectra[group[0]], grid)[..., : self.height, : self.width]
-            if out is None:
-                out = torch.zeros_like(x)
-            size = self._batch_size(x, grid)
-            for start in range(0, len(group), size):
-                batch = group[start : start + size]
-                light = _irfft2(torch.stack([spectra.pop(t) for t in batch], dim=2), grid)
-                for j, t in enumerate(batch):
-                    (oy0, oy1), (ox0, ox1) = self.source_tiles[t].out_rows, self.source_tiles[t].out_cols
-                    out[..., oy0:oy1, ox0:ox1] += light[:, :, j, : oy1 - oy0, : ox1 - ox0]
-        assert out is not None
-        return out
-
-    def _adjoint_batched(self, y: torch.Tensor, parts: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
-        """:meth:`adjoint` on the CPU outside autograd: the tiles' output regions of ``y`` transformed together
-        (per grid), the products with the conjugate transfer functions of a batch of terms inverted by one
-        multi-threaded call, each added into its tile weighted by its coefficient map."""
-        out = torch.zeros_like(y)
-        for group in self._groups:
-            grid = self.source_tiles[group[0]].grid
-            spectra: dict[int, torch.Tensor] = {}
-            if len(group) == 1:
-                (oy0, oy1), (ox0, ox1) = self.source_tiles[group[0]].out_rows, self.source_tiles[group[0]].out_cols
-                spectra[group[0]] = _rfft2(y[..., oy0:oy1, ox0:ox1], grid)
-            else:
-                size = self._batch_size(y, grid)
-                for start in range(0, len(group), size):
-                    batch = group[start : start + size]
-                    frames = self._frames((y.shape[0], y.shape[1], len(batch), *grid), y.dtype, ("regions", *batch))
-                    for j, t in enumerate(batch):
-                        (oy0, oy1), (ox0, ox1) = self.source_tiles[t].out_rows, self.source_tiles[t].out_cols
-                        frames[:, :, j, : oy1 - oy0, : ox1 - ox0] = y[..., oy0:oy1, ox0:ox1]
-                    transformed = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
-                    for j, t in enumerate(batch):
-                        spectra[t] = transformed[:, :, j]
-            for runs in self._term_chunks(y, group):
-                count = sum(last - first for _, first, last in runs)
-                first_spectrum = spectra[runs[0][0]]
-                products = first_spectrum.new_empty((y.shape[0], y.shape[1], count, *first_spectrum.shape[-2:]))
-                j = 0
-                for t, first, last in runs:
-                    conjugate = self._conjugate(y, t)[None, :, first:last]
-                    torch.mul(spectra[t][:, :, None], conjugate, out=products[:, :, j : j + last - first])
-                    j += last - first
-                spread = _irfft2(products, grid)  # (B, C, count, Gh, Gw)
-                j = 0
-                for t, first, last in runs:
-                    tile, maps = self.source_tiles[t], parts[t][0]
-                    (y0, y1), (x0, x1), (oy, ox) = tile.rows, tile.cols, tile.offset
-                    target = out[..., y0:y1, x0:x1]
-                    for m in range(first, last):
-                        target.addcmul_(spread[:, :, j, oy : oy + y1 - y0, ox : ox + x1 - x0], maps[:, m])
-                        j += 1
-        return out
+    def _forward_batched(
+        self, sources: torch.Tensor, maps: torch.Tensor, otf: torch.Tensor, tile: SourceTile, index: int
+    ) -> torch.Tensor:
+        """The spectrum of tile ``index``'s light on the CPU outside autograd: the products ``c_tm . x`` of a
+        chunk of terms written into one zero-padded frame buffer (:meth:`_frames`) and transformed by one
+        multi-threaded :func:`scipy.fft.rfft2` call; the spectra weighted by the transfer functions and summed."""
+        spectrum = None
+        oy, ox = tile.offset
+        th, tw = tile.shape
+        for first, last in self._chunks(sources, index):
+            shape = (sources.shape[0], sources.shape[1], last - first, *tile.grid)
+            frames = self._frames(shape, sources.dtype, (oy, ox, th, tw))
+            torch.mul(sources[:, :, None], maps[None, :, first:last], out=frames[..., oy : oy + th, ox : ox + tw])
+            terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
+            for j in range(last - first):
+                if spectrum is None:
+                    spectrum = terms[:, :, j] * otf[:, first + j]
+                else:
+                    spectrum.addcmul_(terms[:, :, j], otf[:, first + j])
+        assert spectrum is not None
+        return spectrum
 
     __call__ = forward
 
