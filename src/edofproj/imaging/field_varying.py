@@ -18,16 +18,6 @@ per grid PSF, the image weighted by ``w_g`` first. Interpolating the *sources'* 
 outputs) keeps the energy: every source pixel's light sums to its own interpolated in-window
 energy plus haze, and with every ``p_g`` equal this is :func:`edofproj.imaging.project`.
 
-:class:`FieldVaryingBlur` is this operator without clamp and haze, and its exact adjoint, in a low-rank form:
-the node kernels written in an orthonormal basis ``e_m``, ``A x = sum_m e_m (*) (c_m . x)`` with smooth
-coefficient maps ``c_m``, ``M`` convolutions of the image. **Tiled form**: ``A`` is linear in the sources, so
-the image is cut into source tiles ``T_t`` and ``A x = sum_t A (1_t . x)``; a tile's sources use only the
-kernels of the nodes whose tent weights reach it, which span fewer directions than all of them, so each tile
-gets its own basis ``e_tm`` (``M_t`` terms) and its light, the tile grown by ``K // 2``, is convolved on the
-tile's own FFT grid ('full' linear convolution) and added into the image: exact for the (truncated) node
-kernels, ``sum_t (M_t + 1)`` transforms of tile-sized grids per application instead of ``M + 1`` of the
-image's; the tiling is chosen by the FFT work it costs (:class:`FieldVaryingBlur`).
-
 Shapes: image ``(B, C, H, W)``; ``psf_grid`` ``(Gy, Gx, C or 1, K, K)``; centres in pixels
 (``(Gy,)`` rows, ``(Gx,)`` columns, increasing). :func:`field_centres_px` maps normalized
 field coordinates in [-1, 1] (the image edges) to pixel centres.
@@ -35,14 +25,12 @@ field coordinates in [-1, 1] (the image edges) to pixel centres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.fft
 import torch
 
 from ..errors import EdofprojError
-from .convolution import convolve_same, fast_fft_length, optical_transfer_function
+from .convolution import convolve_same, fft_shape, optical_transfer_function
 
 BATCH_ELEMENTS = 1 << 23
 """Real samples (frames x padded pixels) :class:`FieldVaryingBlur` transforms in one batched FFT call on the CPU:
@@ -117,7 +105,7 @@ def project_field_varying(
 
 
 def low_rank_kernels(
-    kernels: torch.Tensor, tolerance: float = 0.0, sketches: tuple[int, ...] = (32, 64), gram: bool = False
+    kernels: torch.Tensor, tolerance: float = 0.0, sketches: tuple[int, ...] = (32, 64)
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``kernels (N, Kh, Kw) ~= sum_m coefficients[:, m] basis[m]``: the truncated singular value
     decomposition of the ``N x Kh Kw`` matrix ``X`` of the kernels, keeping the fewest ``M`` components whose
@@ -126,20 +114,16 @@ def low_rank_kernels(
     and ``coefficients (N, M)`` float64. With more kernels than taps (``N > K^2``) the right singular
     vectors are the eigenvectors of ``X^T X`` (a ``K^2 x K^2`` problem, whatever ``N``). Many large kernels
     with a tolerance: the randomized basis of :func:`_randomized_low_rank`, sketches of ``sketches`` vectors
-    tried in turn (the first that reaches the tolerance), the exact decomposition if none does. ``gram`` (with a
-    tolerance): the eigenvectors of the smaller Gram matrix (``X X^T`` or ``X^T X``) whatever the size, the
-    same truncation to rounding of order ``1e-8 sigma_0`` (far below any tolerance) in a tenth of the time of
-    the SVD for a few hundred kernels."""
+    tried in turn (the first that reaches the tolerance), the exact decomposition if none does."""
     n, (kh, kw) = kernels.shape[0], kernels.shape[-2:]
     taps = kh * kw
     matrix = kernels.reshape(n, taps).to(torch.float64)
-    gram = gram and float(tolerance) > 0
-    if float(tolerance) > 0 and n * taps > 4_000_000 and not gram:
+    if float(tolerance) > 0 and n * taps > 4_000_000:
         for most in sketches:
             sketched = _randomized_low_rank(matrix, float(tolerance), most)
             if sketched is not None:
                 return sketched.T.reshape(sketched.shape[1], kh, kw), matrix @ sketched
-    if n * taps <= 4_000_000 and not gram:
+    if n * taps <= 4_000_000:
         _, sigma, vh = torch.linalg.svd(matrix, full_matrices=False)
         energy, vectors = sigma**2, vh.T
     elif n > taps:  # the right singular vectors: eigenvectors of X^T X
@@ -151,20 +135,13 @@ def low_rank_kernels(
         keep = energy > 1e-14 * energy[0]  # the Gram matrix's rounding: smaller ones are noise
         energy, left = energy[keep], left[:, keep]
         vectors = (matrix.T @ left) / torch.sqrt(energy)
-    rank = _kept_terms(energy, float(tolerance))
+    rank = max(int((energy > 1e-24 * energy[0]).sum()), 1)  # the numerical rank (singular values > 1e-12 sigma_0)
+    if float(tolerance) > 0:
+        dropped = torch.flip(torch.cumsum(torch.flip(energy, (0,)), 0), (0,))  # dropped[m]: energy beyond m terms
+        bound = float(tolerance) ** 2 * float(energy.sum())
+        rank = next((m for m in range(1, len(energy)) if float(dropped[m]) <= bound), len(energy))
     basis = vectors[:, :rank]
     return basis.T.reshape(rank, kh, kw), matrix @ basis
-
-
-def _kept_terms(energy: torch.Tensor, tolerance: float) -> int:
-    """The fewest terms of :func:`low_rank_kernels` for the squared singular values ``energy`` (decreasing):
-    the numerical rank (``sigma > 1e-12 sigma_0``) without a tolerance, else the fewest whose dropped energy
-    is at most ``tolerance^2`` of the total."""
-    if tolerance <= 0:
-        return max(int((energy > 1e-24 * energy[0]).sum()), 1)
-    dropped = torch.flip(torch.cumsum(torch.flip(energy, (0,)), 0), (0,))  # dropped[m]: energy beyond m terms
-    bound = tolerance**2 * float(energy.sum())
-    return next((m for m in range(1, len(energy)) if float(dropped[m]) <= bound), len(energy))
 
 
 def _randomized_low_rank(matrix: torch.Tensor, tolerance: float, most: int = 64) -> torch.Tensor | None:
@@ -182,67 +159,6 @@ def _randomized_low_rank(matrix: torch.Tensor, tolerance: float, most: int = 64)
     total = float((matrix**2).sum())
     enough = torch.nonzero(total - kept <= tolerance**2 * total).flatten()
     return None if enough.numel() == 0 else v[:, : int(enough[0]) + 1]
-
-
-MIN_TILE_KERNELS = 4
-"""Least side of an automatically chosen source tile, in kernel widths ``K``: a smaller tile's frame would be
-mostly the ``K - 1`` pixels of margin its 'full' convolution needs."""
-RANK_ESTIMATE_NODES = 256
-"""Most node kernels a tile's rank is estimated from when :class:`FieldVaryingBlur` chooses its tiling."""
-TILE_CANDIDATES = (1, 2, 3, 4, 6, 8)
-"""Row bands of the tilings :class:`FieldVaryingBlur` weighs (columns: as many bands as keep tiles about
-square), each kept only when its tiles are at least :data:`MIN_TILE_KERNELS` kernels wide."""
-
-
-@dataclass
-class SourceTile:
-    """One source tile of :class:`FieldVaryingBlur`: the sources ``rows x cols`` (half-open pixel ranges), the
-    region ``out_rows x out_cols`` their light reaches (grown by ``K // 2``, clipped to the image), the tile's
-    position ``offset`` inside that region, the FFT ``grid``, the tile's orthonormal ``basis (C|1, M_t, K, K)``
-    and its coefficient maps ``coefficients (C|1, M_t, th, tw)`` (float64)."""
-
-    rows: tuple[int, int]
-    cols: tuple[int, int]
-    out_rows: tuple[int, int]
-    out_cols: tuple[int, int]
-    grid: tuple[int, int]
-    basis: torch.Tensor
-    coefficients: torch.Tensor
-
-    @property
-    def offset(self) -> tuple[int, int]:
-        return (self.rows[0] - self.out_rows[0], self.cols[0] - self.out_cols[0])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (self.rows[1] - self.rows[0], self.cols[1] - self.cols[0])
-
-    @property
-    def rank(self) -> int:
-        return int(self.basis.shape[1])
-
-
-def tile_grid(rows: tuple[int, int], cols: tuple[int, int], size_hw: tuple[int, int], k: int) -> tuple[int, int]:
-    """The FFT grid of a source tile ``rows x cols`` of an image of ``size_hw`` under ``K x K`` kernels.
-
-    Along one axis, with tile length ``n``, ``a, b <= K // 2 = r`` the margins kept above and below it (the
-    output region ``a + n + b`` long), the tile placed at ``a`` and the kernel centred at ``0``: its light lands
-    at ``[a - r, a + n + r)``; the circular convolution is linear on ``[0, a + n + b)`` when the light below
-    ``0`` wraps past the region (``G >= n + r + b``) and none beyond it wraps into it (``G >= a + n + r``):
-    ``G >= max(n + r + max(a, b), K)``, the next fast length. The whole image (``a = b = 0``) gives
-    :func:`.convolution.fft_shape`; an inner tile the 'full' convolution ``n + K - 1``."""
-    r = k // 2
-    lengths = []
-    for (first, last), size in zip((rows, cols), size_hw):
-        before, after = min(first, r), min(size - last, r)
-        lengths.append(fast_fft_length(max(last - first + r + max(before, after), k)))
-    return (lengths[0], lengths[1])
-
-
-def _bands(size: int, count: int) -> list[tuple[int, int]]:
-    """``count`` contiguous pixel ranges covering ``0..size``, lengths differing by at most one."""
-    edges = np.linspace(0, size, count + 1).round().astype(int)
-    return [(int(edges[i]), int(edges[i + 1])) for i in range(count)]
 
 
 class FieldVaryingBlur:
@@ -271,31 +187,9 @@ class FieldVaryingBlur:
     ``M`` convolutions of the whole image by FFT (transfer functions from
     :func:`.convolution.optical_transfer_function` on the :func:`.convolution.fft_shape` grid), ``M``
     forward transforms and one inverse for ``A``, one forward and ``M`` inverse for ``A^T``, however many
-    nodes there are.
-
-    **Tiled form.** ``A`` is linear in ``x``: with the image cut into source tiles ``T_t`` (``Ty`` bands of
-    rows times ``Tx`` of columns, :class:`SourceTile`), ``A x = sum_t A (1_t . x)``, and the sources of tile
-    ``t`` use only the kernels of the nodes ``g`` whose tent weights are non-zero on ``T_t``. Each tile gets the
-    orthonormal basis of those kernels alone, ``h_g = sum_m a_tgm e_tm``, ``M_t`` terms, and
-
-        A x = sum_t P_t sum_m e_tm (*) (c_tm . x|T_t),          c_tm = sum_g a_tgm w_g   on T_t,
-        (A^T y)|T_t = sum_m c_tm . (e_tm (x) P_t^T y),
-
-    ``P_t`` adding the tile's light into the image on ``T_t`` grown by ``K // 2`` on every side (clipped to the
-    image), computed on the tile's own grid (:func:`tile_grid`: the 'full' linear convolution, no
-    wrap-around): exact for the (truncated) node kernels, the adjoint its exact transpose. Nearby nodes'
-    kernels span fewer directions than all of them (a PSF map of a 1140 x 912 projector: 9 globally, 3 to 6
-    per tile of a 3 x 3 tiling), so the tiles' transforms, ``sum_t (M_t + 1)`` of about ``1 / (Ty Tx)`` of
-    the image's area, cost less than the ``M + 1`` of the whole image. ``tiles=None`` chooses the tiling with
-    the least ``sum_t (M_t + 1) |G_t| log2 |G_t|`` (``|G_t|`` the tile's grid area, ``M_t`` estimated by
-    :meth:`_estimated_rank`, then computed only for the chosen tiling) among ``(1, 1)`` and the
-    near-square tilings of :data:`TILE_CANDIDATES` whose tiles are at least :data:`MIN_TILE_KERNELS` ``K``
-    wide; ``tiles=(Ty, Tx)`` forces one, ``(1, 1)`` the single whole-image basis above.
-
-    ``M_t`` is the tile's kernels' rank (exact: ``rank_tolerance = 0``) or the fewest basis kernels within
-    ``rank_tolerance`` (relative Frobenius error of the tile's node kernels together, per channel); the
-    truncated operator is the one applied, and its adjoint is exact for it. :attr:`rank` is the largest
-    ``M_t``, :attr:`convolutions` their sum (the convolutions, of tiles, per application).
+    nodes there are. ``M`` is the kernels' rank (exact: ``rank_tolerance = 0``) or the fewest basis
+    kernels within ``rank_tolerance`` (relative Frobenius error of all node kernels together); the
+    truncated operator is the one applied, and its adjoint is exact for it.
 
     Shapes: ``kernels (Gy, Gx, C or 1, K, K)`` (a kernel channel axis of 1 serves every colour);
     images ``(B, C, H, W)`` of ``image_hw``, any floating dtype (cached per dtype and device).
@@ -308,163 +202,55 @@ class FieldVaryingBlur:
         centres_x_px,
         image_hw: tuple[int, int],
         rank_tolerance: float = 0.0,
-        tiles: tuple[int, int] | None = None,
     ):
         kernels = torch.as_tensor(kernels)
         if kernels.ndim != 5 or kernels.shape[-1] != kernels.shape[-2] or kernels.shape[-1] % 2 == 0:
             raise EdofprojError(f"node kernels must be (Gy, Gx, C or 1, K, K) with K odd, got {tuple(kernels.shape)}")
         if not torch.isfinite(kernels).all():
             raise EdofprojError("the node kernels contain NaN or infinite values")
-        gy, gx = kernels.shape[0], kernels.shape[1]
+        gy, gx, channels, k = kernels.shape[0], kernels.shape[1], kernels.shape[2], kernels.shape[-1]
         if len(centres_y_px) != gy or len(centres_x_px) != gx:
             raise EdofprojError(f"{gy} x {gx} node kernels but {len(centres_y_px)} x {len(centres_x_px)} centres")
         if not (0.0 <= float(rank_tolerance) < 1.0):
             raise EdofprojError(f"rank tolerance {rank_tolerance} must be in [0, 1)")
         self.height, self.width = int(image_hw[0]), int(image_hw[1])
-        if tiles is not None:
-            if len(tiles) != 2 or not all(1 <= int(t) <= s for t, s in zip(tiles, (self.height, self.width))):
-                raise EdofprojError(
-                    f"tiles must be (rows, columns) of bands, 1 to {self.height} x {self.width}, got {tiles}"
-                )
-            tiles = (int(tiles[0]), int(tiles[1]))
         self.kernels = kernels
-        self.rank_tolerance = float(rank_tolerance)
         self.centres_y_px = np.asarray(centres_y_px, dtype=np.float64)
         self.centres_x_px = np.asarray(centres_x_px, dtype=np.float64)
-        self._wy = hat_weights(centres_y_px, self.height)  # (Gy, H)
-        self._wx = hat_weights(centres_x_px, self.width)  # (Gx, W)
-        if tiles is None:
-            candidates = self._candidates()
-            tiles = candidates[0] if len(candidates) == 1 else min(candidates, key=self._cost)
-        #: ``(Ty, Tx)`` the bands of rows and columns of the source tiles.
-        self.tiles = tiles
-        #: The source tiles, row-major (:class:`SourceTile`).
-        self.source_tiles = [self._tile(rows, cols) for rows in _bands(self.height, tiles[0])
-                             for cols in _bands(self.width, tiles[1])]  # fmt: skip
-        self._cache: dict[tuple, list[tuple[torch.Tensor, torch.Tensor]]] = {}
-        self._conjugates: dict[tuple, list[torch.Tensor]] = {}
+        wy = torch.as_tensor(hat_weights(centres_y_px, self.height))  # (Gy, H)
+        wx = torch.as_tensor(hat_weights(centres_x_px, self.width))  # (Gx, W)
+        bases, maps = [], []
+        for c in range(channels):
+            basis, coefficients = low_rank_kernels(kernels[:, :, c].reshape(gy * gx, k, k), rank_tolerance)
+            bases.append(basis)
+            maps.append(torch.einsum("iy,ijm,jx->myx", wy, coefficients.reshape(gy, gx, -1), wx))
+        rank = max(b.shape[0] for b in bases)
+        #: ``(C|1, M, K, K)`` orthonormal basis kernels ``e_m`` (zero-padded to the largest rank).
+        self.basis = torch.stack([_pad_rank(b, rank) for b in bases])
+        #: ``(C|1, M, H, W)`` the maps ``c_m`` (float64).
+        self.coefficients = torch.stack([_pad_rank(m, rank) for m in maps])
+        self.grid = fft_shape((self.height, self.width), (k, k))
+        self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
         self._buffer: tuple[tuple, torch.Tensor] | None = None
+        self._conjugates: tuple[torch.Tensor, torch.Tensor] | None = None
         self._norm_bound: torch.Tensor | None = None
-
-    def _nodes(self, rows: tuple[int, int], cols: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """Node rows and columns whose tent weights are non-zero on the tile ``rows x cols``."""
-        node_rows = np.nonzero((self._wy[:, rows[0] : rows[1]] > 0).any(axis=1))[0]
-        node_cols = np.nonzero((self._wx[:, cols[0] : cols[1]] > 0).any(axis=1))[0]
-        return node_rows, node_cols
-
-    def _low_rank(
-        self, node_rows: np.ndarray, node_cols: np.ndarray, whole: bool
-    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Per kernel channel, :func:`low_rank_kernels` of the nodes ``node_rows x node_cols``; a tile of several
-        (``whole`` False) by the Gram matrix when there is a tolerance."""
-        block = self.kernels[node_rows][:, node_cols]  # (ni, nj, C|1, K, K)
-        k = block.shape[-1]
-        return [
-            low_rank_kernels(block[:, :, c].reshape(-1, k, k), self.rank_tolerance, gram=not whole)
-            for c in range(block.shape[2])
-        ]
-
-    def _candidates(self) -> list[tuple[int, int]]:
-        """``(1, 1)`` and the near-square tilings of :data:`TILE_CANDIDATES` with tiles ``>= MIN_TILE_KERNELS K``."""
-        least = MIN_TILE_KERNELS * int(self.kernels.shape[-1])
-        found = [(1, 1)]
-        for ty in TILE_CANDIDATES:
-            tx = max(1, round(ty * self.width / self.height))
-            if (ty, tx) not in found and self.height // ty >= least and self.width // tx >= least:
-                found.append((ty, tx))
-        return found
-
-    def _estimated_rank(self, rows: tuple[int, int], cols: tuple[int, int]) -> int:
-        """An estimate of the rank ``M_t`` of the tile ``rows x cols`` for the choice of a tiling: from the
-        eigenvalues alone of the smaller Gram matrix of its kernels, the nodes thinned to every ``s``-th row and
-        column when there are more than :data:`RANK_ESTIMATE_NODES` (neighbouring kernels are nearly
-        combinations of each other: their rank barely grows with their number, the Gram matrix's cost as its
-        cube); without a tolerance, the eigenvalues above ``1e-14`` of the largest (the Gram matrix's rounding)."""
-        node_rows, node_cols = self._nodes(rows, cols)
-        step = int(np.ceil(np.sqrt(len(node_rows) * len(node_cols) / RANK_ESTIMATE_NODES)))
-        node_rows, node_cols = node_rows[::step], node_cols[::step]
-        k = int(self.kernels.shape[-1])
-        block = self.kernels[node_rows][:, node_cols].to(torch.float64)  # (ni, nj, C|1, K, K)
-        ranks = []
-        for c in range(block.shape[2]):
-            matrix = block[:, :, c].reshape(-1, k * k)
-            gram = matrix @ matrix.T if matrix.shape[0] <= matrix.shape[1] else matrix.T @ matrix
-            energy = torch.flip(torch.linalg.eigvalsh(gram), (0,)).clamp_min(0.0)
-            if self.rank_tolerance > 0:
-                ranks.append(_kept_terms(energy, self.rank_tolerance))
-            else:
-                ranks.append(max(int((energy > 1e-14 * energy[0]).sum()), 1))
-        return max(ranks)
-
-    def _cost(self, tiles: tuple[int, int]) -> float:
-        """``sum_t (M_t + 1) |G_t| log2 |G_t|``: the FFT work of one application of the tiling ``tiles``."""
-        k = int(self.kernels.shape[-1])
-        total = 0.0
-        for rows in _bands(self.height, tiles[0]):
-            for cols in _bands(self.width, tiles[1]):
-                rank = self._estimated_rank(rows, cols)
-                grid = tile_grid(rows, cols, (self.height, self.width), k)
-                total += (rank + 1) * grid[0] * grid[1] * np.log2(grid[0] * grid[1])
-        return total
-
-    def _tile(self, rows: tuple[int, int], cols: tuple[int, int]) -> SourceTile:
-        node_rows, node_cols = self._nodes(rows, cols)
-        k = int(self.kernels.shape[-1])
-        wy = torch.as_tensor(self._wy[node_rows, rows[0] : rows[1]])  # (ni, th)
-        wx = torch.as_tensor(self._wx[node_cols, cols[0] : cols[1]])  # (nj, tw)
-        parts = self._low_rank(node_rows, node_cols, whole=(rows, cols) == ((0, self.height), (0, self.width)))
-        rank = max(basis.shape[0] for basis, _ in parts)
-        maps = [
-            torch.einsum("iy,ijm,jx->myx", wy, coefficients.reshape(len(node_rows), len(node_cols), -1), wx)
-            for _, coefficients in parts
-        ]
-        r = k // 2
-        return SourceTile(
-            rows=rows,
-            cols=cols,
-            out_rows=(max(rows[0] - r, 0), min(rows[1] + r, self.height)),
-            out_cols=(max(cols[0] - r, 0), min(cols[1] + r, self.width)),
-            grid=tile_grid(rows, cols, (self.height, self.width), k),
-            basis=torch.stack([_pad_rank(basis, rank) for basis, _ in parts]),
-            coefficients=torch.stack([_pad_rank(m, rank) for m in maps]),
-        )
 
     @property
     def rank(self) -> int:
-        """The largest ``M_t``: basis kernels (convolutions) per tile per application; with one tile, ``M``."""
-        return max(tile.rank for tile in self.source_tiles)
-
-    @property
-    def convolutions(self) -> int:
-        """``sum_t M_t``: the (tile-sized) convolutions per application."""
-        return sum(tile.rank for tile in self.source_tiles)
-
-    @property
-    def tile_ranks(self) -> np.ndarray:
-        """``(Ty, Tx)`` the tiles' ranks ``M_t``."""
-        return np.array([tile.rank for tile in self.source_tiles]).reshape(self.tiles)
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        """The FFT grid of the first tile (with one tile, the whole image's :func:`.convolution.fft_shape`)."""
-        return self.source_tiles[0].grid
+        """``M``: basis kernels (convolutions) per application."""
+        return int(self.basis.shape[1])
 
     @property
     def channels(self) -> int:
         """Colour channels of the kernels (1: one set for every colour)."""
-        return int(self.kernels.shape[2])
+        return int(self.basis.shape[0])
 
-    def _parts(self, like: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Per tile (coefficient maps ``(C|1, M_t, th, tw)``, transfer functions ``(C|1, M_t, Gh, Gw//2+1)``)."""
+    def _parts(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(coefficient maps ``(C|1, M, H, W)``, transfer functions ``(C|1, M, Gh, Gw//2+1)``) for ``like``."""
         key = (like.dtype, like.device)
         if key not in self._cache:
-            self._cache[key] = [
-                (
-                    tile.coefficients.to(like.device, like.dtype),
-                    optical_transfer_function(tile.basis.to(like.device, like.dtype), tile.grid),
-                )
-                for tile in self.source_tiles
-            ]
+            otf = optical_transfer_function(self.basis.to(like.device, like.dtype), self.grid)
+            self._cache[key] = (self.coefficients.to(like.device, like.dtype), otf)
         return self._cache[key]
 
     def _check(self, image: torch.Tensor) -> None:
@@ -478,104 +264,61 @@ class FieldVaryingBlur:
             raise EdofprojError(f"the blur needs a floating-point image, got {image.dtype}")
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``A x = sum_t P_t sum_m e_tm (*) (c_tm . x|T_t)``: ``x (B, C, H, W)`` -> ``(B, C, H, W)``."""
+        """``A x = sum_m e_m (*) (c_m . x)``: ``x (B, C, H, W)`` -> ``(B, C, H, W)``."""
         self._check(x)
-        parts = self._parts(x)
-        scipy_path = _on_scipy(x)
-        out = None
-        for index, (tile, (maps, otf)) in enumerate(zip(self.source_tiles, parts)):
-            (y0, y1), (x0, x1) = tile.rows, tile.cols
-            (oy0, oy1), (ox0, ox1) = tile.out_rows, tile.out_cols
-            sources = x[..., y0:y1, x0:x1]
-            spectrum: torch.Tensor | None
-            if scipy_path:
-                spectrum = self._forward_batched(sources, maps, otf, tile, index)
-            else:
-                spectrum = None
-                oy, ox = tile.offset
-                pad = (ox, tile.grid[1] - ox - (x1 - x0), oy, tile.grid[0] - oy - (y1 - y0))
-                for m in range(tile.rank):
-                    framed = torch.nn.functional.pad(sources * maps[:, m], pad)
-                    term = torch.fft.rfft2(framed) * otf[:, m]
-                    spectrum = term if spectrum is None else spectrum.add_(term)
-            assert spectrum is not None
-            light = _irfft2(spectrum, tile.grid)[..., : oy1 - oy0, : ox1 - ox0]
-            if len(self.source_tiles) == 1:
-                return light
-            if out is None:
-                out = torch.zeros(x.shape, dtype=light.dtype, device=x.device)
-            out[..., oy0:oy1, ox0:ox1] += light
-        assert out is not None
-        return out
+        maps, otf = self._parts(x)
+        if _on_scipy(x):
+            return self._forward_batched(x, maps, otf)
+        spectrum = None
+        for m in range(self.rank):
+            term = _rfft2(x * maps[:, m], self.grid) * otf[:, m]
+            spectrum = term if spectrum is None else spectrum.add_(term)
+        assert spectrum is not None
+        return _irfft2(spectrum, self.grid)[..., : self.height, : self.width]
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
-        """``(A^T y)|T_t = sum_m c_tm . (e_tm (x) P_t^T y)``, the exact transpose of :meth:`forward`."""
+        """``A^T y = sum_m c_m . (e_m (x) y)``, the exact transpose of :meth:`forward`."""
         self._check(y)
-        parts = self._parts(y)
-        scipy_path = _on_scipy(y)
+        maps, otf = self._parts(y)
+        spectrum = _rfft2(y, self.grid)
         out = torch.zeros_like(y)
-        for index, (tile, (maps, otf)) in enumerate(zip(self.source_tiles, parts)):
-            (y0, y1), (x0, x1) = tile.rows, tile.cols
-            (oy0, oy1), (ox0, ox1) = tile.out_rows, tile.out_cols
-            oy, ox = tile.offset
-            spectrum = _rfft2(y[..., oy0:oy1, ox0:ox1], tile.grid)
-            target = out[..., y0:y1, x0:x1]
-            if scipy_path:
-                conjugate = self._conjugate(y, index, otf)
-                for first, last in self._chunks(y, index):
-                    products = spectrum[:, :, None] * conjugate[None, :, first:last]  # (B, C, m, Gh, Gw/2+1)
-                    spread = _irfft2(products, tile.grid)[..., oy : oy + y1 - y0, ox : ox + x1 - x0]
-                    for m in range(last - first):
-                        target.addcmul_(spread[:, :, m], maps[:, first + m])
-                continue
-            for m in range(tile.rank):
-                spread = _irfft2(spectrum * otf[:, m].conj(), tile.grid)[..., oy : oy + y1 - y0, ox : ox + x1 - x0]
-                target.addcmul_(spread, maps[:, m])
+        if _on_scipy(y):
+            conjugate = self._conjugate(otf)
+            for first, last in self._chunks(y):
+                products = spectrum[:, :, None] * conjugate[None, :, first:last]  # (B, C, m, Gh, Gw/2+1)
+                spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
+                for m in range(last - first):
+                    out.addcmul_(spread[:, :, m], maps[:, first + m])
+            return out
+        for m in range(self.rank):
+            spread = _irfft2(spectrum * otf[:, m].conj(), self.grid)[..., : self.height, : self.width]
+            out.addcmul_(spread, maps[:, m])
         return out
 
-    def _conjugate(self, like: torch.Tensor, index: int, otf: torch.Tensor) -> torch.Tensor:
-        """``conj(otf)`` of tile ``index`` materialized, kept per dtype and device."""
-        key = (like.dtype, like.device)
-        if key not in self._conjugates:
-            self._conjugates[key] = [otf_t.conj().resolve_conj() for _, otf_t in self._parts(like)]
-        return self._conjugates[key][index]
+    def _conjugate(self, otf: torch.Tensor) -> torch.Tensor:
+        """``conj(otf)`` materialized, kept for the transfer functions ``otf`` of :meth:`_parts`."""
+        if self._conjugates is None or self._conjugates[0] is not otf:
+            self._conjugates = (otf, otf.conj().resolve_conj())
+        return self._conjugates[1]
 
-    def _chunks(self, like: torch.Tensor, index: int = 0) -> list[tuple[int, int]]:
-        """Ranges of tile ``index``'s basis indices transformed together: at most :data:`BATCH_ELEMENTS` real
-        samples a batch."""
-        tile = self.source_tiles[index]
-        per_term = like.shape[0] * like.shape[1] * tile.grid[0] * tile.grid[1]
+    def _chunks(self, like: torch.Tensor) -> list[tuple[int, int]]:
+        """Ranges of basis indices transformed together: at most :data:`BATCH_ELEMENTS` real samples a batch."""
+        per_term = like.shape[0] * like.shape[1] * self.grid[0] * self.grid[1]
         size = max(1, BATCH_ELEMENTS // per_term)
-        return [(first, min(first + size, tile.rank)) for first in range(0, tile.rank, size)]
+        return [(first, min(first + size, self.rank)) for first in range(0, self.rank, size)]
 
-    def _frames(self, shape: tuple[int, ...], dtype: torch.dtype, window: tuple) -> torch.Tensor:
-        """A zero-padded frame buffer of ``shape``: one block kept between calls (fresh pages cost as much as
-        the transforms), re-zeroed unless its last use was the same ``shape`` and ``window`` (whose padding is
-        then still zero)."""
-        size = int(np.prod(shape))
-        key = (shape, dtype, window)
-        if self._buffer is None or self._buffer[1].dtype != dtype or self._buffer[1].numel() < size:
-            self._buffer = (key, torch.zeros(size, dtype=dtype))
-            return self._buffer[1][:size].view(shape)
-        frames = self._buffer[1][:size].view(shape)
-        if self._buffer[0] != key:
-            frames.zero_()
-            self._buffer = (key, self._buffer[1])
-        return frames
-
-    def _forward_batched(
-        self, sources: torch.Tensor, maps: torch.Tensor, otf: torch.Tensor, tile: SourceTile, index: int
-    ) -> torch.Tensor:
-        """The spectrum of tile ``index``'s light on the CPU outside autograd: the products ``c_tm . x`` of a
-        chunk of terms written into one zero-padded frame buffer (:meth:`_frames`) and transformed by one
+    def _forward_batched(self, x: torch.Tensor, maps: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` on the CPU outside autograd: the products ``c_m . x`` of a chunk of terms written
+        into one zero-padded frame buffer (kept between calls: its padding stays zero) and transformed by one
         multi-threaded :func:`scipy.fft.rfft2` call; the spectra weighted by the transfer functions and summed."""
         spectrum = None
-        oy, ox = tile.offset
-        th, tw = tile.shape
-        for first, last in self._chunks(sources, index):
-            shape = (sources.shape[0], sources.shape[1], last - first, *tile.grid)
-            frames = self._frames(shape, sources.dtype, (oy, ox, th, tw))
-            torch.mul(sources[:, :, None], maps[None, :, first:last], out=frames[..., oy : oy + th, ox : ox + tw])
+        for first, last in self._chunks(x):
+            shape = (x.shape[0], x.shape[1], last - first, *self.grid)
+            key = (shape, x.dtype)
+            if self._buffer is None or self._buffer[0] != key:
+                self._buffer = (key, torch.zeros(shape, dtype=x.dtype))
+            frames = self._buffer[1]
+            torch.mul(x[:, :, None], maps[None, :, first:last], out=frames[..., : self.height, : self.width])
             terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
             for j in range(last - first):
                 if spectrum is None:
@@ -583,7 +326,7 @@ class FieldVaryingBlur:
                 else:
                     spectrum.addcmul_(terms[:, :, j], otf[:, first + j])
         assert spectrum is not None
-        return spectrum
+        return _irfft2(spectrum, self.grid)[..., : self.height, : self.width]
 
     __call__ = forward
 

@@ -36,7 +36,7 @@ NSR_TUNING_CROPS = 8
 @dataclass
 class MapCompensation:
     """What one compensation did: the projector image ``image (B, C, H, W)`` in [0, 1], the method,
-    the Wiener NSR, the blur's rank (its largest per-tile rank: convolutions per tile), the CLS objective per iteration
+    the Wiener NSR, the blur's rank (convolutions per application), the CLS objective per iteration
     ``objective (iterations + 1, B)`` (empty for ``wiener``) and the seconds it took (the Wiener
     filter's set-up included unless it was given; the blur's and the NSR's excluded)."""
 
