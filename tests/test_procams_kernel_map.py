@@ -4,8 +4,6 @@ PSF map file takes it, and bad input fails in one line."""
 
 from __future__ import annotations
 
-import json
-
 import cv2
 import numpy as np
 import pytest
@@ -17,6 +15,7 @@ from edofproj.procams.lab_kernels import orbits
 from edofproj.procams.measured_blur import map_file_blur
 from edofproj.procams.psf_map import DotGrid, PSFMap, save_psf_maps
 from edofproj.procams.structured_light import CorrespondenceMap
+from virtual_rigs import write_dots_lab
 
 H, W, S, HALF = 72, 96, 12, 5
 
@@ -145,16 +144,7 @@ def lab(tmp_path):
     cv2.imwrite(str(tmp_path / "dots.png"), capture_of(lambda x: ring_window(WIDE)))
     cv2.imwrite(str(tmp_path / "black.png"), np.zeros((H, W, 3), np.uint8))
     identity_map().save(tmp_path / "map.npz")
-    manifest = {
-        "format": "edofproj-lab-captures",
-        "version": 1,
-        "projector": {"height": H, "width": W},
-        "sequences": [
-            {"name": "dots", "kind": "dots", "spacing_px": [S, S], "files": {"list": ["dots.png"]}},
-            {"name": "black", "kind": "black", "files": {"list": ["black.png"]}},
-        ],
-    }
-    (tmp_path / "lab.json").write_text(json.dumps(manifest))
+    write_dots_lab(tmp_path, (H, W), S, background="black")
     return tmp_path
 
 

@@ -4,7 +4,6 @@ errors on bad input."""
 
 from __future__ import annotations
 
-import json
 import math
 
 import cv2
@@ -15,6 +14,7 @@ from edofproj.cli import main
 from edofproj.procams.protocol_score import matlab_ssim
 from edofproj.procams.psf_map import PSFMap, save_psf_maps
 from edofproj.procams.structured_light import CorrespondenceMap
+from virtual_rigs import write_dots_lab
 
 H, W, S = 48, 60, 12
 
@@ -32,16 +32,7 @@ def rig(tmp_path_factory):
     background = np.full((H, W, 3), 30, np.uint8)
     cv2.imwrite(str(root / "dots.png"), np.maximum(dots, background))
     cv2.imwrite(str(root / "background.png"), background)
-    manifest = {
-        "format": "edofproj-lab-captures",
-        "version": 1,
-        "projector": {"height": H, "width": W},
-        "sequences": [
-            {"name": "dots", "kind": "dots", "spacing_px": [S, S], "files": {"list": ["dots.png"]}},
-            {"name": "background", "kind": "black", "files": {"list": ["background.png"]}},
-        ],
-    }
-    (root / "lab.json").write_text(json.dumps(manifest))
+    write_dots_lab(root, (H, W), S)
     rng = np.random.default_rng(0)
     original = rng.integers(0, 220, (H, W, 3)).astype(np.uint8)
     comp = original.copy()

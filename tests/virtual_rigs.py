@@ -33,3 +33,21 @@ def exact_calibration(rig: VirtualProCams, lut_size: int = 33) -> ProCamsCalibra
     np.testing.assert_allclose(calibration.camera_map.map_x, x, atol=1e-9)  # the rig is straight
     np.testing.assert_allclose(calibration.camera_map.map_y, y, atol=1e-9)
     return calibration
+
+
+def write_dots_lab(folder, height_width, spacing_px: int, background: str = "background") -> None:
+    """``folder/lab.json``: a lab manifest of one dot grid ``dots`` (``dots.png``, every ``spacing_px``)
+    and one dark capture named ``background`` (``{background}.png``); the images are the caller's."""
+    import json
+    from pathlib import Path
+
+    manifest = {
+        "format": "edofproj-lab-captures",
+        "version": 1,
+        "projector": {"height": int(height_width[0]), "width": int(height_width[1])},
+        "sequences": [
+            {"name": "dots", "kind": "dots", "spacing_px": [spacing_px, spacing_px], "files": {"list": ["dots.png"]}},
+            {"name": background, "kind": "black", "files": {"list": [f"{background}.png"]}},
+        ],
+    }
+    (Path(folder) / "lab.json").write_text(json.dumps(manifest))
