@@ -132,6 +132,8 @@ def test_bad_files_and_captures_fail_in_one_line(tmp_path):
     )
     with pytest.raises(EdofprojError, match="is not a kernel map"):
         KernelMap.load(tmp_path / "g.npz")
+    with pytest.raises(EdofprojError, match="is a kernel map .* needs a Gaussian PSF map"):
+        PSFMap.load(tmp_path / "bad.npz")  # what procams predict reads
     sixteen = capture_of(lambda x: ring_window(WIDE)).astype(np.uint16)
     with pytest.raises(EdofprojError, match="8-bit RGB"):
         measure_kernel_map([(sixteen, "mean")], identity_map(), DotGrid.covering((H, W), (S, S)))

@@ -47,10 +47,9 @@ import numpy as np
 from ..errors import EdofprojError
 from ..fileio import read_tagged_arrays, save_npz_atomic
 from .lab_kernels import DEFAULT_HALF_PX, capture_to_projector, orbit_window, rank_kernel
-from .psf_map import DotGrid
+from .psf_map import KERNEL_MAP_FORMAT, DotGrid
 from .structured_light import CorrespondenceMap
 
-KERNEL_MAP_FORMAT = "edofproj-procams-kernel-map"
 KERNEL_MAP_CHANNELS = ("mean", "red", "green", "blue")
 DEFAULT_KERNEL_NODE_SPACING_PX = 36
 """Spacing (projector px) of the map's nodes."""

@@ -59,6 +59,8 @@ from ..progress import StageProgress
 from .structured_light import CorrespondenceMap
 
 PSF_MAP_FORMAT = "edofproj-procams-psf-map"
+KERNEL_MAP_FORMAT = "edofproj-procams-kernel-map"
+"""The other kind of PSF map file: measured kernels at nodes (:mod:`.kernel_map`)."""
 PSF_MAP_CHANNELS = ("mean", "red", "green", "blue")
 """The colours a PSF map file holds maps for, in file order (``mean``: white dots, grey = mean of R, G, B)."""
 MAX_SIGMA_PX = 20.0
@@ -265,8 +267,18 @@ def save_psf_maps(path, maps: list[PSFMap]) -> None:
 def load_psf_maps(path) -> dict[str, PSFMap]:
     """Every map of a PSF map file, by channel, in file order (a file without ``channels``, as
     written before per-colour maps: one map, ``mean``)."""
-    data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, ("projector_hw", *_MAP_KEYS),
-                              "make one with 'edofproj procams psf-map'")  # fmt: skip
+    try:
+        data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, ("projector_hw", *_MAP_KEYS),
+                                  "make one with 'edofproj procams psf-map'")  # fmt: skip
+    except EdofprojError:
+        from ..fileio import read_arrays
+
+        if str(read_arrays(path, what="PSF map").get("format", "")) == KERNEL_MAP_FORMAT:
+            raise EdofprojError(
+                f"PSF map '{path}' is a kernel map ('psf-map --model rank-profile'), which has no Gaussian "
+                "widths: this needs a Gaussian PSF map ('psf-map' without --model)"
+            ) from None
+        raise
     source = f"PSF map '{path}'"
     channels = [str(c) for c in np.atleast_1d(data["channels"])] if "channels" in data else ["mean"]
     if not channels or len(set(channels)) != len(channels) or any(c not in PSF_MAP_CHANNELS for c in channels):
