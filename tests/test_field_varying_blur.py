@@ -144,3 +144,28 @@ def test_batched_transforms_equal_the_term_by_term_path(monkeypatch, terms_per_b
     torch.testing.assert_close(op(x), op(x), rtol=0, atol=0)  # the kept frame buffer's padding stays zero
     left, right = float((op(x) * y).sum()), float((x * op.adjoint(y)).sum())
     assert abs(left - right) <= 1e-10 * abs(left)
+
+
+@pytest.mark.parametrize("terms_per_batch", [1, 4])
+def test_colours_of_unequal_rank_skip_their_padding_and_stay_exact(monkeypatch, terms_per_batch):
+    """Red's kernels one Gaussian everywhere (rank 1), green's and blue's random (rank 12): the CPU path
+    transforms each colour's own terms only, and equals the dense per-pixel sum, the autograd path and
+    the dot-product test."""
+    import edofproj.imaging.field_varying as module
+
+    rng = np.random.default_rng(7)
+    H, W, K = 23, 31, 7
+    cy, cx = np.array([2.0, 11.0, 20.0]), np.array([0.0, 9.5, 18.0, 30.0])
+    kernels = rng.random((3, 4, 3, K, K))
+    kernels[:, :, 0] = gaussian(1.0, 1.5, K // 2)
+    kernels /= kernels.sum(axis=(-1, -2), keepdims=True)
+    op = FieldVaryingBlur(torch.from_numpy(kernels), cy, cx, (H, W))
+    assert op.channel_ranks == [1, 12, 12] and op.rank == 12
+    monkeypatch.setattr(module, "BATCH_ELEMENTS", terms_per_batch * op.grid[0] * op.grid[1])
+    image = rng.random((3, H, W))
+    x = torch.from_numpy(image)[None]
+    np.testing.assert_allclose(op(x)[0].numpy(), dense_blur(image, kernels, cy, cx), atol=1e-12)
+    y = torch.from_numpy(rng.standard_normal((1, 3, H, W)))
+    torch.testing.assert_close(op.adjoint(y), op.adjoint(y.clone().requires_grad_(True)).detach(), rtol=0, atol=1e-12)
+    left, right = float((op(x) * y).sum()), float((x * op.adjoint(y)).sum())
+    assert abs(left - right) <= 1e-10 * abs(left)

@@ -225,13 +225,15 @@ class FieldVaryingBlur:
             bases.append(basis)
             maps.append(torch.einsum("iy,ijm,jx->myx", wy, coefficients.reshape(gy, gx, -1), wx))
         rank = max(b.shape[0] for b in bases)
+        #: each kernel channel's own rank (the terms past it are zero padding, skipped on the CPU path)
+        self.channel_ranks = [int(b.shape[0]) for b in bases]
         #: ``(C|1, M, K, K)`` orthonormal basis kernels ``e_m`` (zero-padded to the largest rank).
         self.basis = torch.stack([_pad_rank(b, rank) for b in bases])
         #: ``(C|1, M, H, W)`` the maps ``c_m`` (float64).
         self.coefficients = torch.stack([_pad_rank(m, rank) for m in maps])
         self.grid = fft_shape((self.height, self.width), (k, k))
         self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
-        self._buffer: tuple[tuple, torch.Tensor] | None = None
+        self._buffers: dict[tuple, torch.Tensor] = {}
         self._conjugates: tuple[torch.Tensor, torch.Tensor] | None = None
         self._norm_bound: torch.Tensor | None = None
 
@@ -268,6 +270,12 @@ class FieldVaryingBlur:
         self._check(x)
         maps, otf = self._parts(x)
         if _on_scipy(x):
+            if min(self.channel_ranks) < self.rank:  # colours of unequal rank: each its own terms only
+                parts = [
+                    self._forward_batched(x[:, c : c + 1], maps[c : c + 1, :r], otf[c : c + 1, :r])
+                    for c, r in enumerate(self.channel_ranks)
+                ]
+                return torch.cat(parts, dim=1)
             return self._forward_batched(x, maps, otf)
         spectrum = None
         for m in range(self.rank):
@@ -284,11 +292,16 @@ class FieldVaryingBlur:
         out = torch.zeros_like(y)
         if _on_scipy(y):
             conjugate = self._conjugate(otf)
-            for first, last in self._chunks(y):
-                products = spectrum[:, :, None] * conjugate[None, :, first:last]  # (B, C, m, Gh, Gw/2+1)
-                spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
-                for m in range(last - first):
-                    out.addcmul_(spread[:, :, m], maps[:, first + m])
+            uneven = min(self.channel_ranks) < self.rank
+            for c0, c1, rank in (
+                [(c, c + 1, r) for c, r in enumerate(self.channel_ranks)] if uneven else [(0, y.shape[1], self.rank)]
+            ):
+                k0, k1 = (c0, c1) if uneven else (0, conjugate.shape[0])
+                for first, last in self._chunks(y[:, c0:c1], rank):
+                    products = spectrum[:, c0:c1, None] * conjugate[None, k0:k1, first:last]  # (B, C, m, Gh, Gw/2+1)
+                    spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
+                    for m in range(last - first):
+                        out[:, c0:c1].addcmul_(spread[:, :, m], maps[k0:k1, first + m])
             return out
         for m in range(self.rank):
             spread = _irfft2(spectrum * otf[:, m].conj(), self.grid)[..., : self.height, : self.width]
@@ -301,23 +314,25 @@ class FieldVaryingBlur:
             self._conjugates = (otf, otf.conj().resolve_conj())
         return self._conjugates[1]
 
-    def _chunks(self, like: torch.Tensor) -> list[tuple[int, int]]:
-        """Ranges of basis indices transformed together: at most :data:`BATCH_ELEMENTS` real samples a batch."""
+    def _chunks(self, like: torch.Tensor, rank: int | None = None) -> list[tuple[int, int]]:
+        """Ranges of the first ``rank`` (default all) basis indices transformed together: at most
+        :data:`BATCH_ELEMENTS` real samples a batch."""
+        rank = self.rank if rank is None else int(rank)
         per_term = like.shape[0] * like.shape[1] * self.grid[0] * self.grid[1]
         size = max(1, BATCH_ELEMENTS // per_term)
-        return [(first, min(first + size, self.rank)) for first in range(0, self.rank, size)]
+        return [(first, min(first + size, rank)) for first in range(0, rank, size)]
 
     def _forward_batched(self, x: torch.Tensor, maps: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
         """:meth:`forward` on the CPU outside autograd: the products ``c_m . x`` of a chunk of terms written
         into one zero-padded frame buffer (kept between calls: its padding stays zero) and transformed by one
         multi-threaded :func:`scipy.fft.rfft2` call; the spectra weighted by the transfer functions and summed."""
         spectrum = None
-        for first, last in self._chunks(x):
+        for first, last in self._chunks(x, maps.shape[1]):
             shape = (x.shape[0], x.shape[1], last - first, *self.grid)
             key = (shape, x.dtype)
-            if self._buffer is None or self._buffer[0] != key:
-                self._buffer = (key, torch.zeros(shape, dtype=x.dtype))
-            frames = self._buffer[1]
+            if key not in self._buffers:
+                self._buffers[key] = torch.zeros(shape, dtype=x.dtype)
+            frames = self._buffers[key]
             torch.mul(x[:, :, None], maps[None, :, first:last], out=frames[..., : self.height, : self.width])
             terms = torch.from_numpy(scipy.fft.rfft2(frames.numpy(), workers=torch.get_num_threads()))
             for j in range(last - first):
