@@ -25,6 +25,8 @@ field coordinates in [-1, 1] (the image edges) to pixel centres.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.fft
 import torch
@@ -43,6 +45,15 @@ def field_centres_px(field_coords, size_px: int) -> np.ndarray:
     pixel (-0.5), +1 that of the last (``size_px - 0.5``)."""
     f = np.asarray(field_coords, dtype=float)
     return (f + 1.0) / 2.0 * size_px - 0.5
+
+
+def node_centres_px(size_px: int, spacing_px: float) -> np.ndarray:
+    """``ceil((size - 1) / spacing) + 1`` nodes (at least 2) evenly from pixel 0 to pixel ``size - 1``, at
+    most ``spacing_px`` apart."""
+    if not float(spacing_px) >= 1:
+        raise EdofprojError(f"a node spacing of {spacing_px} px must be >= 1")
+    count = max(math.ceil((int(size_px) - 1) / float(spacing_px)) + 1, 2)
+    return np.linspace(0.0, float(size_px - 1), count)
 
 
 def hat_weights(centres_px, size_px: int) -> np.ndarray:
@@ -270,13 +281,8 @@ class FieldVaryingBlur:
         self._check(x)
         maps, otf = self._parts(x)
         if _on_scipy(x):
-            if min(self.channel_ranks) < self.rank:  # colours of unequal rank: each its own terms only
-                parts = [
-                    self._forward_batched(x[:, c : c + 1], maps[c : c + 1, :r], otf[c : c + 1, :r])
-                    for c, r in enumerate(self.channel_ranks)
-                ]
-                return torch.cat(parts, dim=1)
-            return self._forward_batched(x, maps, otf)
+            parts = [self._forward_batched(x[:, i], maps[k, :r], otf[k, :r]) for i, k, r in self._colour_groups()]
+            return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
         spectrum = None
         for m in range(self.rank):
             term = _rfft2(x * maps[:, m], self.grid) * otf[:, m]
@@ -292,21 +298,24 @@ class FieldVaryingBlur:
         out = torch.zeros_like(y)
         if _on_scipy(y):
             conjugate = self._conjugate(otf)
-            uneven = min(self.channel_ranks) < self.rank
-            for c0, c1, rank in (
-                [(c, c + 1, r) for c, r in enumerate(self.channel_ranks)] if uneven else [(0, y.shape[1], self.rank)]
-            ):
-                k0, k1 = (c0, c1) if uneven else (0, conjugate.shape[0])
-                for first, last in self._chunks(y[:, c0:c1], rank):
-                    products = spectrum[:, c0:c1, None] * conjugate[None, k0:k1, first:last]  # (B, C, m, Gh, Gw/2+1)
+            for i, k, rank in self._colour_groups():
+                for first, last in self._chunks(y[:, i], rank):
+                    products = spectrum[:, i, None] * conjugate[None, k, first:last]  # (B, C, m, Gh, Gw/2+1)
                     spread = _irfft2(products, self.grid)[..., : self.height, : self.width]
                     for m in range(last - first):
-                        out[:, c0:c1].addcmul_(spread[:, :, m], maps[k0:k1, first + m])
+                        out[:, i].addcmul_(spread[:, :, m], maps[k, first + m])
             return out
         for m in range(self.rank):
             spread = _irfft2(spectrum * otf[:, m].conj(), self.grid)[..., : self.height, : self.width]
             out.addcmul_(spread, maps[:, m])
         return out
+
+    def _colour_groups(self) -> list[tuple[slice, slice, int]]:
+        """``(image channels, kernel channels, terms)`` transformed together on the CPU: all at once when
+        every kernel channel has the full rank, else each colour with its own rank (its padding skipped)."""
+        if min(self.channel_ranks) == self.rank:
+            return [(slice(None), slice(None), self.rank)]
+        return [(slice(c, c + 1), slice(c, c + 1), r) for c, r in enumerate(self.channel_ranks)]
 
     def _conjugate(self, otf: torch.Tensor) -> torch.Tensor:
         """``conj(otf)`` materialized, kept for the transfer functions ``otf`` of :meth:`_parts`."""

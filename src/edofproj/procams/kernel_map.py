@@ -46,7 +46,8 @@ import numpy as np
 
 from ..errors import EdofprojError
 from ..fileio import read_tagged_arrays, save_npz_atomic
-from .lab_kernels import DEFAULT_HALF_PX, capture_to_projector, orbit_window, rank_kernel
+from ..imaging.field_varying import node_centres_px
+from .lab_kernels import DEFAULT_HALF_PX, capture_to_projector, dot_windows, orbit_sizes, orbit_window, rank_kernel
 from .psf_map import KERNEL_MAP_FORMAT, DotGrid
 from .structured_light import CorrespondenceMap
 
@@ -138,18 +139,9 @@ class KernelMap:
                    data["offset_px"].astype(np.float64), (int(hw[0]), int(hw[1])), float(data["smooth_px"]))  # fmt: skip
 
 
-def node_grid_px(size_px: int, spacing_px: float) -> np.ndarray:
-    """Nodes evenly from pixel 0 to pixel ``size_px - 1``, at most ``spacing_px`` apart (at least 2)."""
-    return np.linspace(0.0, size_px - 1.0, max(int(np.ceil((size_px - 1) / spacing_px)) + 1, 2))
-
-
-def dot_windows(image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HALF_PX) -> np.ndarray:
-    """``(rows, cols, 2h + 1, 2h + 1)``: the window around every dot of ``grid`` in a projector-space
-    image ``(H, W)`` (zero outside it)."""
-    padded = np.pad(np.asarray(image, dtype=np.float64), half_px)
-    ys, xs = np.round(grid.ys).astype(np.int64), np.round(grid.xs).astype(np.int64)
-    offsets = np.arange(2 * half_px + 1)
-    return padded[ys[:, None, None, None] + offsets[None, None, :, None], xs[None, :, None, None] + offsets]
+def grid_windows(image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HALF_PX) -> np.ndarray:
+    """:func:`.lab_kernels.dot_windows` at the dots of ``grid`` (rounded to whole pixels)."""
+    return dot_windows(image, np.round(grid.ys), np.round(grid.xs), half_px)
 
 
 def centroid_offset_px(windows: np.ndarray) -> np.ndarray:
@@ -193,32 +185,35 @@ def box_mean_profiles(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, ys_
     return np.maximum(mean, 0.0), count.astype(np.int64)  # the running sums' differences round below 0
 
 
-def leave_one_out_error(profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, box_px: float) -> float:
+def leave_one_out_error(
+    profiles: np.ndarray, seen: np.ndarray, grid: DotGrid, box_px: float, half_px: int = DEFAULT_HALF_PX
+) -> float:
     """How well a box of side ``box_px`` predicts a dot it has not seen: the mean over the seen dots (with
     another seen dot in their box) of ``||k_d - mean_{d' != d in the box} k_d'||^2``, the kernels' squared
     difference summed over the window (each ring's value counts once per offset on it)."""
-    from .lab_kernels import orbit_sizes
-
     total, count = _box_sums(profiles, seen, grid, grid.ys, grid.xs, box_px)
     usable = seen & (count > 1)
     if not usable.any():
         return float("inf")
     others = (total[usable] - profiles[usable]) / (count[usable] - 1)[:, None]
-    sizes = orbit_sizes((int(np.sqrt(8 * profiles.shape[-1] + 1)) - 3) // 2)
-    return float(((others - profiles[usable]) ** 2 @ sizes).mean())
+    return float(((others - profiles[usable]) ** 2 @ orbit_sizes(half_px)).mean())
 
 
 SMOOTH_CANDIDATE_DOTS = (1, 2, 3, 4, 5, 7)
 """Half-widths ``h`` (in dots) of the boxes :func:`choose_smooth_px` tries: sides of ``(2h + 1)`` dot spacings."""
 
 
-def choose_smooth_px(profiles: list[np.ndarray], seen: list[np.ndarray], grid: DotGrid) -> tuple[float, dict]:
+def choose_smooth_px(
+    profiles: list[np.ndarray], seen: list[np.ndarray], grid: DotGrid, half_px: int = DEFAULT_HALF_PX
+) -> tuple[float, dict]:
     """The box side (px) of :data:`SMOOTH_CANDIDATE_DOTS` with the least leave-one-out error summed over the
     colours (:func:`leave_one_out_error`), and every candidate's error: the smoothing is chosen by how well
     the map predicts the dots it leaves out, never by a compensation's score."""
     step = float(max(grid.spacing_px))
     errors = {
-        (2 * h + 1) * step: sum(leave_one_out_error(p, s, grid, (2 * h + 1) * step) for p, s in zip(profiles, seen))
+        (2 * h + 1) * step: sum(
+            leave_one_out_error(p, s, grid, (2 * h + 1) * step, half_px) for p, s in zip(profiles, seen)
+        )
         for h in SMOOTH_CANDIDATE_DOTS
     }
     return min(errors, key=lambda side: errors[side]), errors
@@ -263,30 +258,30 @@ def measure_kernel_map(
     offset = np.zeros(2)
     for _ in range(2):  # a window cut by a whole-pixel misplacement biases the centroid: once more from there
         shifted = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back)
-        offset = offset + centroid_offset_px(dot_windows(shifted.sum(-1), grid, half_px))
+        offset = offset + centroid_offset_px(grid_windows(shifted.sum(-1), grid, half_px))
     image = capture_to_projector(stack, corr, (float(offset[0]), float(offset[1])), back) / 255.0
     profiles, seen = [], []
     for c in range(len(names)):
-        windows = dot_windows(image[..., c], grid, half_px)
+        windows = grid_windows(image[..., c], grid, half_px)
         seen.append(windows.sum(axis=(-1, -2)) > 0)
         if not seen[-1].any():
             raise EdofprojError(f"no dot is seen in the '{names[c]}' channel: check the capture and the map")
         profiles.append(rank_kernel(windows.reshape(-1, *windows.shape[-2:])).reshape(*windows.shape[:2], -1))
     errors: dict[float, float] = {}
     if smooth_px is None:
-        smooth_px, errors = choose_smooth_px(profiles, seen, grid)
+        smooth_px, errors = choose_smooth_px(profiles, seen, grid, half_px)
     if node_spacing_px is None:
         node_spacing_px = min(max(smooth_px / 2.0, float(max(grid.spacing_px))), DEFAULT_KERNEL_NODE_SPACING_PX)
-    ys, xs = node_grid_px(H, node_spacing_px), node_grid_px(W, node_spacing_px)
+    ys, xs = node_centres_px(H, node_spacing_px), node_centres_px(W, node_spacing_px)
     kernels, counts = [], []
     for p, s in zip(profiles, seen):
         mean, count = box_mean_profiles(p, s, grid, ys, xs, smooth_px)
         window = orbit_window(mean, half_px)
         kernels.append(window / window.sum(axis=(-1, -2), keepdims=True))
         counts.append(count)
-    kernel_map = KernelMap(xs, ys, np.stack(kernels), tuple(names), np.stack(counts), offset, (H, W), float(smooth_px))
-    kernel_map.leave_one_out = errors
-    return kernel_map
+    return KernelMap(
+        xs, ys, np.stack(kernels), tuple(names), np.stack(counts), offset, (H, W), float(smooth_px), errors
+    )
 
 
 def summary(kernel_map: KernelMap) -> str:

@@ -194,6 +194,15 @@ class LabKernelField:
         return float(np.sqrt(self.adjoint(ones).max() * self.apply(ones).max()))
 
 
+def dot_windows(image: np.ndarray, ys: np.ndarray, xs: np.ndarray, half_px: int = DEFAULT_HALF_PX) -> np.ndarray:
+    """``(rows, cols, 2h + 1, 2h + 1)``: the window around every dot at integer rows ``ys`` x columns ``xs``
+    of a projector-space image ``(H, W)`` (zero outside it)."""
+    padded = np.pad(np.asarray(image, dtype=np.float64), half_px)
+    ys, xs = np.asarray(ys, dtype=np.int64), np.asarray(xs, dtype=np.int64)
+    offsets = np.arange(2 * half_px + 1)
+    return padded[ys[:, None, None, None] + offsets[None, None, :, None], xs[None, :, None, None] + offsets]
+
+
 def kernel_field(dot_image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HALF_PX) -> LabKernelField:
     """Their kernel at every pixel (steps 2-3 of the module docstring) from the dot capture in projector
     space ``dot_image`` ``(H, W)`` (background subtracted, in 8-bit counts) and the dots' grid (integer
@@ -213,11 +222,7 @@ def kernel_field(dot_image: np.ndarray, grid: DotGrid, half_px: int = DEFAULT_HA
     ys, xs = ys[ys < H], xs[xs < W]
     if len(ys) < 2 or len(xs) < 2:
         raise EdofprojError(f"the dot grid has {len(ys)}x{len(xs)} dots in the image: at least 2x2 needed")
-    padded = np.pad(image, half_px)
-    offsets = np.arange(2 * half_px + 1)
-    windows = padded[
-        ys[:, None, None, None] + offsets[None, None, :, None], xs[None, :, None, None] + offsets[None, None, None, :]
-    ]  # (rows, cols, K, K)
+    windows = dot_windows(image, ys, xs, half_px)
     dots = rank_kernel(windows.reshape(-1, 2 * half_px + 1, 2 * half_px + 1)).reshape(len(ys), len(xs), n)
 
     values = np.zeros((H, W, n))

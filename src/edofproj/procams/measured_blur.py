@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from ..errors import EdofprojError
-from ..imaging.field_varying import FieldVaryingBlur
+from ..imaging.field_varying import FieldVaryingBlur, node_centres_px
 from .prediction import gaussian_kernel
 from .psf_map import PSFMap, load_psf_maps, psf_maps_for_rgb
 
@@ -40,14 +40,6 @@ DEFAULT_RANK_TOLERANCE = 1e-2
 """Relative error (Frobenius, all node kernels) of the low-rank form of the node kernels."""
 WINDOW_QUANTILE = 0.99
 """The kernels' common window is ``4 sigma`` of this quantile of the map's widths (:func:`window_radius_px`)."""
-
-
-def node_centres_px(size_px: int, spacing_px: int) -> np.ndarray:
-    """``ceil((size - 1) / spacing) + 1`` nodes evenly from pixel 0 to pixel ``size - 1`` (at most ``spacing`` apart)."""
-    if int(spacing_px) < 1:
-        raise EdofprojError(f"a node spacing of {spacing_px} px must be >= 1")
-    count = max(-(-(int(size_px) - 1) // int(spacing_px)) + 1, 2)
-    return np.linspace(0.0, float(size_px - 1), count)
 
 
 def node_kernels(

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import EdofprojError
+from ..fileio import read_arrays
 
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
@@ -287,8 +288,6 @@ def psf_map_protocol_blur(path, image_hw: tuple[int, int]) -> ProtocolBlur:
         raise EdofprojError(
             f"the PSF map '{path}' is of a {op.width}x{op.height} projector, the image {image_hw[1]}x{image_hw[0]}"
         )
-    from ..fileio import read_arrays
-
     stored = read_arrays(path, what="PSF map")
     maps = [str(c) for c in np.atleast_1d(stored["channels"])] if "channels" in stored else ["mean"]
     colours = [c for c in ("red", "green", "blue") if c in maps]
