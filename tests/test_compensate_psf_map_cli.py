@@ -126,6 +126,10 @@ def test_cls_by_default_runs_the_solvers_default_iterations_and_says_so(lab, cap
     assert f"in {field_varying.DEFAULT_CLS_ITERATIONS} iterations" in printed
     start, end = (float(v) for v in printed.split("objective ")[1].split(" in ")[0].split(" -> "))
     assert end < start
+    named = lab / f"{field_varying.DEFAULT_CLS_SOLVER}.png"
+    assert main(["compensate", "--psf-map", str(lab / "map.npz"), "--image", str(lab / "target.png"),
+                 "--nsr", "1e-3", "--solver", field_varying.DEFAULT_CLS_SOLVER, "--out", str(named)]) == 0  # fmt: skip
+    assert named.read_bytes() == out.read_bytes()  # the default is the solver it names
 
 
 def test_the_quasi_newton_solver_reaches_a_lower_objective_than_fista_in_as_many_steps(lab, capsys):

@@ -11,8 +11,8 @@ colour its own map where the file has one). The methods are those of
   (the corners and the centre): one NSR for the whole map;
 * ``cls``: box-constrained least squares ``min ||A x - t||^2, 0 <= x <= 1`` with the exact operator,
   ``iterations`` steps of a solver of
-  :func:`edofproj.compensation.field_varying.field_varying_cls` (monotone FISTA by default, or the
-  projected quasi-Newton ``lbfgs``) from the ``wiener`` estimate (its NSR tuned as above, or given);
+  :func:`edofproj.compensation.field_varying.field_varying_cls` (the projected quasi-Newton ``lbfgs`` by
+  default, or monotone FISTA) from the ``wiener`` estimate (its NSR tuned as above, or given);
   the objective at every step is returned, so a caller can say how far it went.
 """
 
@@ -94,7 +94,7 @@ def compensate_with_map(
     nsr: float | None = None,
     iterations: int | None = None,
     wiener=None,
-    solver: str = "fista",
+    solver: str | None = None,
 ) -> MapCompensation:
     """The projector image for ``target (B, C, H, W)`` in [0, 1] under the blur ``op``, by ``method``
     (``wiener`` or ``cls``; module docstring). ``nsr``: the Wiener NSR (default tuned, :func:`tune_map_nsr`);
@@ -102,8 +102,14 @@ def compensate_with_map(
     :data:`edofproj.compensation.field_varying.DEFAULT_CLS_ITERATIONS`); ``wiener``: a
     :class:`~edofproj.compensation.field_varying.FieldVaryingWiener` of ``op`` set up before (for
     several images; its NSR is then the one used); ``solver``: ``cls``'s, one of
-    :data:`edofproj.compensation.field_varying.CLS_METHODS`."""
-    from ..compensation.field_varying import DEFAULT_CLS_ITERATIONS, FieldVaryingWiener, field_varying_cls
+    :data:`edofproj.compensation.field_varying.CLS_METHODS` (default
+    :data:`~edofproj.compensation.field_varying.DEFAULT_CLS_SOLVER`)."""
+    from ..compensation.field_varying import (
+        DEFAULT_CLS_ITERATIONS,
+        DEFAULT_CLS_SOLVER,
+        FieldVaryingWiener,
+        field_varying_cls,
+    )
 
     if method not in MAP_METHODS:
         raise EdofprojError(f"unknown method '{method}' for a PSF map (known: {', '.join(MAP_METHODS)})")
@@ -125,5 +131,7 @@ def compensate_with_map(
         x = (wiener or FieldVaryingWiener(op, nsr))(target)
         objective = torch.zeros(0)
         if method == "cls":
-            x, objective = field_varying_cls(target, op, iterations, start=x, method=solver, return_objective=True)
+            x, objective = field_varying_cls(
+                target, op, iterations, start=x, method=solver or DEFAULT_CLS_SOLVER, return_objective=True
+            )
     return MapCompensation(x, method, nsr, op.rank, time.perf_counter() - start, objective)
