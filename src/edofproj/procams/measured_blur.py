@@ -32,7 +32,7 @@ import torch
 from ..errors import EdofprojError
 from ..imaging.field_varying import FieldVaryingBlur, node_centres_px
 from .prediction import gaussian_kernel
-from .psf_map import PSFMap, load_psf_maps, psf_maps_for_rgb
+from .psf_map import PSFMap, is_kernel_map_file, load_psf_maps, psf_maps_for_rgb
 
 DEFAULT_NODE_SPACING_PX = 16
 """Spacing (projector px) of the nodes whose kernels are interpolated."""
@@ -108,10 +108,8 @@ def map_file_blur(
 ) -> FieldVaryingBlur:
     """The operator of a PSF map file of either kind: a Gaussian PSF map (:func:`measured_blur`, nodes
     ``node_spacing_px`` apart) or a kernel map (:meth:`.kernel_map.KernelMap.blur`, its own nodes)."""
-    from ..fileio import read_arrays
-    from .kernel_map import KERNEL_MAP_FORMAT, KernelMap
+    from .kernel_map import KernelMap
 
-    data = read_arrays(path, what="PSF map")
-    if "format" in data and str(data["format"]) == KERNEL_MAP_FORMAT:
+    if is_kernel_map_file(path):
         return KernelMap.load(path).blur(rank_tolerance)
     return measured_blur(load_psf_maps(path), node_spacing_px, rank_tolerance)

@@ -54,7 +54,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.optimize import least_squares
 
 from ..errors import EdofprojError
-from ..fileio import read_tagged_arrays, save_npz_atomic
+from ..fileio import read_arrays, read_tagged_arrays, save_npz_atomic
 from ..progress import StageProgress
 from .structured_light import CorrespondenceMap
 
@@ -264,6 +264,11 @@ def save_psf_maps(path, maps: list[PSFMap]) -> None:
     )
 
 
+def is_kernel_map_file(path) -> bool:
+    """Whether the PSF map file ``path`` is a kernel map (:data:`KERNEL_MAP_FORMAT`), not a Gaussian one."""
+    return str(read_arrays(path, what="PSF map").get("format", "")) == KERNEL_MAP_FORMAT
+
+
 def load_psf_maps(path) -> dict[str, PSFMap]:
     """Every map of a PSF map file, by channel, in file order (a file without ``channels``, as
     written before per-colour maps: one map, ``mean``)."""
@@ -271,9 +276,7 @@ def load_psf_maps(path) -> dict[str, PSFMap]:
         data = read_tagged_arrays(path, "PSF map", PSF_MAP_FORMAT, ("projector_hw", *_MAP_KEYS),
                                   "make one with 'edofproj procams psf-map'")  # fmt: skip
     except EdofprojError:
-        from ..fileio import read_arrays
-
-        if str(read_arrays(path, what="PSF map").get("format", "")) == KERNEL_MAP_FORMAT:
+        if is_kernel_map_file(path):
             raise EdofprojError(
                 f"PSF map '{path}' is a kernel map ('psf-map --model rank-profile'), which has no Gaussian "
                 "widths: this needs a Gaussian PSF map ('psf-map' without --model)"
