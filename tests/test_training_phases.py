@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 import torch
 
+from edofproj.compensation.registry import build_network
 from edofproj.config import Config, apply_overrides, to_dict
-from edofproj.errors import EdofprojError
+from edofproj.errors import ConfigError, EdofprojError
+from edofproj.runs import load_run
 from edofproj.runs.checkpoint import load_checkpoint
 from edofproj.training.phases import JOINT, REFIT, total_steps, training_phases
 from edofproj.training.trainer import train
@@ -69,6 +71,37 @@ def test_a_fixed_doe_has_only_the_refit_phase_and_no_refit_keeps_one_phase():
     assert only.cfg.train.lr_net == 0.004
     (single,) = training_phases(two_phase_config("train.refit_steps=0"))
     assert (single.name, single.cfg.train.steps, single.cfg.train.lr_net) == (JOINT, 4, 1e-3)
+
+
+REFIT_NET = ["refit_net.architecture=multirate", "refit_net.block_px=2", "refit_net.widths=[4,4]"]
+
+
+def test_the_refit_phase_trains_the_refit_net_section_in_its_own_batches():
+    cfg = two_phase_config(*REFIT_NET, "train.refit_batch_size=3")
+    joint, refit = training_phases(cfg)
+    assert joint.cfg.net == cfg.net and joint.cfg.train.batch_size == 2 and joint.cfg.refit_net is None
+    assert refit.cfg.net == cfg.refit_net and refit.cfg.net.architecture == "multirate"
+    assert refit.cfg.train.batch_size == 3 and refit.cfg.refit_net is None
+    # refit_net starts as a copy of net: the options the two architectures share are net's
+    assert (refit.cfg.net.linear_radius, refit.cfg.net.widths) == (cfg.net.linear_radius, [4, 4])
+    # the network a checkpoint holds: net through the joint phase, refit_net after it
+    assert [cfg.network_at(s).architecture for s in (1, JOINT_STEPS, JOINT_STEPS + 1)] == ["unet", "unet", "multirate"]
+    assert cfg.final_network() == cfg.refit_net
+    # without a refit phase, or without the section, the run has one network
+    assert two_phase_config(*REFIT_NET, "train.refit_steps=0").final_network().architecture == "unet"
+    assert two_phase_config().final_network() == two_phase_config().net
+    # a fixed DOE has only the refit phase: its network is refit_net from the first step
+    assert two_phase_config(*REFIT_NET, "doe.kind=lens").network_at(1).architecture == "multirate"
+
+
+def test_refit_net_survives_the_round_trip_and_refuses_unknown_keys():
+    cfg = two_phase_config(*REFIT_NET)
+    assert apply_overrides(cfg, []) == cfg and to_dict(cfg)["refit_net"]["architecture"] == "multirate"
+    assert to_dict(two_phase_config())["refit_net"] is None
+    with pytest.raises(ConfigError, match="refit_net.block_pixels"):
+        two_phase_config(*REFIT_NET, "refit_net.block_pixels=2")
+    with pytest.raises(ConfigError, match="refit_batch_size"):
+        two_phase_config("train.refit_batch_size=-1")
 
 
 # ----------------------------------------------------------------------------- a run in two phases
@@ -141,6 +174,27 @@ def test_a_run_stopped_in_either_phase_resumes_bit_for_bit(straight, tmp_path, s
     assert _log(straight_dir) == _log(run_dir)
     assert read_validation_log(straight_dir / VALIDATION_LOG) == read_validation_log(run_dir / VALIDATION_LOG)
     assert np.array_equal(np.load(straight_dir / "doe.npz")["height_m"], np.load(run_dir / "doe.npz")["height_m"])
+
+
+@slow
+@pytest.mark.parametrize("stop", [JOINT_STEPS - 1, JOINT_STEPS + 1])
+def test_a_run_with_a_refit_net_loads_the_network_of_its_phase_and_resumes_bit_for_bit(tmp_path, stop):
+    cfg = two_phase_config(*REFIT_NET, "train.refit_batch_size=3")
+    straight_dir, chunked = tmp_path / "straight", tmp_path / "chunked"
+    train(cfg, straight_dir, progress=False)
+    train(cfg, chunked, stop_after=stop, progress=False)
+    halfway = load_run(chunked)
+    assert halfway.step == stop and type(halfway.net).__name__ == build_network(cfg.network_at(stop)).__class__.__name__
+    assert halfway.cfg.net == cfg.network_at(stop)
+    train(cfg, chunked, resume=True, progress=False)
+    finished = load_run(chunked)
+    assert finished.cfg.net == cfg.refit_net and finished.cfg.refit_net == cfg.refit_net
+    a = load_checkpoint(straight_dir / "checkpoints" / "last.pt")["net"]
+    b = load_checkpoint(chunked / "checkpoints" / "last.pt")["net"]
+    assert a.keys() == build_network(cfg.refit_net).state_dict().keys()
+    for key, value in a.items():
+        assert torch.equal(value, b[key]), key
+    assert _log(straight_dir) == _log(chunked)
 
 
 @slow

@@ -157,6 +157,18 @@ def config_reference() -> str:
         if section.name == "net":
             lines += net_reference()
             continue
+        if section.name == "refit_net":
+            lines += [
+                "## `refit_net`",
+                "",
+                "Absent by default: the refit phase (`train.refit_steps`) trains the `net` section's network. A",
+                "`refit_net` section names another network for that phase, the one the run ends with and ships,",
+                "with the same keys as `net` (an architecture and its options, the tables above). "
+                "`--set refit_net.KEY=VALUE` starts it as a copy of `net`, so that",
+                "`--set refit_net.architecture=multirate` keeps the options the two networks share.",
+                "",
+            ]
+            continue
         if not dataclasses.is_dataclass(value):
             lines += [f"## `{section.name}`", "", f"Default `{value!r}`.", ""]
             continue

@@ -207,6 +207,8 @@ class SpectrumConfig:
 
 
 DOE_KINDS = ("lens", "mlp", "free", "cubic", "axicon", "multifocal", "file")
+#: DOE kinds with trainable parameters (the others are fixed designs).
+LEARNED_DOE_KINDS = ("mlp", "free")
 #: The ``doe`` keys that only the classic element of one kind reads: a DOE of another kind never does.
 CLASSIC_DOE_KEYS = {
     "cubic": ("cubic_waves",),
@@ -490,7 +492,9 @@ class TrainConfig:
     DOE the first phase learned, frozen as fabricated (``doe.npz``): learning rate ``refit_lr_net``
     after ``refit_warmup_steps`` of warm-up (decayed as the first phase's, over ``refit_steps``), training
     crops colour-transformed at the rate ``refit_colour_augment`` (``data.colour_augment`` in the first
-    phase); every other setting is the first phase's. A run whose DOE does not train (a fixed or classic
+    phase), in batches of ``refit_batch_size`` crops (0: ``batch_size``); its network is the top-level
+    ``refit_net`` section's where there is one (:attr:`Config.refit_net`), else ``net``'s; every other
+    setting is the first phase's. A run whose DOE does not train (a fixed or classic
     element, ``train_doe: false``) has only this phase: its network is trained as a learned DOE's final
     network is (:mod:`edofproj.training.phases`).
     """
@@ -525,10 +529,15 @@ class TrainConfig:
     refit_lr_net: float = 3e-3
     refit_warmup_steps: int = 300
     refit_colour_augment: float = 0.0
+    refit_batch_size: int = 0
 
     def validate(self) -> None:
         if self.refit_steps < 0 or self.refit_warmup_steps < 0 or self.refit_lr_net < 0:
             raise ConfigError("train.refit_steps, train.refit_warmup_steps and train.refit_lr_net must be >= 0")
+        if self.refit_batch_size < 0:
+            raise ConfigError(
+                f"train.refit_batch_size={self.refit_batch_size} must be >= 0 (0: train.batch_size, as the first phase)"
+            )
         if self.refit_steps > 0 and self.refit_warmup_steps > self.refit_steps:
             raise ConfigError(
                 f"train.refit_warmup_steps={self.refit_warmup_steps} is longer than its phase, "
@@ -733,7 +742,13 @@ class FabricationConfig:
 
 @dataclass
 class Config:
-    """The whole configuration of a run."""
+    """The whole configuration of a run.
+
+    ``refit_net`` (absent: ``net``): the network of the refit phase (``train.refit_steps``), the one a
+    two-phase run ends with and ships, when it is not the first phase's: e.g. a U-Net that shapes the DOE
+    in the joint phase, then a cheaper network trained for the DOE found. :meth:`network_at` says which
+    of the two a checkpoint holds.
+    """
 
     name: str = "run"
     optics: OpticsConfig = field(default_factory=OpticsConfig)
@@ -742,6 +757,7 @@ class Config:
     psf: PSFConfig = field(default_factory=PSFConfig)
     imaging: ImagingConfig = field(default_factory=ImagingConfig)
     net: NetConfig = field(default_factory=UNetConfig)
+    refit_net: Optional[NetConfig] = None
     loss: LossConfig = field(default_factory=LossConfig)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -755,6 +771,25 @@ class Config:
                 section.validate()
         self.check_memory()
         return self
+
+    def doe_learns(self) -> bool:
+        """Whether the run optimizes its DOE: ``train.train_doe`` and a learned kind
+        (:data:`LEARNED_DOE_KINDS`; the others are fixed designs)."""
+        return bool(self.train.train_doe) and self.doe.kind in LEARNED_DOE_KINDS
+
+    def network_at(self, step: int) -> NetConfig:
+        """The network a checkpoint of run step ``step`` holds: ``refit_net`` once the refit phase has
+        begun (a run whose DOE does not learn has only that phase), ``net`` before it and in a
+        one-phase run (``train.refit_steps = 0``) (:mod:`edofproj.training.phases`)."""
+        if self.refit_net is None or self.train.refit_steps <= 0:
+            return self.net
+        if self.doe_learns() and step <= self.train.steps:
+            return self.net
+        return self.refit_net
+
+    def final_network(self) -> NetConfig:
+        """The network the run ends with and ships (:meth:`network_at` its last step)."""
+        return self.network_at(self.train.steps + self.train.refit_steps)
 
     def check_memory(self) -> None:
         """Refuse sizes that cannot fit before anything is allocated (:func:`edofproj.limits.check_memory`):
@@ -871,7 +906,7 @@ def net_from_dict(data: Any, label: str = "net") -> NetConfig:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{label} must be a mapping of keys, got {data!r}")
-    cls, options = check_net_keys(data)
+    cls, options = check_net_keys(data, label)
     return from_dict(cls, options, prefix=label + ".")
 
 
@@ -883,6 +918,7 @@ def to_dict(cfg: Any) -> dict:
     data = dataclasses.asdict(cfg)
     if isinstance(cfg, Config):
         data["net"] = net_to_dict(cfg.net)
+        data["refit_net"] = None if cfg.refit_net is None else net_to_dict(cfg.refit_net)
     return data
 
 
@@ -909,8 +945,10 @@ def set_key(data: dict, dotted: str, value: Any) -> None:
     of the ``net`` section is one of the chosen architecture's (:func:`~edofproj.net_config.override_net`:
     ``net.architecture`` switches the network). An unknown key raises with a suggestion."""
     keys = dotted.split(".")
-    if len(keys) == 2 and keys[0] == "net":
-        data["net"] = override_net(data["net"], keys[1], value)
+    if len(keys) == 2 and keys[0] in NET_SECTIONS:
+        # refit_net starts as a copy of net: --set refit_net.architecture=multirate keeps net's shared options
+        section = data.get(keys[0]) or dict(data["net"])
+        data[keys[0]] = override_net(section, keys[1], value, keys[0])
         return
     node = data
     for depth, key in enumerate(keys[:-1]):
@@ -939,12 +977,12 @@ def _suggestion(key: str, known: list, prefix: str) -> str:
 
 def _base_statements(data: dict) -> list[tuple[str, Any]]:
     """The ``(section.key, value)`` pairs of a config mapping that names a ``base``, in file order, with
-    ``net.architecture`` before the other ``net`` keys (switching the network first)."""
+    ``net.architecture`` before the other ``net`` keys (switching the network first; ``refit_net`` alike)."""
     pairs: list[tuple[str, Any]] = []
     for section, values in data.items():
         if not isinstance(values, dict):
             raise ConfigError(f"'{section}' must be a section (a mapping of keys), got {values!r}")
-        keys = sorted(values, key=lambda k: section != "net" or k != "architecture")
+        keys = sorted(values, key=lambda k: section not in NET_SECTIONS or k != "architecture")
         pairs += [(f"{section}.{key}", values[key]) for key in keys]
     return pairs
 
@@ -1118,6 +1156,8 @@ def flatten_config(cfg: Config) -> dict:
 #: throw ratio, spectra, PSF sampling, training depth range): a design is simulated with exactly these
 #: settings of the run that made it (:func:`config_on_run`).
 PROJECTOR_SECTIONS = ("optics", "spectrum", "psf")
+#: The sections that hold a network (:mod:`edofproj.net_config`): the run's and its refit phase's.
+NET_SECTIONS = ("net", "refit_net")
 
 
 def projector_keys(cfg: Config) -> dict:

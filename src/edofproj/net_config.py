@@ -382,22 +382,23 @@ FLAT_NET_KEYS = (
 RENAMED = {"multirate": {"space_to_depth": "block_px", "prefilter_bins": "filter_bins"}}
 
 
-def not_an_option(cls: type[NetConfig], key: str) -> ConfigError:
-    """The error for ``net.KEY``, a key the architecture of ``cls`` does not have."""
+def not_an_option(cls: type[NetConfig], key: str, section: str = "net") -> ConfigError:
+    """The error for ``net.KEY`` (or ``SECTION.KEY``: ``refit_net``), a key the architecture of ``cls``
+    does not have."""
     names = option_names(cls)
     renamed = RENAMED.get(cls.architecture, {}).get(key)
     if renamed:
-        hint = f"; the {cls.architecture} network calls it 'net.{renamed}'"
+        hint = f"; the {cls.architecture} network calls it '{section}.{renamed}'"
     else:
         close = difflib.get_close_matches(str(key), names, n=1)
-        hint = f"; did you mean 'net.{close[0]}'?" if close else ""
+        hint = f"; did you mean '{section}.{close[0]}'?" if close else ""
     return ConfigError(
-        f"unknown config key 'net.{key}': the {cls.architecture} network has no such option{hint} "
+        f"unknown config key '{section}.{key}': the {cls.architecture} network has no such option{hint} "
         f"(its options: {', '.join(names) or 'none'})"
     )
 
 
-def check_net_keys(data: dict) -> tuple[type[NetConfig], dict]:
+def check_net_keys(data: dict, section: str = "net") -> tuple[type[NetConfig], dict]:
     """The class that ``data['architecture']`` names (default :data:`DEFAULT_ARCHITECTURE`) and the
     rest of the mapping, refusing a key the architecture does not have (:func:`not_an_option`)."""
     cls = net_config_class(data.get("architecture", DEFAULT_ARCHITECTURE))
@@ -405,11 +406,11 @@ def check_net_keys(data: dict) -> tuple[type[NetConfig], dict]:
     names = option_names(cls)
     for key in options:
         if key not in names:
-            raise not_an_option(cls, key)
+            raise not_an_option(cls, key, section)
     return cls, options
 
 
-def override_net(data: dict, key: str, value: Any) -> dict:
+def override_net(data: dict, key: str, value: Any, section: str = "net") -> dict:
     """The ``net`` mapping ``data`` with ``--set net.KEY=VALUE`` applied. ``net.architecture``
     switches the network: the options the new one shares with the old keep their values, the rest
     take the new one's defaults. Another key must be an option of the current architecture."""
@@ -418,7 +419,7 @@ def override_net(data: dict, key: str, value: Any) -> dict:
         return {"architecture": value, **{k: v for k, v in data.items() if k in option_names(cls)}}
     cls = net_config_class(data.get("architecture", DEFAULT_ARCHITECTURE))
     if key not in option_names(cls):
-        raise not_an_option(cls, key)
+        raise not_an_option(cls, key, section)
     return {**data, key: value}
 
 

@@ -4,6 +4,7 @@ configuration, and loading a trained run for evaluation, export or fine-tuning."
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,7 +136,9 @@ def write_run_config(run_dir: str | Path, cfg: Config) -> None:
 
 @dataclass
 class TrainedRun:
-    """A trained run: its configuration, fabricated DOE, compensation network (eval mode)."""
+    """A trained run: its configuration, fabricated DOE, compensation network (eval mode). ``cfg.net``
+    is the loaded network's section: ``config.yaml``'s ``refit_net`` once the run's refit phase has
+    begun (:meth:`~edofproj.config.Config.network_at`), else its ``net``."""
 
     cfg: Config
     doe: DOE
@@ -157,6 +160,7 @@ def load_run(run_dir: str | Path, map_location="cpu") -> TrainedRun:
         raise EdofprojError(f"run directory '{run_dir}' does not exist")
     cfg = saved_config(run_dir)
     checkpoint, checkpoint_path = load_newest_intact_checkpoint(run_dir / CHECKPOINT_DIR, map_location=map_location)
+    cfg = dataclasses.replace(cfg, net=cfg.network_at(int(checkpoint["step"])))
     net = build_network(cfg.net)
     load_state_checked(net, checkpoint["net"], f"the checkpoint '{checkpoint_path}'")
     net.eval()

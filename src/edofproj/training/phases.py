@@ -9,7 +9,7 @@ one checkpoint series:
 2. **refit**, steps ``S + 1 .. S + R``: the DOE of ``doe.npz`` frozen (its PSFs read from a table, as
    for any fixed DOE), a fresh network trained for it at ``train.refit_lr_net`` with a warm-up of
    ``train.refit_warmup_steps``, on crops colour-transformed at ``train.refit_colour_augment``. Its
-   network is the run's.
+   network (the ``refit_net`` section's where the config has one, else ``net``'s) is the run's.
 
 A network that trains with a DOE that still moves has to follow it, and a learning rate high enough to
 train a small network quickly lets it pull the DOE off course at the far end of the depth range; once
@@ -26,10 +26,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..config import Config
+from ..config import LEARNED_DOE_KINDS, Config
 
-#: DOE kinds with trainable parameters (the others are fixed designs).
-LEARNED_DOE_KINDS = ("mlp", "free")
+__all__ = ["LEARNED_DOE_KINDS", "Phase", "doe_learns", "refit_config", "training_phases", "total_steps"]
+
 JOINT = "joint"
 REFIT = "refit"
 
@@ -51,24 +51,28 @@ class Phase:
 
 
 def doe_learns(cfg: Config) -> bool:
-    """Whether the run optimizes its DOE (``train.train_doe`` and a learned kind)."""
-    return bool(cfg.train.train_doe) and cfg.doe.kind in LEARNED_DOE_KINDS
+    """Whether the run optimizes its DOE (:meth:`Config.doe_learns`)."""
+    return cfg.doe_learns()
 
 
 def refit_config(cfg: Config) -> Config:
     """The configuration of the refit phase: the DOE frozen, ``train.refit_steps`` steps of a fresh
-    network at ``train.refit_lr_net`` after ``train.refit_warmup_steps``, colour augmentation
-    ``train.refit_colour_augment``; the rest as ``cfg``."""
+    network (``refit_net``, else ``net``) at ``train.refit_lr_net`` after ``train.refit_warmup_steps``,
+    colour augmentation ``train.refit_colour_augment``, batches of ``train.refit_batch_size`` (0: as the
+    first phase's); the rest as ``cfg``."""
     train = dataclasses.replace(
         cfg.train,
         steps=cfg.train.refit_steps,
         lr_net=cfg.train.refit_lr_net,
         warmup_steps=cfg.train.refit_warmup_steps,
+        batch_size=cfg.train.refit_batch_size or cfg.train.batch_size,
         train_doe=False,
         refit_steps=0,
+        refit_batch_size=0,
     )
     data = dataclasses.replace(cfg.data, colour_augment=cfg.train.refit_colour_augment)
-    return dataclasses.replace(cfg, train=train, data=data)
+    net = cfg.refit_net if cfg.refit_net is not None else cfg.net
+    return dataclasses.replace(cfg, net=net, refit_net=None, train=train, data=data)
 
 
 def training_phases(cfg: Config) -> list[Phase]:
@@ -78,7 +82,7 @@ def training_phases(cfg: Config) -> list[Phase]:
     refit = refit_config(cfg)
     if not doe_learns(cfg):
         return [Phase(REFIT, refit, 0, False)]
-    joint = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, refit_steps=0))
+    joint = dataclasses.replace(cfg, refit_net=None, train=dataclasses.replace(cfg.train, refit_steps=0))
     return [Phase(JOINT, joint, 0, False), Phase(REFIT, refit, cfg.train.steps, True)]
 
 
