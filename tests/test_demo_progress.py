@@ -248,6 +248,27 @@ def test_job_costs_follow_the_network_and_its_arithmetic():
     assert float32["lens+onlineprodeb"][0] > 3 * bf16["lens+onlineprodeb"][0]  # emulated bf16 is not the cost
 
 
+def test_job_costs_of_a_refit_net_take_each_phase_at_its_network_and_batch():
+    """With a refit_net, lens+net trains the refit phase's network at its batch, and doe+net's joint phase
+    costs the joint network's step plus its PSFs: the plan's cost is the sum of the phases' assumed seconds."""
+    cfg = load_config(
+        "cpu",
+        [
+            "train.mixed_precision=none",
+            "refit_net.architecture=multirate",
+            "train.refit_batch_size=16",
+            "train.steps=1000",
+            "train.refit_steps=3000",
+        ],
+    )
+    multirate_16 = demo.LENS_NET_STEP_S[("multirate", "none")] * 16 / 4
+    assert demo.reference_rate_s(cfg) == pytest.approx(multirate_16)
+    joint_s = demo.LENS_NET_STEP_S[("unet", "none")] + demo.DOE_PSF_STEP_S[(cfg.psf.precision, "none")]
+    expected = (1000 * joint_s + 3000 * multirate_16) / (4000 * multirate_16)
+    assert demo.job_costs(cfg)["doe+net"][0] == pytest.approx(expected)
+    assert demo._cost_key(cfg) == ("multirate", "none")
+
+
 def test_a_demo_predicted_to_overrun_says_so_and_names_the_faster_preset_where_it_helps(tmp_path):
     trainer = full_demo_trainer(tmp_path, io.StringIO())
     trainer.plan()

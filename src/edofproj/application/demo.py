@@ -133,8 +133,9 @@ LINEAR_METHOD_SECONDS = 3.0
 #: shipped runs) unless the demo's settings or the user set ``train.steps``: ``lens+onlineprodeb``, at 9 to 53
 #: times the U-Net's cost per step (:func:`job_costs`).
 OWN_RECIPE_STEPS = {"lens+onlineprodeb": 1800}
-#: Steps of the baselines of ``demo --pretrained`` (its run's network in one phase, as the shipped runs of
-#: its recipe were trained).
+#: Steps of the baselines of ``demo --pretrained`` (its run's last network, as the shipped runs of its recipe
+#: were trained): ``train.steps`` of a one-phase run, ``train.refit_steps`` of a run in two phases (a fixed
+#: element's network trains the refit phase alone, :mod:`edofproj.training.phases`).
 PRETRAINED_BASELINE_STEPS = 2400
 
 FULL = DemoSettings(
@@ -206,31 +207,56 @@ DOE_PSF_STEP_S = {
 SETUP_S = 15.0
 
 
+#: The batch of the steps of :data:`LENS_NET_STEP_S` (the presets'): a phase of another ``train.batch_size``
+#: (``train.refit_batch_size``) is assumed to cost in proportion.
+STEP_BATCH = 4
+
+
 def job_costs(cfg) -> dict[str, tuple[float, float]]:
     """Each trained method's cost per step relative to ``lens+net`` and its start-up seconds, for the
-    network and arithmetic of ``cfg`` (a network not listed: the U-Net's figures) and its PSFs'
-    precision: a step of ``doe+net``'s joint phase costs ``1 + DOE_PSF_STEP_S / lens+net's step``, one of
-    its refit phase as much as ``lens+net``'s (its cost is their mean over its steps)."""
-    architecture, precision = _cost_key(cfg)
-    lens_step_s = LENS_NET_STEP_S[(architecture, precision)]
+    networks and arithmetic of ``cfg`` (a network not listed: the U-Net's figures) and its PSFs'
+    precision. ``lens+net`` (and the classic elements' ``X+net``) trains the network of the run's last phase
+    (``refit_net`` where the config has one); a step of ``doe+net``'s joint phase costs its own network's
+    step plus :data:`DOE_PSF_STEP_S`, one of its refit phase as much as ``lens+net``'s (its cost is their
+    mean over its steps)."""
+    precision = _precision_key(cfg)
+    lens_step_s = reference_rate_s(cfg)
     onlineprodeb = ONLINEPRODEB_STEP_S[precision] / lens_step_s
-    joint_steps = sum(p.cfg.train.steps for p in training_phases(cfg) if p.name == JOINT)
-    psf_share = DOE_PSF_STEP_S[(cfg.psf.precision, precision)] / lens_step_s
-    doe_net = 1.0 + psf_share * joint_steps / total_steps(cfg)
+    psf_s = DOE_PSF_STEP_S[(cfg.psf.precision, precision)]
+    doe_net_s = sum(
+        p.cfg.train.steps * (_step_s(p.cfg, precision) + (psf_s if p.name == JOINT else 0.0))
+        for p in training_phases(cfg)
+    )
+    doe_net = doe_net_s / (total_steps(cfg) * lens_step_s)
     costs = {"doe+net": doe_net, "lens+onlineprodeb": onlineprodeb}
     costs.update({method: 1.0 for method in ("lens+net", "axicon+net", "cubic+net")})
     return {method: (cost, SETUP_S) for method, cost in costs.items()}
 
 
 def reference_rate_s(cfg) -> float:
-    """Seconds per ``lens+net`` step the plan assumes before measuring (:data:`LENS_NET_STEP_S`)."""
-    return LENS_NET_STEP_S[_cost_key(cfg)]
+    """Seconds per ``lens+net`` step the plan assumes before measuring (:data:`LENS_NET_STEP_S`): a step of
+    the run's last phase (its network and batch)."""
+    return _step_s(training_phases(cfg)[-1].cfg, _precision_key(cfg))
+
+
+def _step_s(phase_cfg, precision: str) -> float:
+    """Assumed seconds of one step of the network of ``phase_cfg`` (a phase's configuration) at its batch."""
+    architecture = _architecture_key(phase_cfg.net)
+    return LENS_NET_STEP_S[(architecture, precision)] * phase_cfg.train.batch_size / STEP_BATCH
+
+
+def _architecture_key(net) -> str:
+    return net.architecture if (net.architecture, "none") in LENS_NET_STEP_S else "unet"
+
+
+def _precision_key(cfg) -> str:
+    precision = resolve_mixed_precision(cfg.train.mixed_precision, torch.device("cpu"))
+    return "bf16" if precision == "bf16" else "none"
 
 
 def _cost_key(cfg) -> tuple[str, str]:
-    architecture = cfg.net.architecture if (cfg.net.architecture, "none") in LENS_NET_STEP_S else "unet"
-    precision = resolve_mixed_precision(cfg.train.mixed_precision, torch.device("cpu"))
-    return architecture, "bf16" if precision == "bf16" else "none"
+    """The architecture of the network ``lens+net`` trains (the run's last phase's) and the arithmetic key."""
+    return _architecture_key(cfg.final_network()), _precision_key(cfg)
 
 
 #: The runs the package ships for a baseline (``builtin:NAME``), trained beforehand with the demo's
@@ -341,7 +367,7 @@ def evaluation_seconds(settings: DemoSettings, cfg, methods: Sequence[str]) -> f
     and :data:`CUBIC_SECONDS_PER_DEPTH` for each depth at which the cubic plate's linear baselines
     simulate it beyond those of ``cubic+net`` (:func:`cubic_evaluation_depths`)."""
     linear = [m for m in methods if method_spec(m).optics in CLASSIC_ELEMENTS]
-    networks = EVALUATION_COST_BY_NETWORK.get(cfg.net.architecture, 1.0)
+    networks = EVALUATION_COST_BY_NETWORK.get(cfg.final_network().architecture, 1.0)
     seconds = settings.evaluation_estimate_s * networks + settings.linear_method_s * len(linear)
     if any(method_spec(m).design == "cubic" for m in linear):
         extra = cubic_evaluation_depths(cfg, [*linear, "cubic+net"]) - cubic_evaluation_depths(cfg, ["cubic+net"])
@@ -757,7 +783,10 @@ def run_demo(
         # train with its configuration (its network and phases) for PRETRAINED_BASELINE_STEPS, with the
         # preset's classic elements where the pretrained run's DOE does not read them
         training_config = str(require_trained_run(pretrained) / "config.yaml")
-        steps = [f"train.steps={PRETRAINED_BASELINE_STEPS}"]
+        phase_steps = (
+            "train.refit_steps" if saved_config(require_trained_run(pretrained)).train.refit_steps else "train.steps"
+        )
+        steps = [f"{phase_steps}={PRETRAINED_BASELINE_STEPS}"]
         overrides = [*steps, *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(
