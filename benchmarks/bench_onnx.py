@@ -8,10 +8,10 @@ Networks (``--networks``):
 * ``multirate``: the untrained real-time network (widths 8,16, 4-px blocks, a 48-node radial
   Fourier filter), as ``edofproj bench --architecture multirate --widths 8,16 --space-to-depth 4
   --prefilter-bins 48`` builds it;
-* ``cpu-unet``: the network of ``builtin:cpu-doe-net`` (the ``cpu`` preset's U-Net with its linear
+* ``cpu-unet``: the network of ``builtin:cpu-doe-unet`` (the ``cpu`` preset's U-Net with its linear
   base filter), without its display guard;
 * ``cpu-guarded``: the same network behind its display guard, what ``edofproj bench --run
-  builtin:cpu-doe-net`` and ``edofproj export builtin:cpu-doe-net`` take.
+  builtin:cpu-doe-unet`` and ``edofproj export builtin:cpu-doe-unet`` take.
 
 Each network is exported as ``edofproj export`` writes it (for the frame size; verified against
 PyTorch), then PyTorch (inference mode, channels-last weights, as ``edofproj bench`` runs it) and
@@ -48,7 +48,7 @@ def build(name: str) -> torch.nn.Module:
         return network_from_widths("8,16", 4, 48, "multirate")
     from edofproj.methods.builder import build_method
 
-    shipped = build_method("builtin:cpu-doe-net")
+    shipped = build_method("builtin:cpu-doe-unet")
     network = shipped.module if name == "cpu-guarded" else shipped.network
     assert network is not None
     return network

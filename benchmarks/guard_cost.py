@@ -9,7 +9,7 @@ This times each of those stages alone at one frame size (medians; CUDA
 events on a GPU, the wall clock on the CPU), the SSIM's separable Gaussian filter in both memory
 layouts, and the whole guarded module against its bare network.
 
-    PYTHONPATH=src python benchmarks/guard_cost.py [--run builtin:cpu-doe-net] [--size 600x800] [--device cuda]
+    PYTHONPATH=src python benchmarks/guard_cost.py [--run builtin:cpu-doe-unet] [--size 600x800] [--device cuda]
 
 With ``--agreement`` it measures instead how often the tiled decision that ships differs from the
 exact one (the whole frame's SSIM map) on the run's test images scaled to cover ``--size``, at the
@@ -38,7 +38,7 @@ from edofproj.runs.directory import load_run
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--run", default="builtin:cpu-doe-net", help="a run whose doe+net is guarded")
+    parser.add_argument("--run", default="builtin:cpu-doe-unet", help="a run whose doe+net is guarded")
     parser.add_argument("--size", default="600x800", help="HEIGHTxWIDTH (600x800)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (cpu)")
     parser.add_argument("--repeats", type=int, default=20, help="timed calls per stage (20)")

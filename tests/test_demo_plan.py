@@ -120,6 +120,30 @@ def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tm
     assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
 
 
+@pytest.mark.parametrize("method, shipped", [("axicon+net", "demo-axicon-net"), ("cubic+net", "demo-cubic-net")])
+def test_a_pretrained_demos_skipped_baseline_is_its_shipped_run_of_the_reference_recipe(
+    tmp_path, monkeypatch, method, shipped
+):
+    """``demo --pretrained`` trains a baseline as the reference model's refit phase for
+    PRETRAINED_BASELINE_STEPS; the shipped run of that recipe stands for it when the budget cannot train it."""
+    seen = {}
+
+    def plan(self):
+        seen["jobs"] = list(self.jobs)
+        raise KeyboardInterrupt  # only the plan is under test
+
+    monkeypatch.setattr(demo.ParallelTrainer, "plan", plan)
+    with pytest.raises(KeyboardInterrupt):
+        demo.run_demo(tmp_path / "d", pretrained="builtin:cpu-doe-net")
+    job = next(job for job in seen["jobs"] if job.method == method)
+    assert job.steps == demo.PRETRAINED_BASELINE_STEPS  # the refit phase alone: a fixed element has no joint phase
+    job.status, job.note = "skipped", "not trained: predicted 9:00 (min:s) would end after the time budget"
+    demo.use_builtin_baselines(seen["jobs"], [], str(require_trained_run("builtin:cpu-doe-net") / "config.yaml"))
+    assert job.status == "built-in", job.note
+    assert f"shipped run builtin:{shipped} (" in job.note
+    assert load_run(job.run_dir).step == job.steps
+
+
 def test_a_shipped_run_of_another_recipe_is_not_used(tmp_path, monkeypatch):
     monkeypatch.setitem(demo.BUILTIN_BASELINES, "cubic+net", ("cpu-doe-net",))  # a doe+net run, not a cubic one
     jobs = _jobs(tmp_path)

@@ -9,7 +9,7 @@ from edofproj.doe import build_run_doe
 from edofproj.errors import EdofprojError
 from edofproj.training.distillation import Teacher, distillation_term, load_teacher, same_design
 
-REFERENCE = "builtin:cpu-doe-net"
+REFERENCE = "builtin:cpu-doe-unet"  # a U-Net teacher with a linear base filter
 
 
 def test_the_term_is_the_mean_absolute_difference_of_the_emitted_images():

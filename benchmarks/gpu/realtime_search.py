@@ -2,8 +2,8 @@
 
     python benchmarks/gpu/realtime_search.py OUT BUDGET_S [--grid sizes|recipes] [--device cuda]
 
-Every job of the grid trains the ``realtime`` preset on ``builtin:cpu-doe-net``'s DOE (``edofproj
-train --config realtime --set doe.path=builtin:cpu-doe-net ...``), all jobs at once, as separate
+Every job of the grid trains the ``realtime`` preset on ``builtin:cpu-doe-unet``'s DOE (``edofproj
+train --config realtime --set doe.path=builtin:cpu-doe-unet ...``), all jobs at once, as separate
 processes sharing the GPU; each is then scored by ``edofproj evaluate RUN --methods doe+net`` on the test
 images and on the validation set (``--validation``). So that a short loan of a GPU machine suffices, the
 steps are sized to the budget: a probe of ``--probe-steps`` steps with every job running gives each job's
@@ -69,7 +69,7 @@ CLI = [sys.executable, "-m", "edofproj.cli"]
 
 def train_command(run: Path, overrides: list[str], steps: int, device: str) -> list[str]:
     sets = [
-        "doe.path=builtin:cpu-doe-net",
+        "doe.path=builtin:cpu-doe-unet",
         f"train.device={device}",
         "train.validate_every=0",
         "train.batch_size=16",

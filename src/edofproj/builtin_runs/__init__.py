@@ -25,13 +25,16 @@ ROOT = Path(__file__).resolve().parent
 
 #: The built-in runs and what each is.
 BUILTIN_RUNS: dict[str, str] = {
-    "cpu-doe-net": "the cpu preset's DOE + U-Net (doe+net) trained jointly for 10,000 steps (the demo: 1,800)",
-    "cpu-doe-realtime": "the reference model's DOE with the real-time multi-rate network (2x2 blocks, widths 16-16) "
-    "trained for 6,800 steps of batch 16: within 0.002 SSIM of cpu-doe-net at a fifth of its cost per frame",
+    "cpu-doe-net": "the reference model: the cpu preset's DOE trained jointly with a U-Net for 10,000 steps, then "
+    "the real-time multi-rate network (2x2 blocks, widths 16-16) trained for it, 6,800 steps of batch 16",
+    "cpu-doe-unet": "the reference model until 2026-11-29: the cpu preset's DOE and a U-Net (behind its display "
+    "guard) trained jointly for 10,000 steps",
+    "cpu-doe-realtime": "cpu-doe-unet's DOE with the real-time multi-rate network (2x2 blocks, widths 16-16) "
+    "trained for 6,800 steps of batch 16: within 0.002 SSIM of cpu-doe-unet at a fifth of its cost per frame",
     "demo-axicon-net": "the axicon+net baseline of `demo --pretrained`: the axicon with the reference model's "
-    "U-Net, 2,400 steps",
+    "real-time network, trained as its refit phase (2,400 steps of batch 16)",
     "demo-cubic-net": "the cubic+net baseline of `demo --pretrained`: the cubic plate with the reference model's "
-    "U-Net, 2,400 steps",
+    "real-time network, trained as its refit phase (2,400 steps of batch 16)",
     "demo-lens-onlineprodeb": "the demo's lens+onlineprodeb baseline (the OnlineProDeb re-implementation), 1,800 steps",
     "demo-refit-axicon-net": "the demo's axicon+net baseline: the axicon with the cpu preset's U-Net, trained as "
     "its refit phase (1,000 steps)",
