@@ -125,7 +125,7 @@ EVALUATION_ESTIMATE_S = 71.0
 EVALUATION_COST_BY_NETWORK = {"unet": 1.0, "multirate": 1.2}
 #: Seconds each classic linear baseline adds to the full demo's evaluation: measured, the four of the
 #: axicon and the multifocal zones (radial PSFs included) added 23 s of CPU time to ``evaluate
-#: builtin:cpu-doe-net`` (one thread; 39 s of wall time on the loaded 2-core machine); 3 s each with the
+#: builtin:cpu-doe-unet`` (one thread; 39 s of wall time on the loaded 2-core machine); 3 s each with the
 #: calibration of :data:`EVALUATION_ESTIMATE_S` (the evaluation on every core).
 LINEAR_METHOD_SECONDS = 3.0
 
@@ -171,7 +171,7 @@ QUICK = DemoSettings(
     cubic_table_depths=8,
     max_refit_steps=12,
     # measured: the four linear baselines of the axicon and the multifocal zones added 7.5 s of CPU time
-    # to a quick-sized evaluate of builtin:cpu-doe-net (one thread; 14 s of wall time, loaded machine)
+    # to a quick-sized evaluate of builtin:cpu-doe-unet (one thread; 14 s of wall time, loaded machine)
     linear_method_s=2.0,
     # the depth-ensemble filter alone needs the cubic plate at 32 depths of the slow 2-D engine (over a minute)
     left_out=("cubic+wiener", "cubic+ensemble"),

@@ -28,7 +28,7 @@ grey levels: a black object, a surface lit only by the room), and :func:`require
 refuses it in one line. Scores against a nearly constant goal measure the metrics' own
 stabilizing constants, not the projection (SSIM's ``C2 = (0.03)^2`` exceeds the goal's variance
 ``k^2 var(t)`` for ``k < 0.03 / std(t) ~ 0.1``: an uncompensated projection of
-``builtin:cpu-doe-net``'s DOE scores SSIM 1 on a black surface, 0.98 at ``k = 0.003``, 0.84 at
+``builtin:cpu-doe-unet``'s DOE scores SSIM 1 on a black surface, 0.98 at ``k = 0.003``, 0.84 at
 ``k = 0.01``, 0.36 at ``k = 0.05`` and 0.31 at ``k = 0.1``). Below :data:`DARK_GAIN`, or when more
 than :data:`WARN_CLIPPED_FRACTION` of a target's pixels cannot be reached,
 :func:`warn_if_out_of_reach` warns (:class:`SurfaceRangeWarning`) with the fraction clipped and
