@@ -111,6 +111,19 @@ def test_a_drifted_residual_still_trains():
     assert float(loss().detach()) < start - 1e-3
 
 
+def test_a_network_scored_in_inference_mode_still_trains_afterwards():
+    """The blur matrices of the high-pass are cached: a frame compensated under ``torch.inference_mode`` first
+    (``evaluate``, ``compensate``) must not leave inference tensors that refuse a later training step of the
+    same size in the same process."""
+    net = safe_unet(0.2, 3.7).train()  # a sigma no other test uses: the cache starts empty for it
+    target = torch.rand(1, 3, 40, 56, generator=torch.Generator().manual_seed(8))
+    with torch.inference_mode():
+        net(target, target)
+    loss = (net(target, target) - target).square().mean()
+    loss.backward()
+    assert net.head.weight.grad is not None and torch.isfinite(net.head.weight.grad).all()
+
+
 def test_correction_is_float32_under_bfloat16_autocast():
     r = 0.3 * torch.randn(1, 3, 32, 32, generator=torch.Generator().manual_seed(7))
     with torch.autocast("cpu", dtype=torch.bfloat16):

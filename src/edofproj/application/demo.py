@@ -261,7 +261,7 @@ def _cost_key(cfg) -> tuple[str, str]:
 
 #: The runs the package ships for a baseline (``builtin:NAME``), trained beforehand with the demo's
 #: settings and a recipe (the ``cpu`` preset's U-Net in its refit phase, ``demo-refit-*``; the reference
-#: model's wide U-Net in one phase of 2,400 steps, for ``demo --pretrained``; the ``cpu-realtime`` preset's
+#: model's real-time network in 2,400 steps of its refit phase, for ``demo --pretrained``; the ``cpu-realtime`` preset's
 #: multi-rate network); the demo uses the one whose recipe is its own when training the baseline would overrun the
 #: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
 BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {

@@ -120,13 +120,16 @@ def gaussian_window(sigma_px: float) -> torch.Tensor:
 def gaussian_blur_matrix(size: int, sigma_px: float, dtype: torch.dtype, device: str) -> torch.Tensor:
     """``(size, size)`` matrix ``M`` of the 1-D blur with :func:`gaussian_window` and a replicate
     border: ``(M v)_i = sum_k w_k v_clamp(i + k, 0, size - 1)`` (the border taps fold onto the
-    first and last samples), so each row sums to 1."""
-    window = gaussian_window(sigma_px)
-    radius = (len(window) - 1) // 2
-    source = (torch.arange(size)[:, None] + torch.arange(-radius, radius + 1)[None]).clamp(0, size - 1)
-    matrix = torch.zeros(size, size, dtype=torch.float64)
-    matrix.scatter_add_(1, source, window.expand(size, -1).contiguous())
-    return matrix.to(device=device, dtype=dtype)
+    first and last samples), so each row sums to 1. Cached, so built outside inference mode whatever the
+    caller's: an inference tensor in the cache would refuse every later use of the blur under autograd
+    (a network scored, then trained, in one process)."""
+    with torch.inference_mode(False):
+        window = gaussian_window(sigma_px)
+        radius = (len(window) - 1) // 2
+        source = (torch.arange(size)[:, None] + torch.arange(-radius, radius + 1)[None]).clamp(0, size - 1)
+        matrix = torch.zeros(size, size, dtype=torch.float64)
+        matrix.scatter_add_(1, source, window.expand(size, -1).contiguous())
+        return matrix.to(device=device, dtype=dtype)
 
 
 def gaussian_blur(image: torch.Tensor, sigma_px: float) -> torch.Tensor:
