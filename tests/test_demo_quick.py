@@ -90,7 +90,9 @@ def test_quick_demo_starts_from_the_shipped_reference_model(tmp_path, capsys):
 
     out = tmp_path / "demo"
     args = ["demo", "--quick", "--quiet", "--pretrained", "--out", str(out), "--methods", "doe,doe+net,lens+net"]
-    for item in ["train.steps=3", "train.checkpoint_every=3", "net.widths=[4,8]", "evaluation.depths_mm=[300,800]"]:
+    # the reference model has two phases: its baselines train the refit phase alone, with its network
+    small = ["train.refit_steps=3", "train.refit_warmup_steps=1", "train.checkpoint_every=3", "refit_net.widths=[4,4]"]
+    for item in [*small, "evaluation.depths_mm=[300,800]"]:
         args += ["--set", item]
     assert main(args) == 0
     capsys.readouterr()

@@ -458,6 +458,6 @@ def test_images_smaller_than_the_linear_filter_get_advice_the_user_can_follow():
 
 @pytest.mark.slow
 def test_evaluate_on_images_too_small_for_the_filter_says_what_evaluate_can_change(tmp_path, capsys):
-    argv = ["evaluate", "builtin:cpu-doe-net", "--set", "evaluation.image_size=[24,32]", "--methods", "doe+net"]
+    argv = ["evaluate", "builtin:cpu-doe-unet", "--set", "evaluation.image_size=[24,32]", "--methods", "doe+net"]
     line = run_error(capsys, argv + ["--depths-mm", "400", "--out", str(tmp_path / "ev"), "--quiet"])
     assert "a larger evaluation.image_size" in line and "use a smaller net.linear_radius" not in line
