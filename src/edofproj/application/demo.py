@@ -782,10 +782,9 @@ def run_demo(
         # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
         # train with its configuration (its network and phases) for PRETRAINED_BASELINE_STEPS, with the
         # preset's classic elements where the pretrained run's DOE does not read them
-        training_config = str(require_trained_run(pretrained) / "config.yaml")
-        phase_steps = (
-            "train.refit_steps" if saved_config(require_trained_run(pretrained)).train.refit_steps else "train.steps"
-        )
+        source = require_trained_run(pretrained)
+        training_config = str(source / "config.yaml")
+        phase_steps = "train.refit_steps" if saved_config(source).train.refit_steps else "train.steps"
         steps = [f"{phase_steps}={PRETRAINED_BASELINE_STEPS}"]
         overrides = [*steps, *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))

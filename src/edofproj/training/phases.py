@@ -26,9 +26,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..config import LEARNED_DOE_KINDS, Config
-
-__all__ = ["LEARNED_DOE_KINDS", "Phase", "doe_learns", "refit_config", "training_phases", "total_steps"]
+from ..config import Config
 
 JOINT = "joint"
 REFIT = "refit"
@@ -48,11 +46,6 @@ class Phase:
     def end(self) -> int:
         """The run's step after the phase's last."""
         return self.offset + self.cfg.train.steps
-
-
-def doe_learns(cfg: Config) -> bool:
-    """Whether the run optimizes its DOE (:meth:`Config.doe_learns`)."""
-    return cfg.doe_learns()
 
 
 def refit_config(cfg: Config) -> Config:
@@ -80,7 +73,7 @@ def training_phases(cfg: Config) -> list[Phase]:
     if cfg.train.refit_steps <= 0:
         return [Phase(JOINT, cfg, 0, False)]
     refit = refit_config(cfg)
-    if not doe_learns(cfg):
+    if not cfg.doe_learns():
         return [Phase(REFIT, refit, 0, False)]
     joint = dataclasses.replace(cfg, refit_net=None, train=dataclasses.replace(cfg.train, refit_steps=0))
     return [Phase(JOINT, joint, 0, False), Phase(REFIT, refit, cfg.train.steps, True)]
