@@ -56,7 +56,8 @@ def test_a_quick_demo_caps_the_refit_phase_only_where_there_is_one(tmp_path):
 
 def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, monkeypatch):
     """With ``--pretrained`` the baselines train with the pretrained run's configuration (its network, one
-    phase) for :data:`PRETRAINED_BASELINE_STEPS` (so that the shipped runs of its recipe still stand for them)."""
+    phase) for :data:`PRETRAINED_BASELINE_CROPS` crops (so that the shipped runs of its recipe still stand for
+    them): the reference model's refit phase in batches of 16, 600 steps, its warm-up the recipe's fraction."""
     seen = {}
 
     def plan(self):
@@ -68,7 +69,11 @@ def test_a_pretrained_demo_trains_the_u_net_baselines_the_demo_steps(tmp_path, m
         demo.run_demo(tmp_path / "d", pretrained="builtin:cpu-doe-net")
     jobs = seen["jobs"]
     assert "doe+net" not in jobs
-    assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {demo.PRETRAINED_BASELINE_STEPS}
+    assert {jobs[m].steps for m in ("lens+net", "axicon+net", "cubic+net")} == {600}
+    reference = saved_config(require_trained_run("builtin:cpu-doe-net")).train
+    assert 600 * reference.refit_batch_size == demo.PRETRAINED_BASELINE_CROPS
+    refit = load_config(str(require_trained_run("builtin:cpu-doe-net") / "config.yaml"), jobs["lens+net"].overrides)
+    assert refit.train.refit_warmup_steps == reference.refit_warmup_steps * 600 // reference.refit_steps
     assert jobs["lens+onlineprodeb"].steps == demo.OWN_RECIPE_STEPS["lens+onlineprodeb"]
     # the preset's tuned elements, which the pretrained (learned-DOE) run never reads: its baselines train with
     # them, and the copy that stands for doe+net builds its classic linear baselines with them
@@ -120,12 +125,27 @@ def test_a_skipped_baseline_is_replaced_by_its_shipped_run_of_the_same_recipe(tm
     assert load_run(job.run_dir).cfg.evaluation.depths_mm == [300.0, 800.0]  # the demo's evaluation keys
 
 
-@pytest.mark.parametrize("method, shipped", [("axicon+net", "demo-axicon-net"), ("cubic+net", "demo-cubic-net")])
+def test_a_one_phase_pretrained_runs_baselines_see_as_many_crops_in_its_batch():
+    unet = saved_config(require_trained_run("builtin:cpu-doe-unet"))
+    assert demo.pretrained_baseline_overrides(unet) == [
+        f"train.steps={demo.PRETRAINED_BASELINE_CROPS // unet.train.batch_size}"
+    ]
+
+
+@pytest.mark.parametrize(
+    "method, shipped",
+    [
+        ("axicon+net", "demo-axicon-net"),
+        ("cubic+net", "demo-cubic-net"),
+        ("lens+onlineprodeb", "demo-lens-onlineprodeb"),
+    ],
+)
 def test_a_pretrained_demos_skipped_baseline_is_its_shipped_run_of_the_reference_recipe(
     tmp_path, monkeypatch, method, shipped
 ):
     """``demo --pretrained`` trains a baseline as the reference model's refit phase for
-    PRETRAINED_BASELINE_STEPS; the shipped run of that recipe stands for it when the budget cannot train it."""
+    PRETRAINED_BASELINE_CROPS crops (OnlineProDeb: its own one-phase recipe, which reads neither the refit phase's
+    keys nor its network); the shipped run of that recipe stands for it when the budget cannot train it."""
     seen = {}
 
     def plan(self):
@@ -136,7 +156,8 @@ def test_a_pretrained_demos_skipped_baseline_is_its_shipped_run_of_the_reference
     with pytest.raises(KeyboardInterrupt):
         demo.run_demo(tmp_path / "d", pretrained="builtin:cpu-doe-net")
     job = next(job for job in seen["jobs"] if job.method == method)
-    assert job.steps == demo.PRETRAINED_BASELINE_STEPS  # the refit phase alone: a fixed element has no joint phase
+    # the refit phase alone (a fixed element has no joint phase); OnlineProDeb its own steps
+    assert job.steps == demo.OWN_RECIPE_STEPS.get(method, 600)
     job.status, job.note = "skipped", "not trained: predicted 9:00 (min:s) would end after the time budget"
     demo.use_builtin_baselines(seen["jobs"], [], str(require_trained_run("builtin:cpu-doe-net") / "config.yaml"))
     assert job.status == "built-in", job.note
@@ -217,4 +238,17 @@ def test_every_preset_scores_the_tuned_classic_elements(preset):
         tuned.axicon_near_mm,
         tuned.axicon_far_mm,
         tuned.multifocal_foci_mm,
+    )
+
+
+def test_recipe_difference_counts_only_what_a_phase_reads():
+    one_phase = ["train.refit_steps=0"]
+    # a run in one phase never reads the refit phase's network or keys
+    unread = load_config("cpu", [*one_phase, "refit_net.architecture=multirate", "train.refit_lr_net=0.5"])
+    assert demo.recipe_difference(unread, load_config("cpu", one_phase)) is None
+    # a run in two phases reads them in its refit phase, under the keys it trains with there
+    refit = load_config("cpu", ["refit_net.architecture=multirate"])
+    assert demo.recipe_difference(refit, load_config("cpu")) == "net.architecture='multirate' (the demo: 'unet')"
+    assert demo.recipe_difference(load_config("cpu", one_phase), load_config("cpu")) == (
+        "phases=joint (the demo: joint+refit)"
     )

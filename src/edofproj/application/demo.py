@@ -133,10 +133,9 @@ LINEAR_METHOD_SECONDS = 3.0
 #: shipped runs) unless the demo's settings or the user set ``train.steps``: ``lens+onlineprodeb``, at 9 to 53
 #: times the U-Net's cost per step (:func:`job_costs`).
 OWN_RECIPE_STEPS = {"lens+onlineprodeb": 1800}
-#: Steps of the baselines of ``demo --pretrained`` (its run's last network, as the shipped runs of its recipe
-#: were trained): ``train.steps`` of a one-phase run, ``train.refit_steps`` of a run in two phases (a fixed
-#: element's network trains the refit phase alone, :mod:`edofproj.training.phases`).
-PRETRAINED_BASELINE_STEPS = 2400
+#: Training crops of the baselines of ``demo --pretrained`` (its run's last network, as the shipped runs of its
+#: recipe were trained): 2,400 steps of batch 4, or 600 of batch 16 (:func:`pretrained_baseline_overrides`).
+PRETRAINED_BASELINE_CROPS = 9600
 
 FULL = DemoSettings(
     name="full",
@@ -261,9 +260,9 @@ def _cost_key(cfg) -> tuple[str, str]:
 
 #: The runs the package ships for a baseline (``builtin:NAME``), trained beforehand with the demo's
 #: settings and a recipe (the ``cpu`` preset's U-Net in its refit phase, ``demo-refit-*``; the reference
-#: model's real-time network in 2,400 steps of its refit phase, for ``demo --pretrained``; the ``cpu-realtime`` preset's
-#: multi-rate network); the demo uses the one whose recipe is its own when training the baseline would overrun the
-#: budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
+#: model's real-time network in 600 steps of batch 16 of its refit phase, for ``demo --pretrained``; the
+#: ``cpu-realtime`` preset's multi-rate network); the demo uses the one whose recipe is its own when training
+#: the baseline would overrun the budget. Only runs present in :data:`~edofproj.builtin_runs.BUILTIN_RUNS` are used.
 BUILTIN_BASELINES: dict[str, tuple[str, ...]] = {
     "axicon+net": ("demo-refit-axicon-net", "demo-axicon-net", "demo-realtime-axicon-net"),
     "cubic+net": ("demo-refit-cubic-net", "demo-cubic-net", "demo-realtime-cubic-net"),
@@ -571,20 +570,34 @@ def jobs_table(jobs: Sequence[TrainingJob], pretrained: "PretrainedOurs | None" 
 #: configuration (:data:`edofproj.config.STATEMENT_KEYS`).
 RECIPE_IGNORED = ("name", "evaluation.", "imaging.", "data.max_test_images", "train.checkpoint_every",
                   "train.keep_checkpoints", "train.threads", "train.device", *STATEMENT_KEYS)  # fmt: skip
+#: Keys a phase of training never reads (:func:`~edofproj.training.phases.refit_config` has copied what the
+#: refit phase reads of them into its ``net`` and ``train`` keys).
+PHASE_UNREAD = ("refit_net", "train.refit_")
 
 
 def recipe_difference(shipped, expected) -> str | None:
-    """The first config key (outside :data:`RECIPE_IGNORED` and the classic elements' keys that neither
-    run's DOE reads, :func:`~edofproj.config.unread_doe_keys`) where the shipped run's configuration differs
-    from the one the demo would train it with, as ``key=shipped (the demo: expected)``; None if none."""
-    a, b = flatten_keys(to_dict(shipped)), flatten_keys(to_dict(expected))
+    """The first config key where the shipped run's recipe differs from the one the demo would train it with,
+    as ``key=shipped (the demo: expected)``; None if none.
+
+    Runs are compared phase by phase (:func:`~edofproj.training.phases.training_phases`): a key only counts
+    where a phase reads it, so the ``refit_net`` section and the ``train.refit_*`` keys of a run in one phase
+    (which it never reads) do not count; neither do the keys of :data:`RECIPE_IGNORED` or the classic elements'
+    keys that neither run's DOE reads (:func:`~edofproj.config.unread_doe_keys`). Runs with other phases differ
+    by ``phases``."""
+    phases_a, phases_b = training_phases(shipped), training_phases(expected)
+    names_a, names_b = [p.name for p in phases_a], [p.name for p in phases_b]
+    if names_a != names_b:
+        return f"phases={'+'.join(names_a)} (the demo: {'+'.join(names_b)})"
     unread = {f"doe.{key}" for key in unread_doe_keys(shipped.doe.kind)} & {
         f"doe.{key}" for key in unread_doe_keys(expected.doe.kind)
     }
-    for key in sorted(set(a) | set(b)):
-        if key.startswith(RECIPE_IGNORED) or key in unread or a.get(key) == b.get(key):
-            continue
-        return f"{key}={a.get(key)!r} (the demo: {b.get(key)!r})"
+    ignored = (*RECIPE_IGNORED, *PHASE_UNREAD)
+    for phase_a, phase_b in zip(phases_a, phases_b):
+        a, b = flatten_keys(to_dict(phase_a.cfg)), flatten_keys(to_dict(phase_b.cfg))
+        for key in sorted(set(a) | set(b)):
+            if key.startswith(ignored) or key in unread or a.get(key) == b.get(key):
+                continue
+            return f"{key}={a.get(key)!r} (the demo: {b.get(key)!r})"
     return None
 
 
@@ -710,6 +723,19 @@ class PretrainedOurs:
     steps: int
 
 
+def pretrained_baseline_overrides(source_cfg) -> list[str]:
+    """The overrides that give a baseline of ``demo --pretrained`` :data:`PRETRAINED_BASELINE_CROPS` training
+    crops of the pretrained run's last phase (a fixed element's network trains the refit phase alone,
+    :mod:`edofproj.training.phases`): ``train.steps`` of a one-phase run; ``train.refit_steps`` of a run in two
+    phases, with its refit warm-up the same fraction of the phase as in the run's recipe."""
+    last = training_phases(source_cfg)[-1].cfg.train
+    steps = max(1, PRETRAINED_BASELINE_CROPS // last.batch_size)
+    if not source_cfg.train.refit_steps:
+        return [f"train.steps={steps}"]
+    warmup = source_cfg.train.refit_warmup_steps * steps // source_cfg.train.refit_steps
+    return [f"train.refit_steps={steps}", f"train.refit_warmup_steps={warmup}"]
+
+
 def copy_pretrained(source: str | Path, run_dir: Path, overrides: Sequence[str]) -> PretrainedOurs:
     """Copy the trained run ``source`` (a directory or ``builtin:NAME``) to ``run_dir``, applying the
     evaluation keys of ``overrides`` (``evaluation.*``, ``imaging.*``, ``data.max_test_images``, and the
@@ -780,12 +806,11 @@ def run_demo(
     steps_set = sets_steps([*settings.overrides, *overrides])
     if pretrained is not None:
         # the baselines must share the pretrained run's projector (optics, spectrum, PSF sampling): they
-        # train with its configuration (its network and phases) for PRETRAINED_BASELINE_STEPS, with the
+        # train with its configuration (its network and phases) for PRETRAINED_BASELINE_CROPS, with the
         # preset's classic elements where the pretrained run's DOE does not read them
         source = require_trained_run(pretrained)
         training_config = str(source / "config.yaml")
-        phase_steps = "train.refit_steps" if saved_config(source).train.refit_steps else "train.steps"
-        steps = [f"{phase_steps}={PRETRAINED_BASELINE_STEPS}"]
+        steps = pretrained_baseline_overrides(saved_config(source))
         overrides = [*steps, *preset_elements(cfg, training_config), *overrides]
         cfg = load_config(training_config, list(settings.overrides) + list(overrides))
     jobs = demo_jobs(

@@ -32,9 +32,9 @@ BUILTIN_RUNS: dict[str, str] = {
     "cpu-doe-realtime": "cpu-doe-unet's DOE with the real-time multi-rate network (2x2 blocks, widths 16-16) "
     "trained for 6,800 steps of batch 16: within 0.002 SSIM of cpu-doe-unet at a fifth of its cost per frame",
     "demo-axicon-net": "the axicon+net baseline of `demo --pretrained`: the axicon with the reference model's "
-    "real-time network, trained as its refit phase (2,400 steps of batch 16)",
+    "real-time network, trained as its refit phase (600 steps of batch 16)",
     "demo-cubic-net": "the cubic+net baseline of `demo --pretrained`: the cubic plate with the reference model's "
-    "real-time network, trained as its refit phase (2,400 steps of batch 16)",
+    "real-time network, trained as its refit phase (600 steps of batch 16)",
     "demo-lens-onlineprodeb": "the demo's lens+onlineprodeb baseline (the OnlineProDeb re-implementation), 1,800 steps",
     "demo-refit-axicon-net": "the demo's axicon+net baseline: the axicon with the cpu preset's U-Net, trained as "
     "its refit phase (1,000 steps)",
