@@ -1,12 +1,14 @@
 """FFT convolution: equals scipy's direct/FFT convolution, no wrap-around, broadcasting, gradients."""
 
+import itertools
+
 import numpy as np
 import pytest
 import scipy.signal
 import torch
 
 from edofproj.errors import EdofprojError
-from edofproj.imaging.convolution import convolve_same, fast_fft_length, fft_shape
+from edofproj.imaging.convolution import broadcastable, convolve_same, fast_fft_length, fft_shape
 
 
 @pytest.mark.parametrize("hw, k", [((37, 50), 9), ((16, 16), 33), ((1, 7), 3), ((64, 45), 1)])
@@ -57,6 +59,17 @@ def test_per_sample_and_shared_channel_psfs_broadcast():
 def test_mismatched_batches_raise_a_one_line_error():
     with pytest.raises(EdofprojError, match="do not match"):
         convolve_same(torch.zeros(3, 3, 8, 8), torch.zeros(2, 3, 3, 3))
+
+
+def test_broadcastable_follows_numpys_broadcasting_rule():
+    shapes = [(), (1,), (3,), (2, 3), (1, 3), (2, 1), (4, 3), (3, 1, 1), (2, 4, 3)]
+    for a, b in itertools.product(shapes, shapes):
+        try:
+            np.broadcast_shapes(a, b)
+            expected = True
+        except ValueError:
+            expected = False
+        assert broadcastable(a, b) == expected, (a, b)
 
 
 def test_kernel_is_cast_to_the_image_dtype():

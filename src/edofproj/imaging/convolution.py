@@ -112,6 +112,14 @@ def apply_matrix_transfer_function(
     return matrix_dft.irfft2(spectrum, grid_hw, rows=(0, height), cols=(0, width))
 
 
+def broadcastable(shape_a, shape_b) -> bool:
+    """Whether two shapes broadcast (aligned at their last dimensions, each pair equal or one of them 1).
+
+    The rule written out rather than ``torch.broadcast_shapes``, whose first call imports SymPy (about a
+    second of a command's start-up)."""
+    return all(a == b or a == 1 or b == 1 for a, b in zip(reversed(tuple(shape_a)), reversed(tuple(shape_b))))
+
+
 class KernelConvolution:
     """``image -> convolve_same(image, kernel)`` for one kernel and many images.
 
@@ -134,13 +142,11 @@ class KernelConvolution:
                 f"convolution needs 2-D images and kernels, got shapes {tuple(image.shape)} and {tuple(kernel.shape)}"
             )
         lead_image, lead_kernel = image.shape[:-2], kernel.shape[:-2]
-        try:
-            torch.broadcast_shapes(lead_image, lead_kernel)
-        except RuntimeError:
+        if not broadcastable(lead_image, lead_kernel):
             raise EdofprojError(
                 f"image {tuple(image.shape)} and PSF {tuple(kernel.shape)} do not match: the PSF needs a batch of 1 "
                 f"or {tuple(lead_image)[:1]} and 1 or the image's channels"
-            ) from None
+            )
         if not image.is_floating_point():
             raise EdofprojError(f"convolution needs a floating-point image, got {image.dtype}")
         grid = fft_shape((image.shape[-2], image.shape[-1]), (kernel.shape[-2], kernel.shape[-1]))
