@@ -27,6 +27,11 @@ of ``benchmarks/`` use (nothing is re-implemented here):
   per-pair ratio ONNX Runtime / PyTorch of wall and of process-CPU time, and which way the guard decided the
   random frame; ``onnx-1080p-whole-2t`` with every frame decided on the whole frame (the file's ``If`` branch).
 
+* ``compensate-1080p``: ``edofproj compensate builtin:cpu-doe-net --depth-mm 500`` on 1080x1920 frames in child
+  processes: one frame (``--image``; the command also projects its result and scores it) with its wall, CPU and
+  peak memory; a folder of 8 frames (``--images``) with the frames per second and the network's milliseconds per
+  frame it prints; and ``python -c "import torch"``, the start-up both pay.
+
 * ``demo``, ``demo-quick``: ``edofproj demo`` (``--quick``) into a temporary folder, the wall and CPU seconds of
   each of its stages (training, evaluation, timing, 3-D scene, textured surface, report; CPU: the process and its
   training processes), ``doe+net``'s mean and worst SSIM and, for the full demo, the largest difference of its
@@ -422,12 +427,23 @@ def export_memory(height: int = 1080, width: int = 1920) -> Callable[[Context], 
     return run
 
 
+def textured_frame(height: int, width: int, seed: int = 0):
+    """A ``(3, height, width)`` float32 test frame in [0, 1]: 48-px checks under 8-px random colour blocks."""
+    import numpy as np
+    import torch
+
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width]
+    texture = rng.random((3, height // 8 + 1, width // 8 + 1)).repeat(8, axis=1).repeat(8, axis=2)[:, :height, :width]
+    checks = ((yy // 48 + xx // 48) % 2).astype(float)
+    return torch.from_numpy(np.clip(0.15 + 0.5 * checks + 0.3 * texture, 0.0, 1.0)).float()
+
+
 def synthetic_psf_map_lab(folder: Path, height: int = 1140, width: int = 912) -> tuple[Path, Path]:
     """A PSF map of a ``height x width`` projector on dots every 12 px with widths like a measured V-groove's
     (minor 0.7-1.6 px, major 1.3-5 px, growing away from the centre column; the angle turning down the image)
     and a target with edges and texture, written to ``folder``: ``(map.npz, target.png)``."""
     import numpy as np
-    import torch
 
     from edofproj.imaging.image_io import write_image
     from edofproj.procams.psf_map import PSFMap, covariance
@@ -438,12 +454,7 @@ def synthetic_psf_map_lab(folder: Path, height: int = 1140, width: int = 912) ->
     psf_map = PSFMap(xs=xs, ys=ys, cov=cov, offset_px=np.zeros(2), fitted=np.ones(cov.shape[:2], bool),
                      projector_hw=(height, width))  # fmt: skip
     psf_map.save(folder / "map.npz")
-    rng = np.random.default_rng(0)
-    yy, xx = np.mgrid[0:height, 0:width]
-    texture = rng.random((3, height // 8 + 1, width // 8 + 1)).repeat(8, axis=1).repeat(8, axis=2)[:, :height, :width]
-    checks = ((yy // 48 + xx // 48) % 2).astype(float)
-    image = np.clip(0.15 + 0.5 * checks + 0.3 * texture, 0.0, 1.0)
-    write_image(folder / "target.png", torch.from_numpy(image).float(), bits=8)
+    write_image(folder / "target.png", textured_frame(height, width), bits=8)
     return folder / "map.npz", folder / "target.png"
 
 
@@ -472,6 +483,55 @@ def compensate_psf_map(height: int = 1140, width: int = 912) -> Callable[[Contex
             Measurement("compensate --psf-map cls CPU (user + system)", cpus, "s", 2),
             Measurement("compensate --psf-map cls peak RSS", peaks, "GB", 2),
             Measurement("compensate --psf-map cls final objective", objectives, "objective", 2),
+        ]
+
+    return run
+
+
+def compensate_command(
+    height: int = 1080, width: int = 1920, frames: int = 8
+) -> Callable[[Context], list[Measurement]]:
+    """``edofproj compensate builtin:cpu-doe-net`` on ``height x width`` frames for a flat screen at 500 mm, in child
+    processes, once per repeat: one frame (``--image``, which also projects the result and scores it: wall, CPU,
+    peak memory), ``frames`` frames (``--images DIR``: the frames per second and the network's milliseconds per
+    frame it prints) and, for the start-up both pay, ``python -c "import torch"`` (wall)."""
+
+    def run(ctx: Context) -> list[Measurement]:
+        import re
+
+        from edofproj.imaging.image_io import write_image
+
+        one, cpus, peaks, rates, network_ms, imports = [], [], [], [], [], []
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp) / "frames"
+            folder.mkdir()
+            for i in range(frames):
+                write_image(folder / f"frame{i:02d}.png", textured_frame(height, width, seed=i))
+            for _ in range(ctx.repeats):
+                command = [sys.executable, "-m", "edofproj.cli", "compensate", SHIPPED_RUN, "--depth-mm", "500"]
+                wall, cpu, peak, _ = _child_run(
+                    [*command, "--image", str(folder / "frame00.png"), "--out", str(Path(tmp) / "one.png")],
+                    Path(tmp) / "log",
+                    ctx,
+                )
+                one.append(wall)
+                cpus.append(cpu)
+                peaks.append(peak)
+                out = Path(tmp) / f"out{len(one)}"
+                _, _, _, printed = _child_run(
+                    [*command, "--images", str(folder), "--out", str(out)], Path(tmp) / "log", ctx
+                )
+                found = re.search(r"([\d.]+) frames/s \(network ([\d.]+) ms per frame", printed)
+                rates.append(float(found.group(1)) if found else float("nan"))
+                network_ms.append(float(found.group(2)) if found else float("nan"))
+                imports.append(_child_run([sys.executable, "-c", "import torch"], Path(tmp) / "log", ctx)[0])
+        return [
+            Measurement("one frame: command wall", one, "s", 2),
+            Measurement("one frame: command CPU (user + system)", cpus, "s", 2),
+            Measurement("one frame: command peak RSS", peaks, "GB", 2),
+            Measurement(f"{frames} frames: frames/s", rates, "frames/s", 2),
+            Measurement(f"{frames} frames: network per frame", network_ms, "ms", 2),
+            Measurement("python -c 'import torch' wall", imports, "s", 2),
         ]
 
     return run
@@ -598,6 +658,13 @@ CASES: dict[str, Case] = {
             "edofproj compensate --psf-map --method cls, 1140x912, synthetic map (V-groove-like widths), child process",
             compensate_psf_map(),
             2,
+        ),
+        Case(
+            "compensate-1080p",
+            "edofproj compensate of the shipped method at 1080x1920: one frame, a folder of 8, child processes",
+            compensate_command(),
+            2,
+            False,
         ),
         Case("demo-quick", "edofproj demo --quick: seconds per stage (about a minute)", demo(quick=True), 1),
         Case("demo", "edofproj demo: seconds per stage, scores against the README (8-15 minutes)", demo(), 1, False),
