@@ -113,7 +113,7 @@ def refuse_other_options(args) -> None:
         raise EdofprojError("--solver goes with --method cls")
     if args.run is not None and args.run_option is not None:
         raise EdofprojError("give the run once: as RUN or as --run")
-    if args.batch != 8 and args.images is None:
+    if args.batch is not None and args.images is None:
         raise EdofprojError("--batch goes with --images")
 
 

@@ -128,8 +128,8 @@ def register(subparsers) -> None:
     p.add_argument(
         "--batch",
         type=int,
-        default=1,
-        help="with --images/--video: frames per batch (1: on a CPU one frame at a time is the fastest)",
+        default=None,
+        help="with --images/--video: frames per batch (default 1: on a CPU one frame at a time is the fastest)",
     )
     p.add_argument(
         "--fps", type=float, default=None, help="frame rate of a video output (default: the input video's, or 30)"
@@ -159,7 +159,7 @@ def run(args) -> int:
         )
     if args.images is not None or args.video is not None:
         return run_batch(args)
-    if args.batch != 1 or args.fps is not None or args.overwrite:
+    if args.batch is not None or args.fps is not None or args.overwrite:
         raise EdofprojError("--batch, --fps and --overwrite go with --images or --video")
     if args.depth_map is not None:
         raise EdofprojError("--depth-map goes with --images or --video ('edofproj render --depth-map' for one image)")
@@ -345,7 +345,7 @@ def run_photometric(args) -> int:
 
     if args.calib is None:
         raise EdofprojError("--surface-from-calib needs --calib (the calibration that holds the surface)")
-    if args.preview is not None or args.batch != 1 or args.fps is not None or args.overwrite:
+    if args.preview is not None or args.batch is not None or args.fps is not None or args.overwrite:
         raise EdofprojError("--preview, --batch, --fps and --overwrite do not go with the photometric correction")
     check_output_path(args.out, args.bits)
     calibration = ProCamsCalibration.load(args.calib)
@@ -395,6 +395,8 @@ def run_batch(args) -> int:
         check_screen_depths_mm(args.depth_mm, "--depth-mm")
     if args.preview is not None:
         raise EdofprojError("--preview goes with --image")
+    if args.batch is None:
+        args.batch = 1
     if args.batch < 1:
         raise EdofprojError(f"--batch {args.batch} must be >= 1")
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
