@@ -246,9 +246,16 @@ def test_recipe_difference_counts_only_what_a_phase_reads():
     # a run in one phase never reads the refit phase's network or keys
     unread = load_config("cpu", [*one_phase, "refit_net.architecture=multirate", "train.refit_lr_net=0.5"])
     assert demo.recipe_difference(unread, load_config("cpu", one_phase)) is None
-    # a run in two phases reads them in its refit phase, under the keys it trains with there
+    # a run in two phases reads them in its refit phase; a difference is named by the key a user sets
     refit = load_config("cpu", ["refit_net.architecture=multirate"])
-    assert demo.recipe_difference(refit, load_config("cpu")) == "net.architecture='multirate' (the demo: 'unet')"
+    assert demo.recipe_difference(refit, load_config("cpu")) == (
+        "refit_net.architecture='multirate' (the demo: net.architecture='unet')"
+    )
+    shorter = load_config("cpu", ["train.refit_steps=500"])
+    assert demo.recipe_difference(shorter, load_config("cpu")) == "train.refit_steps=500 (the demo: 1000)"
+    cubic = ["doe.kind=cubic"]  # a fixed element: the refit phase alone
+    faster = load_config("cpu", [*cubic, "train.refit_lr_net=0.5"])
+    assert demo.recipe_difference(faster, load_config("cpu", cubic)) == "train.refit_lr_net=0.5 (the demo: 0.003)"
     assert demo.recipe_difference(load_config("cpu", one_phase), load_config("cpu")) == (
         "phases=joint (the demo: joint+refit)"
     )

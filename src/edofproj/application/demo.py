@@ -68,7 +68,7 @@ from ..reporting.writeup import claims_section, psf_figure_depths_m, write_docum
 from ..runs import DOE_NAME, load_run, saved_config, write_run_config
 from ..runs.directory import flatten_keys
 from ..training.end_to_end import resolve_mixed_precision
-from ..training.phases import JOINT, total_steps, training_phases
+from ..training.phases import JOINT, run_key, total_steps, training_phases
 from .durations import FULL_BUDGET_MIN, QUICK_BUDGET_MIN
 from .schedule import ParallelTrainer, TrainingJob
 
@@ -583,7 +583,8 @@ def recipe_difference(shipped, expected) -> str | None:
     where a phase reads it, so the ``refit_net`` section and the ``train.refit_*`` keys of a run in one phase
     (which it never reads) do not count; neither do the keys of :data:`RECIPE_IGNORED` or the classic elements'
     keys that neither run's DOE reads (:func:`~edofproj.config.unread_doe_keys`). Runs with other phases differ
-    by ``phases``."""
+    by ``phases``. A difference is named by the key a user sets (:func:`~edofproj.training.phases.run_key`:
+    ``train.refit_steps`` for the refit phase's steps)."""
     phases_a, phases_b = training_phases(shipped), training_phases(expected)
     names_a, names_b = [p.name for p in phases_a], [p.name for p in phases_b]
     if names_a != names_b:
@@ -597,7 +598,10 @@ def recipe_difference(shipped, expected) -> str | None:
         for key in sorted(set(a) | set(b)):
             if key.startswith(ignored) or key in unread or a.get(key) == b.get(key):
                 continue
-            return f"{key}={a.get(key)!r} (the demo: {b.get(key)!r})"
+            shipped_key, expected_key = run_key(phase_a, key, shipped), run_key(phase_b, key, expected)
+            if shipped_key != expected_key:  # e.g. one run's refit network is its refit_net, the other's its net
+                return f"{shipped_key}={a.get(key)!r} (the demo: {expected_key}={b.get(key)!r})"
+            return f"{shipped_key}={a.get(key)!r} (the demo: {b.get(key)!r})"
     return None
 
 

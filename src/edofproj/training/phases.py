@@ -68,6 +68,29 @@ def refit_config(cfg: Config) -> Config:
     return dataclasses.replace(cfg, net=net, refit_net=None, train=train, data=data)
 
 
+#: The configuration keys of the refit phase that :func:`refit_config` takes from other keys of the run's
+#: configuration: ``{key in the phase: key in the run}`` (``net.*`` comes from ``refit_net.*`` where the run has
+#: that section; ``train.batch_size`` from ``train.refit_batch_size`` where that is set).
+REFIT_KEY_SOURCES = {
+    "train.steps": "train.refit_steps",
+    "train.lr_net": "train.refit_lr_net",
+    "train.warmup_steps": "train.refit_warmup_steps",
+    "data.colour_augment": "train.refit_colour_augment",
+}
+
+
+def run_key(phase: Phase, key: str, cfg: Config) -> str:
+    """The key of the run's configuration ``cfg`` that sets ``key`` of ``phase``'s configuration (the same key
+    but in a refit phase, :data:`REFIT_KEY_SOURCES`): what a user writes to change it."""
+    if phase.name != REFIT:
+        return key
+    if key.startswith("net.") and cfg.refit_net is not None:
+        return "refit_net." + key[len("net.") :]
+    if key == "train.batch_size" and cfg.train.refit_batch_size:
+        return "train.refit_batch_size"
+    return REFIT_KEY_SOURCES.get(key, key)
+
+
 def training_phases(cfg: Config) -> list[Phase]:
     """The phases of a run with configuration ``cfg`` (module docstring), in order."""
     if cfg.train.refit_steps <= 0:
