@@ -52,7 +52,8 @@ def refit_config(cfg: Config) -> Config:
     """The configuration of the refit phase: the DOE frozen, ``train.refit_steps`` steps of a fresh
     network (``refit_net``, else ``net``) at ``train.refit_lr_net`` after ``train.refit_warmup_steps``,
     colour augmentation ``train.refit_colour_augment``, batches of ``train.refit_batch_size`` (0: as the
-    first phase's); the rest as ``cfg``."""
+    first phase's); the rest as ``cfg``. :data:`REFIT_KEY_SOURCES` and :func:`run_key` say the same mapping
+    key by key (keep the three together)."""
     train = dataclasses.replace(
         cfg.train,
         steps=cfg.train.refit_steps,
