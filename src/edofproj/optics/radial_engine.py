@@ -50,6 +50,7 @@ Lens aberrations (:mod:`.aberrations`, rotationally symmetric terms only) add th
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -249,9 +250,14 @@ class RadialPSFEngine:
             dtype=dtype,
             device=self.device,
         )[:, None, None]
-        self.kernel = torch.as_tensor(self._ring_moments(), dtype=dtype, device=self.device)  # (M, 3 n_nu)
         self.ring_centres_t = torch.as_tensor(self.ring_centres_m, dtype=torch.float64, device=self.device)
         self._split_rings: tuple[bytes, torch.Tensor, torch.Tensor, np.ndarray] | None = None
+
+    @functools.cached_property
+    def kernel(self) -> torch.Tensor:
+        """Ring-moment kernel ``(M, 3 n_nu)`` of the engine's equal rings, built on first use: a design file
+        simulates on its own rings (:meth:`rings_for`) and never needs it."""
+        return torch.as_tensor(self._ring_moments(), dtype=self.dtype, device=self.device)
 
     @property
     def rho_px(self) -> np.ndarray:
