@@ -1,6 +1,8 @@
 """FFT convolution: equals scipy's direct/FFT convolution, no wrap-around, broadcasting, gradients."""
 
 import itertools
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -70,6 +72,19 @@ def test_broadcastable_follows_numpys_broadcasting_rule():
         except ValueError:
             expected = False
         assert broadcastable(a, b) == expected, (a, b)
+
+
+def test_a_projection_does_not_import_sympy():
+    """A shape check through ``torch.broadcast_shapes`` imported SymPy on its first call (about a second of every
+    command's first projection); the check is now the rule written out. In a fresh process, as a command runs."""
+    code = (
+        "import sys, torch\n"
+        "from edofproj.imaging.projection import project\n"
+        "project(torch.rand(1, 3, 16, 16), torch.full((1, 3, 5, 5), 1 / 25))\n"
+        "print('sympy' in sys.modules)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False", result.stdout + result.stderr
 
 
 def test_kernel_is_cast_to_the_image_dtype():

@@ -17,7 +17,7 @@ from edofproj.config import Config, apply_overrides, to_dict
 from edofproj.errors import ConfigError, EdofprojError
 from edofproj.runs import load_run
 from edofproj.runs.checkpoint import load_checkpoint
-from edofproj.training.phases import JOINT, REFIT, total_steps, training_phases
+from edofproj.training.phases import JOINT, REFIT, REFIT_KEY_SOURCES, run_key, total_steps, training_phases
 from edofproj.training.trainer import train
 from edofproj.training.validation import VALIDATION_LOG, read_validation_log
 from tiny_configs import TINY_TRAINING
@@ -92,6 +92,28 @@ def test_the_refit_phase_trains_the_refit_net_section_in_its_own_batches():
     assert two_phase_config().final_network() == two_phase_config().net
     # a fixed DOE has only the refit phase: its network is refit_net from the first step
     assert two_phase_config(*REFIT_NET, "doe.kind=lens").network_at(1).architecture == "multirate"
+
+
+def test_run_key_names_the_run_key_that_sets_each_refit_phase_key():
+    """Each key of the refit phase that run_key names by another key changes when (and only when) that run key
+    is set: the names the demo prints stay true to refit_config."""
+    (refit,) = training_phases(two_phase_config("doe.kind=lens"))
+    values = {"train.refit_steps": 5, "train.refit_lr_net": 0.0123, "train.refit_warmup_steps": 1,
+              "train.refit_colour_augment": 0.25, "train.refit_batch_size": 3, "refit_net.widths": [6, 6]}  # fmt: skip
+    phase_keys = {**REFIT_KEY_SOURCES, "train.batch_size": "train.refit_batch_size", "net.widths": "refit_net.widths"}
+    for phase_key, source in phase_keys.items():
+        extra = [*REFIT_NET] if source.startswith("refit_net.") else []
+        changed = two_phase_config("doe.kind=lens", *extra, f"{source}={values[source]}")
+        (phase,) = training_phases(changed)
+        section, name = phase_key.split(".")
+        assert getattr(getattr(phase.cfg, section), name) == values[source], phase_key
+        assert run_key(phase, phase_key, changed) == source, phase_key
+        assert run_key(refit, phase_key, two_phase_config("doe.kind=lens")) == (
+            phase_key if phase_key in ("train.batch_size", "net.widths") else source
+        ), phase_key  # without refit_batch_size or a refit_net section the phase reads the run's own key
+    # a joint phase reads the run's keys as they are
+    joint, _ = training_phases(two_phase_config())
+    assert run_key(joint, "train.steps", two_phase_config()) == "train.steps"
 
 
 def test_refit_net_survives_the_round_trip_and_refuses_unknown_keys():

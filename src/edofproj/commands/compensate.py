@@ -395,10 +395,9 @@ def run_batch(args) -> int:
         check_screen_depths_mm(args.depth_mm, "--depth-mm")
     if args.preview is not None:
         raise EdofprojError("--preview goes with --image")
-    if args.batch is None:
-        args.batch = 1
-    if args.batch < 1:
-        raise EdofprojError(f"--batch {args.batch} must be >= 1")
+    batch = 1 if args.batch is None else args.batch
+    if batch < 1:
+        raise EdofprojError(f"--batch {batch} must be >= 1")
     if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
         raise EdofprojError(f"--fps {args.fps:g} must be > 0")
     video_out = is_video_path(args.out)
@@ -450,9 +449,9 @@ def run_batch(args) -> int:
         screen = f"flat screen at {args.depth_mm:g} mm"
         _note_untrained_depths([args.depth_mm], cfg)
     check_memory(
-        args.batch * (projection_bytes(H, W, cfg.psf.window, layers) + NETWORK_FRAME_BYTES_PER_PIXEL * H * W),
-        f"compensating batches of {args.batch} frames of {H}x{W} (height x width)",
-        "lower --batch" if args.batch > 1 else "scale the frames down to the projector's resolution first",
+        batch * (projection_bytes(H, W, cfg.psf.window, layers) + NETWORK_FRAME_BYTES_PER_PIXEL * H * W),
+        f"compensating batches of {batch} frames of {H}x{W} (height x width)",
+        "lower --batch" if batch > 1 else "scale the frames down to the projector's resolution first",
     )
     sink = (
         VideoSink(args.out, args.fps or source.fps, source.size_hw, overwrite=args.overwrite)
@@ -469,12 +468,10 @@ def run_batch(args) -> int:
         f"compensating the {source.description} with {method.name}: {count} frames of {H}x{W} (height x width), for a {screen}"
     )
     with sink, tqdm(total=source.count or None, unit="frame", file=sys.stderr, disable=None) as bar:
-        summary = compensate_frames(
-            net, source, forward, sink, batch=args.batch, to_input=to_input, on_batch=bar.update
-        )
+        summary = compensate_frames(net, source, forward, sink, batch=batch, to_input=to_input, on_batch=bar.update)
     output = "projector input (measured response inverted)" if calibration is not None else "light"
     print(
         f"wrote {args.out}: {summary.frames} frames ({output}) in {summary.wall_s:.1f} s, {summary.fps:.2f} frames/s "
-        f"(network {summary.network_ms_per_frame():.1f} ms per frame in batches of {args.batch})"
+        f"(network {summary.network_ms_per_frame():.1f} ms per frame in batches of {batch})"
     )
     return 0
