@@ -43,6 +43,7 @@ METHODS = (
     "lens+net",
     "doe",
     "doe+wiener",
+    "doe+cls",
     "doe+ensemble",
     "doe+net",
     "axicon",

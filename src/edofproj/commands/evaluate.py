@@ -6,7 +6,7 @@
 Writes into RUN (or ``--out``): ``metrics.csv`` (method, depth_mm, image, psnr, ssim, ms_ssim,
 de2000, de2000_p95, ssim_r, ssim_g, ssim_b[, lpips, dists]), ``tilted_metrics.csv``, ``summary.md``, ``report.md`` + ``report.html`` and
 ``figures/eval_*.png``. Methods: lens, lens+wiener, lens+cls, lens+net, lens+onlineprodeb, doe,
-doe+wiener, doe+net, cubic+net, axicon+net; those needing a separate run are looked up in
+doe+wiener, doe+cls (only when named), doe+net, cubic+net, axicon+net; those needing a separate run are looked up in
 ``--baselines`` (default: RUN's parent directory) as lens_net/, lens_onlineprodeb/, cubic_net/,
 axicon_net/ and skipped with a note when absent (an error when named in ``--methods``).
 

@@ -23,6 +23,9 @@ name                 optics            compensation
                                        simulated lens-only data (a separate run)
 ``doe``              the run's DOE     none
 ``doe+wiener``       the run's DOE     Wiener, NSR tuned for this design
+``doe+cls``          the run's DOE     box-constrained least squares with the known PSF (scored
+                                       only when named: the best the DOE allows when the depth is
+                                       known, the bound a blind network works under)
 ``doe+ensemble``     the run's DOE     one depth-ensemble Wiener filter for every depth (blind:
                                        the filter the real-time network starts from), NSR
                                        tuned on training images
@@ -148,6 +151,13 @@ METHODS: tuple[MethodSpec, ...] = (
     ),
     MethodSpec("doe", "run", "none", "learned DOE, no compensation"),
     MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution"),
+    MethodSpec(
+        "doe+cls",
+        "run",
+        "cls",
+        "learned DOE + box-constrained least squares (non-blind; what the DOE allows with the depth known)",
+        default=False,
+    ),
     MethodSpec(
         "doe+ensemble",
         "run",
