@@ -143,7 +143,15 @@ def test_range_table_puts_blind_methods_first_and_bolds_the_best_of_each_group()
 
 def test_only_wiener_and_cls_are_non_blind():
     non_blind = {spec.name for spec in METHODS if not spec.blind}
-    assert non_blind == {"lens+wiener", "lens+cls", "doe+wiener", "cubic+wiener", "axicon+wiener", "multifocal+wiener"}
+    assert non_blind == {
+        "lens+wiener",
+        "lens+cls",
+        "doe+wiener",
+        "doe+cls",
+        "cubic+wiener",
+        "axicon+wiener",
+        "multifocal+wiener",
+    }
 
 
 def test_method_registry():
@@ -160,6 +168,7 @@ def test_method_registry():
         "cubic+net",
         "axicon+net",
         "multifocal+net",
+        "doe+cls",
         *(f"{kind}{suffix}" for kind in ("cubic", "axicon", "multifocal") for suffix in ("", "+wiener", "+ensemble")),
     )
     default = [

@@ -152,13 +152,6 @@ METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("doe", "run", "none", "learned DOE, no compensation"),
     MethodSpec("doe+wiener", "run", "wiener", "learned DOE + non-blind Wiener deconvolution"),
     MethodSpec(
-        "doe+cls",
-        "run",
-        "cls",
-        "learned DOE + box-constrained least squares (non-blind; what the DOE allows with the depth known)",
-        default=False,
-    ),
-    MethodSpec(
         "doe+ensemble",
         "run",
         "ensemble",
@@ -188,6 +181,13 @@ METHODS: tuple[MethodSpec, ...] = (
         "multifocal zones + the same U-Net trained with them (separate run; not in the demo)",
         run_dir="multifocal_net",
         train_overrides=("doe.kind=multifocal",),
+        default=False,
+    ),
+    MethodSpec(
+        "doe+cls",
+        "run",
+        "cls",
+        "learned DOE + box-constrained least squares (non-blind; what the DOE allows with the depth known)",
         default=False,
     ),
     *(spec for kind in CLASSIC_ELEMENTS for spec in classic_linear_methods(kind)),

@@ -75,7 +75,7 @@ def method_colour(name: str) -> tuple | str:
     :data:`~edofproj.methods.catalogue.METHOD_NAMES` but the classic elements' linear baselines the dark
     shade of its own pair of matplotlib's ``tab20`` map, in their order (10 methods, 10 pairs: no two
     alike); the classic elements' linear baselines (``X``, ``X+wiener``, ``X+ensemble``) and the methods
-    past those ten (``multifocal+net``) each their own colour of ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
+    past those ten (``multifocal+net``, ``doe+cls``) each their own colour of ``tab20b``, in their order; a variant (``NAME+photometric``) the light shade of its method's pair
     (ours' variant grey); any other name a colour of ``tab20b`` fixed by its letters."""
     for suffix in VARIANT_SUFFIXES:
         if name.endswith(suffix):
@@ -96,7 +96,7 @@ def method_colour(name: str) -> tuple | str:
 #: The classic elements' linear baselines (a ``tab20b`` colour each), and the other methods but ours (a
 #: ``tab20`` pair each).
 _OTHERS = [m.name for m in METHODS if m.name != OURS and m.optics not in CLASSIC_ELEMENTS]
-#: (``tab20`` has 10 pairs: methods past the tenth, such as ``multifocal+net``, take a ``tab20b`` colour.)
+#: (``tab20`` has 10 pairs: methods past the tenth, ``multifocal+net`` and ``doe+cls``, take a ``tab20b`` colour.)
 _PAIRED = _OTHERS[:10]
 _SINGLE_SHADE = [m.name for m in METHODS if m.optics in CLASSIC_ELEMENTS] + _OTHERS[10:]
 assert len(set(_SINGLE_SHADE)) <= 20 and set(_PAIRED) | set(_SINGLE_SHADE) | {OURS} == set(METHOD_NAMES)
