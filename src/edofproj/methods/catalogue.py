@@ -24,8 +24,8 @@ name                 optics            compensation
 ``doe``              the run's DOE     none
 ``doe+wiener``       the run's DOE     Wiener, NSR tuned for this design
 ``doe+cls``          the run's DOE     box-constrained least squares with the known PSF (scored
-                                       only when named: the best the DOE allows when the depth is
-                                       known, the bound a blind network works under)
+                                       only when named: what the DOE allows when the depth is
+                                       known; least squares, not SSIM, so a reference, not a bound)
 ``doe+ensemble``     the run's DOE     one depth-ensemble Wiener filter for every depth (blind:
                                        the filter the real-time network starts from), NSR
                                        tuned on training images
