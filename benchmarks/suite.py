@@ -29,8 +29,9 @@ of ``benchmarks/`` use (nothing is re-implemented here):
 
 * ``compensate-1080p``: ``edofproj compensate builtin:cpu-doe-net --depth-mm 500`` on 1080x1920 frames in child
   processes: one frame (``--image``; the command also projects its result and scores it) with its wall, CPU and
-  peak memory; a folder of 8 frames (``--images``) with the frames per second and the network's milliseconds per
-  frame it prints; and ``python -c "import torch"``, the start-up both pay.
+  peak memory; one frame given a capture (``--capture``: the network alone, as on a rig) with its wall and CPU;
+  a folder of 8 frames (``--images``) with the frames per second and the network's milliseconds per frame it
+  prints; and ``python -c "import torch"``, the start-up both pay.
 
 * ``demo``, ``demo-quick``: ``edofproj demo`` (``--quick``) into a temporary folder, the wall and CPU seconds of
   each of its stages (training, evaluation, timing, 3-D scene, textured surface, report; CPU: the process and its
@@ -493,7 +494,8 @@ def compensate_command(
 ) -> Callable[[Context], list[Measurement]]:
     """``edofproj compensate builtin:cpu-doe-net`` on ``height x width`` frames for a flat screen at 500 mm, in child
     processes, once per repeat: one frame (``--image``, which also projects the result and scores it: wall, CPU,
-    peak memory), ``frames`` frames (``--images DIR``: the frames per second and the network's milliseconds per
+    peak memory), one frame given a capture (``--capture``: the network alone, as on a projector-camera rig;
+    wall, CPU), ``frames`` frames (``--images DIR``: the frames per second and the network's milliseconds per
     frame it prints) and, for the start-up both pay, ``python -c "import torch"`` (wall)."""
 
     def run(ctx: Context) -> list[Measurement]:
@@ -502,6 +504,7 @@ def compensate_command(
         from edofproj.imaging.image_io import write_image
 
         one, cpus, peaks, rates, network_ms, imports = [], [], [], [], [], []
+        from_capture, from_capture_cpu = [], []
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "frames"
             folder.mkdir()
@@ -517,6 +520,22 @@ def compensate_command(
                 one.append(wall)
                 cpus.append(cpu)
                 peaks.append(peak)
+                wall, cpu, _, _ = _child_run(
+                    [
+                        sys.executable,
+                        "-m",
+                        "edofproj.cli",
+                        "compensate",
+                        SHIPPED_RUN,
+                        "--image",
+                        str(folder / "frame00.png"),
+                    ]
+                    + ["--capture", str(folder / "frame01.png"), "--out", str(Path(tmp) / "from_capture.png")],
+                    Path(tmp) / "log",
+                    ctx,
+                )
+                from_capture.append(wall)
+                from_capture_cpu.append(cpu)
                 out = Path(tmp) / f"out{len(one)}"
                 _, _, _, printed = _child_run(
                     [*command, "--images", str(folder), "--out", str(out)], Path(tmp) / "log", ctx
@@ -529,6 +548,8 @@ def compensate_command(
             Measurement("one frame: command wall", one, "s", 2),
             Measurement("one frame: command CPU (user + system)", cpus, "s", 2),
             Measurement("one frame: command peak RSS", peaks, "GB", 2),
+            Measurement("one frame from a capture: command wall", from_capture, "s", 2),
+            Measurement("one frame from a capture: command CPU (user + system)", from_capture_cpu, "s", 2),
             Measurement(f"{frames} frames: frames/s", rates, "frames/s", 2),
             Measurement(f"{frames} frames: network per frame", network_ms, "ms", 2),
             Measurement("python -c 'import torch' wall", imports, "s", 2),

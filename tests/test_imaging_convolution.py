@@ -74,17 +74,18 @@ def test_broadcastable_follows_numpys_broadcasting_rule():
         assert broadcastable(a, b) == expected, (a, b)
 
 
-def test_a_projection_does_not_import_sympy():
+def test_a_projection_does_not_import_sympy_or_scipy_fft():
     """A shape check through ``torch.broadcast_shapes`` imported SymPy on its first call (about a second of every
-    command's first projection); the check is now the rule written out. In a fresh process, as a command runs."""
+    command's first projection); the check is now the rule written out. The FFT grid's fast length is computed
+    without :mod:`scipy.fft` (a third of a second to import). In a fresh process, as a command runs."""
     code = (
         "import sys, torch\n"
         "from edofproj.imaging.projection import project\n"
         "project(torch.rand(1, 3, 16, 16), torch.full((1, 3, 5, 5), 1 / 25))\n"
-        "print('sympy' in sys.modules)\n"
+        "print('sympy' in sys.modules, 'scipy.fft' in sys.modules)\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert result.stdout.strip() == "False", result.stdout + result.stderr
+    assert result.stdout.strip() == "False False", result.stdout + result.stderr
 
 
 def test_kernel_is_cast_to_the_image_dtype():
@@ -109,3 +110,14 @@ def test_fft_sizes_are_fast_and_large_enough():
         assert factors == 1  # 5-smooth
     # a centred 33x33 kernel needs 16 zero rows/columns: 616 -> 625 = 5^4, 816 -> 864 = 2^5 3^3
     assert fft_shape((600, 800), (33, 33)) == (625, 864)
+
+
+def test_fft_sizes_are_scipys_fast_real_lengths():
+    """The smallest 5-smooth length, as SciPy's ``next_fast_len(n, real=True)`` finds it (SciPy is the
+    reference here; the project computes it without importing :mod:`scipy.fft`)."""
+    import scipy.fft
+
+    lengths = range(1, 20001)
+    assert [fast_fft_length(n) for n in lengths] == [scipy.fft.next_fast_len(n, real=True) for n in lengths]
+    with pytest.raises(EdofprojError, match=">= 1"):
+        fast_fft_length(0)

@@ -226,9 +226,10 @@ def run(args) -> int:
         write_image(args.preview, loop.projected[0], bits=args.bits)
         print(f"wrote {args.preview}: simulated projection at {args.depth_mm:g} mm")
     if loop is not None:
+        compensated, uncompensated = _quality([loop.projected, loop.captured], target)
         print(
-            f"against the target at {args.depth_mm:g} mm: compensated (the preview) {_quality(loop.projected, target)}; "
-            f"uncompensated projection {_quality(loop.captured, target)}"
+            f"against the target at {args.depth_mm:g} mm: compensated (the preview) {compensated}; "
+            f"uncompensated projection {uncompensated}"
         )
     return 0
 
@@ -361,14 +362,18 @@ def run_photometric(args) -> int:
     return 0
 
 
-def _quality(shown, target) -> str:
-    """``SSIM s, PSNR p dB`` of a simulated projection against the target (PSNR alone below SSIM's window)."""
-    from ..metrics import gaussian_window, psnr, ssim
+def _quality(shown: list, target) -> list[str]:
+    """``SSIM s, PSNR p dB`` of each simulated projection of ``shown`` (each ``(1, 3, H, W)``) against the
+    target (PSNR alone below SSIM's window); the target's local moments are filtered once for all."""
+    import torch
 
-    text = f"PSNR {float(psnr(shown, target)[0]):.2f} dB"
+    from ..metrics import SSIMReference, gaussian_window, psnr
+
+    texts = [f"PSNR {float(psnr(image, target)[0]):.2f} dB" for image in shown]
     if min(target.shape[-2:]) >= gaussian_window().numel():
-        text = f"SSIM {float(ssim(shown, target)[0]):.4f}, " + text
-    return text
+        scores = SSIMReference(target).ssim(torch.cat(shown))
+        texts = [f"SSIM {float(score):.4f}, {text}" for score, text in zip(scores, texts)]
+    return texts
 
 
 def run_batch(args) -> int:

@@ -18,7 +18,7 @@ over the padded frame, so with padding this is an approximation (exact without p
 
 **Borders.** The DFT treats the image as periodic, while the projection pads with zeros.
 The image is therefore extended by reflection (by at least ``K`` pixels on each side, more
-to reach a fast FFT length, :func:`scipy.fft.next_fast_len`) before filtering and cropped
+to reach a fast FFT length, :func:`edofproj.imaging.convolution.fast_fft_length`) before filtering and cropped
 afterwards; ``pad=False`` filters the frame as it is (periodic model, exact inverse of a
 circular blur).
 
@@ -36,13 +36,12 @@ from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.fft
 import torch
 import torch.nn.functional as F
 
 from ..cpu_tasks import default_workers, run_tasks
 from ..errors import EdofprojError
-from ..imaging.convolution import optical_transfer_function
+from ..imaging.convolution import fast_fft_length, optical_transfer_function
 
 #: Default NSR candidates searched by :func:`tune_wiener_nsr` (log-spaced, 1e-5 … 1e-1).
 DEFAULT_NSR_CANDIDATES = np.logspace(-5, -1, 13)
@@ -74,8 +73,8 @@ def padding_for(height: int, width: int, window: int, pad: bool = True) -> tuple
     if not pad:
         return (0, 0, 0, 0)
     k = int(window)
-    total_h = scipy.fft.next_fast_len(height + 2 * k, real=True)
-    total_w = scipy.fft.next_fast_len(width + 2 * k, real=True)
+    total_h = fast_fft_length(height + 2 * k)
+    total_w = fast_fft_length(width + 2 * k)
     top, left = k, k
     bottom, right = total_h - height - k, total_w - width - k
     if max(top, bottom) >= height or max(left, right) >= width:
@@ -185,6 +184,8 @@ class WienerCompensator:
         (top, bottom, left, right), filt = self.filter_for(height, width)
         lead = [(0, 0)] * (image.ndim - 2)
         padded = np.pad(image, lead + [(top, bottom), (left, right)], mode="reflect") if self.pad else image
+        import scipy.fft  # here, not at import: a third of a second of every command's start
+
         spectrum = scipy.fft.rfft2(padded, axes=(-2, -1), workers=self.workers)
         spectrum *= filt
         restored = scipy.fft.irfft2(spectrum, s=padded.shape[-2:], axes=(-2, -1), workers=self.workers)

@@ -26,7 +26,6 @@ from typing import Callable, Sequence
 import numpy as np
 import skimage.data
 import torch
-from matplotlib import cbook
 
 from ..errors import EdofprojError
 from ..imaging.image_io import IMAGE_EXTENSIONS, image_file_size, read_image_array, to_unit_float
@@ -46,6 +45,8 @@ def _skimage_photo(name: str) -> Callable[[], np.ndarray]:
 
 def _matplotlib_sample(filename: str) -> Callable[[], np.ndarray]:
     def load() -> np.ndarray:
+        from matplotlib import cbook  # here, not at import: matplotlib takes a sixth of a second to import
+
         return read_image_array(cbook.get_sample_data(filename, asfileobj=False))
 
     return load

@@ -14,6 +14,7 @@ at the same depth.
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -45,8 +46,13 @@ class OpticalDesign:
         self.doe = doe
         self.cfg = cfg
         self.engine = design_engine(doe, cfg.psf.engine)
-        self._simulator = simulator_from_config(cfg, engine=self.engine)
         self._cache: dict[int, torch.Tensor] = {}
+
+    @functools.cached_property
+    def _simulator(self):
+        """The PSF simulator, built on the first PSF asked for (its pixel integrals take a few hundred
+        milliseconds): a method that never needs a PSF (a blind network given a capture) never builds it."""
+        return simulator_from_config(self.cfg, engine=self.engine)
 
     @property
     def description(self) -> str:

@@ -39,7 +39,6 @@ import math
 
 import numpy as np
 import torch
-from scipy import fft as sfft
 
 from ..errors import EdofprojError
 from ..limits import check_memory
@@ -108,6 +107,8 @@ class FourierPSFEngine:
         self.xx, self.yy = xx, yy
         self.r2 = xx**2 + yy**2
         self.aperture = self.r2 <= geometry.aperture_radius_m**2
+
+        from scipy import fft as sfft  # here, not at import: a third of a second of every command's start
 
         self.fft_size: list[int] = []
         #: per wavelength, (K, N): the exact pixel integrals of the sampled intensity (module docstring)

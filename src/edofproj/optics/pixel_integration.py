@@ -64,18 +64,11 @@ def octant_pixels(window: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _pixels_crossing(offsets: np.ndarray, a_edge: np.ndarray, b_edge: np.ndarray):
-    """Yield ``(p, (x0, x1, y0, y1), sel)`` for each pixel ``p`` of ``offsets`` (``(ia, ib)`` with
-    ``ia >= ib >= 0``, :func:`octant_pixels`): its square ``[ia - 1/2, ia + 1/2] x [ib - 1/2, ib + 1/2]``
-    and the indices ``sel`` of the radial intervals ``[a_edge, b_edge]`` that cross its radial span
-    ``(near, far)`` (``near``: the square's closest point to the centre, 0 for the centre pixel;
-    ``far``: its farthest corner). Pixels that no interval crosses are skipped."""
-    for p, (ia, ib) in enumerate(offsets):
-        x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
-        near = 0.0 if ia == 0 else np.hypot(x0, max(y0, 0.0))
-        far = np.hypot(x1, y1)
-        sel = np.nonzero((b_edge > near) & (a_edge < far))[0]
-        if sel.size:
-            yield p, (x0, x1, y0, y1), sel
+    """Yield ``(p, (x0, x1, y0, y1), sel)`` for each pixel ``p`` of ``offsets`` whose radial span some
+    interval crosses (:func:`_crossing_ranges`): its square and the indices ``sel`` of those intervals."""
+    x0, x1, y0, y1, lo, hi = _crossing_ranges(offsets, a_edge, b_edge)
+    for p in np.nonzero(hi > lo)[0]:
+        yield p, (x0[p], x1[p], y0[p], y1[p]), np.arange(lo[p], hi[p])
 
 
 def hat_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
@@ -140,16 +133,39 @@ def cubic_pixel_weights(rho_px: np.ndarray, window: int) -> tuple[np.ndarray, np
                     term = term * (nodes - x[:, q : q + 1]) / (x[:, j] - x[:, q])[:, None]
             deriv[:, j, :] += term
     deriv *= gweights[:, None, :]
-    weights = np.zeros((len(offsets), n))
-    for p, (x0, x1, y0, y1), sel in _pixels_crossing(offsets, a_edge, b_edge):
-        lo, hi = sel[0], sel[-1] + 1  # the intervals crossing the span are contiguous
-        edge_area = disk_rectangle_area(rho[lo : hi + 1], x0, x1, y0, y1)  # A_p at the samples lo..hi
-        area_g = disk_rectangle_area(nodes[lo:hi], x0, x1, y0, y1)  # (n_sel, 3)
-        weights[p, lo + 1 : hi + 1] += edge_area[1:]
-        weights[p, lo:hi] -= edge_area[:-1]
-        inner = np.einsum("sjg,sg->sj", deriv[lo:hi], area_g)  # (n_sel, 4)
-        weights[p] -= np.bincount(stencil[lo:hi].ravel(), inner.ravel(), minlength=n)
-    return weights, index
+    # all pixels at once: pixel p needs the intervals lo[p] .. hi[p] - 1 that cross its radial span
+    # (contiguous); the (pixel, interval) pairs are listed pixel by pixel, then interval by interval
+    x0, x1, y0, y1, lo, hi = _crossing_ranges(offsets, a_edge, b_edge)
+    count = hi - lo
+    pixel = np.repeat(np.arange(len(offsets)), count)
+    interval = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count - lo, count)
+    square = (x0[pixel], x1[pixel], y0[pixel], y1[pixel])
+    area_a = disk_rectangle_area(a_edge[interval], *square)  # A_p at each interval's ends
+    area_b = disk_rectangle_area(b_edge[interval], *square)
+    area_g = disk_rectangle_area(nodes[interval], *(c[:, None] for c in square))  # (pairs, 3)
+    inner = np.einsum("sjg,sg->sj", deriv[interval], area_g)  # (pairs, 4)
+    row = pixel * n
+    weights = np.zeros(len(offsets) * n)
+    np.add.at(weights, row + interval + 1, area_b)
+    np.add.at(weights, row + interval, -area_a)
+    weights -= np.bincount((row[:, None] + stencil[interval]).ravel(), inner.ravel(), minlength=len(weights))
+    return weights.reshape(len(offsets), n), index
+
+
+def _crossing_ranges(offsets: np.ndarray, a_edge: np.ndarray, b_edge: np.ndarray):
+    """The pixels' squares and the radial intervals crossing them: ``(x0, x1, y0, y1, lo, hi)``, each
+    ``(P,)`` for the pixels ``offsets`` (``(ia, ib)`` with ``ia >= ib >= 0``, :func:`octant_pixels`).
+    Pixel p's square is ``[ia - 1/2, ia + 1/2] x [ib - 1/2, ib + 1/2]``; the intervals
+    ``[a_edge, b_edge]`` (both increasing) that cross its radial span ``(near, far)`` (``near``: the
+    square's closest point to the centre, 0 for the centre pixel; ``far``: its farthest corner) are
+    ``lo .. hi - 1`` (``hi == lo``: none)."""
+    ia, ib = offsets[:, 0].astype(float), offsets[:, 1].astype(float)
+    x0, x1, y0, y1 = ia - 0.5, ia + 0.5, ib - 0.5, ib + 0.5
+    near = np.where(ia == 0, 0.0, np.hypot(x0, np.maximum(y0, 0.0)))
+    far = np.hypot(x1, y1)
+    lo = np.searchsorted(b_edge, near, side="right")  # the first interval with b_edge > near
+    hi = np.maximum(np.searchsorted(a_edge, far, side="left"), lo)  # past the last one with a_edge < far
+    return x0, x1, y0, y1, lo, hi
 
 
 def annulus_pixel_weights(annulus_edges_px: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:

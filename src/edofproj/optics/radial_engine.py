@@ -56,7 +56,6 @@ import warnings
 
 import numpy as np
 import torch
-from scipy.special import j0, j1
 
 from ..errors import BlurExceedsWindowWarning, EdofprojError
 from ..limits import check_memory
@@ -104,6 +103,8 @@ def warn_if_blur_exceeds_window(geometry: ProjectorGeometry, depths_m, window: i
 def bessel_j123(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """J1, J2, J3 of x >= 0: scipy's fast J0/J1, upward recurrence J_{n+1} = (2n/x) J_n - J_{n-1}
     where it is stable (x > 2), and the power series below (12 terms, < 1e-16 there)."""
+    from scipy.special import j0, j1  # here, not at import: a third of a second of every command's start
+
     x = np.asarray(x, dtype=float)
     b0, b1 = j0(x), j1(x)
     with np.errstate(divide="ignore", invalid="ignore"):
