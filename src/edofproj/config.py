@@ -232,7 +232,9 @@ class DOEConfig:
     ``file`` (a saved design, ``path``). Heights are wrapped to one 2pi wave at
     ``design_wavelength_nm`` (null: the centroid of the primaries' spectra,
     :func:`edofproj.optics.spectra.design_wavelength_nm`) and quantized to ``levels`` levels
-    (straight-through estimator during training).
+    (straight-through estimator during training). ``clear_core_fraction`` (learned kinds ``mlp``
+    and ``free``): the fraction of the aperture radius inside which the element is left clear, so
+    the centre of the pupil keeps the bare lens's sharp focus and the DOE acts on the annulus.
     """
 
     kind: str = "mlp"
@@ -249,6 +251,7 @@ class DOEConfig:
     axicon_far_mm: float = 800.0
     multifocal_foci_mm: list[float] = field(default_factory=lambda: [350.0, 500.0, 700.0])
     min_feature_um: float = 0.0
+    clear_core_fraction: float = 0.0
 
     @property
     def axicon_near_m(self) -> float:
@@ -279,6 +282,12 @@ class DOEConfig:
             raise ConfigError("doe.multifocal_foci_mm needs one or more positive distances")
         if self.min_feature_um < 0:
             raise ConfigError("doe.min_feature_um must be >= 0")
+        if not (0.0 <= self.clear_core_fraction < 1.0):
+            raise ConfigError(f"doe.clear_core_fraction={self.clear_core_fraction} must lie in [0, 1)")
+        if self.clear_core_fraction > 0 and self.kind not in ("mlp", "free"):
+            raise ConfigError(
+                f"doe.clear_core_fraction applies to the learned radial kinds (mlp, free), not doe.kind={self.kind}"
+            )
 
 
 #: Bytes per window pixel of the smallest PSF simulation (3 colours x float64 x 3 copies).

@@ -97,10 +97,29 @@ class RadialDOE(DOE):
     """A rotationally symmetric DOE: height depends on the radius only."""
 
     radially_symmetric = True
+    #: Radius (m) inside which a learned design is left clear (zero height: the bare lens there).
+    clear_core_radius_m = 0.0
 
     def raw_height_m(self, r_m: torch.Tensor) -> torch.Tensor:
         """Unwrapped height (m) at radius ``r_m``; override in subclasses."""
         raise NotImplementedError
+
+    def clear_core(self, r_m: torch.Tensor, height_m: torch.Tensor) -> torch.Tensor:
+        """``height_m`` with 0 at radii ``r < clear_core_radius_m``: the pupil's centre passes the lens's
+        wavefront unchanged (its in-focus PSF keeps the bare lens's sharp core), the DOE acts on the
+        annulus outside. Unchanged when the core is 0."""
+        if self.clear_core_radius_m <= 0:
+            return height_m
+        return torch.where(r_m < self.clear_core_radius_m, torch.zeros_like(height_m), height_m)
+
+    def describe(self) -> str:
+        """:meth:`DOE.describe`, after ``clear core <f> R;`` when the design has one."""
+        core = (
+            f"clear core {self.clear_core_radius_m / self.aperture_radius_m:.2f} R; "
+            if self.clear_core_radius_m
+            else ""
+        )
+        return core + super().describe()
 
     def height_m(self, r_m: torch.Tensor) -> torch.Tensor:
         """Fabricated height (m) at radius ``r_m``."""

@@ -67,10 +67,16 @@ def build_doe(cfg, spec: str | None = None) -> DOE:
         return LensOnly(R, common["design_wavelength_m"])
     if kind == "mlp":
         return RadialMLPDOE(
-            **common, frequencies=doe_cfg.mlp_frequencies, hidden=doe_cfg.mlp_hidden, layers=doe_cfg.mlp_layers
+            **common,
+            frequencies=doe_cfg.mlp_frequencies,
+            hidden=doe_cfg.mlp_hidden,
+            layers=doe_cfg.mlp_layers,
+            clear_core_fraction=doe_cfg.clear_core_fraction,
         )
     if kind == "free":
-        return FreeRadialDOE(**common, rings=max(cfg.psf.pupil_samples // 2, 1))
+        return FreeRadialDOE(
+            **common, rings=max(cfg.psf.pupil_samples // 2, 1), clear_core_fraction=doe_cfg.clear_core_fraction
+        )
     if kind == "cubic":
         return CubicPhasePlate(**common, alpha_waves=doe_cfg.cubic_waves)
     if kind == "axicon":

@@ -41,8 +41,10 @@ class RadialMLPDOE(RadialDOE):
         frequencies: int = 9,
         hidden: int = 64,
         layers: int = 3,
+        clear_core_fraction: float = 0.0,
     ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
+        self.clear_core_radius_m = float(clear_core_fraction) * self.aperture_radius_m
         self.frequencies = int(frequencies)
         blocks: list[nn.Module] = []
         width = 1 + 2 * self.frequencies
@@ -56,12 +58,13 @@ class RadialMLPDOE(RadialDOE):
         self.mlp = nn.Sequential(*blocks)
 
     def raw_height_m(self, r_m):
-        """Unwrapped height (m) ``h(r) = h_2pi sigmoid(F_theta(p(r / R)))`` (Eq. 10), in ``(0, h_2pi)``;
-        shape and dtype of ``r_m`` (the MLP runs in its parameters' dtype)."""
+        """Unwrapped height (m) ``h(r) = h_2pi sigmoid(F_theta(p(r / R)))`` (Eq. 10), in ``(0, h_2pi)``,
+        0 inside a clear core (:meth:`~edofproj.doe.base.RadialDOE.clear_core`); shape and dtype of ``r_m``
+        (the MLP runs in its parameters' dtype)."""
         param_dtype = self.mlp[0].weight.dtype
         u = (r_m / self.aperture_radius_m).to(param_dtype)
         out = self.mlp(positional_encoding(u, self.frequencies)).squeeze(-1)
-        return (self.h2pi_m * torch.sigmoid(out)).to(r_m.dtype)
+        return self.clear_core(r_m, (self.h2pi_m * torch.sigmoid(out)).to(r_m.dtype))
 
     def check_sampling(self, ring_width_m):
         """Raise :class:`~edofproj.errors.SamplingError` if samples ``ring_width_m`` apart give fewer than 4
@@ -90,17 +93,24 @@ class FreeRadialDOE(RadialDOE):
     name = "free"
 
     def __init__(
-        self, aperture_radius_m, design_wavelength_m=550e-9, levels=16, material="fused_silica", rings: int = 512
+        self,
+        aperture_radius_m,
+        design_wavelength_m=550e-9,
+        levels=16,
+        material="fused_silica",
+        rings: int = 512,
+        clear_core_fraction: float = 0.0,
     ):
         super().__init__(aperture_radius_m, design_wavelength_m, levels, material)
+        self.clear_core_radius_m = float(clear_core_fraction) * self.aperture_radius_m
         self.rings = int(rings)
         self.heights = nn.Parameter(torch.zeros(self.rings, dtype=torch.float64))
 
     def raw_height_m(self, r_m):
         """Unwrapped height (m) ``h(r) = h_2pi * theta[floor(N r / R)]`` for ``N`` rings (radii beyond the
-        aperture take the outer ring's value); shape and dtype of ``r_m``."""
+        aperture take the outer ring's value), 0 inside a clear core; shape and dtype of ``r_m``."""
         idx = torch.clamp((r_m / self.aperture_radius_m * self.rings).long(), 0, self.rings - 1)
-        return (self.heights * self.h2pi_m)[idx].to(r_m.dtype)
+        return self.clear_core(r_m, (self.heights * self.h2pi_m)[idx].to(r_m.dtype))
 
     def check_sampling(self, ring_width_m):
         """Raise :class:`~edofproj.errors.SamplingError` if pupil samples ``ring_width_m`` apart are wider
