@@ -520,20 +520,9 @@ def compensate_command(
                 one.append(wall)
                 cpus.append(cpu)
                 peaks.append(peak)
-                wall, cpu, _, _ = _child_run(
-                    [
-                        sys.executable,
-                        "-m",
-                        "edofproj.cli",
-                        "compensate",
-                        SHIPPED_RUN,
-                        "--image",
-                        str(folder / "frame00.png"),
-                    ]
-                    + ["--capture", str(folder / "frame01.png"), "--out", str(Path(tmp) / "from_capture.png")],
-                    Path(tmp) / "log",
-                    ctx,
-                )
+                given_capture = [*command[:5], "--image", str(folder / "frame00.png")]  # no --depth-mm
+                given_capture += ["--capture", str(folder / "frame01.png"), "--out", str(Path(tmp) / "capture.png")]
+                wall, cpu, _, _ = _child_run(given_capture, Path(tmp) / "log", ctx)
                 from_capture.append(wall)
                 from_capture_cpu.append(cpu)
                 out = Path(tmp) / f"out{len(one)}"
